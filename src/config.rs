@@ -1,0 +1,380 @@
+//! Machine configuration: the TOML file of `config/laserd.toml`, parsed and validated.
+//!
+//! Every check names the setting (`stage.max_velocity`) and the file, so an operator
+//! can fix a bad value without reading code.
+
+use std::path::{Path, PathBuf};
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// The default machine, shipped in the repository.
+pub const DEFAULT_CONFIG_PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/laserd.toml");
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MachineConfig {
+    pub stage: StageConfig,
+    #[serde(default)]
+    pub scanner: Option<ScannerConfig>,
+    pub laser: LaserConfig,
+    pub serial: SerialConfig,
+    #[serde(default)]
+    pub import: ImportConfig,
+    #[serde(default)]
+    pub motion: MotionConfig,
+    #[serde(default)]
+    pub program: ProgramConfig,
+    #[serde(default)]
+    pub simulator: SimulatorConfig,
+    pub default_layer: String,
+    #[serde(rename = "layer")]
+    pub layers: Vec<LayerConfig>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct StageConfig {
+    pub travel_x: f64,
+    pub travel_y: f64,
+    pub max_velocity: f64,
+    pub max_acceleration: f64,
+    pub max_jerk: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ScannerConfig {
+    pub axis_letters: [String; 2],
+    pub field_x: f64,
+    pub field_y: f64,
+    pub usable_half_field: f64,
+    pub mark_speed: f64,
+    pub jump_speed: f64,
+    pub max_acceleration: f64,
+    pub max_jerk: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+pub enum LaserMode {
+    M3,
+    M4,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct LaserConfig {
+    pub max_power: f64,
+    pub mode: LaserMode,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SerialConfig {
+    pub port: String,
+    pub baud: u32,
+    pub rx_buffer: usize,
+    #[serde(default = "default_status_hz")]
+    pub status_hz: f64,
+}
+
+fn default_status_hz() -> f64 {
+    5.0
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ImportConfig {
+    pub tolerance: f64,
+    pub svg_dpi: f64,
+}
+
+impl Default for ImportConfig {
+    fn default() -> Self {
+        ImportConfig { tolerance: 0.01, svg_dpi: 96.0 }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MotionConfig {
+    pub limit_margin: f64,
+}
+
+impl Default for MotionConfig {
+    fn default() -> Self {
+        MotionConfig { limit_margin: 0.98 }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ProgramConfig {
+    pub tolerance: f64,
+    pub decimals: usize,
+}
+
+impl Default for ProgramConfig {
+    fn default() -> Self {
+        ProgramConfig { tolerance: 0.02, decimals: 5 }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SimulatorConfig {
+    pub planner_blocks: usize,
+}
+
+impl Default for SimulatorConfig {
+    fn default() -> Self {
+        SimulatorConfig { planner_blocks: 15 }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct LayerConfig {
+    pub name: String,
+    #[serde(default)]
+    pub stroke: Option<String>,
+    #[serde(default)]
+    pub id: Option<String>,
+    pub speed: f64,
+    pub power: f64,
+    #[serde(default = "one")]
+    pub passes: u32,
+}
+
+fn one() -> u32 {
+    1
+}
+
+/// Kinematic limits of one group of axes, per axis.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct Limits {
+    pub velocity: f64,
+    pub acceleration: f64,
+    pub jerk: f64,
+}
+
+impl Limits {
+    pub fn scaled(self, factor: f64) -> Limits {
+        Limits { velocity: self.velocity * factor, acceleration: self.acceleration * factor, jerk: self.jerk * factor }
+    }
+}
+
+impl MachineConfig {
+    /// Reads and validates a config file; `None` reads the shipped default machine.
+    pub fn load(path: Option<&Path>) -> Result<MachineConfig> {
+        let path: PathBuf = path.map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from(DEFAULT_CONFIG_PATH));
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| Error::Config(format!("{}: cannot read: {e}", path.display())))?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Parses and validates config text; `origin` names the file in error messages.
+    pub fn parse(text: &str, origin: &str) -> Result<MachineConfig> {
+        let config: MachineConfig = toml::from_str(text).map_err(|e| {
+            // toml's message spans several lines with a source excerpt; keep the first
+            // line and the position so the error stays one line.
+            let mut msg = e.message().to_string();
+            if let Some(span) = e.span() {
+                let line = text[..span.start.min(text.len())].lines().count().max(1);
+                msg = format!("line {line}: {msg}");
+            }
+            Error::Config(format!("{origin}: {msg}"))
+        })?;
+        config.validate().map_err(|e| Error::Config(format!("{origin}: {e}")))?;
+        Ok(config)
+    }
+
+    fn validate(&self) -> std::result::Result<(), String> {
+        fn positive(name: &str, v: f64) -> std::result::Result<(), String> {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{name}: must be a positive number, got {v}"))
+            }
+        }
+        let s = &self.stage;
+        positive("stage.travel_x", s.travel_x)?;
+        positive("stage.travel_y", s.travel_y)?;
+        positive("stage.max_velocity", s.max_velocity)?;
+        positive("stage.max_acceleration", s.max_acceleration)?;
+        positive("stage.max_jerk", s.max_jerk)?;
+        if let Some(sc) = &self.scanner {
+            positive("scanner.field_x", sc.field_x)?;
+            positive("scanner.field_y", sc.field_y)?;
+            positive("scanner.usable_half_field", sc.usable_half_field)?;
+            if sc.usable_half_field > sc.field_x.min(sc.field_y) / 2.0 {
+                return Err(format!(
+                    "scanner.usable_half_field: {} exceeds half the field ({})",
+                    sc.usable_half_field,
+                    sc.field_x.min(sc.field_y) / 2.0
+                ));
+            }
+            positive("scanner.mark_speed", sc.mark_speed)?;
+            positive("scanner.jump_speed", sc.jump_speed)?;
+            if sc.mark_speed > sc.jump_speed {
+                return Err("scanner.mark_speed: must not exceed scanner.jump_speed".into());
+            }
+            positive("scanner.max_acceleration", sc.max_acceleration)?;
+            positive("scanner.max_jerk", sc.max_jerk)?;
+            for (i, l) in sc.axis_letters.iter().enumerate() {
+                let ok = l.len() == 1 && "ZABCUVW".contains(l.as_str());
+                if !ok {
+                    return Err(format!("scanner.axis_letters[{i}]: '{l}' is not one of Z A B C U V W"));
+                }
+            }
+            if sc.axis_letters[0] == sc.axis_letters[1] {
+                return Err("scanner.axis_letters: the two letters must differ".into());
+            }
+        }
+        positive("laser.max_power", self.laser.max_power)?;
+        if self.serial.baud == 0 {
+            return Err("serial.baud: must be positive".into());
+        }
+        if self.serial.rx_buffer < 16 {
+            return Err(format!("serial.rx_buffer: {} is too small (at least 16 bytes)", self.serial.rx_buffer));
+        }
+        positive("serial.status_hz", self.serial.status_hz)?;
+        positive("import.tolerance", self.import.tolerance)?;
+        positive("import.svg_dpi", self.import.svg_dpi)?;
+        let m = self.motion.limit_margin;
+        if !(m.is_finite() && m > 0.0 && m <= 1.0) {
+            return Err(format!("motion.limit_margin: must be in (0, 1], got {m}"));
+        }
+        positive("program.tolerance", self.program.tolerance)?;
+        if !(2..=6).contains(&self.program.decimals) {
+            return Err(format!("program.decimals: must be 2 to 6, got {}", self.program.decimals));
+        }
+        if self.simulator.planner_blocks == 0 {
+            return Err("simulator.planner_blocks: must be at least 1".into());
+        }
+        if self.layers.is_empty() {
+            return Err("layer: at least one [[layer]] is needed".into());
+        }
+        for (i, l) in self.layers.iter().enumerate() {
+            positive(&format!("layer[{i}] ({}).speed", l.name), l.speed)?;
+            if !(l.power.is_finite() && l.power >= 0.0 && l.power <= self.laser.max_power) {
+                return Err(format!(
+                    "layer[{i}] ({}).power: must be between 0 and laser.max_power ({}), got {}",
+                    l.name, self.laser.max_power, l.power
+                ));
+            }
+            if l.passes == 0 {
+                return Err(format!("layer[{i}] ({}).passes: must be at least 1", l.name));
+            }
+            if let Some(c) = &l.stroke {
+                if parse_hex_colour(c).is_none() {
+                    return Err(format!("layer[{i}] ({}).stroke: '{c}' is not a #rrggbb colour", l.name));
+                }
+            }
+        }
+        if !self.layers.iter().any(|l| l.name == self.default_layer) {
+            return Err(format!("default_layer: no [[layer]] is named '{}'", self.default_layer));
+        }
+        Ok(())
+    }
+
+    pub fn stage_limits(&self) -> Limits {
+        Limits {
+            velocity: self.stage.max_velocity,
+            acceleration: self.stage.max_acceleration,
+            jerk: self.stage.max_jerk,
+        }
+    }
+
+    /// Scanner limits with the jump speed as the velocity limit (the scanner's own cap).
+    pub fn scanner_limits(&self) -> Option<Limits> {
+        self.scanner.as_ref().map(|s| Limits {
+            velocity: s.jump_speed,
+            acceleration: s.max_acceleration,
+            jerk: s.max_jerk,
+        })
+    }
+
+    /// Index of the default layer in `layers` (validated to exist).
+    pub fn default_layer_index(&self) -> usize {
+        self.layers.iter().position(|l| l.name == self.default_layer).unwrap_or(0)
+    }
+
+    /// Axis letters of the controller: X Y, then the scanner's if there is one.
+    pub fn axis_letters(&self) -> Vec<char> {
+        let mut letters = vec!['X', 'Y'];
+        if let Some(s) = &self.scanner {
+            letters.extend(s.axis_letters.iter().filter_map(|l| l.chars().next()));
+        }
+        letters
+    }
+}
+
+/// `#rrggbb` (or `#rgb`) to RGB bytes.
+pub fn parse_hex_colour(s: &str) -> Option<[u8; 3]> {
+    let hex = s.strip_prefix('#')?;
+    let expand = |c: &str| u8::from_str_radix(c, 16).ok();
+    match hex.len() {
+        6 => Some([expand(&hex[0..2])?, expand(&hex[2..4])?, expand(&hex[4..6])?]),
+        3 => {
+            let d: Vec<u8> = hex.chars().map(|c| c.to_digit(16).map(|v| (v * 17) as u8)).collect::<Option<_>>()?;
+            Some([d[0], d[1], d[2]])
+        }
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn default_text() -> String {
+        std::fs::read_to_string(DEFAULT_CONFIG_PATH).unwrap()
+    }
+
+    #[test]
+    fn default_config_is_valid_and_has_a_scanner() {
+        let c = MachineConfig::load(None).unwrap();
+        assert_eq!(c.axis_letters(), vec!['X', 'Y', 'U', 'V']);
+        assert_eq!(c.stage.travel_x, 300.0);
+        assert_eq!(c.scanner.as_ref().unwrap().usable_half_field, 32.0);
+    }
+
+    #[test]
+    fn scanner_section_is_optional() {
+        let text = default_text();
+        let start = text.find("\n[scanner]").unwrap();
+        let end = text.find("\n[laser]").unwrap();
+        let stage_only = format!("{}{}", &text[..start], &text[end..]);
+        let c = MachineConfig::parse(&stage_only, "t.toml").unwrap();
+        assert!(c.scanner.is_none());
+        assert_eq!(c.axis_letters(), vec!['X', 'Y']);
+    }
+
+    #[test]
+    fn bad_value_names_the_setting() {
+        let text = default_text().replace("max_velocity = 500.0", "max_velocity = -5.0");
+        let err = MachineConfig::parse(&text, "t.toml").unwrap_err().to_string();
+        assert!(err.contains("stage.max_velocity"), "{err}");
+        assert!(err.contains("t.toml"), "{err}");
+    }
+
+    #[test]
+    fn unknown_key_and_nan_are_rejected_with_position() {
+        let text = default_text().replace("travel_x = 300.0", "travel_x = 300.0\ntravle_y = 1");
+        let err = MachineConfig::parse(&text, "t.toml").unwrap_err().to_string();
+        assert!(err.contains("travle_y") && err.contains("line"), "{err}");
+        let text = default_text().replace("max_jerk = 250000.0", "max_jerk = nan");
+        let err = MachineConfig::parse(&text, "t.toml").unwrap_err().to_string();
+        assert!(err.contains("stage.max_jerk"), "{err}");
+    }
+
+    #[test]
+    fn hex_colours() {
+        assert_eq!(parse_hex_colour("#ff0000"), Some([255, 0, 0]));
+        assert_eq!(parse_hex_colour("#0f0"), Some([0, 255, 0]));
+        assert_eq!(parse_hex_colour("red"), None);
+    }
+}

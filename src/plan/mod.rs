@@ -1,0 +1,135 @@
+//! Plan: decides the order in which geometries are marked, where each one is
+//! entered, and (on machines with a scanner, in step-and-scan) which scan field
+//! each belongs to. Input: `Job`; output: `Sequence`.
+
+pub mod fields;
+pub mod nearest;
+
+use std::str::FromStr;
+
+use crate::config::MachineConfig;
+use crate::error::{Error, Result};
+use crate::job::{Job, Point};
+use crate::motion::Mode;
+
+/// One geometry as it will be marked: its vertices in marking order. A closed
+/// geometry starts at its entry vertex and repeats it at the end.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedPath {
+    pub geometry: usize,
+    pub points: Vec<Point>,
+    /// Index into `Job::processes`.
+    pub process: usize,
+}
+
+impl PlannedPath {
+    pub fn start(&self) -> Point {
+        self.points[0]
+    }
+    pub fn end(&self) -> Point {
+        self.points[self.points.len() - 1]
+    }
+}
+
+/// Paths marked from one stage position (a scan field), or, on a machine without a
+/// scanner, all paths with `field_center == None`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PathGroup {
+    pub field_center: Option<Point>,
+    pub paths: Vec<PlannedPath>,
+}
+
+/// The planner's output: groups in order, paths in order inside each group.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sequence {
+    pub groups: Vec<PathGroup>,
+}
+
+impl Sequence {
+    pub fn paths(&self) -> impl Iterator<Item = &PlannedPath> {
+        self.groups.iter().flat_map(|g| g.paths.iter())
+    }
+
+    /// Scan fields visited, or `None` on a stage-only plan.
+    pub fn scan_fields(&self) -> Option<usize> {
+        if self.groups.iter().any(|g| g.field_center.is_some()) {
+            Some(self.groups.len())
+        } else {
+            None
+        }
+    }
+
+    /// Laser-off travel of the TCP between consecutive paths, from the first
+    /// path's start to the last path's end (the seeds' idle stroke).
+    pub fn idle_stroke(&self) -> f64 {
+        let mut total = 0.0;
+        let mut last: Option<Point> = None;
+        for p in self.paths() {
+            if let Some(l) = last {
+                total += (p.start() - l).norm();
+            }
+            last = Some(p.end());
+        }
+        total
+    }
+}
+
+/// Everything a planner needs besides the job.
+pub struct PlanContext<'a> {
+    pub machine: &'a MachineConfig,
+    pub mode: Mode,
+    /// Where the tool centre point is before the first path.
+    pub start: Point,
+}
+
+pub trait Planner {
+    fn name(&self) -> &'static str;
+    fn plan(&self, job: &Job, ctx: &PlanContext) -> Result<Sequence>;
+}
+
+/// The planners of the command line's `--planner`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlannerKind {
+    Auto,
+    Nearest,
+}
+
+impl FromStr for PlannerKind {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "auto" => Ok(PlannerKind::Auto),
+            "nearest" => Ok(PlannerKind::Nearest),
+            "ecp" | "hha" | "hga" => Err(format!("planner '{s}' is not available in this version (available: auto, nearest)")),
+            _ => Err(format!("unknown planner '{s}' (available: auto, nearest)")),
+        }
+    }
+}
+
+/// The planner `kind` stands for. `auto` is the nearest-neighbour baseline until the
+/// better planners exist.
+pub fn planner(kind: PlannerKind) -> Box<dyn Planner> {
+    match kind {
+        PlannerKind::Auto | PlannerKind::Nearest => Box::new(nearest::NearestNeighbour),
+    }
+}
+
+/// Checks that every geometry can be reached: inside the stage travel (stage-only),
+/// or inside travel plus the scanner's reach.
+pub fn check_reach(job: &Job, machine: &MachineConfig, mode: Mode) -> Result<()> {
+    let reach = match mode {
+        Mode::StageOnly => 0.0,
+        _ => machine.scanner.as_ref().map(|s| s.usable_half_field).unwrap_or(0.0),
+    };
+    let (tx, ty) = (machine.stage.travel_x, machine.stage.travel_y);
+    for g in &job.geometries {
+        let (lo, hi) = g.bounds();
+        if lo.x < -reach - 1e-9 || lo.y < -reach - 1e-9 || hi.x > tx + reach + 1e-9 || hi.y > ty + reach + 1e-9 {
+            return Err(Error::Plan(format!(
+                "{}: spans ({:.3}, {:.3})–({:.3}, {:.3}) mm, outside the machine's reach (stage travel {tx} x {ty} mm)",
+                g.source, lo.x, lo.y, hi.x, hi.y
+            )));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,382 @@
+//! Program: turns the `Trajectory` into G-code blocks a GRBL-style controller
+//! executes with the planned timing.
+//!
+//! Every motion block is `G1` in inverse-time mode (G93: `F` = 1 / block duration
+//! in minutes), so the controller reproduces the planned velocity profile; the
+//! laser runs in M4 (or M3) with `S<power>` on marking blocks and `S0` on jumps,
+//! S changes riding on motion lines (a stand-alone S line forces a planner sync).
+//!
+//! Blocks are chosen per segment: each block is as long as possible while the
+//! straight, constant-velocity block stays within `program.tolerance` of the
+//! trajectory at every instant, and at least as long as the rounding of
+//! coordinates allows without the controller seeing false acceleration or jerk.
+
+use crate::config::{LaserMode, MachineConfig};
+use crate::error::{Error, Result};
+use crate::job::{Job, Point};
+use crate::motion::{AxisGroup, AxisState, Segment, SegmentKind, Trajectory};
+use serde::{Deserialize, Serialize};
+use schemars::JsonSchema;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum LineKind {
+    Setup,
+    Mark,
+    Jump,
+    StageMove,
+    End,
+}
+
+/// Planned TCP at a fraction of a block's duration, kept to measure afterwards
+/// how closely the machine followed the plan.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct CheckPoint {
+    pub fraction: f64,
+    pub tcp: [f64; 2],
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct ProgramLine {
+    /// The G-code text, without line terminator.
+    pub text: String,
+    pub kind: LineKind,
+    /// The geometry marked (for error messages: where in the job file).
+    pub geometry: Option<usize>,
+    /// Planned start and end time of the block in the trajectory.
+    pub plan_time: Option<(f64, f64)>,
+    pub checks: Vec<CheckPoint>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Program {
+    pub lines: Vec<ProgramLine>,
+    /// Controller axis letters, in the order of axis positions.
+    pub axis_letters: Vec<char>,
+    /// Axis positions the program expects the machine to start from.
+    pub start: Vec<f64>,
+    /// `Job::geometries[i].source`, for messages naming the job file.
+    pub sources: Vec<String>,
+}
+
+impl Program {
+    /// The G-code file: one block per line, `\n` terminated.
+    pub fn to_gcode(&self) -> String {
+        let mut s = String::with_capacity(self.lines.len() * 40);
+        for l in &self.lines {
+            s.push_str(&l.text);
+            s.push('\n');
+        }
+        s
+    }
+
+    /// Where program line `number` (1-based) came from, for messages.
+    pub fn describe_line(&self, number: usize) -> String {
+        match self.lines.get(number.wrapping_sub(1)) {
+            None => format!("G-code line {number}"),
+            Some(l) => match l.geometry {
+                Some(g) => format!("G-code line {number} `{}` ({})", l.text, self.sources[g]),
+                None => format!("G-code line {number} `{}`", l.text),
+            },
+        }
+    }
+}
+
+/// Axis values of a state in controller order (X Y, then the scanner's two).
+pub fn axis_values(state: &AxisState, has_scanner: bool) -> Vec<f64> {
+    let mut v = vec![state.stage.x, state.stage.y];
+    if has_scanner {
+        v.push(state.scanner.x);
+        v.push(state.scanner.y);
+    }
+    v
+}
+
+/// TCP from controller axis values (stage + scanner).
+pub fn tcp_of(values: &[f64]) -> Point {
+    if values.len() >= 4 {
+        Point::new(values[0] + values[2], values[1] + values[3])
+    } else {
+        Point::new(values[0], values.get(1).copied().unwrap_or(0.0))
+    }
+}
+
+struct Writer {
+    decimals: usize,
+    letters: Vec<char>,
+    last_words: Vec<String>,
+    last_power: Option<f64>,
+    lines: Vec<ProgramLine>,
+}
+
+impl Writer {
+    fn setup(&mut self, text: &str) {
+        self.lines.push(ProgramLine { text: text.into(), kind: LineKind::Setup, geometry: None, plan_time: None, checks: vec![] });
+    }
+
+    fn block(&mut self, values: &[f64], power: f64, duration: f64, kind: LineKind, geometry: Option<usize>, plan_time: (f64, f64), checks: Vec<CheckPoint>) -> Result<()> {
+        let mut text = String::from("G1");
+        for (i, v) in values.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(Error::Program(format!("non-finite {} coordinate at t={:.6}", self.letters[i], plan_time.0)));
+            }
+            let word = format_number(*v, self.decimals);
+            if self.last_words[i] != word {
+                text.push(self.letters[i]);
+                text.push_str(&word);
+                self.last_words[i] = word;
+            }
+        }
+        if self.last_power != Some(power) {
+            text.push('S');
+            text.push_str(&format_number(power, 1));
+            self.last_power = Some(power);
+        }
+        // G93: F is the inverse of the block time in minutes. Eight significant
+        // digits keep the executed timing within 1e-7 of the plan.
+        let f = 60.0 / duration;
+        let digits = (8 - (f.log10().floor() as i64 + 1)).clamp(0, 8) as usize;
+        text.push('F');
+        text.push_str(&format_number(f, digits));
+        if text.len() > 79 {
+            return Err(Error::Program(format!("block longer than GRBL's 79 characters: {text}")));
+        }
+        self.lines.push(ProgramLine { text, kind, geometry, plan_time: Some(plan_time), checks });
+        Ok(())
+    }
+}
+
+/// `v` with at most `decimals` decimals, trailing zeros trimmed (`-0` as `0`).
+pub fn format_number(v: f64, decimals: usize) -> String {
+    let mut s = format!("{:.*}", decimals, v);
+    if s.contains('.') {
+        while s.ends_with('0') {
+            s.pop();
+        }
+        if s.ends_with('.') {
+            s.pop();
+        }
+    }
+    if s == "-0" {
+        s = "0".into();
+    }
+    s
+}
+
+/// Shortest block duration for which coordinate rounding (±half a unit of the
+/// last decimal) changes the acceleration and jerk the controller sees by less
+/// than 1 % of the limits (the planning margin is larger).
+fn min_block_time(machine: &MachineConfig, group: AxisGroup, decimals: usize) -> f64 {
+    let limits = match group {
+        AxisGroup::Stage => machine.stage_limits(),
+        AxisGroup::Scanner => machine.scanner_limits().unwrap_or(machine.stage_limits()),
+    };
+    let delta = 0.5 * 10f64.powi(-(decimals as i32));
+    // Third divided difference of rounding noise ≤ 8δ/T³; second ≤ 4δ/T².
+    let for_jerk = (8.0 * delta / (0.01 * limits.jerk)).cbrt();
+    let for_acc = (4.0 * delta / (0.01 * limits.acceleration)).sqrt();
+    for_jerk.max(for_acc)
+}
+
+/// Largest deviation between the segment and the straight constant-velocity block
+/// from `a` to `b` (seconds into the segment), sampled at sixteenths.
+fn block_error(seg: &Segment, a: f64, b: f64) -> f64 {
+    let sa = seg.profile.position(a);
+    let sb = seg.profile.position(b);
+    (1..16)
+        .map(|k| {
+            let f = k as f64 / 16.0;
+            let s = seg.profile.position(a + f * (b - a));
+            (s - (sa + f * (sb - sa))).abs()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Block boundaries (seconds into the segment) for one segment.
+fn block_times(seg: &Segment, tolerance: f64, min_time: f64) -> Vec<f64> {
+    let total = seg.duration();
+    let mut times = vec![0.0];
+    let mut a = 0.0;
+    while total - a > 1e-12 {
+        let rest = total - a;
+        if rest <= 2.0 * min_time {
+            // The tail: one block if it is close enough, else two halves (the
+            // tolerance wins over the rounding floor here).
+            if block_error(seg, a, total) > tolerance && rest > min_time {
+                times.push(a + 0.5 * rest);
+            }
+            times.push(total);
+            break;
+        }
+        // Grow the block while it stays within tolerance, then bisect the limit.
+        let mut good = min_time;
+        let mut bad = None;
+        let mut trial = 2.0 * min_time;
+        while a + trial < total {
+            if block_error(seg, a, a + trial) <= tolerance {
+                good = trial;
+                trial *= 2.0;
+            } else {
+                bad = Some(trial);
+                break;
+            }
+        }
+        let mut bad = bad.unwrap_or(total - a);
+        if bad == total - a && block_error(seg, a, total) <= tolerance {
+            times.push(total);
+            break;
+        }
+        for _ in 0..12 {
+            let mid = 0.5 * (good + bad);
+            if block_error(seg, a, a + mid) <= tolerance {
+                good = mid;
+            } else {
+                bad = mid;
+            }
+        }
+        // Never leave a remainder shorter than the shortest block (here
+        // total - a > 2 min_time, so the block keeps at least min_time).
+        let b = (a + good).min(total - min_time);
+        times.push(b);
+        a = b;
+    }
+    times
+}
+
+/// The G-code program of a trajectory.
+pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> Result<Program> {
+    let decimals = machine.program.decimals;
+    let tolerance = machine.program.tolerance;
+    let letters = machine.axis_letters();
+    let has_scanner = trajectory.has_scanner;
+    let start = axis_values(&trajectory.start, has_scanner);
+    let mut w = Writer {
+        decimals,
+        letters: letters.clone(),
+        last_words: start.iter().map(|v| format_number(*v, decimals)).collect(),
+        last_power: Some(0.0),
+        lines: Vec::new(),
+    };
+    w.setup("G21G90G93");
+    let laser_on = match machine.laser.mode {
+        LaserMode::M3 => "M3S0",
+        LaserMode::M4 => "M4S0",
+    };
+    w.setup(laser_on);
+    for seg in &trajectory.segments {
+        let (kind, power, geometry) = match seg.kind {
+            SegmentKind::Mark { geometry, power } => (LineKind::Mark, power, Some(geometry)),
+            SegmentKind::Jump => (LineKind::Jump, 0.0, None),
+            SegmentKind::StageMove => (LineKind::StageMove, 0.0, None),
+        };
+        let times = block_times(seg, tolerance, min_block_time(machine, seg.group, decimals));
+        for pair in times.windows(2) {
+            let (a, b) = (pair[0], pair[1]);
+            let end = seg.state_at(b);
+            let checks = if kind == LineKind::Mark {
+                [0.25, 0.5, 0.75, 1.0]
+                    .iter()
+                    .map(|&f| {
+                        let p = seg.state_at(a + f * (b - a)).tcp();
+                        CheckPoint { fraction: f, tcp: [p.x, p.y] }
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            };
+            let plan_time = (seg.start_time + a, seg.start_time + b);
+            w.block(&axis_values(&end, has_scanner), power, b - a, kind, geometry, plan_time, checks)?;
+        }
+    }
+    for text in ["M5S0", "G94", "M2"] {
+        w.lines.push(ProgramLine { text: text.into(), kind: LineKind::End, geometry: None, plan_time: None, checks: vec![] });
+    }
+    Ok(Program {
+        lines: w.lines,
+        axis_letters: letters,
+        start,
+        sources: job.geometries.iter().map(|g| g.source.clone()).collect(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::job::{Geometry, Process};
+    use crate::motion::{build, Mode};
+    use crate::plan::{nearest::NearestNeighbour, PlanContext, Planner};
+
+    fn circle_job() -> Job {
+        let n = 64;
+        let points = (0..n)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / n as f64;
+                Point::new(150.0 + 10.0 * a.cos(), 150.0 + 10.0 * a.sin())
+            })
+            .collect();
+        Job {
+            source: "t".into(),
+            geometries: vec![Geometry { points, closed: true, process: 0, source: "circle".into() }],
+            processes: vec![Process { layer: "mark".into(), speed: 1000.0, power: 250.0, passes: 1 }],
+        }
+    }
+
+    #[test]
+    fn numbers_are_compact() {
+        assert_eq!(format_number(12.30000, 4), "12.3");
+        assert_eq!(format_number(-0.00001, 4), "0");
+        assert_eq!(format_number(300.0, 4), "300");
+    }
+
+    #[test]
+    fn blocks_follow_the_trajectory_within_tolerance_and_time() {
+        let machine = MachineConfig::load(None).unwrap();
+        let job = circle_job();
+        let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin() };
+        let seq = NearestNeighbour.plan(&job, &ctx).unwrap();
+        let tr = build(&job, &seq, &machine, Mode::StepAndScan, Point::origin()).unwrap();
+        let prog = generate(&job, &tr, &machine).unwrap();
+        assert_eq!(prog.lines[0].text, "G21G90G93");
+        assert_eq!(prog.lines.last().unwrap().text, "M2");
+        // Re-execute the program as a controller would (constant velocity per block)
+        // and compare with the trajectory at many instants.
+        let mut pos = prog.start.clone();
+        let mut t = 0.0;
+        let mut worst: f64 = 0.0;
+        let mut seg_i = 0;
+        for line in prog.lines.iter().filter(|l| l.plan_time.is_some()) {
+            let (a, b) = line.plan_time.unwrap();
+            assert!((a - t).abs() < 1e-9, "blocks are contiguous in time");
+            let mut end = pos.clone();
+            let text = &line.text;
+            for (i, letter) in prog.axis_letters.iter().enumerate() {
+                if let Some(at) = text.find(*letter) {
+                    let rest = &text[at + 1..];
+                    let len = rest.find(|c: char| c.is_ascii_alphabetic()).unwrap_or(rest.len());
+                    end[i] = rest[..len].parse().unwrap();
+                }
+            }
+            let f: f64 = text[text.find('F').unwrap() + 1..].parse().unwrap();
+            assert!(((60.0 / f) - (b - a)).abs() < 1e-6 * (b - a) + 1e-12);
+            for k in 0..=10 {
+                let tt = a + (b - a) * k as f64 / 10.0;
+                while tr.segments[seg_i].start_time + tr.segments[seg_i].duration() < tt - 1e-12 {
+                    seg_i += 1;
+                }
+                let s = &tr.segments[seg_i];
+                let planned = s.state_at(tt - s.start_time).tcp();
+                let frac = k as f64 / 10.0;
+                let exec: Vec<f64> = pos.iter().zip(&end).map(|(p, e)| p + (e - p) * frac).collect();
+                worst = worst.max((tcp_of(&exec) - planned).norm());
+            }
+            if line.kind == LineKind::Jump {
+                assert!(!line.text.contains('S') || line.text.contains("S0"));
+            }
+            pos = end;
+            t = b;
+        }
+        assert!(worst <= machine.program.tolerance + 1e-4, "worst deviation {worst}");
+        assert!((t - tr.duration()).abs() < 1e-9);
+        assert!(prog.lines.iter().all(|l| l.text.len() <= 79));
+    }
+}
