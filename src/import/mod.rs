@@ -1,0 +1,115 @@
+//! Import: reads a job file and turns it into a [`Job`] in machine millimetres.
+//!
+//! The format is chosen by the file extension; each format lives in its own module.
+
+use std::path::Path;
+
+use crate::config::MachineConfig;
+use crate::error::{Error, Result};
+use crate::job::Job;
+
+pub mod svg;
+
+/// Reads the job file at `path` and converts it with the import settings of `config`.
+///
+/// Every error is one line that names the file, so the CLI can print it as is.
+pub fn import_job(path: &Path, config: &MachineConfig) -> Result<Job> {
+    let source = path.display().to_string();
+    let ext = path.extension().map(|e| e.to_string_lossy().to_lowercase());
+    match ext.as_deref() {
+        Some("svg") => {
+            let bytes = std::fs::read(path).map_err(|e| Error::Import(format!("{source}: cannot read: {e}")))?;
+            // usvg only takes UTF-8 text (compressed .svgz is not enabled in our build).
+            let text = String::from_utf8(bytes)
+                .map_err(|_| Error::Import(format!("{source}: malformed SVG: the file is not UTF-8 text")))?;
+            svg::import_svg(&text, &source, config)
+        }
+        Some(other) => Err(Error::Import(format!("{source}: unsupported job format '.{other}' (supported: .svg)"))),
+        None => Err(Error::Import(format!(
+            "{source}: unsupported job format: the file name has no extension (supported: .svg)"
+        ))),
+    }
+}
+
+/// A small machine for the import tests, independent of the shipped config file: the
+/// tests depend on its layers only.
+#[cfg(test)]
+pub(crate) fn test_config() -> MachineConfig {
+    let text = r##"
+        default_layer = "mark"
+        [stage]
+        travel_x = 300.0
+        travel_y = 300.0
+        max_velocity = 500.0
+        max_acceleration = 5000.0
+        max_jerk = 250000.0
+        [laser]
+        max_power = 1000.0
+        mode = "M4"
+        [serial]
+        port = "/dev/null"
+        baud = 115200
+        rx_buffer = 128
+        [import]
+        tolerance = 0.01
+        svg_dpi = 96.0
+        [[layer]]
+        name = "mark"
+        stroke = "#000000"
+        speed = 1000.0
+        power = 300.0
+        [[layer]]
+        name = "cut"
+        stroke = "#ff0000"
+        id = "cut"
+        speed = 200.0
+        power = 1000.0
+        [[layer]]
+        name = "engrave"
+        stroke = "#0000ff"
+        id = "engrave"
+        speed = 800.0
+        power = 150.0
+    "##;
+    MachineConfig::parse(text, "test.toml").expect("the test config is valid")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config() -> MachineConfig {
+        test_config()
+    }
+
+    #[test]
+    fn unsupported_extension_is_named() {
+        let err = import_job(Path::new("part.dxf"), &config()).unwrap_err().to_string();
+        assert!(err.contains("part.dxf") && err.contains("'.dxf'") && err.contains(".svg"), "{err}");
+        assert!(!err.contains('\n'));
+        let err = import_job(Path::new("part"), &config()).unwrap_err().to_string();
+        assert!(err.contains("part") && err.contains("no extension"), "{err}");
+    }
+
+    #[test]
+    fn missing_file_is_one_line_naming_the_file() {
+        let err = import_job(Path::new("/nonexistent/dir/job.svg"), &config()).unwrap_err().to_string();
+        assert!(err.contains("/nonexistent/dir/job.svg: cannot read:"), "{err}");
+        assert!(!err.contains('\n'));
+    }
+
+    #[test]
+    fn reads_an_svg_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("square.SVG");
+        std::fs::write(
+            &path,
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="10mm" height="10mm" viewBox="0 0 10 10">
+                 <rect x="1" y="1" width="2" height="2" fill="none" stroke="black"/></svg>"#,
+        )
+        .unwrap();
+        let job = import_job(&path, &config()).unwrap();
+        assert_eq!(job.geometries.len(), 1);
+        assert_eq!(job.source, path.display().to_string());
+    }
+}

@@ -1,0 +1,482 @@
+//! SVG import: every visible path of the document becomes polylines in machine mm.
+//!
+//! Units: usvg resolves lengths, the viewBox and all transforms to px (CSS px, 96 per
+//! inch, or `import.svg_dpi` per inch for unitless sizes); one px is 25.4 / dpi mm.
+//!
+//! Axes: SVG's y runs down from the top edge of the document; the machine's Y runs up
+//! (away from the operator). We map `y_machine = doc_height_mm - y_svg_mm`, so the
+//! document's bottom-left corner is the machine origin and the drawing lies on the
+//! sheet the way it looks on screen (not mirrored). `x_machine = x_svg_mm`.
+//!
+//! Curves are transformed to machine mm first and flattened afterwards, so the
+//! flattening tolerance `import.tolerance` is a distance in mm on the workpiece, whatever
+//! scaling the document applies.
+
+use kurbo::{BezPath, PathEl};
+use usvg::tiny_skia_path::{self, PathSegment};
+
+use crate::config::{parse_hex_colour, MachineConfig};
+use crate::error::{Error, Result};
+use crate::job::{Geometry, Job, Point, Process};
+
+/// Points closer than this (mm) count as the same point.
+const SAME_POINT_MM: f64 = 1e-9;
+
+/// Largest coordinate accepted (mm). No machine has a kilometre of travel, and a curve
+/// that large would be flattened into billions of segments at a 0.01 mm tolerance.
+const MAX_COORD_MM: f64 = 1e6;
+
+/// Parses SVG `text` and converts it to a job; `source` names the file in messages.
+pub fn import_svg(text: &str, source: &str, config: &MachineConfig) -> Result<Job> {
+    let options = usvg::Options { dpi: config.import.svg_dpi as f32, ..usvg::Options::default() };
+    let tree = usvg::Tree::from_str(text, &options)
+        .map_err(|e| Error::Import(format!("{source}: malformed SVG: {}", parse_error_message(&e))))?;
+    warn_about_text(text, source);
+
+    let mm_per_px = 25.4 / config.import.svg_dpi;
+    let mut importer = Importer {
+        source,
+        config,
+        mm_per_px,
+        doc_height_mm: tree.size().height() as f64 * mm_per_px,
+        paths_seen: 0,
+        geometries: Vec::new(),
+    };
+    importer.walk(tree.root(), &mut Vec::new())?;
+
+    if importer.geometries.is_empty() {
+        return Err(Error::Import(format!(
+            "{source}: nothing to mark: no visible path with at least two distinct points \
+             (text must be converted to paths)"
+        )));
+    }
+
+    // Job.processes holds the layers actually used, in config order; geometries
+    // carry a layer index until here and are renumbered to point into that list.
+    let mut layer_to_process = vec![None; config.layers.len()];
+    let mut used: Vec<usize> = importer.geometries.iter().map(|g| g.process).collect();
+    used.sort_unstable();
+    used.dedup();
+    let processes = used
+        .iter()
+        .enumerate()
+        .map(|(i, &layer)| {
+            layer_to_process[layer] = Some(i);
+            let l = &config.layers[layer];
+            Process { layer: l.name.clone(), speed: l.speed, power: l.power, passes: l.passes }
+        })
+        .collect();
+    let mut geometries = importer.geometries;
+    for g in &mut geometries {
+        g.process = layer_to_process[g.process].unwrap_or(0);
+    }
+    Ok(Job { source: source.to_string(), geometries, processes })
+}
+
+/// usvg's message for a parse failure, on one line. For XML errors we use roxmltree's
+/// own text, which ends in "at line:col", without usvg's "parsing failed cause" prefix.
+fn parse_error_message(e: &usvg::Error) -> String {
+    let msg = match e {
+        usvg::Error::ParsingFailed(xml) => xml.to_string(),
+        other => other.to_string(),
+    };
+    msg.lines().collect::<Vec<_>>().join(" ")
+}
+
+/// `<text>` is dropped by usvg without fonts (we build it without), so the operator
+/// would get a job without the lettering and no hint why.
+fn warn_about_text(text: &str, source: &str) {
+    let options = usvg::roxmltree::ParsingOptions { allow_dtd: true, ..Default::default() };
+    if let Ok(doc) = usvg::roxmltree::Document::parse_with_options(text, options) {
+        let count = doc.descendants().filter(|n| n.has_tag_name("text")).count();
+        if count > 0 {
+            tracing::warn!("{source}: {count} <text> element(s) ignored; convert text to paths to mark it");
+        }
+    }
+}
+
+struct Importer<'a> {
+    source: &'a str,
+    config: &'a MachineConfig,
+    mm_per_px: f64,
+    doc_height_mm: f64,
+    /// Paths met so far in document order; names paths without an id in messages.
+    paths_seen: usize,
+    /// `process` holds the config layer index until `import_svg` renumbers it.
+    geometries: Vec<Geometry>,
+}
+
+impl<'a> Importer<'a> {
+    /// Visits the group's children in document order; `groups` holds the ids of the
+    /// enclosing groups (SVG layers) for layer selection.
+    fn walk<'t>(&mut self, group: &'t usvg::Group, groups: &mut Vec<&'t str>) -> Result<()> {
+        for node in group.children() {
+            match node {
+                usvg::Node::Group(g) => {
+                    let named = !g.id().is_empty();
+                    if named {
+                        groups.push(g.id());
+                    }
+                    self.walk(g, groups)?;
+                    if named {
+                        groups.pop();
+                    }
+                }
+                usvg::Node::Path(p) => self.add_path(p, groups)?,
+                usvg::Node::Image(_) => {
+                    tracing::warn!("{}: an <image> is ignored (only paths are marked)", self.source)
+                }
+                usvg::Node::Text(_) => {
+                    tracing::warn!("{}: a <text> is ignored; convert text to paths", self.source)
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn add_path(&mut self, path: &usvg::Path, groups: &[&str]) -> Result<()> {
+        self.paths_seen += 1;
+        // visibility="hidden" hides a path from the drawing; marking it would surprise.
+        if !path.is_visible() {
+            return Ok(());
+        }
+        let name =
+            if path.id().is_empty() { format!("path #{}", self.paths_seen) } else { format!("path '{}'", path.id()) };
+        let bez = self.to_machine_mm(path.data(), path.abs_transform(), &name)?;
+        let layer = self.layer_for(path, groups);
+
+        for (i, (points, closed)) in flatten(&bez, self.config.import.tolerance).into_iter().enumerate() {
+            if let Some((points, closed)) = clean_polyline(points, closed) {
+                self.geometries.push(Geometry {
+                    points,
+                    closed,
+                    process: layer,
+                    source: format!("{}: {} subpath {}", self.source, name, i + 1),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The path's outline in machine mm (transform, px → mm, y flip), still with curves.
+    fn to_machine_mm(&self, data: &tiny_skia_path::Path, ts: usvg::Transform, name: &str) -> Result<BezPath> {
+        let (sx, kx, tx) = (ts.sx as f64, ts.kx as f64, ts.tx as f64);
+        let (ky, sy, ty) = (ts.ky as f64, ts.sy as f64, ts.ty as f64);
+        let mut bad = None;
+        let mut map = |p: tiny_skia_path::Point| {
+            let (x, y) = (p.x as f64, p.y as f64);
+            let mx = (sx * x + kx * y + tx) * self.mm_per_px;
+            let my = self.doc_height_mm - (ky * x + sy * y + ty) * self.mm_per_px;
+            if !(mx.is_finite() && my.is_finite()) {
+                bad.get_or_insert("is not a finite number");
+            } else if mx.abs() > MAX_COORD_MM || my.abs() > MAX_COORD_MM {
+                bad.get_or_insert("is out of range (beyond 1 km)");
+            }
+            kurbo::Point::new(mx, my)
+        };
+        let mut bez = BezPath::new();
+        for seg in data.segments() {
+            match seg {
+                PathSegment::MoveTo(p) => bez.move_to(map(p)),
+                PathSegment::LineTo(p) => bez.line_to(map(p)),
+                PathSegment::QuadTo(p1, p2) => bez.quad_to(map(p1), map(p2)),
+                PathSegment::CubicTo(p1, p2, p3) => bez.curve_to(map(p1), map(p2), map(p3)),
+                PathSegment::Close => bez.close_path(),
+            }
+        }
+        match bad {
+            Some(why) => Err(Error::Import(format!("{}: {name}: a coordinate {why}", self.source))),
+            None => Ok(bez),
+        }
+    }
+
+    /// Index of the config layer for a path: the first layer whose stroke colour
+    /// matches the path's solid stroke or whose id names an enclosing group; else the
+    /// default layer. Fill-only paths match by group id only.
+    fn layer_for(&self, path: &usvg::Path, groups: &[&str]) -> usize {
+        let stroke = path.stroke().and_then(|s| match s.paint() {
+            usvg::Paint::Color(c) => Some([c.red, c.green, c.blue]),
+            _ => None,
+        });
+        self.config
+            .layers
+            .iter()
+            .position(|layer| {
+                let by_colour = stroke.is_some() && layer.stroke.as_deref().and_then(parse_hex_colour) == stroke;
+                let by_group = layer.id.as_deref().is_some_and(|id| groups.contains(&id));
+                by_colour || by_group
+            })
+            .unwrap_or_else(|| self.config.default_layer_index())
+    }
+}
+
+/// Flattens a path to polylines within `tolerance`: one (points, closed) per subpath.
+fn flatten(bez: &BezPath, tolerance: f64) -> Vec<(Vec<kurbo::Point>, bool)> {
+    let mut subpaths: Vec<(Vec<kurbo::Point>, bool)> = Vec::new();
+    let mut current: Vec<kurbo::Point> = Vec::new();
+    // SVG allows drawing on after a Z without a new M; such a subpath starts where the
+    // closed one did.
+    let mut start = kurbo::Point::ZERO;
+    kurbo::flatten(bez.iter(), tolerance, |el| match el {
+        PathEl::MoveTo(p) => {
+            if !current.is_empty() {
+                subpaths.push((std::mem::take(&mut current), false));
+            }
+            start = p;
+            current.push(p);
+        }
+        PathEl::LineTo(p) => {
+            if current.is_empty() {
+                current.push(start);
+            }
+            current.push(p);
+        }
+        PathEl::ClosePath => {
+            if !current.is_empty() {
+                subpaths.push((std::mem::take(&mut current), true));
+            }
+        }
+        // kurbo::flatten emits only the three above; curves are already lines.
+        PathEl::QuadTo(..) | PathEl::CurveTo(..) => {}
+    });
+    if !current.is_empty() {
+        subpaths.push((current, false));
+    }
+    subpaths
+}
+
+/// Removes repeated points and a repeated start point at the end (which closes the
+/// shape). `None` for a degenerate subpath of fewer than 2 distinct points.
+fn clean_polyline(points: Vec<kurbo::Point>, mut closed: bool) -> Option<(Vec<Point>, bool)> {
+    let mut out: Vec<Point> = Vec::with_capacity(points.len());
+    for p in points {
+        let p = Point::new(p.x, p.y);
+        if out.last().is_none_or(|last| (p - last).norm() > SAME_POINT_MM) {
+            out.push(p);
+        }
+    }
+    if out.len() >= 2 && (out[out.len() - 1] - out[0]).norm() <= SAME_POINT_MM {
+        out.pop();
+        closed = true;
+    }
+    if out.len() < 2 {
+        return None;
+    }
+    // Two points closed is a line there and back; mark it once, as an open line.
+    if out.len() == 2 {
+        closed = false;
+    }
+    Some((out, closed))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config() -> MachineConfig {
+        crate::import::test_config()
+    }
+
+    /// A 100 x 100 mm document with one user unit per mm.
+    fn svg(body: &str) -> String {
+        format!(
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="100mm" viewBox="0 0 100 100">{body}</svg>"#
+        )
+    }
+
+    fn import(text: &str) -> Job {
+        import_svg(text, "t.svg", &config()).unwrap()
+    }
+
+    fn close(a: f64, b: f64) -> bool {
+        // usvg computes in f32: about 1e-5 mm at 100 mm.
+        (a - b).abs() < 1e-4
+    }
+
+    #[test]
+    fn viewbox_scales_user_units_to_mm() {
+        let job = import(
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="100mm" viewBox="0 0 10 10">
+               <rect x="2" y="3" width="1" height="1" fill="none" stroke="black"/></svg>"#,
+        );
+        let g = &job.geometries[0];
+        assert!(g.closed);
+        assert_eq!(g.points.len(), 4);
+        let (lo, hi) = g.bounds();
+        assert!(close(hi.x - lo.x, 10.0) && close(hi.y - lo.y, 10.0), "{lo} {hi}");
+        // x 20..30; SVG y 30..40 from the top is machine y 60..70 from the bottom.
+        assert!(close(lo.x, 20.0) && close(lo.y, 60.0), "{lo}");
+    }
+
+    #[test]
+    fn unitless_size_uses_the_dpi() {
+        // 96 px at 96 dpi is one inch.
+        let job = import(
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="96" height="96">
+               <path d="M 0 0 L 96 0" stroke="black"/></svg>"#,
+        );
+        assert!(close(job.geometries[0].length(), 25.4));
+    }
+
+    #[test]
+    fn y_axis_is_flipped() {
+        let job = import(&svg(r#"<path d="M 10 10 L 20 30" stroke="black"/>"#));
+        let p = &job.geometries[0].points;
+        assert!(close(p[0].x, 10.0) && close(p[0].y, 90.0), "{}", p[0]);
+        assert!(close(p[1].x, 20.0) && close(p[1].y, 70.0), "{}", p[1]);
+    }
+
+    #[test]
+    fn group_transforms_apply() {
+        let job = import(&svg(
+            r#"<g transform="translate(5 7)"><g transform="scale(2)"><path d="M 1 1 L 2 1" stroke="black"/></g></g>"#,
+        ));
+        let p = &job.geometries[0].points;
+        assert!(close(p[0].x, 7.0) && close(p[0].y, 100.0 - 9.0), "{}", p[0]);
+        assert!(close(p[1].x, 9.0) && close(p[1].y, 100.0 - 9.0), "{}", p[1]);
+    }
+
+    #[test]
+    fn circle_is_flattened_within_tolerance() {
+        let cfg = config();
+        let tol = cfg.import.tolerance;
+        let job = import(&svg(r#"<circle cx="50" cy="50" r="10" fill="none" stroke="black"/>"#));
+        assert_eq!(job.geometries.len(), 1);
+        let g = &job.geometries[0];
+        assert!(g.closed);
+        let centre = Point::new(50.0, 50.0);
+        for p in &g.points {
+            let r = (p - centre).norm();
+            assert!((r - 10.0).abs() <= tol, "vertex at radius {r}");
+        }
+        // Chord midpoints too: the segments stay within the tolerance of the circle.
+        let n = g.points.len();
+        for i in 0..n {
+            let mid = Point::from((g.points[i].coords + g.points[(i + 1) % n].coords) / 2.0);
+            assert!(((mid - centre).norm() - 10.0).abs() <= tol + 1e-6);
+        }
+        // A chord of sagitta t spans 2*acos(1 - t/r): about 70 segments here.
+        let ideal = std::f64::consts::PI / (1.0 - tol / 10.0).acos();
+        assert!(n as f64 >= ideal * 0.9 && (n as f64) <= ideal * 3.0, "{n} vertices, ideal {ideal}");
+        assert!((g.length() - 2.0 * std::f64::consts::PI * 10.0).abs() < 0.05);
+    }
+
+    #[test]
+    fn open_and_closed_subpaths() {
+        let job = import(&svg(r#"<path id="p" stroke="black" fill="none"
+                 d="M 0 0 L 10 0 L 10 10 Z  M 20 0 L 30 0 L 30 10  M 40 0 L 50 0 L 50 10 L 40 0
+                    M 60 0 L 60 0  M 70 0 L 70 0 L 80 0"/>"#));
+        let g = &job.geometries;
+        assert_eq!(g.len(), 4, "{g:?}");
+        assert!(g[0].closed && g[0].points.len() == 3);
+        assert!(!g[1].closed && g[1].points.len() == 3);
+        // Ends on its start: closed, without the repeated point.
+        assert!(g[2].closed && g[2].points.len() == 3);
+        // The single-point subpath 4 is skipped; the duplicate in subpath 5 is removed.
+        assert!(!g[3].closed && g[3].points.len() == 2);
+        assert_eq!(g[0].source, "t.svg: path 'p' subpath 1");
+        assert_eq!(g[3].source, "t.svg: path 'p' subpath 5");
+    }
+
+    #[test]
+    fn paths_without_id_are_named_by_index() {
+        let job = import(&svg(r#"<path d="M 0 0 L 1 1" stroke="black"/><path d="M 0 0 L 2 2" stroke="black"/>"#));
+        assert_eq!(job.geometries[1].source, "t.svg: path #2 subpath 1");
+    }
+
+    #[test]
+    fn stroke_colour_selects_the_layer() {
+        let job = import(&svg(r##"<path d="M 0 0 L 1 1" stroke="#ff0000"/>
+               <path d="M 0 0 L 2 2" stroke="rgb(0,0,255)"/>
+               <path d="M 0 0 L 3 3" stroke="#00ff00"/>
+               <rect x="1" y="1" width="5" height="5" fill="red"/>"##));
+        let layer = |i: usize| job.processes[job.geometries[i].process].layer.as_str();
+        assert_eq!(layer(0), "cut");
+        assert_eq!(layer(1), "engrave");
+        // Unknown colour and fill-only: the default layer.
+        assert_eq!(layer(2), "mark");
+        assert_eq!(layer(3), "mark");
+        assert!(job.geometries[3].closed);
+        assert_eq!(job.processes.len(), 3);
+        let cut = job.processes.iter().find(|p| p.layer == "cut").unwrap();
+        assert_eq!((cut.speed, cut.power, cut.passes), (200.0, 1000.0, 1));
+    }
+
+    #[test]
+    fn group_id_selects_the_layer() {
+        let job = import(&svg(r##"<g id="engrave"><g id="inner"><path d="M 0 0 L 1 1" stroke="#00ff00"/></g></g>
+               <g id="other"><path d="M 0 0 L 2 2" stroke="#00ff00"/></g>"##));
+        assert_eq!(job.processes[job.geometries[0].process].layer, "engrave");
+        assert_eq!(job.processes[job.geometries[1].process].layer, "mark");
+        // Only the used layers are listed.
+        assert_eq!(job.processes.len(), 2);
+    }
+
+    #[test]
+    fn malformed_svg_is_one_line_with_position() {
+        let err =
+            import_svg("<svg xmlns=\"http://www.w3.org/2000/svg\">\n<path d=\"M 0 0\"</svg>", "bad.svg", &config())
+                .unwrap_err()
+                .to_string();
+        assert!(err.contains("bad.svg: malformed SVG"), "{err}");
+        assert!(err.contains("2:"), "{err}");
+        assert!(!err.contains('\n'));
+        let err = import_svg("not xml at all", "bad.svg", &config()).unwrap_err().to_string();
+        assert!(err.contains("malformed SVG"), "{err}");
+    }
+
+    #[test]
+    fn empty_job_is_an_error() {
+        let err = import_svg(&svg(r#"<path d="M 5 5" stroke="black"/>"#), "e.svg", &config()).unwrap_err().to_string();
+        assert!(err.contains("e.svg") && err.contains("nothing to mark"), "{err}");
+    }
+
+    #[test]
+    fn huge_or_infinite_coordinates_are_rejected() {
+        let err = import_svg(&svg(r#"<path id="big" d="M 0 0 L 1e30 0" stroke="black"/>"#), "h.svg", &config())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("h.svg") && err.contains("'big'"), "{err}");
+        let text = svg(r#"<path d="M 0 0 L 1e39 0" stroke="black"/>"#);
+        // usvg may drop the unparsable number itself; either way no panic and no bad point.
+        if let Ok(job) = import_svg(&text, "h.svg", &config()) {
+            assert!(job.geometries.iter().flat_map(|g| &g.points).all(|p| p.x.is_finite() && p.y.is_finite()));
+        }
+    }
+
+    /// The committed sample jobs import cleanly and keep the limits they promise.
+    #[test]
+    fn samples_import() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("samples");
+        let cfg = config();
+        for (file, layer, min, max) in [
+            ("marking-300.svg", "mark", 300, 500),
+            ("nested-sheet.svg", "cut", 40, 120),
+            ("one-field.svg", "engrave", 15, 30),
+        ] {
+            let job = crate::import::import_job(&dir.join(file), &cfg).unwrap();
+            let n = job.geometries.len();
+            assert!((min..=max).contains(&n), "{file}: {n} geometries");
+            assert_eq!(job.processes.len(), 1, "{file}");
+            assert_eq!(job.processes[0].layer, layer, "{file}");
+            for g in &job.geometries {
+                let (lo, hi) = g.bounds();
+                assert!(hi.x - lo.x <= 60.0 && hi.y - lo.y <= 60.0, "{}", g.source);
+                assert!(lo.x >= 5.0 && lo.y >= 5.0 && hi.x <= 295.0 && hi.y <= 295.0, "{}", g.source);
+            }
+            let (lo, hi) = job.bounds();
+            println!(
+                "{file}: {n} geometries, extent ({:.2}, {:.2})..({:.2}, {:.2}) mm, mark length {:.1} mm",
+                lo.x,
+                lo.y,
+                hi.x,
+                hi.y,
+                job.mark_length()
+            );
+            if file == "one-field.svg" {
+                assert!(lo.x >= 125.0 && lo.y >= 125.0 && hi.x <= 175.0 && hi.y <= 175.0);
+                assert!(job.mark_length() <= 600.0);
+            }
+        }
+    }
+}
