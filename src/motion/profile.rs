@@ -16,6 +16,8 @@ pub struct Profile {
     trajectory: Option<Trajectory>,
     pub length: f64,
     pub duration: f64,
+    time_unit: f64,
+    length_unit: f64,
 }
 
 impl std::fmt::Debug for Profile {
@@ -30,15 +32,24 @@ impl Profile {
         if !(length.is_finite() && length >= 0.0) {
             return Err(Error::Motion(format!("invalid move length {length}")));
         }
-        if length == 0.0 {
-            return Ok(Profile { trajectory: None, length, duration: 0.0 });
+        let ok = |x: f64| x.is_finite() && x > 0.0;
+        if !(ok(limits.velocity) && ok(limits.acceleration) && ok(limits.jerk)) {
+            return Err(Error::Motion(format!("invalid limits {limits:?}")));
         }
+        if length == 0.0 {
+            return Ok(Profile { trajectory: None, length, duration: 0.0, time_unit: 1.0, length_unit: 1.0 });
+        }
+        // Ruckig fails on badly scaled inputs (a scanner's jerk is 1e11 times
+        // its velocity), so plan in units where velocity and acceleration are 1:
+        // time in units of v/a, length in units of v²/a.
+        let time_unit = limits.velocity / limits.acceleration;
+        let length_unit = limits.velocity * time_unit;
         let mut input = InputParameter::new(1);
         input.current_position = vec![0.0];
-        input.target_position = vec![length];
-        input.max_velocity = vec![limits.velocity];
-        input.max_acceleration = vec![limits.acceleration];
-        input.max_jerk = vec![limits.jerk];
+        input.target_position = vec![length / length_unit];
+        input.max_velocity = vec![1.0];
+        input.max_acceleration = vec![1.0];
+        input.max_jerk = vec![limits.jerk * time_unit * time_unit * time_unit / length_unit];
         let mut ruckig = Ruckig::new_direct_and_offline(1);
         let mut trajectory = Trajectory::new_direct(1);
         let result = ruckig.calculate(&mut input, &mut trajectory);
@@ -48,8 +59,8 @@ impl Profile {
                 limits.velocity, limits.acceleration, limits.jerk
             )));
         }
-        let duration = trajectory.get_duration();
-        Ok(Profile { trajectory: Some(trajectory), length, duration })
+        let duration = trajectory.get_duration() * time_unit;
+        Ok(Profile { trajectory: Some(trajectory), length, duration, time_unit, length_unit })
     }
 
     /// Position along the move at time `t` (clamped to the move).
@@ -68,8 +79,9 @@ impl Profile {
                 if t >= self.duration {
                     return (self.length, 0.0, 0.0);
                 }
-                let (p, v, a) = tr.at_time(t);
-                (p[0], v[0], a[0])
+                let (p, v, a) = tr.at_time(t / self.time_unit);
+                let (l, u) = (self.length_unit, self.time_unit);
+                (p[0] * l, v[0] * l / u, a[0] * l / (u * u))
             }
         }
     }
@@ -103,6 +115,17 @@ mod tests {
             prev_a = a;
         }
         assert_eq!(p.position(p.duration + 1.0), 100.0);
+    }
+
+    #[test]
+    fn scanner_scale_limits_plan_and_hold() {
+        // A galvo: jerk 1e11 times its velocity; Ruckig fails on this unscaled.
+        let lim = Limits { velocity: 5000.0, acceleration: 1.0e7, jerk: 4.0e11 };
+        let p = Profile::rest_to_rest(24.46, lim).unwrap();
+        assert!(p.duration > 24.46 / 5000.0 && p.duration < 0.01);
+        let (s, v, a) = p.state(p.duration / 2.0);
+        assert!((s - 12.23).abs() < 1e-6, "symmetric move is half way at half time: {s}");
+        assert!(v <= 5000.0 * (1.0 + 1e-9) && a.abs() <= 1.0e7 * (1.0 + 1e-9));
     }
 
     #[test]

@@ -1,0 +1,1455 @@
+//! The GRBL 1.1 controller as a pure state machine driven by an external clock.
+//!
+//! Time is an `f64` in seconds handed in by the driver (`receive`, `advance`),
+//! so the same machine runs in virtual time (tests, in-process simulation) and
+//! in wall-clock time (the pty driver). Nothing in here sleeps or reads a clock.
+//!
+//! # Motion model (this version)
+//! Every planner block executes at constant velocity along the straight line
+//! from its start to its end. Its duration is
+//! * G93 (inverse time): `60 / F` seconds (an arc's chords share that time
+//!   equally);
+//! * G94: `length / (F / 60)` with `length` the Euclidean length over all axes;
+//! * G0: `max over axes |Δ| / max_velocity`.
+//!
+//! Like Grbl, a feed move is never faster than the axes allow: its duration is
+//! at least the G0 duration of the same move. Overrides are applied when a
+//! block starts. There is no acceleration: executed motion is piecewise linear
+//! through the knots, and stopping is instantaneous. This is deliberate, the
+//! limit checker in [`crate::limits`] judges what the *sender* planned.
+//! Zero-length blocks are dropped (as Grbl does).
+//!
+//! # Lines and buffers
+//! A line's bytes stay in RX until the line has been fully handled; a motion
+//! line waits there while the planner is full (its `ok` is delayed), a sync
+//! command (G4, M2/M30, M0, spindle/coolant/offset changes) waits until motion
+//! has stopped. Execution starts as soon as no complete line can be parsed
+//! (planner full or RX without a complete line), which is Grbl's auto cycle
+//! start given that parsing takes no time here.
+//!
+//! # Starvation
+//! `starved_s` counts the time the machine stood still with an empty planner
+//! between two motion blocks, excluding dwells and feed holds. Idle time after
+//! the last block is only counted once another block starts after it.
+
+use std::collections::VecDeque;
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::gcode::{split_words, LineBuilder};
+use crate::wire::{fmt_num, MachineState, StatusReport, BANNER};
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct AxisConfig {
+    pub letter: char,
+    pub min: f64,
+    pub max: f64,
+    /// mm/s
+    pub max_velocity: f64,
+    /// mm/s²
+    pub max_acceleration: f64,
+    /// mm/s³
+    pub max_jerk: f64,
+}
+
+impl AxisConfig {
+    /// An axis with modest desktop-laser defaults (0..300 mm, 100 mm/s).
+    pub fn new(letter: char) -> AxisConfig {
+        AxisConfig {
+            letter: letter.to_ascii_uppercase(),
+            min: 0.0,
+            max: 300.0,
+            max_velocity: 100.0,
+            max_acceleration: 1000.0,
+            max_jerk: 20000.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Default, Serialize, Deserialize, JsonSchema)]
+pub struct Faults {
+    /// The n-th received line (1-based, empty lines included) answers
+    /// `error:20` and is not executed.
+    pub error_on_line: Option<u64>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct SimConfig {
+    /// 1..=6 axes.
+    pub axes: Vec<AxisConfig>,
+    pub rx_buffer: usize,
+    pub planner_blocks: usize,
+    /// `$30`: S value for full laser power.
+    pub laser_max_s: f64,
+    #[serde(default)]
+    pub faults: Faults,
+}
+
+impl SimConfig {
+    /// Default config with the given axis letters, e.g. `"XYUV"`.
+    pub fn with_axes(letters: &str) -> SimConfig {
+        SimConfig {
+            axes: letters.chars().filter(|c| c.is_ascii_alphabetic()).map(AxisConfig::new).collect(),
+            ..SimConfig::default()
+        }
+    }
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            axes: vec![AxisConfig::new('X'), AxisConfig::new('Y')],
+            rx_buffer: 128,
+            planner_blocks: 15,
+            laser_max_s: 1000.0,
+            faults: Faults::default(),
+        }
+    }
+}
+
+/// A point of the executed, piecewise-linear motion.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema, PartialEq)]
+pub struct Knot {
+    pub t: f64,
+    pub pos: Vec<f64>,
+    /// Laser power (S) on the segment ending here (or starting here, for a
+    /// start-from-rest knot).
+    pub power: f64,
+    /// Received-line number (1-based count of lines received) of the block.
+    pub line: u64,
+}
+
+#[derive(Debug, Clone, Default, Serialize, Deserialize, JsonSchema)]
+pub struct SimStats {
+    pub lines_received: u64,
+    pub blocks_executed: u64,
+    pub first_motion_t: Option<f64>,
+    pub last_motion_end_t: Option<f64>,
+    pub starved_s: f64,
+    pub alarms: Vec<u16>,
+    pub rx_overflows: u64,
+    pub errors_sent: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Motion {
+    Rapid,
+    Linear,
+    ArcCw,
+    ArcCcw,
+    None,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Spindle {
+    Off,
+    Cw,
+    Ccw,
+}
+
+/// G-code modal state (reset values are Grbl's power-up defaults).
+#[derive(Debug, Clone)]
+struct Modal {
+    motion: Motion,
+    plane: u8,
+    inches: bool,
+    incremental: bool,
+    inverse_time: bool,
+    coord: u8,
+    spindle: Spindle,
+    flood: bool,
+    /// mm/min in G94; the raw inverse-time value after a G93 block.
+    feed: f64,
+    s: f64,
+    tool: u32,
+}
+
+impl Default for Modal {
+    fn default() -> Self {
+        Modal {
+            motion: Motion::Rapid,
+            plane: 17,
+            inches: false,
+            incremental: false,
+            inverse_time: false,
+            coord: 54,
+            spindle: Spindle::Off,
+            flood: false,
+            feed: 0.0,
+            s: 0.0,
+            tool: 0,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+struct Block {
+    target: Vec<f64>,
+    /// Commanded duration (s), already at least `min_duration`.
+    duration: f64,
+    /// Duration at the axes' max velocities.
+    min_duration: f64,
+    rapid: bool,
+    /// Laser S while executing, before the spindle override.
+    power: f64,
+    line: u64,
+    n_word: Option<u32>,
+    /// Slow enough for its duration that the machine may stop after it or
+    /// start into it from rest within its limits (set when it enters the planner).
+    gentle: bool,
+}
+
+#[derive(Debug, Clone)]
+struct Exec {
+    block: Block,
+    start_t: f64,
+    end_t: f64,
+    start_pos: Vec<f64>,
+    power: f64,
+}
+
+/// What is left to do for a parsed line before its `ok`.
+#[derive(Debug, Clone)]
+enum Step {
+    /// Wait until the planner is empty and motion stopped.
+    Sync,
+    /// Wait this many seconds (after a Sync).
+    Dwell(f64),
+    /// Queue a block once the planner has room.
+    Queue(Block),
+    /// M0: enter feed hold.
+    Pause,
+    /// M2/M30 after motion ends.
+    ProgramEnd,
+}
+
+#[derive(Debug)]
+struct Pending {
+    steps: VecDeque<Step>,
+    /// Bytes of the line (incl. terminator) still in RX.
+    rx_len: usize,
+    dwell_until: Option<f64>,
+    /// `$C` off: soft reset after the `ok`.
+    reset_after: bool,
+}
+
+pub struct Controller {
+    cfg: SimConfig,
+    now: f64,
+    out: Vec<u8>,
+    rx: VecDeque<u8>,
+    rx_lines: usize,
+    /// Start of a line that overflowed RX without a terminator (Grbl keeps
+    /// reading such a line into its line buffer, so RX must not stall).
+    carry: Option<LineBuilder>,
+    pending: Option<Pending>,
+    planner: VecDeque<Block>,
+    exec: Option<Exec>,
+    /// Machine position when not executing (= last block end).
+    pos: Vec<f64>,
+    /// Parser position: end of the last queued block.
+    gc_pos: Vec<f64>,
+    g92: Vec<f64>,
+    modal: Modal,
+    hold: bool,
+    alarm: bool,
+    /// Soft-limit alarm before reset: everything is locked out.
+    critical: bool,
+    check_mode: bool,
+    sleep: bool,
+    ovr_feed: u32,
+    ovr_rapid: u32,
+    ovr_spindle: u32,
+    line_count: u64,
+    knots: Vec<Knot>,
+    stats: SimStats,
+    starve_since: Option<f64>,
+    starve_acc: f64,
+    /// When the last byte arrived.
+    last_rx_t: f64,
+}
+
+const EPS_POS: f64 = 1e-9;
+/// Time without a received byte after which queued blocks start even though
+/// no queued block lets the machine stop within its limits.
+const LINK_SILENCE_START: f64 = 0.02;
+
+impl Controller {
+    pub fn new(config: SimConfig) -> Controller {
+        let cfg = sanitize(config);
+        let n = cfg.axes.len();
+        let mut c = Controller {
+            cfg,
+            now: 0.0,
+            out: Vec::new(),
+            rx: VecDeque::new(),
+            rx_lines: 0,
+            carry: None,
+            pending: None,
+            planner: VecDeque::new(),
+            exec: None,
+            pos: vec![0.0; n],
+            gc_pos: vec![0.0; n],
+            g92: vec![0.0; n],
+            modal: Modal::default(),
+            hold: false,
+            alarm: false,
+            critical: false,
+            check_mode: false,
+            sleep: false,
+            ovr_feed: 100,
+            ovr_rapid: 100,
+            ovr_spindle: 100,
+            line_count: 0,
+            knots: Vec::new(),
+            stats: SimStats::default(),
+            starve_since: None,
+            starve_acc: 0.0,
+            last_rx_t: 0.0,
+        };
+        c.out.extend_from_slice(format!("\r\n{BANNER}\r\n").as_bytes());
+        c
+    }
+
+    pub fn config(&self) -> &SimConfig {
+        &self.cfg
+    }
+
+    /// Time of the last `advance`/`receive`.
+    pub fn now(&self) -> f64 {
+        self.now
+    }
+
+    pub fn stats(&self) -> SimStats {
+        self.stats.clone()
+    }
+
+    pub fn take_output(&mut self) -> Vec<u8> {
+        std::mem::take(&mut self.out)
+    }
+
+    pub fn take_knots(&mut self) -> Vec<Knot> {
+        std::mem::take(&mut self.knots)
+    }
+
+    pub fn state(&self) -> MachineState {
+        if self.sleep {
+            MachineState::Sleep
+        } else if self.alarm {
+            MachineState::Alarm
+        } else if self.hold {
+            MachineState::Hold(if self.exec.is_some() { 1 } else { 0 })
+        } else if self.check_mode {
+            MachineState::Check
+        } else if self.exec.is_some() {
+            MachineState::Run
+        } else {
+            MachineState::Idle
+        }
+    }
+
+    /// Machine position now (interpolated inside the executing block).
+    pub fn position(&self) -> Vec<f64> {
+        match &self.exec {
+            Some(e) => interpolate(e, self.now),
+            None => self.pos.clone(),
+        }
+    }
+
+    /// Laser S in effect now, after override; 0 when off or not moving.
+    pub fn laser_power(&self) -> f64 {
+        self.exec.as_ref().map_or(0.0, |e| e.power)
+    }
+
+    /// Earliest time at which `advance` has work to do without new input.
+    pub fn next_event(&self) -> Option<f64> {
+        let a = self.exec.as_ref().map(|e| e.end_t);
+        let b = self.pending.as_ref().and_then(|p| p.dwell_until);
+        // Blocks waiting for a stop point start when the link falls silent.
+        let c = (self.exec.is_none() && !self.hold && !self.alarm && !self.planner.is_empty())
+            .then(|| (self.last_rx_t + LINK_SILENCE_START).max(self.now));
+        [a, b, c].into_iter().flatten().reduce(f64::min)
+    }
+
+    /// Runs motion, parser and planner up to `now`. Earlier times are ignored.
+    pub fn advance(&mut self, now: f64) {
+        let now = if now.is_finite() { now.max(self.now) } else { self.now };
+        loop {
+            self.process();
+            match self.next_event() {
+                Some(t) if t <= now => {
+                    self.now = t.max(self.now);
+                    if self.exec.as_ref().is_some_and(|e| e.end_t <= self.now) {
+                        self.finish_block();
+                    }
+                }
+                _ => break,
+            }
+        }
+        self.now = now;
+    }
+
+    /// One byte from the wire at time `now`.
+    pub fn receive(&mut self, now: f64, byte: u8) {
+        self.advance(now);
+        self.last_rx_t = self.now;
+        if crate::wire::realtime::is_realtime(byte) {
+            self.realtime(byte);
+        } else if byte >= 0x80 {
+            // Undefined extended bytes are discarded, as Grbl does.
+        } else if self.rx.len() >= self.cfg.rx_buffer {
+            self.stats.rx_overflows += 1;
+        } else {
+            self.rx.push_back(byte);
+            if byte == b'\n' || byte == b'\r' {
+                self.rx_lines += 1;
+            } else if self.rx.len() >= self.cfg.rx_buffer && self.rx_lines == 0 {
+                let mut lb = self.carry.take().unwrap_or_default();
+                self.rx.drain(..).for_each(|b| lb.push(b));
+                self.carry = Some(lb);
+            }
+        }
+        self.process();
+    }
+
+    // ----- output helpers -----
+
+    fn send(&mut self, s: &str) {
+        self.out.extend_from_slice(s.as_bytes());
+        self.out.extend_from_slice(b"\r\n");
+    }
+
+    fn send_error(&mut self, code: u16) {
+        self.stats.errors_sent += 1;
+        self.send(&format!("error:{code}"));
+    }
+
+    fn status_report(&self) -> StatusReport {
+        let used = self.planner.len() + usize::from(self.exec.is_some());
+        let (feed, line) = match &self.exec {
+            Some(e) => {
+                let len = dist(&e.start_pos, &e.block.target);
+                let dur = e.end_t - e.start_t;
+                (if dur > 0.0 { len / dur * 60.0 } else { 0.0 }, e.block.n_word)
+            }
+            None => (0.0, None),
+        };
+        StatusReport {
+            state: self.state(),
+            mpos: self.position(),
+            buffer: Some((
+                self.cfg.planner_blocks.saturating_sub(used) as u32,
+                self.cfg.rx_buffer.saturating_sub(self.rx.len()) as u32,
+            )),
+            line,
+            feed: Some(feed),
+            spindle: Some(self.laser_power()),
+        }
+    }
+
+    // ----- realtime -----
+
+    fn realtime(&mut self, b: u8) {
+        use crate::wire::realtime::*;
+        match b {
+            SOFT_RESET => self.soft_reset(),
+            // A critical alarm ignores everything but reset (reference §5).
+            _ if self.critical => {}
+            STATUS => {
+                let line = self.status_report().to_line();
+                self.send(&line);
+            }
+            FEED_HOLD if !(self.alarm || self.check_mode || self.sleep || self.hold) => {
+                self.hold = true;
+                self.pause_starvation();
+            }
+            CYCLE_START if self.hold && !self.alarm => {
+                self.hold = false;
+                if self.exec.is_none() {
+                    if self.planner.is_empty() {
+                        self.mark_idle(self.now);
+                    } else {
+                        self.start_next(self.now, true);
+                    }
+                }
+            }
+            FEED_OVR_RESET => self.ovr_feed = 100,
+            FEED_OVR_COARSE_PLUS => self.ovr_feed = (self.ovr_feed + 10).min(200),
+            FEED_OVR_COARSE_MINUS => self.ovr_feed = self.ovr_feed.saturating_sub(10).max(10),
+            FEED_OVR_FINE_PLUS => self.ovr_feed = (self.ovr_feed + 1).min(200),
+            FEED_OVR_FINE_MINUS => self.ovr_feed = self.ovr_feed.saturating_sub(1).max(10),
+            RAPID_OVR_RESET => self.ovr_rapid = 100,
+            RAPID_OVR_MEDIUM => self.ovr_rapid = 50,
+            RAPID_OVR_LOW => self.ovr_rapid = 25,
+            SPINDLE_OVR_RESET => self.ovr_spindle = 100,
+            SPINDLE_OVR_COARSE_PLUS => self.ovr_spindle = (self.ovr_spindle + 10).min(200),
+            SPINDLE_OVR_COARSE_MINUS => self.ovr_spindle = self.ovr_spindle.saturating_sub(10).max(10),
+            SPINDLE_OVR_FINE_PLUS => self.ovr_spindle = (self.ovr_spindle + 1).min(200),
+            SPINDLE_OVR_FINE_MINUS => self.ovr_spindle = self.ovr_spindle.saturating_sub(1).max(10),
+            COOLANT_FLOOD_TOGGLE if !self.alarm && !self.sleep => self.modal.flood = !self.modal.flood,
+            // Safety door, jog cancel, spindle stop and mist are not modelled.
+            _ => {}
+        }
+    }
+
+    fn soft_reset(&mut self) {
+        let moving = self.exec.is_some();
+        self.stop_motion_now();
+        self.planner.clear();
+        self.rx.clear();
+        self.rx_lines = 0;
+        self.carry = None;
+        self.pending = None;
+        self.modal = Modal::default();
+        self.g92 = vec![0.0; self.pos.len()];
+        self.gc_pos = self.pos.clone();
+        self.ovr_feed = 100;
+        self.ovr_rapid = 100;
+        self.ovr_spindle = 100;
+        self.check_mode = false;
+        self.hold = false;
+        self.critical = false;
+        if self.sleep {
+            // Leaving sleep always goes through Alarm (reference §7).
+            self.sleep = false;
+            self.alarm = true;
+        }
+        self.reset_starvation();
+        if moving {
+            self.alarm = true;
+            self.stats.alarms.push(3);
+            self.send("ALARM:3");
+        }
+        self.out.extend_from_slice(format!("\r\n{BANNER}\r\n").as_bytes());
+        if self.alarm {
+            self.send("[MSG:'$H'|'$X' to unlock]");
+        }
+    }
+
+    /// Stops the executing block where it is (reset or alarm), with a knot.
+    fn stop_motion_now(&mut self) {
+        if let Some(e) = self.exec.take() {
+            let p = interpolate(&e, self.now);
+            self.knots.push(Knot { t: self.now, pos: p.clone(), power: e.power, line: e.block.line });
+            self.stats.last_motion_end_t = Some(self.now);
+            self.pos = p;
+        }
+    }
+
+    // ----- starvation bookkeeping -----
+
+    fn mark_idle(&mut self, t: f64) {
+        if self.stats.first_motion_t.is_some() {
+            self.starve_since = Some(t);
+        }
+    }
+
+    fn pause_starvation(&mut self) {
+        if let Some(s) = self.starve_since.take() {
+            self.starve_acc += (self.now - s).max(0.0);
+        }
+    }
+
+    fn reset_starvation(&mut self) {
+        self.starve_since = None;
+        self.starve_acc = 0.0;
+    }
+
+    // ----- motion -----
+
+    fn planner_full(&self) -> bool {
+        self.planner.len() + usize::from(self.exec.is_some()) >= self.cfg.planner_blocks
+    }
+
+    fn start_next(&mut self, t: f64, from_rest: bool) {
+        let Some(block) = self.planner.pop_front() else { return };
+        let scale = if block.rapid { self.ovr_rapid } else { self.ovr_feed } as f64 / 100.0;
+        let dur = (block.duration / scale).max(block.min_duration);
+        let power = if self.hold { 0.0 } else { (block.power * self.ovr_spindle as f64 / 100.0).min(self.cfg.laser_max_s) };
+        if from_rest {
+            // A restart at the instant the last block ended needs no knot of its own.
+            if !self.knots.last().is_some_and(|k| k.t == t && k.pos == self.pos) {
+                self.knots.push(Knot { t, pos: self.pos.clone(), power, line: block.line });
+            }
+            if let Some(s) = self.starve_since.take() {
+                self.starve_acc += (t - s).max(0.0);
+            }
+            self.stats.starved_s += self.starve_acc;
+            self.starve_acc = 0.0;
+        }
+        self.stats.first_motion_t.get_or_insert(t);
+        self.exec = Some(Exec { start_t: t, end_t: t + dur, start_pos: self.pos.clone(), power, block });
+    }
+
+    fn finish_block(&mut self) {
+        let Some(e) = self.exec.take() else { return };
+        let t = e.end_t;
+        self.pos = e.block.target.clone();
+        self.knots.push(Knot { t, pos: self.pos.clone(), power: e.power, line: e.block.line });
+        self.stats.blocks_executed += 1;
+        self.stats.last_motion_end_t = Some(t);
+        if self.hold {
+            // A hold runs on (laser off) to the next point where the machine can
+            // stop within its limits, as Grbl decelerates; then Hold:0. Waiting for
+            // `~` is not starvation.
+            let at_rest_point = e.block.gentle && self.planner.front().is_none_or(|b| b.gentle);
+            if !at_rest_point && !self.planner.is_empty() {
+                self.start_next(t, false);
+            }
+        } else if !self.planner.is_empty() && self.may_start() {
+            self.start_next(t, false);
+        } else {
+            self.mark_idle(t);
+        }
+    }
+
+    fn auto_start(&mut self) {
+        if self.exec.is_none() && !self.hold && !self.alarm && !self.planner.is_empty() && self.may_start() {
+            self.start_next(self.now, true);
+        }
+    }
+
+    /// Whether the machine may stop after `b` (coming after what is queued), or
+    /// start into it from rest, within half of every axis' acceleration and jerk
+    /// limit, judged as the limit checker would: a stop from velocity v after a
+    /// block of duration T shows as an acceleration v/T and a jerk of about v/T².
+    /// The first and last blocks of a planned rest-to-rest move pass; a block in
+    /// the middle of a fast move does not.
+    fn is_gentle(&self, b: &Block) -> bool {
+        let start = match (self.planner.back(), &self.exec) {
+            (Some(last), _) => &last.target,
+            (None, Some(e)) => &e.block.target,
+            (None, None) => &self.pos,
+        };
+        let t = b.duration;
+        if t <= 0.0 {
+            return true;
+        }
+        self.cfg.axes.iter().enumerate().all(|(i, ax)| {
+            let v = (b.target[i] - start[i]).abs() / t;
+            v / t <= 0.5 * ax.max_acceleration && v / (t * t) <= 0.5 * ax.max_jerk
+        })
+    }
+
+    /// Grbl plans every queue to come to a stop at its end. Here blocks run at
+    /// constant velocity, so the equivalent rule is: run the next block only when
+    /// the queue holds a rest point after it (two gentle blocks in a row: the
+    /// machine can stop between them and start again). Otherwise wait for more
+    /// blocks, unless the planner is full, the pending line needs motion to end
+    /// (M2, M5, G4, ...), or the link has fallen silent (a stream that never
+    /// comes to rest must still run).
+    fn may_start(&self) -> bool {
+        let queued: Vec<bool> = self.planner.iter().map(|b| b.gentle).collect();
+        queued.windows(2).any(|w| w[0] && w[1])
+            || self.planner_full()
+            || self.pending.as_ref().is_some_and(|p| !matches!(p.steps.front(), None | Some(Step::Queue(_))))
+            || self.now - self.last_rx_t >= LINK_SILENCE_START - 1e-9
+    }
+
+    // ----- line handling -----
+
+    fn process(&mut self) {
+        loop {
+            if self.pending.is_some() {
+                if !self.progress_pending() {
+                    break;
+                }
+            } else if self.rx_lines > 0 {
+                self.take_line();
+            } else {
+                break;
+            }
+        }
+        self.auto_start();
+    }
+
+    fn take_line(&mut self) {
+        let mut lb = self.carry.take().unwrap_or_default();
+        let mut len = 0;
+        for &b in self.rx.iter() {
+            len += 1;
+            if b == b'\n' || b == b'\r' {
+                break;
+            }
+            lb.push(b);
+        }
+        self.line_count += 1;
+        self.stats.lines_received += 1;
+        let n = self.line_count;
+        let result = if self.cfg.faults.error_on_line == Some(n) {
+            Err(20)
+        } else {
+            match lb.finish() {
+                None => Err(11),
+                Some(text) => self.execute_line(&text, n),
+            }
+        };
+        match result {
+            Ok((steps, reset_after)) => {
+                self.pending =
+                    Some(Pending { steps: steps.into(), rx_len: len, dwell_until: None, reset_after })
+            }
+            Err(code) => {
+                self.drop_rx(len);
+                self.send_error(code);
+            }
+        }
+    }
+
+    fn drop_rx(&mut self, len: usize) {
+        let len = len.min(self.rx.len());
+        let removed_lines = self.rx.drain(..len).filter(|b| *b == b'\n' || *b == b'\r').count();
+        self.rx_lines = self.rx_lines.saturating_sub(removed_lines);
+    }
+
+    /// Works through the pending line's steps; true when it completed.
+    fn progress_pending(&mut self) -> bool {
+        let stopped = self.exec.is_none() && self.planner.is_empty();
+        let Some(mut p) = self.pending.take() else { return true };
+        while let Some(step) = p.steps.front() {
+            match step {
+                Step::Sync => {
+                    if !stopped {
+                        break;
+                    }
+                }
+                Step::Dwell(secs) => match p.dwell_until {
+                    None => {
+                        if !stopped {
+                            break;
+                        }
+                        self.pause_starvation();
+                        p.dwell_until = Some(self.now + secs);
+                        continue;
+                    }
+                    Some(until) if self.now >= until => {
+                        p.dwell_until = None;
+                        self.mark_idle(self.now);
+                    }
+                    Some(_) => break,
+                },
+                Step::Queue(_) => {
+                    if self.planner_full() {
+                        break;
+                    }
+                    if let Some(Step::Queue(mut b)) = p.steps.pop_front() {
+                        b.gentle = self.is_gentle(&b);
+                        self.planner.push_back(b);
+                    }
+                    continue;
+                }
+                Step::Pause => {
+                    if !stopped {
+                        break;
+                    }
+                    self.hold = true;
+                    self.pause_starvation();
+                }
+                Step::ProgramEnd => {
+                    if !stopped {
+                        break;
+                    }
+                    self.reset_starvation();
+                    self.send("[MSG:Pgm End]");
+                }
+            }
+            p.steps.pop_front();
+        }
+        if !p.steps.is_empty() {
+            self.pending = Some(p);
+            return false;
+        }
+        self.drop_rx(p.rx_len);
+        self.send("ok");
+        if p.reset_after {
+            self.soft_reset();
+        }
+        true
+    }
+
+    /// Executes a cleaned line. Ok(steps still to do before `ok`, reset after
+    /// ok) or Err(Grbl error code); on error nothing has changed.
+    fn execute_line(&mut self, text: &str, line: u64) -> Result<(Vec<Step>, bool), u16> {
+        if text.is_empty() {
+            return Ok((Vec::new(), false));
+        }
+        if let Some(cmd) = text.strip_prefix('$') {
+            return self.system_command(cmd);
+        }
+        if self.alarm || self.sleep {
+            return Err(9);
+        }
+        self.gcode(text, line).map(|s| (s, false))
+    }
+
+    fn busy(&self) -> bool {
+        self.exec.is_some() || !self.planner.is_empty() || self.hold
+    }
+
+    fn system_command(&mut self, cmd: &str) -> Result<(Vec<Step>, bool), u16> {
+        if self.critical {
+            return Err(9);
+        }
+        let done = Ok((Vec::new(), false));
+        match cmd {
+            "" => self.send("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"),
+            "$" => {
+                if self.busy() {
+                    return Err(8);
+                }
+                for (n, v) in self.settings() {
+                    self.send(&format!("${n}={v}"));
+                }
+            }
+            "G" => {
+                let gc = self.gc_line();
+                self.send(&gc);
+            }
+            "I" => {
+                if self.busy() {
+                    return Err(8);
+                }
+                self.send("[VER:1.1h.laserd-sim:]");
+                let opt = format!("[OPT:V,{},{}]", self.cfg.planner_blocks, self.cfg.rx_buffer);
+                self.send(&opt);
+            }
+            "N" => {
+                if self.busy() {
+                    return Err(8);
+                }
+                self.send("$N0=");
+                self.send("$N1=");
+            }
+            "#" => {
+                if self.busy() {
+                    return Err(8);
+                }
+                let zero = vec![0.0; self.pos.len()];
+                for cs in ["G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30"] {
+                    self.send(&format!("[{cs}:{}]", join3(&zero)));
+                }
+                let g92 = format!("[G92:{}]", join3(&self.g92));
+                self.send(&g92);
+                self.send("[TLO:0.000]");
+                self.send(&format!("[PRB:{}:0]", join3(&zero)));
+            }
+            "X" => {
+                if self.alarm {
+                    self.alarm = false;
+                    self.send("[MSG:Caution: Unlocked]");
+                }
+            }
+            "C" => {
+                if self.check_mode {
+                    self.send("[MSG:Disabled]");
+                    return Ok((Vec::new(), true));
+                }
+                if self.busy() || self.alarm || self.sleep {
+                    return Err(8);
+                }
+                self.check_mode = true;
+                self.send("[MSG:Enabled]");
+            }
+            "H" => return Err(5),
+            "SLP" => {
+                if self.busy() {
+                    return Err(8);
+                }
+                self.sleep = true;
+                self.send("[MSG:Sleeping]");
+            }
+            _ => {
+                // `$n=value`: settings come from SimConfig; writing the value
+                // already in effect is accepted, anything else is refused.
+                let (n, v) = cmd.split_once('=').ok_or(3u16)?;
+                let n: u32 = n.parse().map_err(|_| 3u16)?;
+                let v: f64 = v.parse().map_err(|_| 3u16)?;
+                if self.busy() {
+                    return Err(8);
+                }
+                let cur = self.settings().into_iter().find(|(k, _)| *k == n).ok_or(3u16)?;
+                let cur: f64 = cur.1.parse().map_err(|_| 3u16)?;
+                if (cur - v).abs() > 5e-4 {
+                    return Err(3);
+                }
+            }
+        }
+        done
+    }
+
+    fn settings(&self) -> Vec<(u32, String)> {
+        let mut s: Vec<(u32, String)> = vec![
+            (0, "10".into()),
+            (1, "25".into()),
+            (2, "0".into()),
+            (3, "0".into()),
+            (4, "0".into()),
+            (5, "0".into()),
+            (6, "0".into()),
+            // MPos + Bf: what the reports contain.
+            (10, "3".into()),
+            (11, "0.010".into()),
+            (12, "0.002".into()),
+            (13, "0".into()),
+            // Soft limits are always checked; there is no homing.
+            (20, "1".into()),
+            (21, "0".into()),
+            (22, "0".into()),
+            (23, "0".into()),
+            (24, "25.000".into()),
+            (25, "500.000".into()),
+            (26, "250".into()),
+            (27, "1.000".into()),
+            (30, fmt_num(self.cfg.laser_max_s, 0)),
+            (31, "0".into()),
+            (32, "1".into()),
+        ];
+        let axes = &self.cfg.axes;
+        for (i, _) in axes.iter().enumerate() {
+            s.push((100 + i as u32, "250.000".into()));
+        }
+        for (i, a) in axes.iter().enumerate() {
+            s.push((110 + i as u32, fmt_num(a.max_velocity * 60.0, 3)));
+        }
+        for (i, a) in axes.iter().enumerate() {
+            s.push((120 + i as u32, fmt_num(a.max_acceleration, 3)));
+        }
+        for (i, a) in axes.iter().enumerate() {
+            s.push((130 + i as u32, fmt_num(a.max - a.min, 3)));
+        }
+        s
+    }
+
+    fn gc_line(&self) -> String {
+        let m = &self.modal;
+        let motion = match m.motion {
+            Motion::Rapid => "G0",
+            Motion::Linear => "G1",
+            Motion::ArcCw => "G2",
+            Motion::ArcCcw => "G3",
+            Motion::None => "G80",
+        };
+        let spindle = match m.spindle {
+            Spindle::Off => "M5",
+            Spindle::Cw => "M3",
+            Spindle::Ccw => "M4",
+        };
+        let feed = if m.inverse_time {
+            fmt_num(m.feed, 0)
+        } else if m.inches {
+            fmt_num(m.feed / 25.4, 1)
+        } else {
+            fmt_num(m.feed, 0)
+        };
+        format!(
+            "[GC:{motion} G{} G{} {} {} {} {spindle} {} T{} F{feed} S{}]",
+            m.coord,
+            m.plane,
+            if m.inches { "G20" } else { "G21" },
+            if m.incremental { "G91" } else { "G90" },
+            if m.inverse_time { "G93" } else { "G94" },
+            if m.flood { "M8" } else { "M9" },
+            m.tool,
+            fmt_num(m.s, 0),
+        )
+    }
+
+    fn axis_index(&self, letter: char) -> Option<usize> {
+        self.cfg.axes.iter().position(|a| a.letter == letter)
+    }
+
+    /// Parses and checks one G-code block; mutates state only on success.
+    fn gcode(&mut self, text: &str, line: u64) -> Result<Vec<Step>, u16> {
+        let words = split_words(text)?;
+        let naxes = self.cfg.axes.len();
+        let mut groups = 0u32;
+        let mut set_group = |g: u32| -> Result<(), u16> {
+            if groups & (1 << g) != 0 {
+                return Err(21);
+            }
+            groups |= 1 << g;
+            Ok(())
+        };
+        let mut motion: Option<Motion> = None;
+        #[derive(PartialEq, Clone, Copy)]
+        enum NonModal {
+            Dwell,
+            Absolute,
+            SetOffset,
+            ClearOffset,
+        }
+        let mut non_modal: Option<NonModal> = None;
+        let (mut plane, mut units, mut distance_mode, mut feed_mode, mut coord) = (None, None, None, None, None);
+        let mut spindle: Option<Spindle> = None;
+        let mut flood: Option<bool> = None;
+        let mut stop: Option<u32> = None;
+        let mut vals: [Option<f64>; 26] = [None; 26];
+        let mut axes: Vec<Option<f64>> = vec![None; naxes];
+
+        for w in &words {
+            let v = w.value;
+            match w.letter {
+                'G' | 'M' => {
+                    if v < 0.0 {
+                        return Err(20);
+                    }
+                    let int = v.trunc() as u32;
+                    let mant = ((v - v.trunc()) * 100.0).round() as u32;
+                    if w.letter == 'M' {
+                        if mant != 0 {
+                            return Err(23);
+                        }
+                        match int {
+                            0 | 1 | 2 | 30 => {
+                                set_group(20)?;
+                                stop = Some(int);
+                            }
+                            3..=5 => {
+                                set_group(21)?;
+                                spindle = Some(match int {
+                                    3 => Spindle::Cw,
+                                    4 => Spindle::Ccw,
+                                    _ => Spindle::Off,
+                                });
+                            }
+                            8 | 9 => {
+                                set_group(22)?;
+                                flood = Some(int == 8);
+                            }
+                            _ => return Err(20),
+                        }
+                        continue;
+                    }
+                    match (int, mant) {
+                        (0..=3 | 80, 0) => {
+                            set_group(1)?;
+                            motion = Some(match int {
+                                0 => Motion::Rapid,
+                                1 => Motion::Linear,
+                                2 => Motion::ArcCw,
+                                3 => Motion::ArcCcw,
+                                _ => Motion::None,
+                            });
+                        }
+                        (4, 0) | (53, 0) | (92, 0) | (92, 10) => {
+                            set_group(0)?;
+                            non_modal = Some(match (int, mant) {
+                                (4, _) => NonModal::Dwell,
+                                (53, _) => NonModal::Absolute,
+                                (92, 0) => NonModal::SetOffset,
+                                _ => NonModal::ClearOffset,
+                            });
+                        }
+                        (17..=19, 0) => {
+                            set_group(2)?;
+                            plane = Some(int as u8);
+                        }
+                        (90 | 91, 0) => {
+                            set_group(3)?;
+                            distance_mode = Some(int == 91);
+                        }
+                        (91, 10) => set_group(4)?,
+                        (93 | 94, 0) => {
+                            set_group(5)?;
+                            feed_mode = Some(int == 93);
+                        }
+                        (20 | 21, 0) => {
+                            set_group(6)?;
+                            units = Some(int == 20);
+                        }
+                        (40, 0) => set_group(7)?,
+                        (49, 0) => set_group(8)?,
+                        (54..=59, 0) => {
+                            set_group(12)?;
+                            coord = Some(int as u8);
+                        }
+                        (59, _) => return Err(29),
+                        (61, 0) => set_group(13)?,
+                        (0..=4 | 17..=21 | 40 | 49 | 53..=58 | 61 | 80 | 90 | 93 | 94, _) => return Err(23),
+                        _ => return Err(20),
+                    }
+                }
+                c @ ('F' | 'I' | 'J' | 'K' | 'L' | 'N' | 'P' | 'R' | 'S' | 'T') => {
+                    let slot = &mut vals[(c as u8 - b'A') as usize];
+                    if slot.is_some() {
+                        return Err(25);
+                    }
+                    if matches!(c, 'F' | 'N' | 'P' | 'S' | 'T') && v < 0.0 {
+                        return Err(4);
+                    }
+                    *slot = Some(v);
+                }
+                c => {
+                    let i = self.axis_index(c).ok_or(20u16)?;
+                    if axes[i].is_some() {
+                        return Err(25);
+                    }
+                    axes[i] = Some(v);
+                }
+            }
+        }
+        let get = |c: char| vals[(c as u8 - b'A') as usize];
+        let n_word = match get('N') {
+            Some(n) if n > 9_999_999.0 => return Err(27),
+            Some(n) if n >= 1.0 => Some(n as u32),
+            _ => None,
+        };
+        let tool = match get('T') {
+            Some(t) if t > 255.0 => return Err(38),
+            Some(t) => t as u32,
+            None => self.modal.tool,
+        };
+        if get('L').is_some() {
+            return Err(36);
+        }
+
+        let m = &self.modal;
+        let inches = units.unwrap_or(m.inches);
+        let scale = if inches { 25.4 } else { 1.0 };
+        let incremental = distance_mode.unwrap_or(m.incremental);
+        let inverse = feed_mode.unwrap_or(m.inverse_time);
+        let plane = plane.unwrap_or(m.plane);
+        let mode = motion.unwrap_or(m.motion);
+        let new_spindle = spindle.unwrap_or(m.spindle);
+        let new_s = get('S').unwrap_or(m.s);
+        let new_flood = flood.unwrap_or(m.flood);
+        let new_coord = coord.unwrap_or(m.coord);
+        let has_axes = axes.iter().any(|a| a.is_some());
+        let offset_cmd = matches!(non_modal, Some(NonModal::SetOffset | NonModal::ClearOffset));
+        let explicit_move = matches!(motion, Some(Motion::Rapid | Motion::Linear | Motion::ArcCw | Motion::ArcCcw));
+        if non_modal == Some(NonModal::SetOffset) && explicit_move {
+            return Err(24);
+        }
+        if non_modal == Some(NonModal::SetOffset) && !has_axes {
+            return Err(26);
+        }
+        let motion_cmd = non_modal != Some(NonModal::SetOffset) && (has_axes || explicit_move);
+        if mode == Motion::None && has_axes && non_modal != Some(NonModal::SetOffset) {
+            return Err(31);
+        }
+        // Feed: Grbl keeps F across G94 blocks, requires it on every G93
+        // motion block, and forgets it when leaving G93.
+        let f_word = get('F');
+        let feed = if inverse {
+            f_word.unwrap_or(0.0)
+        } else if m.inverse_time {
+            f_word.map_or(0.0, |f| f * scale)
+        } else {
+            f_word.map_or(m.feed, |f| f * scale)
+        };
+        let feed_move = motion_cmd && matches!(mode, Motion::Linear | Motion::ArcCw | Motion::ArcCcw);
+        if feed_move && ((inverse && f_word.is_none()) || feed <= 0.0) {
+            return Err(22);
+        }
+        let dwell = if non_modal == Some(NonModal::Dwell) { Some(get('P').ok_or(28u16)?) } else { None };
+        if dwell.is_none() && get('P').is_some() {
+            return Err(36);
+        }
+        let absolute = non_modal == Some(NonModal::Absolute);
+        if absolute && !(motion_cmd && matches!(mode, Motion::Rapid | Motion::Linear)) {
+            return Err(30);
+        }
+        let is_arc = motion_cmd && matches!(mode, Motion::ArcCw | Motion::ArcCcw);
+        if !is_arc && ['I', 'J', 'K', 'R'].iter().any(|c| get(*c).is_some()) {
+            return Err(36);
+        }
+
+        // Targets in machine coordinates (mm).
+        let mut target = self.gc_pos.clone();
+        let mut new_g92 = self.g92.clone();
+        for (i, v) in axes.iter().enumerate() {
+            let Some(v) = v else { continue };
+            let mm = v * scale;
+            if non_modal == Some(NonModal::SetOffset) {
+                new_g92[i] = self.gc_pos[i] - mm;
+            } else if absolute {
+                target[i] = mm;
+            } else if incremental {
+                target[i] = self.gc_pos[i] + mm;
+            } else {
+                target[i] = mm + self.g92[i];
+            }
+        }
+        if non_modal == Some(NonModal::ClearOffset) {
+            new_g92 = vec![0.0; naxes];
+        }
+
+        let fires = matches!(mode, Motion::Linear | Motion::ArcCw | Motion::ArcCcw)
+            && new_spindle != Spindle::Off
+            && new_s > 0.0;
+        let power = if fires { new_s.min(self.cfg.laser_max_s) } else { 0.0 };
+        let mut points: Vec<Vec<f64>> = Vec::new();
+        if motion_cmd && mode != Motion::None {
+            if is_arc {
+                let arc = ArcInput {
+                    start: &self.gc_pos,
+                    end: &target,
+                    plane,
+                    cw: mode == Motion::ArcCw,
+                    ijk: [get('I'), get('J'), get('K')].map(|o| o.map(|v| v * scale)),
+                    r: get('R').map(|v| v * scale),
+                    has_axes,
+                };
+                points = self.arc_points(&arc, &axes)?;
+            } else {
+                points.push(target.clone());
+            }
+        }
+
+        // Soft limits, checked on every point before anything is queued.
+        for p in &points {
+            for (i, a) in self.cfg.axes.iter().enumerate() {
+                if p[i] < a.min - 1e-6 || p[i] > a.max + 1e-6 {
+                    self.soft_limit_alarm();
+                    return Err(9);
+                }
+            }
+        }
+
+        // Build the blocks.
+        let mut blocks = Vec::new();
+        let mut prev = self.gc_pos.clone();
+        let nchords = points.len().max(1) as f64;
+        for p in &points {
+            let min_duration = self
+                .cfg
+                .axes
+                .iter()
+                .enumerate()
+                .map(|(i, a)| (p[i] - prev[i]).abs() / a.max_velocity)
+                .fold(0.0, f64::max);
+            let len = dist(&prev, p);
+            if prev.iter().zip(p).all(|(a, b)| (a - b).abs() <= EPS_POS) {
+                prev = p.clone();
+                continue;
+            }
+            let duration = match mode {
+                Motion::Rapid => min_duration,
+                _ if inverse => 60.0 / feed / nchords,
+                _ => len / (feed / 60.0),
+            }
+            .max(min_duration);
+            blocks.push(Block {
+                target: p.clone(),
+                duration,
+                min_duration,
+                rapid: mode == Motion::Rapid,
+                power,
+                line,
+                n_word,
+                gentle: false,
+            });
+            prev = p.clone();
+        }
+
+        // Everything checked: commit and describe what is left to do.
+        let mut steps = Vec::new();
+        let m = &self.modal;
+        let spindle_sync = new_spindle != m.spindle
+            || (new_spindle == Spindle::Cw && new_s != m.s && !motion_cmd)
+            || new_flood != m.flood
+            || new_coord != m.coord
+            || offset_cmd;
+        if spindle_sync {
+            steps.push(Step::Sync);
+        }
+        if let Some(p) = dwell {
+            steps.push(Step::Sync);
+            if !self.check_mode {
+                steps.push(Step::Dwell(p));
+            }
+        }
+        if let Some(last) = points.last() {
+            self.gc_pos = last.clone();
+        }
+        if !self.check_mode {
+            steps.extend(blocks.into_iter().map(Step::Queue));
+        }
+        let m = &mut self.modal;
+        m.inches = inches;
+        m.incremental = incremental;
+        m.inverse_time = inverse;
+        m.plane = plane;
+        if !absolute {
+            m.motion = mode;
+        } else if let Some(mo) = motion {
+            m.motion = mo;
+        }
+        m.spindle = new_spindle;
+        m.s = new_s;
+        m.flood = new_flood;
+        m.coord = new_coord;
+        m.tool = tool;
+        m.feed = feed;
+        self.g92 = new_g92;
+        match stop {
+            Some(0) => steps.extend([Step::Sync, Step::Pause]),
+            Some(2 | 30) => {
+                steps.extend([Step::Sync, Step::ProgramEnd]);
+                let m = &mut self.modal;
+                m.motion = Motion::Linear;
+                m.plane = 17;
+                m.incremental = false;
+                m.inverse_time = false;
+                m.coord = 54;
+                m.spindle = Spindle::Off;
+                m.flood = false;
+            }
+            _ => {}
+        }
+        if self.check_mode {
+            steps.retain(|s| !matches!(s, Step::Pause));
+        }
+        Ok(steps)
+    }
+
+    fn soft_limit_alarm(&mut self) {
+        self.stop_motion_now();
+        self.planner.clear();
+        self.gc_pos = self.pos.clone();
+        self.hold = false;
+        self.alarm = true;
+        self.critical = true;
+        self.reset_starvation();
+        self.stats.alarms.push(2);
+        self.send("ALARM:2");
+        self.send("[MSG:Reset to continue]");
+    }
+
+    /// Chord end points of an arc (reference §9; sagitta <= 0.002 mm).
+    fn arc_points(&self, arc: &ArcInput, axes: &[Option<f64>]) -> Result<Vec<Vec<f64>>, u16> {
+        const TOLERANCE: f64 = 0.002;
+        let (l0, l1, o0, o1) = match arc.plane {
+            17 => ('X', 'Y', 0, 1),
+            18 => ('Z', 'X', 2, 0),
+            _ => ('Y', 'Z', 1, 2),
+        };
+        let (Some(a0), Some(a1)) = (self.axis_index(l0), self.axis_index(l1)) else { return Err(20) };
+        if !arc.has_axes {
+            return Err(26);
+        }
+        if axes[a0].is_none() && axes[a1].is_none() {
+            return Err(32);
+        }
+        let (s0, s1) = (arc.start[a0], arc.start[a1]);
+        let (x, y) = (arc.end[a0] - s0, arc.end[a1] - s1);
+        let (ci, cj) = if let Some(r) = arc.r {
+            // Centre from the radius (Grbl's formula; negative R = long way).
+            if x.abs() < EPS_POS && y.abs() < EPS_POS {
+                return Err(33);
+            }
+            let h2 = 4.0 * r * r - x * x - y * y;
+            if h2 < 0.0 {
+                return Err(33);
+            }
+            let mut h = -h2.sqrt() / x.hypot(y);
+            if !arc.cw {
+                h = -h;
+            }
+            if r < 0.0 {
+                h = -h;
+            }
+            (0.5 * (x - y * h), 0.5 * (y + x * h))
+        } else {
+            let (i, j) = (arc.ijk[o0], arc.ijk[o1]);
+            if i.is_none() && j.is_none() {
+                return Err(35);
+            }
+            (i.unwrap_or(0.0), j.unwrap_or(0.0))
+        };
+        let (c0, c1) = (s0 + ci, s1 + cj);
+        let (r0x, r0y) = (s0 - c0, s1 - c1);
+        let (r1x, r1y) = (arc.end[a0] - c0, arc.end[a1] - c1);
+        let radius = r0x.hypot(r0y);
+        let end_radius = r1x.hypot(r1y);
+        if radius.is_nan() || radius <= 0.0 || ((end_radius - radius).abs() > 0.005 && (end_radius - radius).abs() > 0.001 * radius) {
+            return Err(33);
+        }
+        let mut travel = (r0x * r1y - r0y * r1x).atan2(r0x * r1x + r0y * r1y);
+        if arc.cw {
+            if travel >= -5e-7 {
+                travel -= std::f64::consts::TAU;
+            }
+        } else if travel <= 5e-7 {
+            travel += std::f64::consts::TAU;
+        }
+        let max_step = if radius <= TOLERANCE / 2.0 {
+            std::f64::consts::PI
+        } else {
+            (2.0 * (1.0 - TOLERANCE / radius).acos()).min(std::f64::consts::PI)
+        };
+        let n = (travel.abs() / max_step).ceil().max(1.0);
+        if n > 1e6 {
+            return Err(33);
+        }
+        let n = n as usize;
+        let theta0 = r0y.atan2(r0x);
+        let mut pts = Vec::with_capacity(n);
+        for k in 1..n {
+            let f = k as f64 / n as f64;
+            let th = theta0 + travel * f;
+            let mut p: Vec<f64> =
+                arc.start.iter().zip(arc.end.iter()).map(|(s, e)| s + (e - s) * f).collect();
+            p[a0] = c0 + radius * th.cos();
+            p[a1] = c1 + radius * th.sin();
+            pts.push(p);
+        }
+        pts.push(arc.end.to_vec());
+        Ok(pts)
+    }
+}
+
+struct ArcInput<'a> {
+    start: &'a [f64],
+    end: &'a [f64],
+    plane: u8,
+    cw: bool,
+    ijk: [Option<f64>; 3],
+    r: Option<f64>,
+    has_axes: bool,
+}
+
+fn dist(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (y - x) * (y - x)).sum::<f64>().sqrt()
+}
+
+fn join3(v: &[f64]) -> String {
+    v.iter().map(|x| fmt_num(*x, 3)).collect::<Vec<_>>().join(",")
+}
+
+fn interpolate(e: &Exec, t: f64) -> Vec<f64> {
+    let dur = e.end_t - e.start_t;
+    let f = if dur > 0.0 { ((t - e.start_t) / dur).clamp(0.0, 1.0) } else { 1.0 };
+    e.start_pos.iter().zip(&e.block.target).map(|(s, g)| s + (g - s) * f).collect()
+}
+
+/// Makes any config usable rather than failing later: 1..=6 axes, positive
+/// finite rates, min <= max, buffers of at least a few bytes/one block.
+fn sanitize(mut c: SimConfig) -> SimConfig {
+    if c.axes.is_empty() {
+        c.axes.push(AxisConfig::new('X'));
+    }
+    c.axes.truncate(6);
+    for a in &mut c.axes {
+        a.letter = a.letter.to_ascii_uppercase();
+        if !a.min.is_finite() {
+            a.min = 0.0;
+        }
+        if !a.max.is_finite() {
+            a.max = a.min;
+        }
+        if a.min > a.max {
+            std::mem::swap(&mut a.min, &mut a.max);
+        }
+        if !(a.max_velocity.is_finite() && a.max_velocity > 0.0) {
+            a.max_velocity = 1.0;
+        }
+    }
+    c.rx_buffer = c.rx_buffer.max(2);
+    c.planner_blocks = c.planner_blocks.max(1);
+    if !(c.laser_max_s.is_finite() && c.laser_max_s > 0.0) {
+        c.laser_max_s = 1000.0;
+    }
+    c
+}

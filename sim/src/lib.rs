@@ -1,0 +1,30 @@
+//! `laserd-sim`: a GRBL 1.1-compatible laser controller in software.
+//!
+//! * [`wire`]: protocol definitions shared by sender and simulator;
+//! * [`controller`]: the controller state machine, driven by an external clock;
+//! * [`limits`]: an independent kinematic limit checker over executed knots;
+//! * [`link`]: serial byte pacing;
+//! * [`pty`]: the real-time driver on a pseudo-terminal.
+
+pub mod controller;
+mod gcode;
+pub mod limits;
+pub mod link;
+pub mod pty;
+pub mod wire;
+
+pub use controller::{AxisConfig, Controller, Faults, Knot, SimConfig, SimStats};
+pub use limits::{LimitChecker, LimitReport};
+pub use link::PacedLink;
+pub use pty::{open_pty, run_realtime, PtyDevice};
+pub use wire::{MachineState, Response, StatusReport};
+
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("i/o: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("system call: {0}")]
+    Nix(#[from] nix::Error),
+    #[error("{0} exists and is not a symlink; refusing to replace it")]
+    LinkOccupied(std::path::PathBuf),
+}

@@ -1,0 +1,150 @@
+//! Real-time driver: the controller served on a pseudo-terminal.
+
+use std::os::fd::{AsFd, OwnedFd};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use nix::errno::Errno;
+use nix::fcntl::{fcntl, FcntlArg, OFlag};
+use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
+
+use crate::controller::{Controller, Knot};
+use crate::link::PacedLink;
+use crate::SimError;
+
+/// An open pty pair. The slave end is kept open while we run so the master
+/// never reads EIO between clients.
+pub struct PtyDevice {
+    master: OwnedFd,
+    _idle_slave: OwnedFd,
+    path: PathBuf,
+    link: Option<PathBuf>,
+}
+
+impl PtyDevice {
+    /// The slave device path (e.g. `/dev/pts/3`) clients open.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The symlink created for the device, if any.
+    pub fn link(&self) -> Option<&Path> {
+        self.link.as_deref()
+    }
+}
+
+impl Drop for PtyDevice {
+    fn drop(&mut self) {
+        // Remove our symlink only if it still points at our device.
+        if let Some(l) = &self.link {
+            if std::fs::read_link(l).ok().as_deref() == Some(self.path.as_path()) {
+                let _ = std::fs::remove_file(l);
+            }
+        }
+    }
+}
+
+/// Opens a pty whose slave is raw (set before the path is published) and
+/// optionally points `link` at it, replacing an existing symlink.
+pub fn open_pty(link: Option<&Path>) -> Result<PtyDevice, SimError> {
+    let pty = nix::pty::openpty(None, None)?;
+    let mut tio = tcgetattr(&pty.slave)?;
+    cfmakeraw(&mut tio);
+    tcsetattr(&pty.slave, SetArg::TCSANOW, &tio)?;
+    let flags = OFlag::from_bits_truncate(fcntl(&pty.master, FcntlArg::F_GETFL)?);
+    fcntl(&pty.master, FcntlArg::F_SETFL(flags | OFlag::O_NONBLOCK))?;
+    let path = nix::unistd::ttyname(&pty.slave)?;
+    let link = match link {
+        Some(l) => {
+            if let Ok(meta) = std::fs::symlink_metadata(l) {
+                if !meta.file_type().is_symlink() {
+                    return Err(SimError::LinkOccupied(l.to_path_buf()));
+                }
+                std::fs::remove_file(l)?;
+            }
+            std::os::unix::fs::symlink(&path, l)?;
+            Some(l.to_path_buf())
+        }
+        None => None,
+    };
+    Ok(PtyDevice { master: pty.master, _idle_slave: pty.slave, path, link })
+}
+
+/// Serves `controller` on `dev` in wall-clock time until `stop` is set.
+/// Bytes in both directions are paced at `baud`; realtime bytes too, since
+/// they share the wire. Executed motion is handed to `on_knots`.
+pub fn run_realtime(
+    mut controller: Controller,
+    dev: PtyDevice,
+    baud: u32,
+    stop: Arc<AtomicBool>,
+    mut on_knots: impl FnMut(Vec<Knot>),
+) {
+    let start = Instant::now();
+    let clock = |base: f64| base + start.elapsed().as_secs_f64();
+    // Controller time continues from wherever it already is.
+    let base = controller.now();
+    let mut to_ctl = PacedLink::new(baud);
+    let mut to_host = PacedLink::new(baud);
+    let mut buf = [0u8; 4096];
+    while !stop.load(Ordering::Relaxed) {
+        let now = clock(base);
+        for (t, b) in to_ctl.pop_due(now) {
+            controller.receive(t, b);
+        }
+        controller.advance(now);
+        let out = controller.take_output();
+        if !out.is_empty() {
+            to_host.push(now, &out);
+        }
+        let knots = controller.take_knots();
+        if !knots.is_empty() {
+            on_knots(knots);
+        }
+        let due: Vec<u8> = to_host.pop_due(now).into_iter().map(|(_, b)| b).collect();
+        if !due.is_empty() {
+            // Nobody listening and the pty queue full: the bytes are lost, as
+            // on a serial line without a reader.
+            let _ = write_all(&dev.master, &due);
+        }
+
+        // Sleep until input, the next due event, or at most 1 ms while busy.
+        let busy = !to_ctl.is_empty() || !to_host.is_empty() || controller.next_event().is_some();
+        let wake = [to_ctl.next_arrival(), to_host.next_arrival(), controller.next_event()]
+            .into_iter()
+            .flatten()
+            .fold(f64::INFINITY, f64::min);
+        let ms = if busy { ((wake - clock(base)) * 1000.0).clamp(0.0, 1.0).ceil() as u16 } else { 10 };
+        let mut fds = [PollFd::new(dev.master.as_fd(), PollFlags::POLLIN)];
+        let readable = match poll(&mut fds, PollTimeout::from(ms)) {
+            Ok(n) if n > 0 => fds[0].revents().is_some_and(|r| r.intersects(PollFlags::POLLIN | PollFlags::POLLHUP)),
+            _ => false,
+        };
+        if !readable {
+            continue;
+        }
+        match nix::unistd::read(&dev.master, &mut buf) {
+            Ok(0) | Err(Errno::EIO) => {
+                // Client went away: keep serving, wait for the next one.
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Ok(n) => to_ctl.push(clock(base), &buf[..n]),
+            Err(Errno::EAGAIN) | Err(Errno::EINTR) => {}
+            Err(_) => std::thread::sleep(Duration::from_millis(5)),
+        }
+    }
+}
+
+fn write_all(fd: &OwnedFd, mut bytes: &[u8]) -> nix::Result<()> {
+    while !bytes.is_empty() {
+        match nix::unistd::write(fd, bytes) {
+            Ok(n) => bytes = &bytes[n..],
+            Err(Errno::EINTR) => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,427 @@
+//! Controller behaviour in virtual time, driven through a paced 115200 link.
+
+use laserd_sim::controller::{AxisConfig, Controller, Faults, Knot, SimConfig};
+use laserd_sim::link::PacedLink;
+use laserd_sim::wire::{realtime, MachineState, Response, StatusReport, BANNER};
+
+const BYTE: f64 = 10.0 / 115200.0;
+
+/// Minimal virtual-time driver: host -> controller bytes paced at 115200.
+struct Sim {
+    ctl: Controller,
+    link: PacedLink,
+    t: f64,
+    partial: String,
+    lines: Vec<(f64, String)>,
+    knots: Vec<Knot>,
+}
+
+impl Sim {
+    fn new(cfg: SimConfig) -> Sim {
+        let mut s = Sim { ctl: Controller::new(cfg), link: PacedLink::new(115200), t: 0.0, partial: String::new(), lines: vec![], knots: vec![] };
+        s.collect();
+        s
+    }
+
+    fn send(&mut self, text: &str) {
+        self.link.push(self.t, text.as_bytes());
+    }
+
+    fn collect(&mut self) {
+        for b in self.ctl.take_output() {
+            self.partial.push(b as char);
+        }
+        while let Some(i) = self.partial.find("\r\n") {
+            let line: String = self.partial.drain(..i + 2).collect();
+            let line = line.trim_end().to_string();
+            if !line.is_empty() {
+                self.lines.push((self.t, line));
+            }
+        }
+        self.knots.extend(self.ctl.take_knots());
+    }
+
+    /// Runs events (byte arrivals, controller events) up to `t_end`.
+    fn run_until(&mut self, t_end: f64) {
+        for _ in 0..10_000_000 {
+            let next = [self.link.next_arrival(), self.ctl.next_event()].into_iter().flatten().fold(f64::INFINITY, f64::min);
+            if next > t_end {
+                break;
+            }
+            self.t = next.max(self.t);
+            for (ta, b) in self.link.pop_due(next) {
+                self.ctl.receive(ta, b);
+            }
+            self.ctl.advance(next);
+            self.collect();
+        }
+        self.ctl.advance(t_end);
+        self.t = t_end;
+        self.collect();
+    }
+
+    fn realtime(&mut self, b: u8) {
+        self.ctl.receive(self.t, b);
+        self.collect();
+    }
+
+    fn texts(&self) -> Vec<&str> {
+        self.lines.iter().map(|(_, l)| l.as_str()).collect()
+    }
+
+    fn responses(&self) -> Vec<(f64, Response)> {
+        self.lines.iter().map(|(t, l)| (*t, Response::parse(l))).filter(|(_, r)| matches!(r, Response::Ok | Response::Error(_))).collect()
+    }
+
+    fn status(&mut self) -> StatusReport {
+        let before = self.lines.len();
+        self.realtime(realtime::STATUS);
+        assert_eq!(self.lines.len(), before + 1, "one report expected");
+        StatusReport::parse(&self.lines[before].1).unwrap()
+    }
+}
+
+fn cfg() -> SimConfig {
+    SimConfig::with_axes("XY")
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() < 1e-9
+}
+
+#[test]
+fn banner_and_idle_status() {
+    let mut s = Sim::new(cfg());
+    assert_eq!(s.texts(), vec![BANNER]);
+    let st = s.status();
+    assert_eq!(s.lines.last().unwrap().1, "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0>");
+    assert_eq!(st.state, MachineState::Idle);
+}
+
+#[test]
+fn g93_program_knots_and_oks() {
+    let mut s = Sim::new(cfg());
+    let prog = ["G21 G90 G93", "M3 S500", "G1 X1 F600", "N7 G1 X1 Y2 F300", "G0 X0 Y0", "M5", "M2"];
+    let text: String = prog.iter().map(|l| format!("{l}\n")).collect();
+    s.send(&text);
+    s.run_until(5.0);
+    let oks = s.responses();
+    assert_eq!(oks.len(), prog.len());
+    assert!(oks.iter().all(|(_, r)| *r == Response::Ok));
+    assert!(s.texts().contains(&"[MSG:Pgm End]"));
+    // Motion starts when line 3's newline has arrived (nothing else to parse).
+    let bytes3: usize = prog[..3].iter().map(|l| l.len() + 1).sum();
+    let t0 = bytes3 as f64 * BYTE;
+    let expect = [
+        (t0, [0.0, 0.0], 500.0, 3),
+        (t0 + 0.1, [1.0, 0.0], 500.0, 3),
+        (t0 + 0.3, [1.0, 2.0], 500.0, 4),
+        (t0 + 0.32, [0.0, 0.0], 0.0, 5),
+    ];
+    assert_eq!(s.knots.len(), expect.len(), "{:?}", s.knots);
+    for (k, (t, p, pw, line)) in s.knots.iter().zip(expect) {
+        assert!(close(k.t, t), "{k:?} vs t={t}");
+        assert_eq!(k.pos, p.to_vec());
+        assert_eq!((k.power, k.line), (pw, line));
+    }
+    // M5 and M2 wait for motion: their oks come at the end of motion.
+    assert!(close(oks[5].0, t0 + 0.32) && close(oks[6].0, t0 + 0.32));
+    let st = s.ctl.stats();
+    assert_eq!((st.lines_received, st.blocks_executed), (7, 3));
+    assert_eq!(st.starved_s, 0.0);
+    assert!(close(st.last_motion_end_t.unwrap(), t0 + 0.32));
+    assert!(s.ctl.stats().alarms.is_empty());
+    // M2 reset the modal state.
+    s.send("$G\n");
+    s.run_until(6.0);
+    assert!(s.texts().iter().any(|l| l.starts_with("[GC:G1 G54 G17 G21 G90 G94 M5 M9 T0 F")), "{:?}", s.texts());
+}
+
+#[test]
+fn planner_full_delays_ok() {
+    let mut s = Sim::new(cfg());
+    s.send("G93\n");
+    let mut text = String::new();
+    for i in 1..=20 {
+        text.push_str(&format!("G1X{i}F600\n"));
+    }
+    s.send(&text);
+    s.run_until(0.05);
+    // 1 (G93) + 15 blocks acknowledged, the 16th waits in RX.
+    assert_eq!(s.responses().len(), 16);
+    let st = s.status();
+    let waiting = text.len() - 15 * "G1XnF600\n".len() - 6; // 6 two-digit numbers among the first 15
+    assert_eq!(st.buffer, Some((0, (128 - waiting) as u32)));
+    assert_eq!(st.state, MachineState::Run);
+    let first_start = s.knots[0].t;
+    s.run_until(10.0);
+    let oks = s.responses();
+    assert_eq!(oks.len(), 21);
+    assert!(close(oks[16].0, first_start + 0.1), "ok of block 16 at {} not at end of block 1", oks[16].0);
+    assert!(close(s.knots.last().unwrap().t, first_start + 2.0));
+    assert_eq!(s.ctl.position(), vec![20.0, 0.0]);
+}
+
+#[test]
+fn rx_overflow_when_overfilled() {
+    let mut s = Sim::new(cfg());
+    let text: String = (1..=60).map(|i| format!("G93G1X{i}F6\n")).collect();
+    s.send(&text);
+    s.run_until(1.0);
+    assert!(s.ctl.stats().rx_overflows > 0);
+}
+
+#[test]
+fn error_on_line_fault() {
+    let c = SimConfig { faults: Faults { error_on_line: Some(2) }, ..cfg() };
+    let mut s = Sim::new(c);
+    s.send("G1 X1 F600\nG1 X2\nG1 X3\n");
+    s.run_until(2.0);
+    let r: Vec<Response> = s.responses().into_iter().map(|x| x.1).collect();
+    assert_eq!(r, vec![Response::Ok, Response::Error(20), Response::Ok]);
+    let xs: Vec<f64> = s.knots.iter().map(|k| k.pos[0]).collect();
+    assert!(!xs.contains(&2.0) && xs.contains(&3.0));
+    assert_eq!(s.ctl.stats().errors_sent, 1);
+}
+
+#[test]
+fn soft_limit_alarm_and_recovery() {
+    let mut s = Sim::new(cfg());
+    s.send("G0 X400\nG0 X1\n$X\n");
+    s.run_until(1.0);
+    let t = s.texts();
+    assert_eq!(&t[1..], &["ALARM:2", "[MSG:Reset to continue]", "error:9", "error:9", "error:9"]);
+    assert_eq!(s.ctl.state(), MachineState::Alarm);
+    let n = s.lines.len();
+    s.realtime(realtime::STATUS); // ignored until reset
+    assert_eq!(s.lines.len(), n);
+    s.realtime(realtime::SOFT_RESET);
+    assert_eq!(&s.texts()[n..], &[BANNER, "[MSG:'$H'|'$X' to unlock]"]);
+    s.send("G0 X1\n$X\nG0 X1\n");
+    s.run_until(2.0);
+    assert_eq!(&s.texts()[n + 2..], &["error:9", "[MSG:Caution: Unlocked]", "ok", "ok"]);
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0]);
+    assert_eq!(s.ctl.stats().alarms, vec![2]);
+    assert!(s.knots.iter().all(|k| k.pos[0] <= 300.0));
+}
+
+#[test]
+fn soft_reset_while_moving_and_idle() {
+    let mut s = Sim::new(cfg());
+    s.send("M3 S100\nG1 X100 F600\nG1 X200\n");
+    s.run_until(1.0);
+    assert_eq!(s.ctl.state(), MachineState::Run);
+    assert!(s.ctl.laser_power() == 100.0);
+    let n = s.lines.len();
+    s.realtime(realtime::SOFT_RESET);
+    assert_eq!(&s.texts()[n..], &["ALARM:3", BANNER, "[MSG:'$H'|'$X' to unlock]"]);
+    assert_eq!(s.ctl.state(), MachineState::Alarm);
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    let last = s.knots.last().unwrap();
+    assert!(close(last.t, 1.0));
+    let start = s.knots[0].t;
+    assert!((last.pos[0] - (1.0 - start) * 10.0).abs() < 1e-9);
+    assert_eq!(s.ctl.stats().alarms, vec![3]);
+    assert_eq!(s.ctl.next_event(), None);
+    let st = s.status();
+    assert_eq!(st.buffer, Some((15, 128)));
+    // Reset while idle: banner only, no alarm.
+    s.send("$X\n");
+    s.run_until(2.0);
+    let n = s.lines.len();
+    s.realtime(realtime::SOFT_RESET);
+    assert_eq!(&s.texts()[n..], &[BANNER]);
+    assert_eq!(s.ctl.state(), MachineState::Idle);
+}
+
+#[test]
+fn starvation_counts_only_gaps_between_blocks() {
+    let mut s = Sim::new(cfg());
+    s.send("G93 G1 X1 F600\n");
+    s.run_until(1.0);
+    assert_eq!(s.ctl.stats().starved_s, 0.0);
+    let end1 = s.knots[1].t;
+    s.send("G1 X2 F600\n");
+    s.run_until(3.0);
+    let restart = 1.0 + "G1 X2 F600\n".len() as f64 * BYTE;
+    let st = s.ctl.stats();
+    assert!(close(st.starved_s, restart - end1), "{} vs {}", st.starved_s, restart - end1);
+    // The rest is explicit in the knots: end, then restart at the same place.
+    assert!(close(s.knots[2].t, restart) && s.knots[2].pos == s.knots[1].pos);
+    s.run_until(10.0);
+    assert!(close(s.ctl.stats().starved_s, restart - end1), "idle after the last block is not starvation");
+}
+
+#[test]
+fn dwell_waits_for_motion_and_is_not_starvation() {
+    let mut s = Sim::new(cfg());
+    s.send("G93 G1 X1 F600\nG4 P0.5\nG1 X2 F600\n");
+    s.run_until(3.0);
+    let k = &s.knots;
+    assert_eq!(k.len(), 4, "{k:?}");
+    assert!(close(k[2].t, k[1].t + 0.5));
+    assert_eq!(s.ctl.stats().starved_s, 0.0);
+    let oks = s.responses();
+    assert!(close(oks[1].0, k[1].t + 0.5), "dwell ok after the dwell");
+}
+
+#[test]
+fn feed_hold_finishes_block_then_resume() {
+    let mut s = Sim::new(cfg());
+    s.send("M3 S300\nG93 G1 X1 F60\nG1 X2 F60\n");
+    s.run_until(0.5);
+    s.realtime(realtime::FEED_HOLD);
+    assert_eq!(s.ctl.state(), MachineState::Hold(1));
+    assert_eq!(s.status().state, MachineState::Hold(1));
+    let end1 = s.knots[0].t + 1.0;
+    s.run_until(3.0);
+    assert_eq!(s.ctl.state(), MachineState::Hold(0));
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0]);
+    assert!(close(s.knots[1].t, end1));
+    s.realtime(realtime::CYCLE_START);
+    assert_eq!(s.ctl.state(), MachineState::Run);
+    assert_eq!(s.ctl.laser_power(), 300.0);
+    assert!(close(s.knots[2].t, 3.0) && s.knots[2].pos == vec![1.0, 0.0]);
+    s.run_until(5.0);
+    assert!(close(s.knots[3].t, 4.0));
+    assert_eq!(s.ctl.stats().starved_s, 0.0, "a hold is not starvation");
+}
+
+#[test]
+fn arcs_are_chords_within_tolerance() {
+    let mut s = Sim::new(cfg());
+    // Quarter circle radius 10 around (10,0) from (0,0) to (10,10), CW.
+    s.send("G0 X0 Y0\nM3 S200\nG2 X10 Y10 I10 J0 F600\nG3 X20 Y0 R10\n");
+    s.run_until(10.0);
+    assert_eq!(s.responses().len(), 4);
+    assert!(s.responses().iter().all(|r| r.1 == Response::Ok));
+    let arc: Vec<&Knot> = s.knots.iter().filter(|k| k.line == 3).collect();
+    assert!(arc.len() > 20, "{}", arc.len());
+    for w in arc.windows(2) {
+        let (a, b) = (&w[0].pos, &w[1].pos);
+        for p in [a, b] {
+            assert!(((p[0] - 10.0).hypot(p[1]) - 10.0).abs() < 1e-9);
+        }
+        // Sagitta of the chord.
+        let chord = (b[0] - a[0]).hypot(b[1] - a[1]);
+        assert!(10.0 - (100.0 - chord * chord / 4.0).sqrt() <= 0.002 + 1e-12);
+        assert!(w[0].pos[1] <= w[1].pos[1], "CW from (0,0) goes up");
+    }
+    assert_eq!(arc.last().unwrap().pos, vec![10.0, 10.0]);
+    let r_arc: Vec<&Knot> = s.knots.iter().filter(|k| k.line == 4).collect();
+    for k in &r_arc {
+        assert!(((k.pos[0] - 20.0).hypot(k.pos[1] - 10.0) - 10.0).abs() < 1e-6, "{k:?}");
+    }
+    assert_eq!(s.ctl.position(), vec![20.0, 0.0]);
+}
+
+#[test]
+fn error_codes() {
+    let cases = [
+        ("G1 X1", 22),
+        ("G93 G1 X1", 22),
+        ("G1 X1 X2 F1", 25),
+        ("G0 G1 X1", 21),
+        ("A1", 20),
+        ("G1.5 X1", 23),
+        ("M3.1", 23),
+        ("X", 2),
+        ("1", 1),
+        ("G2 X5 R1 F100", 33),
+        ("G2 X5 F100", 35),
+        ("G0 G92 X0", 24),
+        ("G92", 26),
+        ("G4", 28),
+        ("G38.2 X1", 20),
+        ("F-1", 4),
+        ("$Q", 3),
+        ("$H", 5),
+        ("$110=1", 3),
+    ];
+    for (line, code) in cases {
+        let mut s = Sim::new(cfg());
+        s.send(&format!("{line}\n"));
+        s.run_until(1.0);
+        assert_eq!(s.responses().into_iter().map(|r| r.1).collect::<Vec<_>>(), vec![Response::Error(code)], "{line}");
+    }
+    let mut s = Sim::new(cfg());
+    s.send(&format!("G0{}\n", " X1".repeat(40)));
+    s.send(&format!("(a long comment {} ) G0 X1\n\n", "x".repeat(120)));
+    s.run_until(1.0);
+    let r: Vec<Response> = s.responses().into_iter().map(|r| r.1).collect();
+    assert_eq!(r, vec![Response::Error(11), Response::Ok, Response::Ok]);
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0]);
+}
+
+#[test]
+fn units_distance_and_offsets() {
+    let mut s = Sim::new(cfg());
+    s.send("G20 G91 G0 X1\nG21 G0 X1\nG92 X0\nG90 G0 X5\nG53 G0 X1\n");
+    s.run_until(5.0);
+    assert!(s.responses().iter().all(|r| r.1 == Response::Ok));
+    let mut xs: Vec<f64> = s.knots.iter().filter(|k| k.t > s.knots[0].t).map(|k| k.pos[0]).collect();
+    xs.dedup(); // G92 syncs, so there is a rest (two knots at 26.4)
+    assert!(close(xs[0], 25.4) && close(xs[1], 26.4) && close(xs[2], 31.4) && close(xs[3], 1.0), "{xs:?}");
+}
+
+#[test]
+fn system_commands() {
+    let mut s = Sim::new(SimConfig::with_axes("XYUV"));
+    s.send("$\n$$\n$I\n$G\n$N\n$X\n$32=1\n");
+    s.run_until(1.0);
+    let t = s.texts();
+    assert!(t.contains(&"[VER:1.1h.laserd-sim:]") && t.contains(&"[OPT:V,15,128]"));
+    assert!(t.contains(&"$32=1") && t.contains(&"$30=1000") && t.contains(&"$113=6000.000") && t.contains(&"$133=300.000"));
+    assert!(t.contains(&"[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]"));
+    assert!(t.contains(&"$N0=") && t[1].starts_with("[HLP:"));
+    assert_eq!(s.responses().len(), 7);
+    assert!(s.responses().iter().all(|r| r.1 == Response::Ok));
+    s.send("G0 U5 V6\n?");
+    s.run_until(2.0);
+    assert!(s.texts().last().unwrap().starts_with("<Run|"), "? arrives while moving");
+    s.realtime(realtime::STATUS);
+    assert!(s.texts().last().unwrap().starts_with("<Idle|MPos:0.000,0.000,5.000,6.000|"));
+}
+
+#[test]
+fn check_mode_moves_nothing() {
+    let mut s = Sim::new(cfg());
+    s.send("$C\nG1 X10 F100\nG4 P5\n");
+    s.run_until(0.1);
+    assert_eq!(s.ctl.state(), MachineState::Check);
+    assert!(s.knots.is_empty());
+    assert_eq!(s.responses().len(), 3);
+    s.send("$C\n");
+    s.run_until(0.2);
+    let t = s.texts();
+    assert_eq!(&t[t.len() - 3..], &["[MSG:Disabled]", "ok", BANNER]);
+    assert_eq!(s.ctl.state(), MachineState::Idle);
+    assert_eq!(s.ctl.position(), vec![0.0, 0.0]);
+}
+
+#[test]
+fn laser_only_fires_on_feed_moves() {
+    let mut s = Sim::new(cfg());
+    s.send("M4 S2000\nG0 X1\nG1 X2 F600\nM5\nG1 X3\n");
+    s.run_until(5.0);
+    let powers: Vec<(f64, f64)> = s.knots.iter().map(|k| (k.pos[0], k.power)).collect();
+    // G0 off; G1 with M4 at S clamped to $30; after M5 off.
+    assert!(powers.contains(&(1.0, 0.0)) && powers.contains(&(2.0, 1000.0)) && powers.contains(&(3.0, 0.0)), "{powers:?}");
+}
+
+#[test]
+fn garbage_never_panics() {
+    let mut axes = vec![AxisConfig::new('X')];
+    axes[0].max_velocity = -1.0;
+    let mut s = Sim::new(SimConfig { axes, rx_buffer: 0, planner_blocks: 0, laser_max_s: f64::NAN, faults: Faults::default() });
+    let junk: Vec<u8> = (0..5000u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect();
+    for chunk in junk.chunks(97) {
+        s.link.push(s.t, chunk);
+        let t = s.t + 0.05;
+        s.run_until(t);
+    }
+    s.ctl.advance(f64::NAN);
+    s.ctl.advance(-5.0);
+    let _ = s.ctl.stats();
+}

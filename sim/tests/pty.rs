@@ -1,0 +1,66 @@
+//! The real-time driver on a pseudo-terminal, used the way a sender would.
+
+use std::io::{Read, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use laserd_sim::controller::{Controller, Knot, SimConfig};
+use laserd_sim::pty::{open_pty, run_realtime};
+use laserd_sim::wire::{Response, BANNER};
+
+#[test]
+fn serve_on_pty() {
+    let link = std::env::temp_dir().join(format!("laserd-sim-test-{}", std::process::id()));
+    let dev = open_pty(Some(&link)).expect("open pty");
+    assert_eq!(std::fs::read_link(&link).unwrap(), dev.path());
+    let stop = Arc::new(AtomicBool::new(false));
+    let knots: Arc<Mutex<Vec<Knot>>> = Arc::default();
+    let (stop2, knots2) = (stop.clone(), knots.clone());
+    let server = std::thread::spawn(move || {
+        run_realtime(Controller::new(SimConfig::with_axes("XY")), dev, 115200, stop2, move |k| {
+            knots2.lock().unwrap().extend(k)
+        })
+    });
+
+    let mut port = std::fs::OpenOptions::new().read(true).write(true).open(&link).expect("open slave");
+    let mut reader = port.try_clone().unwrap();
+    let (tx, rx) = mpsc::channel::<String>();
+    std::thread::spawn(move || {
+        let mut line = Vec::new();
+        let mut b = [0u8; 1];
+        while let Ok(1) = reader.read(&mut b) {
+            if b[0] == b'\n' {
+                let s = String::from_utf8_lossy(&line).trim().to_string();
+                line.clear();
+                if !s.is_empty() && tx.send(s).is_err() {
+                    break;
+                }
+            } else {
+                line.push(b[0]);
+            }
+        }
+    });
+    let next = || rx.recv_timeout(Duration::from_secs(5)).expect("reply within 5 s");
+
+    assert_eq!(next(), BANNER);
+    port.write_all(b"?").unwrap();
+    let status = next();
+    assert!(status.starts_with("<Idle|MPos:0.000,0.000|Bf:15,128"), "{status}");
+    port.write_all(b"G1 X1 F600\n").unwrap();
+    assert_eq!(Response::parse(&next()), Response::Ok);
+    // 1 mm at 600 mm/min = 0.1 s.
+    std::thread::sleep(Duration::from_millis(400));
+    port.write_all(b"?").unwrap();
+    let status = next();
+    assert!(status.starts_with("<Idle|MPos:1.000,0.000|"), "{status}");
+    let k = knots.lock().unwrap().clone();
+    assert_eq!(k.len(), 2, "{k:?}");
+    assert!((k[1].t - k[0].t - 0.1).abs() < 1e-9);
+    assert_eq!(k[1].pos, vec![1.0, 0.0]);
+
+    stop.store(true, Ordering::SeqCst);
+    server.join().unwrap();
+    assert!(std::fs::symlink_metadata(&link).is_err(), "symlink removed when the device is dropped");
+}

@@ -1,0 +1,181 @@
+//! The `sim` figures of a run, derived from what the run recorded: the link
+//! traffic, the motion the simulated machine executed (knots) and the planned
+//! check points of the program. The dry-run computes them from the same
+//! `RunLog` that it records, and `replay` rebuilds the `RunLog` from the file,
+//! so both give the same figures.
+
+use laserd_sim::controller::{AxisConfig, Knot};
+use laserd_sim::limits::{LimitChecker, LimitReport};
+use laserd_sim::wire::Response;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::job::Point;
+use crate::program::{tcp_of, CheckPoint, LineKind, Program};
+use crate::stream::LinkEvent;
+
+/// What the figures need to know about the machine.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct RunSetup {
+    pub axes: Vec<AxisConfig>,
+    pub baud: u32,
+    /// Half the usable scanner field, when the machine has a scanner (axes 2, 3).
+    pub usable_half_field: Option<f64>,
+}
+
+/// Per program line: its kind and planned check points (marking lines only).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct PlannedLine {
+    pub line: usize,
+    pub kind: LineKind,
+    pub checks: Vec<CheckPoint>,
+}
+
+impl PlannedLine {
+    pub fn from_program(program: &Program) -> Vec<PlannedLine> {
+        program
+            .lines
+            .iter()
+            .enumerate()
+            .map(|(i, l)| PlannedLine { line: i + 1, kind: l.kind, checks: l.checks.clone() })
+            .collect()
+    }
+}
+
+#[derive(Debug, Clone, Default)]
+pub struct RunLog {
+    pub setup: Option<RunSetup>,
+    pub planned: Vec<PlannedLine>,
+    pub link: Vec<(f64, LinkEvent)>,
+    pub knots: Vec<Knot>,
+}
+
+/// The contract's `sim` object.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct SimFigures {
+    pub job_time_s: f64,
+    pub limit_violations: u64,
+    pub alarms: Vec<u16>,
+    pub lines_sent: usize,
+    pub bytes_sent: usize,
+    pub link_utilization: f64,
+    pub planner_starved_s: f64,
+    pub max_tcp_deviation_mm: f64,
+    pub peak_field_use: Option<f64>,
+    pub peak_stage_use: f64,
+    /// Marking blocks executed with the laser off, and non-marking blocks executed
+    /// with it on (both must be 0).
+    pub laser_state_errors: u64,
+    /// First limit violation, for the human summary.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub first_violation: Option<String>,
+}
+
+/// Executed blocks of program lines: (line, start knot, end knot).
+fn executed_blocks(knots: &[Knot]) -> impl Iterator<Item = (usize, &Knot, &Knot)> {
+    knots.windows(2).filter(|w| w[1].line > 0 && w[1].t > w[0].t && w[0].pos != w[1].pos).map(|w| (w[1].line as usize, &w[0], &w[1]))
+}
+
+pub fn sim_figures(log: &RunLog) -> SimFigures {
+    let setup = log.setup.clone().unwrap_or(RunSetup { axes: vec![], baud: 115_200, usable_half_field: None });
+
+    let mut checker = LimitChecker::new(&setup.axes);
+    for k in &log.knots {
+        checker.push(k);
+    }
+    let limits: LimitReport = checker.finish();
+
+    let job_time_s = match (log.knots.first(), log.knots.last()) {
+        (Some(a), Some(b)) => b.t - a.t,
+        _ => 0.0,
+    };
+
+    // Waiting with the job unfinished: rest intervals between moving blocks.
+    let moving = |w: &[Knot]| w[0].pos != w[1].pos;
+    let first_move = log.knots.windows(2).position(moving);
+    let last_move = log.knots.windows(2).rposition(moving);
+    let mut planner_starved_s = 0.0;
+    if let (Some(a), Some(b)) = (first_move, last_move) {
+        for w in log.knots[a..=b + 1].windows(2) {
+            if !moving(w) {
+                planner_starved_s += w[1].t - w[0].t;
+            }
+        }
+    }
+
+    let mut lines_sent = 0;
+    let mut bytes_sent = 0;
+    let mut first_sent: Option<f64> = None;
+    let mut last_answer: Option<f64> = None;
+    let mut alarms = Vec::new();
+    for (t, ev) in &log.link {
+        match ev {
+            LinkEvent::Sent { text, .. } => {
+                lines_sent += 1;
+                bytes_sent += text.len() + 1;
+                first_sent.get_or_insert(*t);
+            }
+            LinkEvent::Received { text } => match Response::parse(text) {
+                Response::Ok | Response::Error(_) => last_answer = Some(*t),
+                Response::Alarm(code) => alarms.push(code),
+                _ => {}
+            },
+            LinkEvent::Realtime { .. } => {}
+        }
+    }
+    let link_utilization = match (first_sent, last_answer) {
+        (Some(a), Some(b)) if b > a => bytes_sent as f64 / (setup.baud as f64 / 10.0 * (b - a)),
+        _ => 0.0,
+    };
+
+    // Deviation of the executed TCP from the planned one, at the check points of
+    // each marking block; and the laser state of every executed block.
+    let planned: std::collections::HashMap<usize, &PlannedLine> = log.planned.iter().map(|p| (p.line, p)).collect();
+    let mut max_dev: f64 = 0.0;
+    let mut laser_state_errors = 0;
+    for (line, a, b) in executed_blocks(&log.knots) {
+        let Some(p) = planned.get(&line) else { continue };
+        let marking = p.kind == LineKind::Mark;
+        if marking != (b.power > 0.0) {
+            laser_state_errors += 1;
+        }
+        for c in &p.checks {
+            let exec: Vec<f64> = a.pos.iter().zip(&b.pos).map(|(x, y)| x + (y - x) * c.fraction).collect();
+            let dev = (tcp_of(&exec) - Point::new(c.tcp[0], c.tcp[1])).norm();
+            max_dev = max_dev.max(dev);
+        }
+    }
+
+    let peak_field_use = setup.usable_half_field.map(|half| {
+        log.knots
+            .iter()
+            .flat_map(|k| k.pos.iter().skip(2).take(2))
+            .map(|v| v.abs() / half)
+            .fold(0.0, f64::max)
+    });
+    let stage_axes = 0..setup.axes.len().min(2);
+    let peak_stage_use = stage_axes
+        .flat_map(|i| {
+            [
+                limits.peak_velocity_use.get(i).copied().unwrap_or(0.0),
+                limits.peak_acceleration_use.get(i).copied().unwrap_or(0.0),
+                limits.peak_jerk_use.get(i).copied().unwrap_or(0.0),
+            ]
+        })
+        .fold(0.0, f64::max);
+
+    SimFigures {
+        job_time_s,
+        limit_violations: limits.violations,
+        alarms,
+        lines_sent,
+        bytes_sent,
+        link_utilization,
+        planner_starved_s,
+        max_tcp_deviation_mm: max_dev,
+        peak_field_use,
+        peak_stage_use,
+        laser_state_errors,
+        first_violation: limits.first_violation,
+    }
+}

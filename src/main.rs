@@ -1,0 +1,281 @@
+//! The `laserd` command line (see the contract in ARCHITECTURE.md).
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use clap::{Parser, Subcommand};
+use laserd::config::MachineConfig;
+use laserd::error::{Error, Result};
+use laserd::figures::sim_figures;
+use laserd::motion::Mode;
+use laserd::plan::PlannerKind;
+use laserd::record::{self, Recording, TOPIC_SETUP};
+use laserd::run;
+use laserd::stream::{self, SenderOptions};
+use laserd_sim::controller::{Controller, Faults};
+
+#[derive(Parser)]
+#[command(name = "laserd", version, about = "Laser machine controller: plan, simulate, stream, record")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Plan a job, stream it into the built-in simulator (virtual time) and report.
+    DryRun {
+        job: PathBuf,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long, default_value = "auto")]
+        planner: PlannerKind,
+        #[arg(long)]
+        mode: Option<Mode>,
+        /// MCAP recording of the run (default: <job stem>.mcap here).
+        #[arg(long)]
+        record: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Plan a job only: report, and write the G-code program with -o.
+    Plan {
+        job: PathBuf,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long, default_value = "auto")]
+        planner: PlannerKind,
+        #[arg(long)]
+        mode: Option<Mode>,
+        /// Planning time limit in seconds (for the search planners; nearest ignores it).
+        #[arg(long)]
+        time_limit: Option<f64>,
+        #[arg(short = 'o', long = "output")]
+        output: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Stream an existing G-code file to a controller.
+    Send {
+        file: PathBuf,
+        #[arg(long)]
+        port: String,
+        #[arg(long)]
+        baud: Option<u32>,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Run the simulated controller as a GRBL device on a pseudo-terminal.
+    Sim {
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Serve on a pseudo-terminal (the only transport in this version).
+        #[arg(long)]
+        pty: bool,
+        /// Stable symlink to the pseudo-terminal device.
+        #[arg(long)]
+        link: Option<PathBuf>,
+        #[arg(long)]
+        baud: Option<u32>,
+        /// Run in real time (always so on a pseudo-terminal).
+        #[arg(long)]
+        realtime: bool,
+        /// Record the executed motion to this MCAP file.
+        #[arg(long)]
+        record: Option<PathBuf>,
+        /// Answer error:20 to the N-th received line (fault injection for tests).
+        #[arg(long, hide = true)]
+        error_on_line: Option<u64>,
+    },
+    /// Re-derive a recording's figures from the file alone.
+    Replay {
+        recording: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("LASERD_LOG").unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .init();
+    let cli = Cli::parse();
+    match run_command(cli.command) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("laserd: error: {e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| Error::Io(e.to_string()))?;
+    println!("{text}");
+    Ok(())
+}
+
+fn run_command(command: Command) -> Result<ExitCode> {
+    match command {
+        Command::DryRun { job, config, planner, mode, record, json } => {
+            let machine = MachineConfig::load(config.as_deref())?;
+            let planned = run::plan(&job, &machine, planner, mode)?;
+            let recording = record.unwrap_or_else(|| run::default_recording(&job));
+            let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
+            if json {
+                print_json(&dry.report)?;
+            } else {
+                print!("{}", dry.report.summary());
+            }
+            if let Some(reason) = &dry.outcome.stop_reason {
+                eprintln!("laserd: error: job stopped: {reason}");
+                return Ok(ExitCode::from(2));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Plan { job, config, planner, mode, time_limit, output, json } => {
+            if let Some(t) = time_limit {
+                if !(t.is_finite() && t > 0.0) {
+                    return Err(Error::Plan(format!("--time-limit: must be a positive number of seconds, got {t}")));
+                }
+            }
+            let machine = MachineConfig::load(config.as_deref())?;
+            let planned = run::plan(&job, &machine, planner, mode)?;
+            if let Some(out) = &output {
+                std::fs::write(out, planned.program.to_gcode())
+                    .map_err(|e| Error::Io(format!("{}: cannot write: {e}", out.display())))?;
+            }
+            if json {
+                print_json(&planned.report)?;
+            } else {
+                print!("{}", planned.report.summary());
+                if let Some(out) = output {
+                    println!("  program written to {}", out.display());
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Send { file, port, baud, config, json } => send(&file, &port, baud, config.as_deref(), json),
+        Command::Sim { config, pty, link, baud, realtime: _, record, error_on_line } => {
+            if !pty {
+                return Err(Error::Io("laserd sim: only --pty is available in this version".into()));
+            }
+            let machine = MachineConfig::load(config.as_deref())?;
+            sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), error_on_line)
+        }
+        Command::Replay { recording, json } => {
+            let replay = record::read(&recording)?;
+            let figures = sim_figures(&replay.log);
+            if let Some(why) = &replay.truncated {
+                eprintln!("laserd: warning: {}: recording ends early ({why}); figures cover what it holds", recording.display());
+            }
+            if json {
+                print_json(&figures)?;
+            } else {
+                println!("{}: {} knots, {} link events", recording.display(), replay.log.knots.len(), replay.log.link.len());
+                println!("{}", serde_json::to_string_pretty(&figures).unwrap_or_default());
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, json: bool) -> Result<ExitCode> {
+    let machine = MachineConfig::load(config)?;
+    let text = std::fs::read_to_string(file).map_err(|e| Error::Io(format!("{}: cannot read: {e}", file.display())))?;
+    let lines: Vec<String> = text.lines().map(|l| l.trim_end_matches('\r').to_string()).collect();
+    let baud = baud.unwrap_or(machine.serial.baud);
+    let options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    let runtime = tokio::runtime::Runtime::new().map_err(|e| Error::Io(e.to_string()))?;
+    let shown = file.display().to_string();
+    let outcome = runtime.block_on(async {
+        use tokio_serial::SerialPortBuilderExt;
+        let io = tokio_serial::new(port, baud)
+            .open_native_async()
+            .map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
+        let describe = |n: usize| match lines.get(n.wrapping_sub(1)) {
+            Some(l) => format!("{shown}:{n} `{l}`"),
+            None => format!("{shown}:{n}"),
+        };
+        stream::stream(io, &lines, &options, &describe, |_, _| {}).await
+    })?;
+    let report = serde_json::json!({
+        "file": shown,
+        "lines_sent": outcome.lines_sent,
+        "bytes_sent": outcome.bytes_sent,
+        "stream_time_s": outcome.stream_time_s,
+        "link_utilization": if outcome.stream_time_s > 0.0 { outcome.bytes_sent as f64 / (baud as f64 / 10.0 * outcome.stream_time_s) } else { 0.0 },
+        "errors": outcome.errors,
+        "alarms": outcome.alarms,
+        "last_acked_line": outcome.last_acked_line,
+        "last_executed_line": serde_json::Value::Null,
+        "completed": outcome.completed,
+    });
+    if json {
+        print_json(&report)?;
+    } else {
+        println!(
+            "{shown}: {} lines, {} bytes in {:.2} s{}",
+            outcome.lines_sent,
+            outcome.bytes_sent,
+            outcome.stream_time_s,
+            if outcome.completed { ", completed" } else { "" }
+        );
+    }
+    if let Some(reason) = outcome.stop_reason {
+        eprintln!("laserd: error: job stopped: {reason}");
+        return Ok(ExitCode::from(2));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: Option<&Path>, error_on_line: Option<u64>) -> Result<ExitCode> {
+    let sim = run::sim_config(machine, Faults { error_on_line });
+    let setup = run::run_setup(machine, &sim);
+    let device = laserd_sim::pty::open_pty(link).map_err(|e| Error::Io(format!("cannot open a pseudo-terminal: {e}")))?;
+    let recording = record.map(Recording::create).transpose()?;
+    let recorder = recording.as_ref().map(|r| r.recorder());
+    if let Some(r) = &recorder {
+        r.write(TOPIC_SETUP, 0.0, &setup);
+    }
+    println!("{}", link.map(|l| l.display().to_string()).unwrap_or_else(|| device.path().display().to_string()));
+    use std::io::Write;
+    let _ = std::io::stdout().flush();
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop_sim = stop.clone();
+    let controller = Controller::new(sim);
+    let sim_recorder = recorder.clone();
+    let thread = std::thread::Builder::new()
+        .name("simulator".into())
+        .spawn(move || {
+            laserd_sim::pty::run_realtime(controller, device, baud, stop_sim, |knots| {
+                if let Some(r) = &sim_recorder {
+                    r.knots(&knots);
+                }
+            })
+        })
+        .map_err(|e| Error::Io(format!("cannot start the simulator thread: {e}")))?;
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().map_err(|e| Error::Io(e.to_string()))?;
+    runtime.block_on(async {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending::<()>().await } } => {}
+        }
+    });
+    stop.store(true, Ordering::SeqCst);
+    let _ = thread.join();
+    drop(recorder);
+    if let Some(r) = recording {
+        r.finish()?;
+    }
+    Ok(ExitCode::SUCCESS)
+}

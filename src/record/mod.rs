@@ -1,0 +1,280 @@
+//! Record and replay: MCAP files with JSON messages described by JSON Schemas,
+//! which Foxglove opens and plots (e.g. `/sim/axes.tcp_x` over time).
+//!
+//! Writing happens on a thread of its own, fed through a channel, so neither the
+//! sender nor the real-time simulator ever waits for the disk. The file is
+//! flushed about once a second, so a run cut short keeps what came before.
+//!
+//! Channels:
+//! - `/run/setup`   machine setup of the run (axes and limits, baud, field)
+//! - `/run/job`     job and plan summary
+//! - `/plan/lines`  each program line: kind and planned check points
+//! - `/link`        each line sent and received, each realtime byte, with its time
+//! - `/status`      parsed status reports
+//! - `/sim/axes`    the simulated machine's executed motion: axis positions, TCP
+//!   and laser power at every block boundary (motion is linear in between)
+//! - `/run/report`  the final report
+
+use std::collections::{BTreeMap, HashSet};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crossbeam_channel::{unbounded, RecvTimeoutError, Sender};
+use laserd_sim::controller::Knot;
+use laserd_sim::wire::{Response, StatusReport};
+use mcap::records::MessageHeader;
+use schemars::JsonSchema;
+use serde::{de::DeserializeOwned, Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::figures::{PlannedLine, RunLog, RunSetup};
+use crate::stream::LinkEvent;
+
+pub const TOPIC_SETUP: &str = "/run/setup";
+pub const TOPIC_JOB: &str = "/run/job";
+pub const TOPIC_PLAN_LINES: &str = "/plan/lines";
+pub const TOPIC_LINK: &str = "/link";
+pub const TOPIC_STATUS: &str = "/status";
+pub const TOPIC_AXES: &str = "/sim/axes";
+pub const TOPIC_REPORT: &str = "/run/report";
+
+/// A link event with its time (seconds from the start of the run).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct LinkMessage {
+    pub t: f64,
+    #[serde(flatten)]
+    pub event: LinkEvent,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct StatusMessage {
+    pub t: f64,
+    #[serde(flatten)]
+    pub status: StatusReport,
+}
+
+/// One executed knot, with named fields for plotting.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct AxesMessage {
+    pub t: f64,
+    /// All axis positions in controller order.
+    pub pos: Vec<f64>,
+    pub power: f64,
+    /// Received-line number of the block.
+    pub line: u64,
+    pub stage_x: f64,
+    pub stage_y: f64,
+    pub scanner_x: Option<f64>,
+    pub scanner_y: Option<f64>,
+    pub tcp_x: f64,
+    pub tcp_y: f64,
+}
+
+impl AxesMessage {
+    pub fn from_knot(k: &Knot) -> AxesMessage {
+        let tcp = crate::program::tcp_of(&k.pos);
+        AxesMessage {
+            t: k.t,
+            pos: k.pos.clone(),
+            power: k.power,
+            line: k.line,
+            stage_x: k.pos.first().copied().unwrap_or(0.0),
+            stage_y: k.pos.get(1).copied().unwrap_or(0.0),
+            scanner_x: k.pos.get(2).copied(),
+            scanner_y: k.pos.get(3).copied(),
+            tcp_x: tcp.x,
+            tcp_y: tcp.y,
+        }
+    }
+
+    pub fn to_knot(&self) -> Knot {
+        Knot { t: self.t, pos: self.pos.clone(), power: self.power, line: self.line }
+    }
+}
+
+struct Envelope {
+    topic: &'static str,
+    /// JSON Schema of the message type, sent with the first message of a topic.
+    schema: Option<(String, Vec<u8>)>,
+    t: f64,
+    data: Vec<u8>,
+}
+
+/// Handle to a recording; clones write to the same file.
+#[derive(Clone)]
+pub struct Recorder {
+    tx: Sender<Envelope>,
+    registered: Arc<Mutex<HashSet<&'static str>>>,
+}
+
+/// Owns the writer thread; `finish` closes the file properly.
+pub struct Recording {
+    pub path: PathBuf,
+    recorder: Option<Recorder>,
+    thread: Option<JoinHandle<Result<()>>>,
+}
+
+impl Recording {
+    pub fn create(path: &Path) -> Result<Recording> {
+        let file = File::create(path).map_err(|e| Error::Record(format!("{}: cannot create: {e}", path.display())))?;
+        let mut writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_threads(0)
+            .chunk_size(Some(1 << 20))
+            .profile("")
+            .library("laserd")
+            .create(BufWriter::new(file))
+            .map_err(|e| Error::Record(format!("{}: {e}", path.display())))?;
+        let (tx, rx) = unbounded::<Envelope>();
+        let base_ns = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos() as u64)
+            .unwrap_or(0);
+        let shown = path.display().to_string();
+        let thread = std::thread::Builder::new()
+            .name("recorder".into())
+            .spawn(move || -> Result<()> {
+                let err = |e: mcap::McapError| Error::Record(format!("{shown}: {e}"));
+                let mut channels: BTreeMap<&'static str, u16> = BTreeMap::new();
+                let mut sequence = 0u32;
+                loop {
+                    match rx.recv_timeout(Duration::from_secs(1)) {
+                        Ok(env) => {
+                            if let Some((name, schema)) = &env.schema {
+                                let schema_id = writer.add_schema(name, "jsonschema", schema).map_err(err)?;
+                                let id = writer.add_channel(schema_id, env.topic, "json", &BTreeMap::new()).map_err(err)?;
+                                channels.insert(env.topic, id);
+                            }
+                            let Some(&channel_id) = channels.get(env.topic) else { continue };
+                            sequence += 1;
+                            let time = base_ns + (env.t.max(0.0) * 1e9) as u64;
+                            let header = MessageHeader { channel_id, sequence, log_time: time, publish_time: time };
+                            writer.write_to_known_channel(&header, &env.data).map_err(err)?;
+                        }
+                        Err(RecvTimeoutError::Timeout) => writer.flush().map_err(err)?,
+                        Err(RecvTimeoutError::Disconnected) => break,
+                    }
+                }
+                writer.finish().map_err(err)?;
+                Ok(())
+            })
+            .map_err(|e| Error::Record(format!("cannot start the recorder thread: {e}")))?;
+        let recorder = Recorder { tx, registered: Arc::new(Mutex::new(HashSet::new())) };
+        Ok(Recording { path: path.to_path_buf(), recorder: Some(recorder), thread: Some(thread) })
+    }
+
+    pub fn recorder(&self) -> Recorder {
+        self.recorder.clone().expect("recorder is present until finish")
+    }
+
+    /// Closes the file (summary, index, end magic). Every `Recorder` clone must be
+    /// dropped first, or this waits for them.
+    pub fn finish(mut self) -> Result<()> {
+        self.close()
+    }
+
+    fn close(&mut self) -> Result<()> {
+        self.recorder = None;
+        match self.thread.take() {
+            Some(t) => t.join().map_err(|_| Error::Record("the recorder thread panicked".into()))?,
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for Recording {
+    fn drop(&mut self) {
+        let _ = self.close();
+    }
+}
+
+impl Recorder {
+    /// Records `msg` on `topic` at run time `t` (seconds).
+    pub fn write<T: Serialize + JsonSchema>(&self, topic: &'static str, t: f64, msg: &T) {
+        let schema = {
+            let mut reg = self.registered.lock().unwrap_or_else(|p| p.into_inner());
+            if reg.insert(topic) {
+                let schema = schemars::schema_for!(T);
+                Some((T::schema_name().to_string(), serde_json::to_vec(&schema).unwrap_or_default()))
+            } else {
+                None
+            }
+        };
+        let data = match serde_json::to_vec(msg) {
+            Ok(d) => d,
+            Err(_) => return,
+        };
+        // A closed recorder (its thread failed) loses the message but never stops
+        // the machine: the run's own error path reports the recording failure.
+        let _ = self.tx.send(Envelope { topic, schema, t, data });
+    }
+
+    pub fn link_event(&self, t: f64, event: &LinkEvent) {
+        self.write(TOPIC_LINK, t, &LinkMessage { t, event: event.clone() });
+        if let LinkEvent::Received { text } = event {
+            if let Response::Status(status) = Response::parse(text) {
+                self.write(TOPIC_STATUS, t, &StatusMessage { t, status });
+            }
+        }
+    }
+
+    pub fn knots(&self, knots: &[Knot]) {
+        for k in knots {
+            self.write(TOPIC_AXES, k.t, &AxesMessage::from_knot(k));
+        }
+    }
+}
+
+/// Everything a recording holds that the figures need, plus the job summary
+/// and report as written.
+#[derive(Debug, Default)]
+pub struct Replay {
+    pub log: RunLog,
+    pub job: Option<serde_json::Value>,
+    pub report: Option<serde_json::Value>,
+    /// Set when the file ended early (a run cut short): what came before is kept.
+    pub truncated: Option<String>,
+}
+
+fn decode<T: DeserializeOwned>(topic: &str, data: &[u8]) -> Result<T> {
+    serde_json::from_slice(data).map_err(|e| Error::Record(format!("bad message on {topic}: {e}")))
+}
+
+/// Reads a recording linearly, tolerating a missing end (a crash mid-run).
+pub fn read(path: &Path) -> Result<Replay> {
+    let bytes = std::fs::read(path).map_err(|e| Error::Record(format!("{}: cannot read: {e}", path.display())))?;
+    let stream = mcap::MessageStream::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
+        .map_err(|e| Error::Record(format!("{}: not an MCAP file: {e}", path.display())))?;
+    let mut out = Replay::default();
+    for msg in stream {
+        let msg = match msg {
+            Ok(m) => m,
+            Err(e) => {
+                out.truncated = Some(e.to_string());
+                break;
+            }
+        };
+        let topic = msg.channel.topic.as_str();
+        let data = &msg.data;
+        match topic {
+            TOPIC_SETUP => out.log.setup = Some(decode::<RunSetup>(topic, data)?),
+            TOPIC_PLAN_LINES => out.log.planned.push(decode::<PlannedLine>(topic, data)?),
+            TOPIC_LINK => {
+                let m: LinkMessage = decode(topic, data)?;
+                out.log.link.push((m.t, m.event));
+            }
+            TOPIC_AXES => out.log.knots.push(decode::<AxesMessage>(topic, data)?.to_knot()),
+            TOPIC_JOB => out.job = Some(decode(topic, data)?),
+            TOPIC_REPORT => out.report = Some(decode(topic, data)?),
+            _ => {}
+        }
+    }
+    if out.log.setup.is_none() {
+        return Err(Error::Record(format!("{}: no {TOPIC_SETUP} message: not a laserd recording", path.display())));
+    }
+    Ok(out)
+}

@@ -1,0 +1,72 @@
+//! The `plan --json` / `dry-run --json` object of the command-line contract, and
+//! its human-readable summary. A figure this version cannot produce is `null`.
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::figures::SimFigures;
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct PlanReport {
+    pub job: String,
+    pub planner: String,
+    pub mode: String,
+    pub geometries: usize,
+    /// Scan fields visited; `null` on a stage-only plan.
+    pub scan_fields: Option<usize>,
+    pub mark_length_mm: f64,
+    pub idle_stroke_mm: f64,
+    pub plan_time_s: f64,
+    /// Cutting precedence is checked by the cutting planner (not in this version).
+    pub precedence_violations: Option<u64>,
+    pub trajectory_time_s: f64,
+    pub lower_bound_s: f64,
+    /// G-code lines of the program.
+    pub program_lines: usize,
+    pub program_bytes: usize,
+    /// Only in `dry-run`.
+    pub sim: Option<SimFigures>,
+    pub recording: Option<String>,
+}
+
+impl PlanReport {
+    /// A few lines for a person at a terminal.
+    pub fn summary(&self) -> String {
+        let mut s = String::new();
+        let fields = self.scan_fields.map(|n| format!(", {n} scan fields")).unwrap_or_default();
+        s.push_str(&format!(
+            "{}: {} geometries{}, planner {}, mode {}\n",
+            self.job, self.geometries, fields, self.planner, self.mode
+        ));
+        s.push_str(&format!(
+            "  marking {:.1} mm, idle stroke {:.1} mm, planned in {:.3} s\n",
+            self.mark_length_mm, self.idle_stroke_mm, self.plan_time_s
+        ));
+        s.push_str(&format!(
+            "  trajectory {:.3} s (lower bound {:.3} s), program {} lines / {} bytes\n",
+            self.trajectory_time_s, self.lower_bound_s, self.program_lines, self.program_bytes
+        ));
+        if let Some(sim) = &self.sim {
+            s.push_str(&format!(
+                "  simulated: job time {:.3} s, {} lines / {} bytes sent, link {:.0} % used, planner starved {:.3} s\n",
+                sim.job_time_s,
+                sim.lines_sent,
+                sim.bytes_sent,
+                sim.link_utilization * 100.0,
+                sim.planner_starved_s
+            ));
+            let field = sim.peak_field_use.map(|f| format!(", field use {:.2}", f)).unwrap_or_default();
+            s.push_str(&format!(
+                "  max TCP deviation {:.4} mm, stage use {:.2}{}, limit violations {}, alarms {:?}\n",
+                sim.max_tcp_deviation_mm, sim.peak_stage_use, field, sim.limit_violations, sim.alarms
+            ));
+            if let Some(v) = &sim.first_violation {
+                s.push_str(&format!("  first limit violation: {v}\n"));
+            }
+        }
+        if let Some(r) = &self.recording {
+            s.push_str(&format!("  recording: {r}\n"));
+        }
+        s
+    }
+}

@@ -1,0 +1,182 @@
+//! The pipeline put together: `plan` (import → plan → motion → program) and
+//! `dry_run` (plan, then stream into the in-process simulator in virtual time,
+//! recording everything, and measure the run).
+
+use std::cell::RefCell;
+use std::path::{Path, PathBuf};
+use std::time::Instant as WallInstant;
+
+use laserd_sim::controller::{AxisConfig, Controller, Faults, SimConfig};
+use tokio::sync::watch;
+
+use crate::config::MachineConfig;
+use crate::error::{Error, Result};
+use crate::figures::{sim_figures, PlannedLine, RunLog, RunSetup};
+use crate::import::import_job;
+use crate::job::{Job, Point};
+use crate::motion::{self, Mode, Trajectory};
+use crate::plan::{planner, PlanContext, PlannerKind, Sequence};
+use crate::program::{self, Program};
+use crate::record::{Recording, TOPIC_JOB, TOPIC_PLAN_LINES, TOPIC_REPORT, TOPIC_SETUP};
+use crate::report::PlanReport;
+use crate::stream::{self, SenderOptions, StreamOutcome};
+
+/// Where the tool is before a job: the machine origin (after homing), scanner
+/// centred. The sender checks the machine is there before streaming.
+pub fn job_start() -> Point {
+    Point::origin()
+}
+
+pub struct Planned {
+    pub job: Job,
+    pub sequence: Sequence,
+    pub trajectory: Trajectory,
+    pub program: Program,
+    pub report: PlanReport,
+}
+
+pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: Option<Mode>) -> Result<Planned> {
+    let mode = mode.unwrap_or_else(|| Mode::default_for(machine));
+    mode.check(machine)?;
+    let job = import_job(job_path, machine)?;
+    let planner = planner(kind);
+    let started = WallInstant::now();
+    let ctx = PlanContext { machine, mode, start: job_start() };
+    let sequence = planner.plan(&job, &ctx)?;
+    let plan_time_s = started.elapsed().as_secs_f64();
+    let trajectory = motion::build(&job, &sequence, machine, mode, job_start())?;
+    let lower_bound_s = motion::lower_bound(&job, &sequence, machine, mode)?;
+    let program = program::generate(&job, &trajectory, machine)?;
+    let report = PlanReport {
+        job: job_path.display().to_string(),
+        planner: planner.name().to_string(),
+        mode: mode.as_str().to_string(),
+        geometries: job.geometries.len(),
+        scan_fields: sequence.scan_fields(),
+        mark_length_mm: job.mark_length(),
+        idle_stroke_mm: sequence.idle_stroke(),
+        plan_time_s,
+        precedence_violations: None,
+        trajectory_time_s: trajectory.duration(),
+        lower_bound_s,
+        program_lines: program.lines.len(),
+        program_bytes: program.lines.iter().map(|l| l.text.len() + 1).sum(),
+        sim: None,
+        recording: None,
+    };
+    Ok(Planned { job, sequence, trajectory, program, report })
+}
+
+/// The simulated controller of a machine config: stage axes over their travel,
+/// scanner axes over the usable field, each with its limits.
+pub fn sim_config(machine: &MachineConfig, faults: Faults) -> SimConfig {
+    let s = &machine.stage;
+    let mut axes = vec![
+        AxisConfig { letter: 'X', min: 0.0, max: s.travel_x, max_velocity: s.max_velocity, max_acceleration: s.max_acceleration, max_jerk: s.max_jerk },
+        AxisConfig { letter: 'Y', min: 0.0, max: s.travel_y, max_velocity: s.max_velocity, max_acceleration: s.max_acceleration, max_jerk: s.max_jerk },
+    ];
+    if let Some(sc) = &machine.scanner {
+        for letter in machine.axis_letters().into_iter().skip(2) {
+            axes.push(AxisConfig {
+                letter,
+                min: -sc.usable_half_field,
+                max: sc.usable_half_field,
+                max_velocity: sc.jump_speed,
+                max_acceleration: sc.max_acceleration,
+                max_jerk: sc.max_jerk,
+            });
+        }
+    }
+    SimConfig {
+        axes,
+        rx_buffer: machine.serial.rx_buffer,
+        planner_blocks: machine.simulator.planner_blocks,
+        laser_max_s: machine.laser.max_power,
+        faults,
+    }
+}
+
+pub fn run_setup(machine: &MachineConfig, sim: &SimConfig) -> RunSetup {
+    RunSetup {
+        axes: sim.axes.clone(),
+        baud: machine.serial.baud,
+        usable_half_field: machine.scanner.as_ref().map(|s| s.usable_half_field),
+    }
+}
+
+/// Default recording path of a dry-run: `<job stem>.mcap` in the working directory.
+pub fn default_recording(job_path: &Path) -> PathBuf {
+    let stem = job_path.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_else(|| "job".into());
+    PathBuf::from(format!("{stem}.mcap"))
+}
+
+pub struct DryRun {
+    pub report: PlanReport,
+    pub outcome: StreamOutcome,
+    pub log: RunLog,
+}
+
+/// Streams the planned program into a fresh simulator in virtual time.
+pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, faults: Faults) -> Result<DryRun> {
+    let sim = sim_config(machine, faults);
+    let setup = run_setup(machine, &sim);
+    let rec = Recording::create(recording)?;
+    let recorder = rec.recorder();
+    recorder.write(TOPIC_SETUP, 0.0, &setup);
+    let mut summary = planned.report.clone();
+    summary.recording = Some(recording.display().to_string());
+    recorder.write(TOPIC_JOB, 0.0, &summary);
+    let planned_lines = PlannedLine::from_program(&planned.program);
+    for p in &planned_lines {
+        recorder.write(TOPIC_PLAN_LINES, 0.0, p);
+    }
+
+    let log = RefCell::new(RunLog { setup: Some(setup), planned: planned_lines, ..Default::default() });
+    let lines: Vec<String> = planned.program.lines.iter().map(|l| l.text.clone()).collect();
+    let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.expect_start = Some(planned.program.start.clone());
+    let describe = |n: usize| planned.program.describe_line(n);
+    let baud = machine.serial.baud;
+
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
+        .map_err(|e| Error::Io(format!("cannot start the runtime: {e}")))?;
+    let streamed = runtime.block_on(async {
+        let (sender_io, sim_io) = tokio::io::duplex(1 << 16);
+        let origin = tokio::time::Instant::now();
+        let (stop_tx, stop_rx) = watch::channel(false);
+        let controller = Controller::new(sim);
+        let sim_side = stream::in_process::run(controller, sim_io, baud, origin, stop_rx, |knots| {
+            recorder.knots(&knots);
+            log.borrow_mut().knots.extend(knots);
+        });
+        let sender_side = async {
+            let r = stream::stream(sender_io, &lines, &options, &describe, |t, ev| {
+                recorder.link_event(t, &ev);
+                log.borrow_mut().link.push((t, ev));
+            })
+            .await;
+            let _ = stop_tx.send(true);
+            r
+        };
+        let (_, outcome) = tokio::join!(sim_side, sender_side);
+        outcome
+    });
+    let log = log.into_inner();
+    let outcome = match streamed {
+        Ok(o) => o,
+        Err(e) => {
+            drop(recorder);
+            rec.finish()?;
+            return Err(e);
+        }
+    };
+    let mut report = summary;
+    report.sim = Some(sim_figures(&log));
+    recorder.write(TOPIC_REPORT, log.knots.last().map(|k| k.t).unwrap_or(0.0), &report);
+    drop(recorder);
+    rec.finish()?;
+    Ok(DryRun { report, outcome, log })
+}

@@ -1,0 +1,464 @@
+//! The sender: streams G-code lines to a GRBL-style controller over any byte
+//! transport (serial port, pseudo-terminal, in-process pipe to the simulator).
+//!
+//! Flow control is GRBL's character counting: the byte lengths of lines sent but
+//! not yet answered are kept in a FIFO, and a line goes out only when it fits in
+//! what is left of the controller's receive buffer. Every `ok` or `error:N` pops
+//! the oldest entry. Status requests (`?`) are realtime bytes: they never enter
+//! the receive buffer and are not counted.
+//!
+//! On the first `error:` or `ALARM:` the sender stops streaming and brings the
+//! machine to a safe stop: feed hold (the laser goes off in laser mode), wait for
+//! the hold to complete, then soft reset, which flushes what the controller still
+//! had queued and switches the laser off.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use laserd_sim::wire::{self, realtime, MachineState, Response, StatusReport};
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader};
+use tokio::time::{timeout, Instant};
+
+use crate::error::{Error, Result};
+
+#[derive(Debug, Clone)]
+pub struct SenderOptions {
+    /// The controller's receive buffer in bytes (GRBL 1.1: 128).
+    pub rx_buffer: usize,
+    /// Interval between status requests while streaming.
+    pub status_interval: Duration,
+    /// A controller that sends nothing for this long while lines are outstanding
+    /// is treated as gone.
+    pub silence_timeout: Duration,
+    /// Axis positions the program starts from; the machine must be there.
+    pub expect_start: Option<Vec<f64>>,
+}
+
+impl SenderOptions {
+    pub fn new(rx_buffer: usize, status_hz: f64) -> SenderOptions {
+        SenderOptions {
+            rx_buffer,
+            status_interval: Duration::from_secs_f64(1.0 / status_hz),
+            silence_timeout: Duration::from_secs(2),
+            expect_start: None,
+        }
+    }
+}
+
+/// What crossed the link, for the recorder.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "dir", rename_all = "snake_case")]
+pub enum LinkEvent {
+    /// A G-code line sent (1-based line number in the program; 0 for lines of the
+    /// sender's own), without its `\n`.
+    Sent { line: usize, text: String },
+    /// A realtime byte sent (`?`, `!`, `~`, 0x18).
+    Realtime { byte: u8 },
+    /// A line received from the controller, without `\r\n`.
+    Received { text: String },
+}
+
+/// An `error:N` answer, tied to the line it answered.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct LineError {
+    pub line: usize,
+    pub code: u16,
+    pub message: String,
+}
+
+/// How a stream ended.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, JsonSchema)]
+pub struct StreamOutcome {
+    pub lines_sent: usize,
+    pub bytes_sent: usize,
+    /// From the first byte sent to the last answer.
+    pub stream_time_s: f64,
+    pub errors: Vec<LineError>,
+    pub alarms: Vec<u16>,
+    pub last_acked_line: usize,
+    pub completed: bool,
+    /// Why the stream stopped early, one line naming the place.
+    pub stop_reason: Option<String>,
+    /// The last status report seen (after a safe stop: the state it left).
+    pub final_status: Option<StatusReport>,
+}
+
+/// Seconds since `origin` (virtual time in the in-process simulation).
+fn secs(origin: Instant) -> f64 {
+    origin.elapsed().as_secs_f64()
+}
+
+struct Link<R, W, F> {
+    reader: tokio::io::Split<BufReader<R>>,
+    writer: W,
+    origin: Instant,
+    on_event: F,
+    bytes_sent: usize,
+}
+
+impl<R, W, F> Link<R, W, F>
+where
+    R: AsyncRead + Unpin,
+    W: AsyncWrite + Unpin,
+    F: FnMut(f64, LinkEvent),
+{
+    async fn send_line(&mut self, line: usize, text: &str) -> Result<()> {
+        let mut bytes = Vec::with_capacity(text.len() + 1);
+        bytes.extend_from_slice(text.as_bytes());
+        bytes.push(b'\n');
+        self.writer.write_all(&bytes).await.map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        self.writer.flush().await.map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        self.bytes_sent += bytes.len();
+        (self.on_event)(secs(self.origin), LinkEvent::Sent { line, text: text.to_string() });
+        Ok(())
+    }
+
+    async fn send_realtime(&mut self, byte: u8) -> Result<()> {
+        self.writer.write_all(&[byte]).await.map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        self.writer.flush().await.map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        (self.on_event)(secs(self.origin), LinkEvent::Realtime { byte });
+        Ok(())
+    }
+
+    /// Next line from the controller; `None` when the link closed. Cancel-safe.
+    async fn next_line(&mut self) -> Result<Option<String>> {
+        loop {
+            let seg = self.reader.next_segment().await.map_err(|e| Error::Stream(format!("read failed: {e}")))?;
+            let Some(seg) = seg else { return Ok(None) };
+            let text = String::from_utf8_lossy(&seg).trim_matches(|c| c == '\r' || c == '\n').to_string();
+            if text.is_empty() {
+                continue;
+            }
+            (self.on_event)(secs(self.origin), LinkEvent::Received { text: text.clone() });
+            return Ok(Some(text));
+        }
+    }
+
+    /// Reads responses until `want` accepts one, or `limit` passes.
+    async fn wait_for(&mut self, limit: Duration, mut want: impl FnMut(&Response) -> bool) -> Result<Option<Response>> {
+        let deadline = Instant::now() + limit;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match timeout(left, self.next_line()).await {
+                Err(_) => return Ok(None),
+                Ok(Err(e)) => return Err(e),
+                Ok(Ok(None)) => return Err(Error::Stream("the controller closed the link".into())),
+                Ok(Ok(Some(text))) => {
+                    let r = Response::parse(&text);
+                    if want(&r) {
+                        return Ok(Some(r));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Asks for status until one arrives (up to `limit`).
+    async fn query_status(&mut self, limit: Duration) -> Result<Option<StatusReport>> {
+        let deadline = Instant::now() + limit;
+        while Instant::now() < deadline {
+            self.send_realtime(realtime::STATUS).await?;
+            if let Some(Response::Status(s)) = self.wait_for(Duration::from_millis(250), |r| matches!(r, Response::Status(_))).await? {
+                return Ok(Some(s));
+            }
+        }
+        Ok(None)
+    }
+
+    /// Feed hold until stopped, then soft reset: the laser ends off, nothing queued
+    /// is executed any more. Returns the state it left the machine in.
+    async fn safe_stop(&mut self) -> Option<StatusReport> {
+        if self.send_realtime(realtime::FEED_HOLD).await.is_err() {
+            return None;
+        }
+        let deadline = Instant::now() + Duration::from_secs(3);
+        while Instant::now() < deadline {
+            match self.query_status(Duration::from_millis(500)).await {
+                Ok(Some(s)) if matches!(s.state, MachineState::Hold(0) | MachineState::Idle | MachineState::Alarm) => break,
+                Ok(_) => {}
+                Err(_) => return None,
+            }
+        }
+        if self.send_realtime(realtime::SOFT_RESET).await.is_err() {
+            return None;
+        }
+        let _ = self.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_))).await;
+        self.query_status(Duration::from_secs(1)).await.ok().flatten()
+    }
+}
+
+/// Streams `lines` (program line i+1 is `lines[i]`). `describe` turns a line
+/// number into a message naming the G-code line and where it came from.
+pub async fn stream<T, F>(
+    io: T,
+    lines: &[String],
+    options: &SenderOptions,
+    describe: &dyn Fn(usize) -> String,
+    on_event: F,
+) -> Result<StreamOutcome>
+where
+    T: AsyncRead + AsyncWrite,
+    F: FnMut(f64, LinkEvent),
+{
+    let (read_half, write_half) = tokio::io::split(io);
+    let origin = Instant::now();
+    let mut link = Link { reader: BufReader::new(read_half).split(b'\n'), writer: write_half, origin, on_event, bytes_sent: 0 };
+
+    // Connect: a controller announces itself with its banner; one that did so
+    // before we listened is asked again with a soft reset (nothing moves yet).
+    let is_banner = |r: &Response| matches!(r, Response::Banner(_));
+    if link.wait_for(Duration::from_millis(500), is_banner).await?.is_none() {
+        link.send_realtime(realtime::SOFT_RESET).await?;
+        if link.wait_for(Duration::from_millis(2500), is_banner).await?.is_none() {
+            return Err(Error::Stream("no GRBL banner from the controller within 3 s of connecting".into()));
+        }
+    }
+    let status = link
+        .query_status(Duration::from_secs(2))
+        .await?
+        .ok_or_else(|| Error::Stream("the controller does not answer status requests".into()))?;
+    if matches!(status.state, MachineState::Alarm) {
+        return Err(Error::Stream("the controller is in alarm: home ($H) or unlock ($X) it first".into()));
+    }
+    if let Some(start) = &options.expect_start {
+        let off = start.iter().zip(&status.mpos).any(|(a, b)| (a - b).abs() > 0.01);
+        if off || status.mpos.len() < start.len() {
+            return Err(Error::Stream(format!(
+                "the machine is at {:?} but the program starts at {:?}: home it first",
+                status.mpos, start
+            )));
+        }
+    }
+
+    let mut out = StreamOutcome { final_status: Some(status), ..Default::default() };
+    for (i, l) in lines.iter().enumerate() {
+        if l.len() + 1 > options.rx_buffer {
+            return Err(Error::Stream(format!("{}: longer than the controller's receive buffer", describe(i + 1))));
+        }
+    }
+    let stream_start = secs(origin);
+    let mut fifo: VecDeque<(usize, usize)> = VecDeque::new();
+    let mut in_flight = 0usize;
+    let mut next = 0usize;
+    let mut ticker = tokio::time::interval(options.status_interval);
+    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut last_heard = Instant::now();
+    let mut fault: Option<String> = None;
+
+    while fault.is_none() {
+        while next < lines.len() && in_flight + lines[next].len() + 1 <= options.rx_buffer {
+            link.send_line(next + 1, &lines[next]).await?;
+            fifo.push_back((next + 1, lines[next].len() + 1));
+            in_flight += lines[next].len() + 1;
+            next += 1;
+            out.lines_sent += 1;
+        }
+        if next == lines.len() && fifo.is_empty() {
+            break;
+        }
+        tokio::select! {
+            line = link.next_line() => {
+                let Some(text) = line? else {
+                    fault = Some("the controller closed the link".into());
+                    break;
+                };
+                last_heard = Instant::now();
+                match Response::parse(&text) {
+                    Response::Ok => {
+                        if let Some((n, len)) = fifo.pop_front() {
+                            in_flight -= len;
+                            out.last_acked_line = n;
+                        }
+                    }
+                    Response::Error(code) => {
+                        let (n, len) = fifo.pop_front().unwrap_or((0, 0));
+                        in_flight -= len;
+                        let message = format!("controller answered error:{code} ({}) to {}", wire::error_message(code), describe(n));
+                        out.errors.push(LineError { line: n, code, message: message.clone() });
+                        fault = Some(message);
+                    }
+                    Response::Alarm(code) => {
+                        out.alarms.push(code);
+                        let after = if out.last_acked_line > 0 { format!(" after {}", describe(out.last_acked_line)) } else { String::new() };
+                        fault = Some(format!("controller raised ALARM:{code} ({}){after}", wire::alarm_message(code)));
+                    }
+                    Response::Banner(_) => {
+                        fault = Some(format!("the controller reset itself during the job (last acknowledged: {})", describe(out.last_acked_line)));
+                    }
+                    Response::Status(s) => out.final_status = Some(s),
+                    _ => {}
+                }
+            }
+            _ = ticker.tick() => {
+                if !fifo.is_empty() && last_heard.elapsed() > options.silence_timeout {
+                    fault = Some(format!(
+                        "the controller has been silent for {:.1} s with {} line(s) unanswered (last acknowledged: {})",
+                        last_heard.elapsed().as_secs_f64(), fifo.len(), describe(out.last_acked_line)));
+                    break;
+                }
+                link.send_realtime(realtime::STATUS).await?;
+            }
+        }
+    }
+    out.stream_time_s = secs(origin) - stream_start;
+
+    if let Some(reason) = fault {
+        out.final_status = link.safe_stop().await;
+        out.stop_reason = Some(reason);
+        out.bytes_sent = link.bytes_sent;
+        return Ok(out);
+    }
+    // Every line is answered; wait until the machine has finished moving.
+    loop {
+        match link.query_status(Duration::from_secs(2)).await? {
+            Some(s) if s.state == MachineState::Idle => {
+                out.final_status = Some(s);
+                break;
+            }
+            Some(s) if matches!(s.state, MachineState::Alarm) => {
+                out.stop_reason = Some("the controller went into alarm at the end of the job".into());
+                out.final_status = Some(s);
+                out.bytes_sent = link.bytes_sent;
+                return Ok(out);
+            }
+            Some(_) => tokio::time::sleep(options.status_interval).await,
+            None => {
+                out.stop_reason = Some("the controller stopped answering at the end of the job".into());
+                out.bytes_sent = link.bytes_sent;
+                return Ok(out);
+            }
+        }
+    }
+    out.bytes_sent = link.bytes_sent;
+    out.completed = true;
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::io::{AsyncReadExt, DuplexStream};
+
+    /// A scripted controller: banner, status on `?`, one answer per line after a
+    /// delay, `error:20` on line `fail_on`. Asserts it never holds more than
+    /// `rx` unanswered bytes (what GRBL's receive buffer could take).
+    async fn fake_controller(mut io: DuplexStream, rx: usize, fail_on: Option<usize>) -> (usize, Vec<u8>) {
+        io.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n").await.unwrap();
+        let mut pending: VecDeque<usize> = VecDeque::new();
+        let mut current = 0usize;
+        let mut lines = 0usize;
+        let mut max_in_flight = 0usize;
+        let mut realtime_seen = Vec::new();
+        let mut buf = [0u8; 256];
+        loop {
+            let read = tokio::time::timeout(Duration::from_millis(3), io.read(&mut buf)).await;
+            match read {
+                Ok(Ok(0)) | Ok(Err(_)) => break,
+                Ok(Ok(n)) => {
+                    for &b in &buf[..n] {
+                        match b {
+                            b'?' => {
+                                let state = if realtime_seen.contains(&b'!') { "Hold:0" } else if pending.is_empty() { "Idle" } else { "Run" };
+                                io.write_all(format!("<{state}|MPos:0.000,0.000|Bf:15,128|FS:0,0>\r\n").as_bytes()).await.unwrap();
+                            }
+                            b'!' | 0x18 => {
+                                realtime_seen.push(b);
+                                if b == 0x18 {
+                                    pending.clear();
+                                    realtime_seen.retain(|&c| c != b'!');
+                                    io.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n").await.unwrap();
+                                }
+                            }
+                            b'\n' => {
+                                pending.push_back(current + 1);
+                                current = 0;
+                            }
+                            _ => current += 1,
+                        }
+                    }
+                    let in_flight: usize = pending.iter().sum::<usize>() + current;
+                    max_in_flight = max_in_flight.max(in_flight);
+                }
+                Err(_) => {
+                    // Answer the oldest line once per tick: a slow controller.
+                    if pending.pop_front().is_some() {
+                        lines += 1;
+                        let answer = if Some(lines) == fail_on { "error:20\r\n" } else { "ok\r\n" };
+                        io.write_all(answer.as_bytes()).await.unwrap();
+                    }
+                }
+            }
+            assert!(max_in_flight <= rx, "{max_in_flight} bytes in flight > receive buffer {rx}");
+        }
+        (lines, realtime_seen)
+    }
+
+    fn program(n: usize) -> Vec<String> {
+        (0..n).map(|i| format!("G1X{}.12345Y{}.54321F60000", i, i)).collect()
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn character_counting_never_overfills_and_every_line_is_acked() {
+        let (a, b) = tokio::io::duplex(4096);
+        let lines = program(60);
+        let opts = SenderOptions::new(128, 5.0);
+        let controller = tokio::spawn(fake_controller(b, 128, None));
+        let mut sent = 0;
+        let out = stream(a, &lines, &opts, &|n| format!("line {n}"), |_, e| {
+            if matches!(e, LinkEvent::Sent { .. }) {
+                sent += 1
+            }
+        })
+        .await
+        .unwrap();
+        assert!(out.completed, "{:?}", out.stop_reason);
+        assert_eq!(out.last_acked_line, 60);
+        assert_eq!(out.lines_sent, 60);
+        assert_eq!(sent, 60);
+        assert_eq!(out.bytes_sent, lines.iter().map(|l| l.len() + 1).sum::<usize>());
+        drop(controller);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn an_error_stops_streaming_and_names_the_line_then_holds_and_resets() {
+        let (a, b) = tokio::io::duplex(4096);
+        let lines = program(60);
+        let opts = SenderOptions::new(128, 5.0);
+        let controller = tokio::spawn(fake_controller(b, 128, Some(17)));
+        let out = stream(a, &lines, &opts, &|n| format!("G-code line {n}"), |_, _| {}).await.unwrap();
+        assert!(!out.completed);
+        assert_eq!(out.errors[0].line, 17);
+        assert!(out.stop_reason.unwrap().contains("error:20") );
+        assert!(out.lines_sent < 17 + 5, "stopped sending at the error: {}", out.lines_sent);
+        assert_eq!(out.last_acked_line, 16);
+        drop(controller);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_silent_controller_is_detected() {
+        let (a, mut b) = tokio::io::duplex(4096);
+        let keep = tokio::spawn(async move {
+            b.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
+            let mut buf = [0u8; 64];
+            // Answer the first status request, then never again.
+            loop {
+                let n = b.read(&mut buf).await.unwrap_or(0);
+                if n == 0 {
+                    break;
+                }
+                if buf[..n].contains(&b'?') {
+                    b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n").await.unwrap();
+                    break;
+                }
+            }
+            tokio::time::sleep(Duration::from_secs(3600)).await;
+        });
+        let opts = SenderOptions::new(128, 5.0);
+        let out = stream(a, &program(10), &opts, &|n| format!("line {n}"), |_, _| {}).await.unwrap();
+        assert!(!out.completed);
+        assert!(out.stop_reason.unwrap().contains("silent"));
+        keep.abort();
+    }
+}

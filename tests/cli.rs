@@ -1,0 +1,159 @@
+//! The command line as a user runs it: the binary, real files, exit codes.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn laserd(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_laserd")).args(args).current_dir(dir).output().expect("laserd runs")
+}
+
+fn sample(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("samples").join(name).display().to_string()
+}
+
+fn json(out: &Output) -> serde_json::Value {
+    assert!(out.status.success(), "failed: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("stdout is one JSON object")
+}
+
+/// The error contract: non-zero exit, one line on stderr naming the problem, no panic.
+fn assert_clean_error(out: &Output, must_contain: &str) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "should fail: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "one line: {err}");
+    assert!(lines[0].contains(must_contain), "'{must_contain}' in: {err}");
+}
+
+#[test]
+fn dry_run_json_and_replay_reproduce_the_same_sim_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("run.mcap");
+    let out = laserd(&["dry-run", &sample("one-field.svg"), "--json", "--record", rec.to_str().unwrap()], dir.path());
+    let report = json(&out);
+    assert_eq!(report["planner"], "nearest");
+    assert_eq!(report["mode"], "step-and-scan");
+    assert_eq!(report["scan_fields"], 1);
+    assert!(report["precedence_violations"].is_null());
+    let sim = &report["sim"];
+    assert_eq!(sim["limit_violations"], 0, "{sim}");
+    assert_eq!(sim["laser_state_errors"], 0, "{sim}");
+    assert_eq!(sim["alarms"], serde_json::json!([]));
+    assert!(sim["max_tcp_deviation_mm"].as_f64().unwrap() <= 0.05, "{sim}");
+    assert!(sim["job_time_s"].as_f64().unwrap() >= report["trajectory_time_s"].as_f64().unwrap() * 0.999);
+    assert!(report["trajectory_time_s"].as_f64().unwrap() >= report["lower_bound_s"].as_f64().unwrap());
+    assert!(sim["peak_field_use"].as_f64().unwrap() <= 1.0);
+    assert!(rec.exists());
+
+    let replayed = json(&laserd(&["replay", rec.to_str().unwrap(), "--json"], dir.path()));
+    assert_eq!(&replayed, sim, "replay re-derives the dry-run's figures exactly");
+}
+
+#[test]
+fn dry_run_prints_a_human_summary_and_records_by_default() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = laserd(&["dry-run", &sample("one-field.svg")], dir.path());
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("geometries") && text.contains("limit violations 0"), "{text}");
+    assert!(dir.path().join("one-field.mcap").exists());
+}
+
+#[test]
+fn plan_writes_gcode_and_reports_without_sim() {
+    let dir = tempfile::tempdir().unwrap();
+    let nc = dir.path().join("job.nc");
+    let report = json(&laserd(&["plan", &sample("nested-sheet.svg"), "--json", "-o", nc.to_str().unwrap()], dir.path()));
+    assert!(report["sim"].is_null());
+    assert!(report["recording"].is_null());
+    assert_eq!(report["geometries"], 81);
+    let gcode = std::fs::read_to_string(&nc).unwrap();
+    assert!(gcode.starts_with("G21G90G93\n"));
+    assert!(gcode.lines().count() == report["program_lines"].as_u64().unwrap() as usize);
+}
+
+#[test]
+fn stage_only_machine_is_the_same_config_without_scanner() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/laserd.toml")).unwrap();
+    let start = text.find("\n[scanner]").unwrap();
+    let end = text.find("\n[laser]").unwrap();
+    let cfg: PathBuf = dir.path().join("xy.toml");
+    std::fs::write(&cfg, format!("{}{}", &text[..start], &text[end..])).unwrap();
+    let report = json(&laserd(&["dry-run", &sample("one-field.svg"), "--json", "--config", cfg.to_str().unwrap()], dir.path()));
+    assert_eq!(report["mode"], "stage-only");
+    assert!(report["scan_fields"].is_null());
+    assert_eq!(report["sim"]["limit_violations"], 0, "{}", report["sim"]);
+    assert!(report["sim"]["peak_field_use"].is_null());
+    assert!(report["sim"]["max_tcp_deviation_mm"].as_f64().unwrap() <= 0.05);
+}
+
+#[test]
+fn malformed_svg_is_one_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.svg");
+    std::fs::write(&bad, "<svg xmlns='http://www.w3.org/2000/svg'><path d='M 0 0 L 10 10'</svg>").unwrap();
+    assert_clean_error(&laserd(&["dry-run", bad.to_str().unwrap()], dir.path()), "malformed SVG");
+}
+
+#[test]
+fn missing_job_file_is_one_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    assert_clean_error(&laserd(&["plan", "no-such-job.svg"], dir.path()), "no-such-job.svg");
+}
+
+#[test]
+fn invalid_config_value_names_the_setting() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/laserd.toml")).unwrap();
+    let cfg = dir.path().join("bad.toml");
+    std::fs::write(&cfg, text.replace("max_acceleration = 5000.0", "max_acceleration = -1")).unwrap();
+    assert_clean_error(
+        &laserd(&["dry-run", &sample("one-field.svg"), "--config", cfg.to_str().unwrap()], dir.path()),
+        "stage.max_acceleration",
+    );
+}
+
+#[test]
+fn replay_of_a_non_recording_is_one_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("x.mcap");
+    std::fs::write(&f, b"not mcap at all").unwrap();
+    assert_clean_error(&laserd(&["replay", f.to_str().unwrap()], dir.path()), "x.mcap");
+}
+
+/// The recording opens in an independent MCAP implementation (the Python
+/// reference library), with JSON messages and JSON Schemas on every channel.
+#[test]
+fn recording_reads_in_the_reference_python_mcap_library() {
+    let have = |py: &str| Command::new("python3").args(["-c", py]).status().map(|s| s.success()).unwrap_or(false);
+    if !have("import mcap") {
+        let ok = Command::new("python3").args(["-m", "pip", "install", "--quiet", "mcap"]).status().map(|s| s.success()).unwrap_or(false);
+        assert!(ok, "python3 -m pip install mcap failed: the independent reader is needed for this test");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("r.mcap");
+    let out = laserd(&["dry-run", &sample("one-field.svg"), "--record", rec.to_str().unwrap()], dir.path());
+    assert!(out.status.success());
+    let script = r#"
+import sys, json
+from mcap.reader import make_reader
+counts = {}
+with open(sys.argv[1], "rb") as f:
+    reader = make_reader(f)
+    summary = reader.get_summary()
+    for schema, channel, message in reader.iter_messages():
+        assert schema.encoding == "jsonschema", schema.encoding
+        assert channel.message_encoding == "json"
+        json.loads(message.data)
+        counts[channel.topic] = counts.get(channel.topic, 0) + 1
+print(json.dumps(counts))
+"#;
+    let py = Command::new("python3").args(["-c", script, rec.to_str().unwrap()]).output().unwrap();
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    let counts: serde_json::Value = serde_json::from_slice(&py.stdout).unwrap();
+    for topic in ["/run/setup", "/run/job", "/plan/lines", "/link", "/status", "/sim/axes", "/run/report"] {
+        assert!(counts[topic].as_u64().unwrap_or(0) > 0, "{topic} in {counts}");
+    }
+}

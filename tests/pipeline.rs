@@ -1,0 +1,110 @@
+//! The pipeline through the library: a fault injected in the simulator, and a
+//! real pseudo-terminal between the sender and `laserd sim --pty` in real time.
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use laserd::config::MachineConfig;
+use laserd::figures::{sim_figures, PlannedLine};
+use laserd::plan::PlannerKind;
+use laserd::program::LineKind;
+use laserd::run;
+use laserd::stream::{self, SenderOptions};
+use laserd_sim::controller::Faults;
+use laserd_sim::wire::MachineState;
+
+fn sample(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("samples").join(name)
+}
+
+#[test]
+fn error_20_on_a_chosen_line_stops_the_job_there_with_the_laser_off() {
+    let machine = MachineConfig::load(None).unwrap();
+    let planned = run::plan(&sample("one-field.svg"), &machine, PlannerKind::Nearest, None).unwrap();
+    // A marking line in the middle of the job: the laser is on when it fails.
+    let marks: Vec<usize> = planned.program.lines.iter().enumerate().filter(|(_, l)| l.kind == LineKind::Mark).map(|(i, _)| i + 1).collect();
+    let bad = marks[marks.len() / 2];
+    let dir = tempfile::tempdir().unwrap();
+    let dry = run::dry_run(&planned, &machine, &dir.path().join("e.mcap"), Faults { error_on_line: Some(bad as u64) }).unwrap();
+    let out = &dry.outcome;
+    assert!(!out.completed);
+    assert_eq!(out.errors.len(), 1);
+    assert_eq!(out.errors[0].line, bad);
+    assert_eq!(out.errors[0].code, 20);
+    let reason = out.stop_reason.as_deref().unwrap();
+    assert!(reason.contains(&format!("G-code line {bad} ")), "{reason}");
+    assert!(reason.contains("one-field.svg"), "names the source geometry: {reason}");
+    // Nothing past what was already in the controller's 128-byte buffer ran.
+    let last_executed = dry.log.knots.iter().map(|k| k.line as usize).max().unwrap();
+    assert!(last_executed < bad + 5, "executed up to {last_executed}, error at {bad}");
+    assert!(last_executed >= bad.saturating_sub(20), "the job did run up to near the error");
+    // The machine ends stopped with the laser off.
+    let status = out.final_status.as_ref().expect("a status after the safe stop");
+    assert_eq!(status.state, MachineState::Idle);
+    assert_eq!(status.spindle.unwrap_or(0.0), 0.0);
+    let sim = dry.report.sim.as_ref().unwrap();
+    assert_eq!(sim.limit_violations, 0, "{sim:?}");
+}
+
+/// Kills the simulator child on drop, so a failing test never leaves it running.
+struct Child(std::process::Child);
+impl Drop for Child {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyLASER");
+    let rec = dir.path().join("sim.mcap");
+    let mut child = Child(
+        Command::new(env!("CARGO_BIN_EXE_laserd"))
+            .args(["sim", "--pty", "--baud", "115200", "--link", link.to_str().unwrap(), "--record", rec.to_str().unwrap()])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("laserd sim starts"),
+    );
+    let mut first = String::new();
+    BufReader::new(child.0.stdout.take().unwrap()).read_line(&mut first).unwrap();
+    assert_eq!(first.trim(), link.to_str().unwrap(), "prints the device path");
+
+    let machine = MachineConfig::load(None).unwrap();
+    let planned = run::plan(&sample("one-field.svg"), &machine, PlannerKind::Nearest, None).unwrap();
+    let lines: Vec<String> = planned.program.lines.iter().map(|l| l.text.clone()).collect();
+    let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.expect_start = Some(planned.program.start.clone());
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let outcome = runtime
+        .block_on(async {
+            use tokio_serial::SerialPortBuilderExt;
+            let io = tokio_serial::new(link.to_str().unwrap(), 115_200).open_native_async().expect("open the pty");
+            let describe = |n: usize| planned.program.describe_line(n);
+            tokio::time::timeout(Duration::from_secs(120), stream::stream(io, &lines, &options, &describe, |_, _| {})).await
+        })
+        .expect("streams within two minutes")
+        .expect("streams");
+    assert!(outcome.completed, "{:?}", outcome.stop_reason);
+    assert_eq!(outcome.last_acked_line, lines.len());
+
+    // Stop the simulator cleanly so it finishes its recording, then compare the
+    // motion it executed with the plan.
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.0.id() as i32), nix::sys::signal::Signal::SIGTERM).unwrap();
+    let status = child.0.wait().unwrap();
+    assert!(status.success());
+    let replay = laserd::record::read(&rec).expect("the simulator's recording reads back");
+    assert!(replay.truncated.is_none());
+    let mut log = replay.log;
+    log.planned = PlannedLine::from_program(&planned.program);
+    let figures = sim_figures(&log);
+    assert!(log.knots.len() > lines.len() / 2, "motion was executed: {} knots", log.knots.len());
+    assert!(figures.max_tcp_deviation_mm <= 0.05, "{figures:?}");
+    assert_eq!(figures.laser_state_errors, 0, "laser off on every jump, on while marking");
+    assert_eq!(figures.limit_violations, 0, "{figures:?}");
+    assert!(figures.job_time_s >= planned.trajectory.duration() * 0.999);
+}
