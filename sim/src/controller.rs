@@ -23,9 +23,18 @@
 //! A line's bytes stay in RX until the line has been fully handled; a motion
 //! line waits there while the planner is full (its `ok` is delayed), a sync
 //! command (G4, M2/M30, M0, spindle/coolant/offset changes) waits until motion
-//! has stopped. Execution starts as soon as no complete line can be parsed
-//! (planner full or RX without a complete line), which is Grbl's auto cycle
-//! start given that parsing takes no time here.
+//! has stopped.
+//!
+//! # When blocks run
+//! Grbl plans every queue to stop at its end, so a starved planner means a
+//! controlled deceleration. With constant-velocity blocks the equivalent is to
+//! run a block only when the queue holds a rest point after it: two *gentle*
+//! blocks in a row (slow enough for their duration that the machine can stop
+//! after the first and start into the second within its limits; see
+//! `is_gentle`). Blocks also run when the planner is full, when the pending
+//! line needs motion to end, or when the link has been silent for
+//! `LINK_SILENCE_START` (a stream that never comes to rest must still run).
+//! A feed hold runs on, laser off, to the next rest point, then stops.
 //!
 //! # Starvation
 //! `starved_s` counts the time the machine stood still with an empty planner
@@ -273,7 +282,7 @@ pub struct Controller {
 const EPS_POS: f64 = 1e-9;
 /// Time without a received byte after which queued blocks start even though
 /// no queued block lets the machine stop within its limits.
-const LINK_SILENCE_START: f64 = 0.02;
+pub const LINK_SILENCE_START: f64 = 0.02;
 
 impl Controller {
     pub fn new(config: SimConfig) -> Controller {

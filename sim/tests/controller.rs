@@ -1,6 +1,6 @@
 //! Controller behaviour in virtual time, driven through a paced 115200 link.
 
-use laserd_sim::controller::{AxisConfig, Controller, Faults, Knot, SimConfig};
+use laserd_sim::controller::{AxisConfig, Controller, Faults, Knot, SimConfig, LINK_SILENCE_START};
 use laserd_sim::link::PacedLink;
 use laserd_sim::wire::{realtime, MachineState, Response, StatusReport, BANNER};
 
@@ -109,9 +109,10 @@ fn g93_program_knots_and_oks() {
     assert_eq!(oks.len(), prog.len());
     assert!(oks.iter().all(|(_, r)| *r == Response::Ok));
     assert!(s.texts().contains(&"[MSG:Pgm End]"));
-    // Motion starts when line 3's newline has arrived (nothing else to parse).
-    let bytes3: usize = prog[..3].iter().map(|l| l.len() + 1).sum();
-    let t0 = bytes3 as f64 * BYTE;
+    // Motion starts once the queue holds a rest point: blocks 3 and 4 are both
+    // gentle, so when line 4's newline has arrived.
+    let bytes4: usize = prog[..4].iter().map(|l| l.len() + 1).sum();
+    let t0 = bytes4 as f64 * BYTE;
     let expect = [
         (t0, [0.0, 0.0], 500.0, 3),
         (t0 + 0.1, [1.0, 0.0], 500.0, 3),
@@ -243,7 +244,8 @@ fn starvation_counts_only_gaps_between_blocks() {
     let end1 = s.knots[1].t;
     s.send("G1 X2 F600\n");
     s.run_until(3.0);
-    let restart = 1.0 + "G1 X2 F600\n".len() as f64 * BYTE;
+    // A lone block has no rest point after it: it starts when the link falls silent.
+    let restart = 1.0 + "G1 X2 F600\n".len() as f64 * BYTE + LINK_SILENCE_START;
     let st = s.ctl.stats();
     assert!(close(st.starved_s, restart - end1), "{} vs {}", st.starved_s, restart - end1);
     // The rest is explicit in the knots: end, then restart at the same place.
@@ -377,9 +379,11 @@ fn system_commands() {
     assert!(t.contains(&"$N0=") && t[1].starts_with("[HLP:"));
     assert_eq!(s.responses().len(), 7);
     assert!(s.responses().iter().all(|r| r.1 == Response::Ok));
-    s.send("G0 U5 V6\n?");
-    s.run_until(2.0);
+    s.send("G0 U5 V6\n");
+    s.run_until(1.0 + LINK_SILENCE_START + 0.02);
+    s.realtime(realtime::STATUS);
     assert!(s.texts().last().unwrap().starts_with("<Run|"), "? arrives while moving");
+    s.run_until(2.0);
     s.realtime(realtime::STATUS);
     assert!(s.texts().last().unwrap().starts_with("<Idle|MPos:0.000,0.000,5.000,6.000|"));
 }
