@@ -23,17 +23,34 @@ struct Cli {
     command: Command,
 }
 
+/// What `plan` and `dry-run` share: the job and how to plan it.
+#[derive(clap::Args)]
+struct JobArgs {
+    job: PathBuf,
+    /// Machine config (default: the shipped config/laserd.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[arg(long, default_value = "auto")]
+    planner: PlannerKind,
+    /// on-the-fly, step-and-scan or stage-only (default: step-and-scan with a scanner, else stage-only).
+    #[arg(long)]
+    mode: Option<Mode>,
+}
+
+impl JobArgs {
+    fn plan(&self) -> Result<(MachineConfig, run::Planned)> {
+        let machine = MachineConfig::load(self.config.as_deref())?;
+        let planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
+        Ok((machine, planned))
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Plan a job, stream it into the built-in simulator (virtual time) and report.
     DryRun {
-        job: PathBuf,
-        #[arg(long)]
-        config: Option<PathBuf>,
-        #[arg(long, default_value = "auto")]
-        planner: PlannerKind,
-        #[arg(long)]
-        mode: Option<Mode>,
+        #[command(flatten)]
+        job: JobArgs,
         /// MCAP recording of the run (default: <job stem>.mcap here).
         #[arg(long)]
         record: Option<PathBuf>,
@@ -42,13 +59,8 @@ enum Command {
     },
     /// Plan a job only: report, and write the G-code program with -o.
     Plan {
-        job: PathBuf,
-        #[arg(long)]
-        config: Option<PathBuf>,
-        #[arg(long, default_value = "auto")]
-        planner: PlannerKind,
-        #[arg(long)]
-        mode: Option<Mode>,
+        #[command(flatten)]
+        job: JobArgs,
         /// Planning time limit in seconds (for the search planners; nearest ignores it).
         #[arg(long)]
         time_limit: Option<f64>,
@@ -124,10 +136,9 @@ fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
 
 fn run_command(command: Command) -> Result<ExitCode> {
     match command {
-        Command::DryRun { job, config, planner, mode, record, json } => {
-            let machine = MachineConfig::load(config.as_deref())?;
-            let planned = run::plan(&job, &machine, planner, mode)?;
-            let recording = record.unwrap_or_else(|| run::default_recording(&job));
+        Command::DryRun { job, record, json } => {
+            let (machine, planned) = job.plan()?;
+            let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
             let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
             if json {
                 print_json(&dry.report)?;
@@ -140,14 +151,13 @@ fn run_command(command: Command) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Plan { job, config, planner, mode, time_limit, output, json } => {
+        Command::Plan { job, time_limit, output, json } => {
             if let Some(t) = time_limit {
                 if !(t.is_finite() && t > 0.0) {
                     return Err(Error::Plan(format!("--time-limit: must be a positive number of seconds, got {t}")));
                 }
             }
-            let machine = MachineConfig::load(config.as_deref())?;
-            let planned = run::plan(&job, &machine, planner, mode)?;
+            let (_, planned) = job.plan()?;
             if let Some(out) = &output {
                 std::fs::write(out, planned.program.to_gcode())
                     .map_err(|e| Error::Io(format!("{}: cannot write: {e}", out.display())))?;

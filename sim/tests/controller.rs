@@ -429,3 +429,77 @@ fn garbage_never_panics() {
     s.ctl.advance(-5.0);
     let _ = s.ctl.stats();
 }
+
+/// A rest-to-rest move sampled into G93 blocks (quintic smoothstep: velocity
+/// and acceleration 0 at both ends; peak a = 5.77 d/T², peak jerk = 60 d/T³).
+fn smooth_move(from: f64, to: f64, duration: f64, blocks: usize) -> Vec<String> {
+    let s = |u: f64| from + (to - from) * u * u * u * (10.0 - 15.0 * u + 6.0 * u * u);
+    (1..=blocks)
+        .map(|k| format!("G1X{:.5}F{:.6}", s(k as f64 / blocks as f64), 60.0 * blocks as f64 / duration))
+        .collect()
+}
+
+/// One axis whose acceleration and jerk a 42 mm move over 0.52 s nearly uses up.
+fn tight_axis() -> SimConfig {
+    let mut c = cfg();
+    c.axes = vec![AxisConfig { letter: 'X', min: -100.0, max: 100.0, max_velocity: 1000.0, max_acceleration: 1000.0, max_jerk: 20000.0 }];
+    c
+}
+
+fn send_lines(s: &mut Sim, lines: &[String]) -> usize {
+    lines.iter().map(|l| {
+        s.send(&format!("{l}\n"));
+        l.len() + 1
+    }).sum()
+}
+
+#[test]
+fn a_move_starts_only_once_a_rest_point_is_queued() {
+    let there = smooth_move(0.0, 42.0, 0.52, 10);
+    let back = smooth_move(42.0, 0.0, 0.52, 10);
+
+    // Only the first part of a move queued: no rest point, so it waits while the
+    // link is busy and runs only once the link falls silent.
+    let mut s = Sim::new(tight_axis());
+    let bytes = send_lines(&mut s, &["G93".to_string()]) + send_lines(&mut s, &there[..6]);
+    s.run_until(1.0);
+    let first = s.knots.first().expect("runs after the link fell silent").t;
+    assert!(close(first, bytes as f64 * BYTE + LINK_SILENCE_START), "{first}");
+
+    // The whole move and the first block of the next: the rest point between
+    // them is queued, so it runs as soon as that block is in, without stopping
+    // on the way and within every limit.
+    let mut s = Sim::new(tight_axis());
+    let bytes = send_lines(&mut s, &["G93".to_string()]) + send_lines(&mut s, &there) + send_lines(&mut s, &back[..1]);
+    s.run_until(3.0);
+    assert!(close(s.knots[0].t, bytes as f64 * BYTE), "{:?}", s.knots[0]);
+    for w in s.knots.windows(2).take(10) {
+        assert!(w[0].pos != w[1].pos, "no stop inside the move: {w:?}");
+    }
+    let mut checker = laserd_sim::limits::LimitChecker::new(&tight_axis().axes);
+    for k in &s.knots {
+        checker.push(k);
+    }
+    let report = checker.finish();
+    assert_eq!(report.violations, 0, "{report:?}");
+    assert!(report.peak_acceleration_use[0] > 0.5, "the move does use the axis: {report:?}");
+}
+
+#[test]
+fn feed_hold_runs_on_to_the_next_rest_point_with_the_laser_off() {
+    let mut s = Sim::new(tight_axis());
+    send_lines(&mut s, &["G93 M4 S300".to_string()]);
+    send_lines(&mut s, &smooth_move(0.0, 42.0, 0.52, 10));
+    send_lines(&mut s, &smooth_move(42.0, 0.0, 0.52, 10));
+    s.run_until(0.15);
+    assert_eq!(s.ctl.state(), MachineState::Run);
+    s.realtime(realtime::FEED_HOLD);
+    assert_eq!(s.ctl.state(), MachineState::Hold(1));
+    s.run_until(3.0);
+    assert_eq!(s.ctl.state(), MachineState::Hold(0));
+    // It stopped at the end of the first move (the rest point), not mid-way
+    // where an instant stop would exceed the limits.
+    assert!(close(s.ctl.position()[0], 42.0), "{:?}", s.ctl.position());
+    let after: Vec<&Knot> = s.knots.iter().filter(|k| k.t > 0.15).collect();
+    assert!(after.iter().skip(1).all(|k| k.power == 0.0), "laser off while holding: {after:?}");
+}
