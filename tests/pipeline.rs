@@ -108,3 +108,34 @@ fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
     assert_eq!(figures.limit_violations, 0, "{figures:?}");
     assert!(figures.job_time_s >= planned.trajectory.duration() * 0.999);
 }
+
+#[test]
+fn a_simulator_killed_mid_run_leaves_a_readable_recording() {
+    use std::io::{Read, Write};
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyCRASH");
+    let rec = dir.path().join("crash.mcap");
+    let mut child = Child(
+        Command::new(env!("CARGO_BIN_EXE_laserd"))
+            .args(["sim", "--pty", "--link", link.to_str().unwrap(), "--record", rec.to_str().unwrap()])
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("laserd sim starts"),
+    );
+    let mut first = String::new();
+    BufReader::new(child.0.stdout.take().unwrap()).read_line(&mut first).unwrap();
+    let mut port = std::fs::OpenOptions::new().read(true).write(true).open(&link).unwrap();
+    port.write_all(b"G93\nG1X1F600\nG1X2F600\nG1X3F600\nG1X4F600\n").unwrap();
+    // Let it move and record for longer than the recorder's flush interval.
+    std::thread::sleep(Duration::from_millis(1600));
+    let mut buf = [0u8; 512];
+    let _ = port.read(&mut buf);
+    child.0.kill().unwrap(); // SIGKILL: no chance to finish the file
+    child.0.wait().unwrap();
+    let replay = laserd::record::read(&rec).expect("what was flushed reads back");
+    assert!(!replay.log.knots.is_empty(), "executed motion up to the crash is there");
+    assert!(replay.log.setup.is_some());
+    let out = Command::new(env!("CARGO_BIN_EXE_laserd")).args(["replay", rec.to_str().unwrap(), "--json"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("ends early"));
+}

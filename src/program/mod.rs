@@ -114,7 +114,10 @@ impl Writer {
         self.lines.push(ProgramLine { text: text.into(), kind: LineKind::Setup, geometry: None, plan_time: None, checks: vec![] });
     }
 
-    fn block(&mut self, values: &[f64], power: f64, duration: f64, kind: LineKind, geometry: Option<usize>, plan_time: (f64, f64), checks: Vec<CheckPoint>) -> Result<()> {
+    /// Appends the motion block ending at `values`, taking `duration` seconds with
+    /// the laser at `power`; `line` carries everything but the text.
+    fn block(&mut self, values: &[f64], power: f64, duration: f64, mut line: ProgramLine) -> Result<()> {
+        let plan_time = line.plan_time.unwrap_or_default();
         let mut text = String::from("G1");
         for (i, v) in values.iter().enumerate() {
             if !v.is_finite() {
@@ -141,7 +144,8 @@ impl Writer {
         if text.len() > 79 {
             return Err(Error::Program(format!("block longer than GRBL's 79 characters: {text}")));
         }
-        self.lines.push(ProgramLine { text, kind, geometry, plan_time: Some(plan_time), checks });
+        line.text = text;
+        self.lines.push(line);
         Ok(())
     }
 }
@@ -285,7 +289,8 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
                 Vec::new()
             };
             let plan_time = (seg.start_time + a, seg.start_time + b);
-            w.block(&axis_values(&end, has_scanner), power, b - a, kind, geometry, plan_time, checks)?;
+            let line = ProgramLine { text: String::new(), kind, geometry, plan_time: Some(plan_time), checks };
+            w.block(&axis_values(&end, has_scanner), power, b - a, line)?;
         }
     }
     for text in ["M5S0", "G94", "M2"] {

@@ -42,6 +42,8 @@ pub const TOPIC_STATUS: &str = "/status";
 pub const TOPIC_AXES: &str = "/sim/axes";
 pub const TOPIC_REPORT: &str = "/run/report";
 
+const FLUSH_INTERVAL: Duration = Duration::from_secs(1);
+
 /// A link event with its time (seconds from the start of the run).
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct LinkMessage {
@@ -141,8 +143,15 @@ impl Recording {
                 let err = |e: mcap::McapError| Error::Record(format!("{shown}: {e}"));
                 let mut channels: BTreeMap<&'static str, u16> = BTreeMap::new();
                 let mut sequence = 0u32;
+                let mut last_flush = std::time::Instant::now();
                 loop {
-                    match rx.recv_timeout(Duration::from_secs(1)) {
+                    // Close a chunk at least every second, busy or not, so that a
+                    // crash loses at most the last second.
+                    if last_flush.elapsed() >= FLUSH_INTERVAL {
+                        writer.flush().map_err(err)?;
+                        last_flush = std::time::Instant::now();
+                    }
+                    match rx.recv_timeout(FLUSH_INTERVAL) {
                         Ok(env) => {
                             if let Some((name, schema)) = &env.schema {
                                 let schema_id = writer.add_schema(name, "jsonschema", schema).map_err(err)?;
@@ -155,7 +164,7 @@ impl Recording {
                             let header = MessageHeader { channel_id, sequence, log_time: time, publish_time: time };
                             writer.write_to_known_channel(&header, &env.data).map_err(err)?;
                         }
-                        Err(RecvTimeoutError::Timeout) => writer.flush().map_err(err)?,
+                        Err(RecvTimeoutError::Timeout) => {}
                         Err(RecvTimeoutError::Disconnected) => break,
                     }
                 }
@@ -272,6 +281,9 @@ pub fn read(path: &Path) -> Result<Replay> {
             TOPIC_REPORT => out.report = Some(decode(topic, data)?),
             _ => {}
         }
+    }
+    if out.truncated.is_none() && !bytes.ends_with(mcap::MAGIC) {
+        out.truncated = Some("no end of file record: the recording was cut off".into());
     }
     if out.log.setup.is_none() {
         return Err(Error::Record(format!("{}: no {TOPIC_SETUP} message: not a laserd recording", path.display())));

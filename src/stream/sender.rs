@@ -248,7 +248,8 @@ where
     let mut fault: Option<String> = None;
 
     while fault.is_none() {
-        while next < lines.len() && in_flight + lines[next].len() + 1 <= options.rx_buffer {
+        while next < lines.len() && in_flight + lines[next].len() < options.rx_buffer {
+            // (line + its `\n` must fit: in_flight + len + 1 <= rx_buffer)
             link.send_line(next + 1, &lines[next]).await?;
             fifo.push_back((next + 1, lines[next].len() + 1));
             in_flight += lines[next].len() + 1;
