@@ -29,8 +29,8 @@ pub struct SenderOptions {
     pub rx_buffer: usize,
     /// Interval between status requests while streaming.
     pub status_interval: Duration,
-    /// A controller that sends nothing for this long while lines are outstanding
-    /// is treated as gone.
+    /// A controller that sends nothing intelligible (no answer, no status report)
+    /// for this long while lines are outstanding is treated as gone.
     pub silence_timeout: Duration,
     /// Axis positions the program starts from; the machine must be there.
     pub expect_start: Option<Vec<f64>>,
@@ -265,8 +265,13 @@ where
                     fault = Some("the controller closed the link".into());
                     break;
                 };
-                last_heard = Instant::now();
-                match Response::parse(&text) {
+                let response = Response::parse(&text);
+                // Garbage is not a sign of life: a controller that only babbles
+                // is as gone as a silent one.
+                if !matches!(response, Response::Other(_)) {
+                    last_heard = Instant::now();
+                }
+                match response {
                     Response::Ok => {
                         if let Some((n, len)) = fifo.pop_front() {
                             in_flight -= len;
@@ -289,13 +294,14 @@ where
                         fault = Some(format!("the controller reset itself during the job (last acknowledged: {})", describe(out.last_acked_line)));
                     }
                     Response::Status(s) => out.final_status = Some(s),
+                    Response::Other(_) => tracing::warn!("unexpected line from the controller: {text}"),
                     _ => {}
                 }
             }
             _ = ticker.tick() => {
                 if !fifo.is_empty() && last_heard.elapsed() > options.silence_timeout {
                     fault = Some(format!(
-                        "the controller has been silent for {:.1} s with {} line(s) unanswered (last acknowledged: {})",
+                        "the controller has been silent (no answer, no status report) for {:.1} s with {} line(s) unanswered (last acknowledged: {})",
                         last_heard.elapsed().as_secs_f64(), fifo.len(), describe(out.last_acked_line)));
                     break;
                 }
@@ -461,5 +467,29 @@ mod tests {
         assert!(!out.completed);
         assert!(out.stop_reason.unwrap().contains("silent"));
         keep.abort();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_controller_answering_garbage_is_detected() {
+        let (a, mut b) = tokio::io::duplex(4096);
+        let babble = tokio::spawn(async move {
+            b.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
+            let mut buf = [0u8; 64];
+            let n = b.read(&mut buf).await.unwrap_or(0);
+            if buf[..n].contains(&b'?') {
+                b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n").await.unwrap();
+            }
+            loop {
+                if b.write_all(b"\x07#~garbage~#\r\n").await.is_err() {
+                    break;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        });
+        let opts = SenderOptions::new(128, 5.0);
+        let out = stream(a, &program(10), &opts, &|n| format!("line {n}"), |_, _| {}).await.unwrap();
+        assert!(!out.completed);
+        assert!(out.stop_reason.unwrap().contains("silent"));
+        babble.abort();
     }
 }
