@@ -85,7 +85,7 @@ enum Command {
     Sim {
         #[arg(long)]
         config: Option<PathBuf>,
-        /// Serve on a pseudo-terminal (the only transport in this version).
+        /// Serve on a pseudo-terminal (the default, and the only transport in this version).
         #[arg(long)]
         pty: bool,
         /// Stable symlink to the pseudo-terminal device.
@@ -173,10 +173,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Send { file, port, baud, config, json } => send(&file, &port, baud, config.as_deref(), json),
-        Command::Sim { config, pty, link, baud, realtime: _, record, error_on_line } => {
-            if !pty {
-                return Err(Error::Io("laserd sim: only --pty is available in this version".into()));
-            }
+        Command::Sim { config, pty: _, link, baud, realtime: _, record, error_on_line } => {
             let machine = MachineConfig::load(config.as_deref())?;
             sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), error_on_line)
         }
