@@ -281,8 +281,10 @@ pub struct Controller {
 
 const EPS_POS: f64 = 1e-9;
 /// Time without a received byte after which queued blocks start even though
-/// no queued block lets the machine stop within its limits.
-pub const LINK_SILENCE_START: f64 = 0.02;
+/// the queue holds no rest point (a stream that never comes to rest). Long
+/// enough that a sender's scheduling hiccup on a busy host is not mistaken for
+/// the end of the stream.
+pub const LINK_SILENCE_START: f64 = 0.1;
 
 impl Controller {
     pub fn new(config: SimConfig) -> Controller {
