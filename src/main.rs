@@ -14,7 +14,10 @@ use laserd::plan::PlannerKind;
 use laserd::record::{self, Recording, TOPIC_SETUP};
 use laserd::run;
 use laserd::stream::{self, SenderOptions};
+use laserd::stream::LinkEvent;
 use laserd_sim::controller::{Controller, Faults};
+use laserd_sim::pty::Observed;
+use laserd_sim::wire::realtime;
 
 #[derive(Parser)]
 #[command(name = "laserd", version, about = "Laser machine controller: plan, simulate, stream, record")]
@@ -263,9 +266,14 @@ fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: O
     let thread = std::thread::Builder::new()
         .name("simulator".into())
         .spawn(move || {
-            laserd_sim::pty::run_realtime(controller, device, baud, stop_sim, |knots| {
+            let mut link = LinkLog::default();
+            laserd_sim::pty::run_realtime(controller, device, baud, stop_sim, |observed| {
                 if let Some(r) = &sim_recorder {
-                    r.knots(&knots);
+                    match observed {
+                        Observed::Knots(knots) => r.knots(&knots),
+                        Observed::FromHost(t, bytes) => link.from_host(t, &bytes, |t, e| r.link_event(t, &e)),
+                        Observed::ToHost(t, bytes) => link.to_host(t, &bytes, |t, e| r.link_event(t, &e)),
+                    }
                 }
             })
         })
@@ -285,4 +293,45 @@ fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: O
         r.finish()?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Turns the bytes seen on the simulator's side of the link into the same
+/// events the sender records: lines the host sent (numbered as the controller
+/// counts them), realtime bytes, and lines the controller answered.
+#[derive(Default)]
+struct LinkLog {
+    from_host: Vec<u8>,
+    to_host: Vec<u8>,
+    lines: usize,
+}
+
+impl LinkLog {
+    fn from_host(&mut self, t: f64, bytes: &[u8], mut emit: impl FnMut(f64, LinkEvent)) {
+        for &b in bytes {
+            if realtime::is_realtime(b) || b >= 0x80 {
+                emit(t, LinkEvent::Realtime { byte: b });
+            } else if b == b'\n' || b == b'\r' {
+                self.lines += 1;
+                let text = String::from_utf8_lossy(&self.from_host).to_string();
+                self.from_host.clear();
+                emit(t, LinkEvent::Sent { line: self.lines, text });
+            } else {
+                self.from_host.push(b);
+            }
+        }
+    }
+
+    fn to_host(&mut self, t: f64, bytes: &[u8], mut emit: impl FnMut(f64, LinkEvent)) {
+        for &b in bytes {
+            if b == b'\n' {
+                let text = String::from_utf8_lossy(&self.to_host).trim().to_string();
+                self.to_host.clear();
+                if !text.is_empty() {
+                    emit(t, LinkEvent::Received { text });
+                }
+            } else {
+                self.to_host.push(b);
+            }
+        }
+    }
 }

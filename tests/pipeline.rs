@@ -102,11 +102,16 @@ fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
     let mut log = replay.log;
     log.planned = PlannedLine::from_program(&planned.program);
     let figures = sim_figures(&log);
+    eprintln!("pty run at 115200 baud: {}", serde_json::to_string(&figures).unwrap());
     assert!(log.knots.len() > lines.len() / 2, "motion was executed: {} knots", log.knots.len());
     assert!(figures.max_tcp_deviation_mm <= 0.05, "{figures:?}");
     assert_eq!(figures.laser_state_errors, 0, "laser off on every jump, on while marking");
     assert_eq!(figures.limit_violations, 0, "{figures:?}");
     assert!(figures.job_time_s >= planned.trajectory.duration() * 0.999);
+    // The simulator's side of the link is in its recording too.
+    assert_eq!(figures.lines_sent, lines.len());
+    assert_eq!(figures.bytes_sent, outcome.bytes_sent);
+    assert!(figures.link_utilization > 0.0 && figures.link_utilization <= 1.0, "{figures:?}");
 }
 
 #[test]

@@ -16,7 +16,7 @@ pub mod wire;
 pub use controller::{AxisConfig, Controller, Faults, Knot, SimConfig, SimStats};
 pub use limits::{LimitChecker, LimitReport};
 pub use link::PacedLink;
-pub use pty::{open_pty, run_realtime, PtyDevice};
+pub use pty::{open_pty, run_realtime, Observed, PtyDevice};
 pub use wire::{MachineState, Response, StatusReport};
 
 #[derive(Debug, thiserror::Error)]

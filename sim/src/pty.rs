@@ -73,15 +73,26 @@ pub fn open_pty(link: Option<&Path>) -> Result<PtyDevice, SimError> {
     Ok(PtyDevice { master: pty.master, _idle_slave: pty.slave, path, link })
 }
 
+/// What the real-time driver reports as it runs (times in controller seconds).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Observed {
+    /// Motion executed since the last report.
+    Knots(Vec<Knot>),
+    /// Bytes the host wrote, as read from the pseudo-terminal.
+    FromHost(f64, Vec<u8>),
+    /// Bytes the controller transmitted to the host.
+    ToHost(f64, Vec<u8>),
+}
+
 /// Serves `controller` on `dev` in wall-clock time until `stop` is set.
 /// Bytes in both directions are paced at `baud`; realtime bytes too, since
-/// they share the wire. Executed motion is handed to `on_knots`.
+/// they share the wire. Executed motion and link traffic go to `observe`.
 pub fn run_realtime(
     mut controller: Controller,
     dev: PtyDevice,
     baud: u32,
     stop: Arc<AtomicBool>,
-    mut on_knots: impl FnMut(Vec<Knot>),
+    mut observe: impl FnMut(Observed),
 ) {
     let start = Instant::now();
     let clock = |base: f64| base + start.elapsed().as_secs_f64();
@@ -102,13 +113,14 @@ pub fn run_realtime(
         }
         let knots = controller.take_knots();
         if !knots.is_empty() {
-            on_knots(knots);
+            observe(Observed::Knots(knots));
         }
         let due: Vec<u8> = to_host.pop_due(now).into_iter().map(|(_, b)| b).collect();
         if !due.is_empty() {
             // Nobody listening and the pty queue full: the bytes are lost, as
             // on a serial line without a reader.
             let _ = write_all(&dev.master, &due);
+            observe(Observed::ToHost(now, due));
         }
 
         // Sleep until input, the next due event, or at most 1 ms while busy.
@@ -131,7 +143,11 @@ pub fn run_realtime(
                 // Client went away: keep serving, wait for the next one.
                 std::thread::sleep(Duration::from_millis(5));
             }
-            Ok(n) => to_ctl.push(clock(base), &buf[..n]),
+            Ok(n) => {
+                let t = clock(base);
+                to_ctl.push(t, &buf[..n]);
+                observe(Observed::FromHost(t, buf[..n].to_vec()));
+            }
             Err(Errno::EAGAIN) | Err(Errno::EINTR) => {}
             Err(_) => std::thread::sleep(Duration::from_millis(5)),
         }

@@ -7,7 +7,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use laserd_sim::controller::{Controller, Knot, SimConfig};
-use laserd_sim::pty::{open_pty, run_realtime};
+use laserd_sim::pty::{open_pty, run_realtime, Observed};
 use laserd_sim::wire::{Response, BANNER};
 
 #[test]
@@ -19,8 +19,10 @@ fn serve_on_pty() {
     let knots: Arc<Mutex<Vec<Knot>>> = Arc::default();
     let (stop2, knots2) = (stop.clone(), knots.clone());
     let server = std::thread::spawn(move || {
-        run_realtime(Controller::new(SimConfig::with_axes("XY")), dev, 115200, stop2, move |k| {
-            knots2.lock().unwrap().extend(k)
+        run_realtime(Controller::new(SimConfig::with_axes("XY")), dev, 115200, stop2, move |o| {
+            if let Observed::Knots(k) = o {
+                knots2.lock().unwrap().extend(k)
+            }
         })
     });
 
