@@ -271,8 +271,8 @@ fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: O
                 if let Some(r) = &sim_recorder {
                     match observed {
                         Observed::Knots(knots) => r.knots(&knots),
-                        Observed::FromHost(t, bytes) => link.from_host(t, &bytes, |t, e| r.link_event(t, &e)),
-                        Observed::ToHost(t, bytes) => link.to_host(t, &bytes, |t, e| r.link_event(t, &e)),
+                        Observed::FromHost(t, bytes) => link.host_sent(t, &bytes, |t, e| r.link_event(t, &e)),
+                        Observed::ToHost(t, bytes) => link.controller_sent(t, &bytes, |t, e| r.link_event(t, &e)),
                     }
                 }
             })
@@ -306,7 +306,7 @@ struct LinkLog {
 }
 
 impl LinkLog {
-    fn from_host(&mut self, t: f64, bytes: &[u8], mut emit: impl FnMut(f64, LinkEvent)) {
+    fn host_sent(&mut self, t: f64, bytes: &[u8], mut emit: impl FnMut(f64, LinkEvent)) {
         for &b in bytes {
             if realtime::is_realtime(b) || b >= 0x80 {
                 emit(t, LinkEvent::Realtime { byte: b });
@@ -321,7 +321,7 @@ impl LinkLog {
         }
     }
 
-    fn to_host(&mut self, t: f64, bytes: &[u8], mut emit: impl FnMut(f64, LinkEvent)) {
+    fn controller_sent(&mut self, t: f64, bytes: &[u8], mut emit: impl FnMut(f64, LinkEvent)) {
         for &b in bytes {
             if b == b'\n' {
                 let text = String::from_utf8_lossy(&self.to_host).trim().to_string();
