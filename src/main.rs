@@ -198,24 +198,43 @@ fn run_command(command: Command) -> Result<ExitCode> {
 }
 
 fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, json: bool) -> Result<ExitCode> {
+    use std::io::{BufRead, IsTerminal};
     let machine = MachineConfig::load(config)?;
-    let text = std::fs::read_to_string(file).map_err(|e| Error::Io(format!("{}: cannot read: {e}", file.display())))?;
-    let lines: Vec<String> = text.lines().map(|l| l.trim_end_matches('\r').to_string()).collect();
+    let shown = file.display().to_string();
+    let opened = std::fs::File::open(file).map_err(|e| Error::Io(format!("{shown}: cannot read: {e}")))?;
+    let size = opened.metadata().map(|m| m.len()).unwrap_or(0);
+    // Read as the controller takes lines: memory stays constant whatever the size.
+    let lines = std::io::BufReader::new(opened)
+        .lines()
+        .map(|l| l.map(|l| l.trim_end_matches('\r').to_string()).map_err(|e| Error::Io(format!("{shown}: {e}"))));
     let baud = baud.unwrap_or(machine.serial.baud);
     let options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    let progress = (!json && std::io::stderr().is_terminal()).then(|| {
+        let bar = indicatif::ProgressBar::new(size);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {percent:>3}% {bytes}/{total_bytes} line {msg} eta {eta}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar
+    });
     let runtime = tokio::runtime::Runtime::new().map_err(|e| Error::Io(e.to_string()))?;
-    let shown = file.display().to_string();
     let outcome = runtime.block_on(async {
         use tokio_serial::SerialPortBuilderExt;
         let io = tokio_serial::new(port, baud)
             .open_native_async()
             .map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
-        let describe = |n: usize| match lines.get(n.wrapping_sub(1)) {
-            Some(l) => format!("{shown}:{n} `{l}`"),
-            None => format!("{shown}:{n}"),
-        };
-        stream::stream(io, &lines, &options, &describe, |_, _| {}).await
+        let describe = |n: usize, text: &str| format!("{shown}:{n} `{text}`");
+        stream::stream(io, lines, &options, &describe, |_, event| {
+            if let (Some(bar), LinkEvent::Sent { line, text }) = (&progress, &event) {
+                bar.inc(text.len() as u64 + 1);
+                bar.set_message(line.to_string());
+            }
+        })
+        .await
     })?;
+    if let Some(bar) = progress {
+        bar.finish_and_clear();
+    }
     let report = serde_json::json!({
         "file": shown,
         "lines_sent": outcome.lines_sent,

@@ -135,7 +135,7 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
     let lines: Vec<String> = planned.program.lines.iter().map(|l| l.text.clone()).collect();
     let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
     options.expect_start = Some(planned.program.start.clone());
-    let describe = |n: usize| planned.program.describe_line(n);
+    let describe = |n: usize, _: &str| planned.program.describe_line(n);
     let baud = machine.serial.baud;
 
     let runtime = tokio::runtime::Builder::new_current_thread()
@@ -153,7 +153,7 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
             log.borrow_mut().knots.extend(knots);
         });
         let sender_side = async {
-            let r = stream::stream(sender_io, &lines, &options, &describe, |t, ev| {
+            let r = stream::stream(sender_io, lines.iter().cloned().map(Ok), &options, &describe, |t, ev| {
                 recorder.link_event(t, &ev);
                 log.borrow_mut().link.push((t, ev));
             })

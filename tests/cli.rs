@@ -157,3 +157,46 @@ print(json.dumps(counts))
         assert!(counts[topic].as_u64().unwrap_or(0) > 0, "{topic} in {counts}");
     }
 }
+
+/// `laserd send` streams a G-code file to `laserd sim --pty`, and stops at a
+/// line the controller rejects, naming the file and line.
+#[test]
+fn send_streams_a_file_to_the_simulator_and_names_a_rejected_line() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttySEND");
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_laserd"))
+        .args(["sim", "--link", link.to_str().unwrap(), "--baud", "1000000"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(sim.stdout.take().unwrap()).read_line(&mut first).unwrap();
+
+    let good = dir.path().join("good.nc");
+    let mut text = String::from("G21G90G93\r\nM4S0\n");
+    for i in 1..=200 {
+        text.push_str(&format!("G1X{}Y{}S100F60000\n", i as f64 * 0.05, i as f64 * 0.02));
+    }
+    text.push_str("M5\nM2\n");
+    std::fs::write(&good, &text).unwrap();
+    let report = json(&laserd(&["send", good.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--json"], dir.path()));
+    assert_eq!(report["completed"], true, "{report}");
+    assert_eq!(report["lines_sent"], 204);
+    assert_eq!(report["last_acked_line"], 204);
+    assert_eq!(report["bytes_sent"].as_u64().unwrap() as usize, text.len() - 1, "the \\r is not sent");
+
+    // The machine is now at the end of that program: go back, then fail on line 4.
+    let bad = dir.path().join("bad.nc");
+    std::fs::write(&bad, "G90G94\nG0X0Y0\nG1X1F600\nG1Z1F600\nG1X2F600\n").unwrap();
+    let out = laserd(&["send", bad.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--json"], dir.path());
+    assert_eq!(out.status.code(), Some(2));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["completed"], false);
+    assert_eq!(report["errors"][0]["line"], 4);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.nc:4 `G1Z1F600`") && err.contains("error:20"), "{err}");
+    let _ = sim.kill();
+    let _ = sim.wait();
+}

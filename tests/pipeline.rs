@@ -84,8 +84,9 @@ fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
         .block_on(async {
             use tokio_serial::SerialPortBuilderExt;
             let io = tokio_serial::new(link.to_str().unwrap(), 115_200).open_native_async().expect("open the pty");
-            let describe = |n: usize| planned.program.describe_line(n);
-            tokio::time::timeout(Duration::from_secs(120), stream::stream(io, &lines, &options, &describe, |_, _| {})).await
+            let describe = |n: usize, _: &str| planned.program.describe_line(n);
+            let source = lines.iter().cloned().map(Ok);
+            tokio::time::timeout(Duration::from_secs(120), stream::stream(io, source, &options, &describe, |_, _| {})).await
         })
         .expect("streams within two minutes")
         .expect("streams");

@@ -189,19 +189,23 @@ where
     }
 }
 
-/// Streams `lines` (program line i+1 is `lines[i]`). `describe` turns a line
-/// number into a message naming the G-code line and where it came from.
-pub async fn stream<T, F>(
+/// Streams `lines`, pulled one at a time as the controller has room, so a file
+/// of any size streams in constant memory. The n-th item is program line n.
+/// `describe(n, text)` turns a line into a message naming it and where it came
+/// from.
+pub async fn stream<T, I, F>(
     io: T,
-    lines: &[String],
+    lines: I,
     options: &SenderOptions,
-    describe: &dyn Fn(usize) -> String,
+    describe: &dyn Fn(usize, &str) -> String,
     on_event: F,
 ) -> Result<StreamOutcome>
 where
     T: AsyncRead + AsyncWrite,
+    I: IntoIterator<Item = Result<String>>,
     F: FnMut(f64, LinkEvent),
 {
+    let mut lines = lines.into_iter();
     let (read_half, write_half) = tokio::io::split(io);
     let origin = Instant::now();
     let mut link = Link { reader: BufReader::new(read_half).split(b'\n'), writer: write_half, origin, on_event, bytes_sent: 0 };
@@ -233,30 +237,54 @@ where
     }
 
     let mut out = StreamOutcome { final_status: Some(status), ..Default::default() };
-    for (i, l) in lines.iter().enumerate() {
-        if l.len() + 1 > options.rx_buffer {
-            return Err(Error::Stream(format!("{}: longer than the controller's receive buffer", describe(i + 1))));
-        }
-    }
     let stream_start = secs(origin);
-    let mut fifo: VecDeque<(usize, usize)> = VecDeque::new();
+    // Lines sent and not yet answered: (number, text). Their bytes (text + `\n`)
+    // are what the controller's receive buffer holds or will hold.
+    let mut fifo: VecDeque<(usize, String)> = VecDeque::new();
     let mut in_flight = 0usize;
-    let mut next = 0usize;
+    let mut next: Option<String> = None;
+    let mut next_number = 0usize;
+    let mut exhausted = false;
+    let mut last_acked_text = String::new();
     let mut ticker = tokio::time::interval(options.status_interval);
     ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut last_heard = Instant::now();
     let mut fault: Option<String> = None;
 
     while fault.is_none() {
-        while next < lines.len() && in_flight + lines[next].len() < options.rx_buffer {
-            // (line + its `\n` must fit: in_flight + len + 1 <= rx_buffer)
-            link.send_line(next + 1, &lines[next]).await?;
-            fifo.push_back((next + 1, lines[next].len() + 1));
-            in_flight += lines[next].len() + 1;
-            next += 1;
-            out.lines_sent += 1;
+        loop {
+            if next.is_none() && !exhausted {
+                match lines.next() {
+                    None => exhausted = true,
+                    Some(Err(e)) => {
+                        fault = Some(format!("cannot read line {}: {e}", next_number + 1));
+                        break;
+                    }
+                    Some(Ok(text)) => {
+                        next_number += 1;
+                        if text.len() + 1 > options.rx_buffer {
+                            fault = Some(format!("{}: longer than the controller's receive buffer", describe(next_number, &text)));
+                            break;
+                        }
+                        next = Some(text);
+                    }
+                }
+            }
+            // A line goes out when it and its `\n` fit in what is left of the buffer.
+            match next.take() {
+                Some(text) if in_flight + text.len() < options.rx_buffer => {
+                    link.send_line(next_number, &text).await?;
+                    in_flight += text.len() + 1;
+                    fifo.push_back((next_number, text));
+                    out.lines_sent += 1;
+                }
+                other => {
+                    next = other;
+                    break;
+                }
+            }
         }
-        if next == lines.len() && fifo.is_empty() {
+        if fault.is_some() || (exhausted && next.is_none() && fifo.is_empty()) {
             break;
         }
         tokio::select! {
@@ -273,25 +301,26 @@ where
                 }
                 match response {
                     Response::Ok => {
-                        if let Some((n, len)) = fifo.pop_front() {
-                            in_flight -= len;
+                        if let Some((n, text)) = fifo.pop_front() {
+                            in_flight -= text.len() + 1;
                             out.last_acked_line = n;
+                            last_acked_text = text;
                         }
                     }
                     Response::Error(code) => {
-                        let (n, len) = fifo.pop_front().unwrap_or((0, 0));
-                        in_flight -= len;
-                        let message = format!("controller answered error:{code} ({}) to {}", wire::error_message(code), describe(n));
+                        let (n, text) = fifo.pop_front().unwrap_or((0, String::new()));
+                        in_flight = in_flight.saturating_sub(text.len() + 1);
+                        let message = format!("controller answered error:{code} ({}) to {}", wire::error_message(code), describe(n, &text));
                         out.errors.push(LineError { line: n, code, message: message.clone() });
                         fault = Some(message);
                     }
                     Response::Alarm(code) => {
                         out.alarms.push(code);
-                        let after = if out.last_acked_line > 0 { format!(" after {}", describe(out.last_acked_line)) } else { String::new() };
+                        let after = if out.last_acked_line > 0 { format!(" after {}", describe(out.last_acked_line, &last_acked_text)) } else { String::new() };
                         fault = Some(format!("controller raised ALARM:{code} ({}){after}", wire::alarm_message(code)));
                     }
                     Response::Banner(_) => {
-                        fault = Some(format!("the controller reset itself during the job (last acknowledged: {})", describe(out.last_acked_line)));
+                        fault = Some(format!("the controller reset itself during the job (last acknowledged: {})", describe(out.last_acked_line, &last_acked_text)));
                     }
                     Response::Status(s) => out.final_status = Some(s),
                     Response::Other(_) => tracing::warn!("unexpected line from the controller: {text}"),
@@ -302,7 +331,7 @@ where
                 if !fifo.is_empty() && last_heard.elapsed() > options.silence_timeout {
                     fault = Some(format!(
                         "the controller has been silent (no answer, no status report) for {:.1} s with {} line(s) unanswered (last acknowledged: {})",
-                        last_heard.elapsed().as_secs_f64(), fifo.len(), describe(out.last_acked_line)));
+                        last_heard.elapsed().as_secs_f64(), fifo.len(), describe(out.last_acked_line, &last_acked_text)));
                     break;
                 }
                 link.send_realtime(realtime::STATUS).await?;
@@ -413,7 +442,7 @@ mod tests {
         let opts = SenderOptions::new(128, 5.0);
         let controller = tokio::spawn(fake_controller(b, 128, None));
         let mut sent = 0;
-        let out = stream(a, &lines, &opts, &|n| format!("line {n}"), |_, e| {
+        let out = stream(a, lines.iter().cloned().map(Ok), &opts, &|n, _| format!("line {n}"), |_, e| {
             if matches!(e, LinkEvent::Sent { .. }) {
                 sent += 1
             }
@@ -434,7 +463,7 @@ mod tests {
         let lines = program(60);
         let opts = SenderOptions::new(128, 5.0);
         let controller = tokio::spawn(fake_controller(b, 128, Some(17)));
-        let out = stream(a, &lines, &opts, &|n| format!("G-code line {n}"), |_, _| {}).await.unwrap();
+        let out = stream(a, lines.iter().cloned().map(Ok), &opts, &|n, _| format!("G-code line {n}"), |_, _| {}).await.unwrap();
         assert!(!out.completed);
         assert_eq!(out.errors[0].line, 17);
         assert!(out.stop_reason.unwrap().contains("error:20") );
@@ -463,7 +492,7 @@ mod tests {
             tokio::time::sleep(Duration::from_secs(3600)).await;
         });
         let opts = SenderOptions::new(128, 5.0);
-        let out = stream(a, &program(10), &opts, &|n| format!("line {n}"), |_, _| {}).await.unwrap();
+        let out = stream(a, program(10).into_iter().map(Ok), &opts, &|n, _| format!("line {n}"), |_, _| {}).await.unwrap();
         assert!(!out.completed);
         assert!(out.stop_reason.unwrap().contains("silent"));
         keep.abort();
@@ -487,7 +516,7 @@ mod tests {
             }
         });
         let opts = SenderOptions::new(128, 5.0);
-        let out = stream(a, &program(10), &opts, &|n| format!("line {n}"), |_, _| {}).await.unwrap();
+        let out = stream(a, program(10).into_iter().map(Ok), &opts, &|n, _| format!("line {n}"), |_, _| {}).await.unwrap();
         assert!(!out.completed);
         assert!(out.stop_reason.unwrap().contains("silent"));
         babble.abort();
