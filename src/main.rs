@@ -81,6 +81,10 @@ enum Command {
         baud: Option<u32>,
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Validate only, in the controller's check mode ($C): nothing moves,
+        /// every rejected line is reported.
+        #[arg(long)]
+        check: bool,
         #[arg(long)]
         json: bool,
     },
@@ -175,7 +179,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Send { file, port, baud, config, json } => send(&file, &port, baud, config.as_deref(), json),
+        Command::Send { file, port, baud, config, check, json } => send(&file, &port, baud, config.as_deref(), check, json),
         Command::Sim { config, pty: _, link, baud, realtime: _, record, error_on_line } => {
             let machine = MachineConfig::load(config.as_deref())?;
             sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), error_on_line)
@@ -197,7 +201,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
     }
 }
 
-fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, json: bool) -> Result<ExitCode> {
+fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check: bool, json: bool) -> Result<ExitCode> {
     use std::io::{BufRead, IsTerminal};
     let machine = MachineConfig::load(config)?;
     let shown = file.display().to_string();
@@ -208,7 +212,8 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, json:
         .lines()
         .map(|l| l.map(|l| l.trim_end_matches('\r').to_string()).map_err(|e| Error::Io(format!("{shown}: {e}"))));
     let baud = baud.unwrap_or(machine.serial.baud);
-    let options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.check_mode = check;
     let progress = (!json && std::io::stderr().is_terminal()).then(|| {
         let bar = indicatif::ProgressBar::new(size);
         bar.set_style(
@@ -251,10 +256,11 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, json:
         print_json(&report)?;
     } else {
         println!(
-            "{shown}: {} lines, {} bytes in {:.2} s{}",
+            "{shown}: {} lines, {} bytes in {:.2} s{}{}",
             outcome.lines_sent,
             outcome.bytes_sent,
             outcome.stream_time_s,
+            if check { " (check mode)" } else { "" },
             if outcome.completed { ", completed" } else { "" }
         );
     }

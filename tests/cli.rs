@@ -187,7 +187,17 @@ fn send_streams_a_file_to_the_simulator_and_names_a_rejected_line() {
     assert_eq!(report["last_acked_line"], 204);
     assert_eq!(report["bytes_sent"].as_u64().unwrap() as usize, text.len() - 1, "the \\r is not sent");
 
-    // The machine is now at the end of that program: go back, then fail on line 4.
+    // Check mode validates without motion and reports every rejected line.
+    let check = dir.path().join("check.nc");
+    std::fs::write(&check, "G90G94\nG0X0Y0\nG1X1F600\nG1Z1F600\nG1X2F600\nG1X2Q1F600\nG1X3F600\n").unwrap();
+    let out = laserd(&["send", check.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--check", "--json"], dir.path());
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let bad_lines: Vec<u64> = report["errors"].as_array().unwrap().iter().map(|e| e["line"].as_u64().unwrap()).collect();
+    assert_eq!(bad_lines, vec![4, 6]);
+    assert_eq!(report["last_acked_line"], 7, "it went on past the errors");
+
+    // The machine is now at the end of the first program: go back, then fail on line 4.
     let bad = dir.path().join("bad.nc");
     std::fs::write(&bad, "G90G94\nG0X0Y0\nG1X1F600\nG1Z1F600\nG1X2F600\n").unwrap();
     let out = laserd(&["send", bad.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--json"], dir.path());

@@ -34,6 +34,9 @@ pub struct SenderOptions {
     pub silence_timeout: Duration,
     /// Axis positions the program starts from; the machine must be there.
     pub expect_start: Option<Vec<f64>>,
+    /// Validate only: run the lines in the controller's check mode (`$C`), where
+    /// nothing moves; every rejected line is reported, none stops the run.
+    pub check_mode: bool,
 }
 
 impl SenderOptions {
@@ -43,6 +46,7 @@ impl SenderOptions {
             status_interval: Duration::from_secs_f64(1.0 / status_hz),
             silence_timeout: Duration::from_secs(2),
             expect_start: None,
+            check_mode: false,
         }
     }
 }
@@ -113,6 +117,17 @@ where
         self.bytes_sent += bytes.len();
         (self.on_event)(secs(self.origin), LinkEvent::Sent { line, text: text.to_string() });
         Ok(())
+    }
+
+    /// A command of the sender's own (not a program line), answered before
+    /// anything else is sent: waits for its `ok` or `error:N`.
+    async fn command(&mut self, text: &str) -> Result<Response> {
+        let before = self.bytes_sent;
+        self.send_line(0, text).await?;
+        self.bytes_sent = before;
+        self.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Ok | Response::Error(_)))
+            .await?
+            .ok_or_else(|| Error::Stream(format!("no answer to `{text}`")))
     }
 
     async fn send_realtime(&mut self, byte: u8) -> Result<()> {
@@ -236,6 +251,12 @@ where
         }
     }
 
+    if options.check_mode {
+        if let Response::Error(code) = link.command("$C").await? {
+            return Err(Error::Stream(format!("the controller refused check mode ($C): error:{code} ({})", wire::error_message(code))));
+        }
+    }
+
     let mut out = StreamOutcome { final_status: Some(status), ..Default::default() };
     let stream_start = secs(origin);
     // Lines sent and not yet answered: (number, text). Their bytes (text + `\n`)
@@ -312,7 +333,10 @@ where
                         in_flight = in_flight.saturating_sub(text.len() + 1);
                         let message = format!("controller answered error:{code} ({}) to {}", wire::error_message(code), describe(n, &text));
                         out.errors.push(LineError { line: n, code, message: message.clone() });
-                        fault = Some(message);
+                        // In check mode nothing moves: go on and report every bad line.
+                        if !options.check_mode {
+                            fault = Some(message);
+                        }
                     }
                     Response::Alarm(code) => {
                         out.alarms.push(code);
@@ -344,6 +368,18 @@ where
         out.final_status = link.safe_stop().await;
         out.stop_reason = Some(reason);
         out.bytes_sent = link.bytes_sent;
+        return Ok(out);
+    }
+    if options.check_mode {
+        // Leaving check mode answers ok and resets the controller (banner).
+        link.command("$C").await?;
+        let _ = link.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_))).await?;
+        out.final_status = link.query_status(Duration::from_secs(2)).await?;
+        out.bytes_sent = link.bytes_sent;
+        out.completed = out.errors.is_empty();
+        if let Some(first) = out.errors.first() {
+            out.stop_reason = Some(format!("{} line(s) rejected; first: {}", out.errors.len(), first.message));
+        }
         return Ok(out);
     }
     // Every line is answered; wait until the machine has finished moving.
