@@ -249,7 +249,7 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
         "errors": outcome.errors,
         "alarms": outcome.alarms,
         "last_acked_line": outcome.last_acked_line,
-        "last_executed_line": serde_json::Value::Null,
+        "last_executed_line": outcome.last_executed_line,
         "completed": outcome.completed,
     });
     if json {
@@ -272,7 +272,7 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
 }
 
 fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: Option<&Path>, error_on_line: Option<u64>) -> Result<ExitCode> {
-    let sim = run::sim_config(machine, Faults { error_on_line });
+    let sim = run::sim_config(machine, Faults { error_on_line, ..Default::default() });
     let setup = run::run_setup(machine, &sim);
     let device = laserd_sim::pty::open_pty(link).map_err(|e| Error::Io(format!("cannot open a pseudo-terminal: {e}")))?;
     let recording = record.map(Recording::create).transpose()?;

@@ -27,7 +27,7 @@ fn error_20_on_a_chosen_line_stops_the_job_there_with_the_laser_off() {
     let marks: Vec<usize> = planned.program.lines.iter().enumerate().filter(|(_, l)| l.kind == LineKind::Mark).map(|(i, _)| i + 1).collect();
     let bad = marks[marks.len() / 2];
     let dir = tempfile::tempdir().unwrap();
-    let dry = run::dry_run(&planned, &machine, &dir.path().join("e.mcap"), Faults { error_on_line: Some(bad as u64) }).unwrap();
+    let dry = run::dry_run(&planned, &machine, &dir.path().join("e.mcap"), Faults { error_on_line: Some(bad as u64), ..Default::default() }).unwrap();
     let out = &dry.outcome;
     assert!(!out.completed);
     assert_eq!(out.errors.len(), 1);

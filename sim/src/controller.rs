@@ -81,6 +81,29 @@ pub struct Faults {
     /// The n-th received line (1-based, empty lines included) answers
     /// `error:20` and is not executed.
     pub error_on_line: Option<u64>,
+    /// The n-th line byte arriving on the wire (1-based; realtime bytes, which
+    /// never enter the receive buffer, are not counted) is lost, as on a noisy
+    /// line or an overrun UART.
+    #[serde(default)]
+    pub drop_byte: Option<u64>,
+    /// The n-th line byte arriving on the wire is garbled (arrives as `#`).
+    #[serde(default)]
+    pub corrupt_byte: Option<u64>,
+    /// From the n-th received line on, the controller transmits nothing (a dead
+    /// TX line or a wedged USB bridge); it still receives and moves.
+    #[serde(default)]
+    pub mute_from_line: Option<u64>,
+    /// The controller resets by itself on receiving the n-th line (a brown-out,
+    /// the reset button), losing everything queued.
+    #[serde(default)]
+    pub reset_at_line: Option<u64>,
+    /// A hard limit switch trips on receiving the n-th line: `ALARM:1`.
+    #[serde(default)]
+    pub limit_alarm_at_line: Option<u64>,
+    /// The link itself closes (pseudo-terminal closed, USB unplugged) once the
+    /// controller has received n lines. Acted on by the drivers, not here.
+    #[serde(default)]
+    pub close_link_at_line: Option<u64>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -277,6 +300,8 @@ pub struct Controller {
     starve_acc: f64,
     /// When the last byte arrived.
     last_rx_t: f64,
+    /// Bytes arrived on the wire so far (for fault injection).
+    bytes_received: u64,
 }
 
 const EPS_POS: f64 = 1e-9;
@@ -318,6 +343,7 @@ impl Controller {
             starve_since: None,
             starve_acc: 0.0,
             last_rx_t: 0.0,
+            bytes_received: 0,
         };
         c.out.extend_from_slice(format!("\r\n{BANNER}\r\n").as_bytes());
         c
@@ -337,7 +363,11 @@ impl Controller {
     }
 
     pub fn take_output(&mut self) -> Vec<u8> {
-        std::mem::take(&mut self.out)
+        let out = std::mem::take(&mut self.out);
+        if self.cfg.faults.mute_from_line.is_some_and(|n| self.line_count >= n) {
+            return Vec::new();
+        }
+        out
     }
 
     pub fn take_knots(&mut self) -> Vec<Knot> {
@@ -405,6 +435,16 @@ impl Controller {
     pub fn receive(&mut self, now: f64, byte: u8) {
         self.advance(now);
         self.last_rx_t = self.now;
+        let mut byte = byte;
+        if !crate::wire::realtime::is_realtime(byte) {
+            self.bytes_received += 1;
+            if self.cfg.faults.drop_byte == Some(self.bytes_received) {
+                return;
+            }
+            if self.cfg.faults.corrupt_byte == Some(self.bytes_received) {
+                byte = b'#';
+            }
+        }
         if crate::wire::realtime::is_realtime(byte) {
             self.realtime(byte);
         } else if byte >= 0x80 {
@@ -688,6 +728,15 @@ impl Controller {
         self.line_count += 1;
         self.stats.lines_received += 1;
         let n = self.line_count;
+        if self.cfg.faults.reset_at_line == Some(n) {
+            self.soft_reset();
+            return;
+        }
+        if self.cfg.faults.limit_alarm_at_line == Some(n) {
+            self.drop_rx(len);
+            self.limit_alarm(1);
+            return;
+        }
         let result = if self.cfg.faults.error_on_line == Some(n) {
             Err(20)
         } else {
@@ -1316,6 +1365,12 @@ impl Controller {
     }
 
     fn soft_limit_alarm(&mut self) {
+        self.limit_alarm(2);
+    }
+
+    /// A critical limit alarm: motion stops where it is, laser off, everything
+    /// locked until a reset (reference §5).
+    fn limit_alarm(&mut self, code: u16) {
         self.stop_motion_now();
         self.planner.clear();
         self.gc_pos = self.pos.clone();
@@ -1323,8 +1378,8 @@ impl Controller {
         self.alarm = true;
         self.critical = true;
         self.reset_starvation();
-        self.stats.alarms.push(2);
-        self.send("ALARM:2");
+        self.stats.alarms.push(code);
+        self.send(&format!("ALARM:{code}"));
         self.send("[MSG:Reset to continue]");
     }
 

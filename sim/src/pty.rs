@@ -102,6 +102,10 @@ pub fn run_realtime(
     let mut to_host = PacedLink::new(baud);
     let mut buf = [0u8; 4096];
     while !stop.load(Ordering::Relaxed) {
+        if controller.config().faults.close_link_at_line.is_some_and(|n| controller.stats().lines_received >= n) {
+            // Fault injection: the device goes away (dropping it closes the pty).
+            return;
+        }
         let now = clock(base);
         for (t, b) in to_ctl.pop_due(now) {
             controller.receive(t, b);

@@ -174,7 +174,7 @@ fn rx_overflow_when_overfilled() {
 
 #[test]
 fn error_on_line_fault() {
-    let c = SimConfig { faults: Faults { error_on_line: Some(2) }, ..cfg() };
+    let c = SimConfig { faults: Faults { error_on_line: Some(2), ..Default::default() }, ..cfg() };
     let mut s = Sim::new(c);
     s.send("G1 X1 F600\nG1 X2\nG1 X3\n");
     s.run_until(2.0);

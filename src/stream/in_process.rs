@@ -48,7 +48,8 @@ pub async fn run(
         if !due.is_empty() && sender_open && io.write_all(&due).await.is_err() {
             sender_open = false;
         }
-        if *stop.borrow() || !sender_open {
+        let link_cut = controller.config().faults.close_link_at_line.is_some_and(|n| controller.stats().lines_received >= n);
+        if *stop.borrow() || !sender_open || link_cut {
             break;
         }
         let wake = [inbound.next_arrival(), outbound.next_arrival(), controller.next_event()]

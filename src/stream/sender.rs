@@ -44,7 +44,7 @@ impl SenderOptions {
         SenderOptions {
             rx_buffer,
             status_interval: Duration::from_secs_f64(1.0 / status_hz),
-            silence_timeout: Duration::from_secs(2),
+            silence_timeout: Duration::from_millis(800),
             expect_start: None,
             check_mode: false,
         }
@@ -82,6 +82,9 @@ pub struct StreamOutcome {
     pub errors: Vec<LineError>,
     pub alarms: Vec<u16>,
     pub last_acked_line: usize,
+    /// The last line whose motion the controller has finished, as far as its
+    /// status reports tell (`None` when it does not report its buffers).
+    pub last_executed_line: Option<usize>,
     pub completed: bool,
     /// Why the stream stopped early, one line naming the place.
     pub stop_reason: Option<String>,
@@ -184,15 +187,20 @@ where
 
     /// Feed hold until stopped, then soft reset: the laser ends off, nothing queued
     /// is executed any more. Returns the state it left the machine in.
-    async fn safe_stop(&mut self) -> Option<StatusReport> {
+    async fn safe_stop(&mut self, progress: &mut Progress) -> Option<StatusReport> {
         if self.send_realtime(realtime::FEED_HOLD).await.is_err() {
             return None;
         }
         let deadline = Instant::now() + Duration::from_secs(3);
         while Instant::now() < deadline {
             match self.query_status(Duration::from_millis(500)).await {
-                Ok(Some(s)) if matches!(s.state, MachineState::Hold(0) | MachineState::Idle | MachineState::Alarm) => break,
-                Ok(_) => {}
+                Ok(Some(s)) => {
+                    progress.status(&s);
+                    if matches!(s.state, MachineState::Hold(0) | MachineState::Idle | MachineState::Alarm) {
+                        break;
+                    }
+                }
+                Ok(None) => {}
                 Err(_) => return None,
             }
         }
@@ -202,6 +210,51 @@ where
         let _ = self.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_))).await;
         self.query_status(Duration::from_secs(1)).await.ok().flatten()
     }
+}
+
+/// Which acknowledged lines the machine has executed, from the free planner
+/// blocks of status reports (`Bf:`): the newest acknowledged motion lines, as
+/// many as the planner holds blocks, are still to run; the ones before are done.
+#[derive(Debug, Default)]
+struct Progress {
+    planner_blocks: Option<usize>,
+    /// Acknowledged motion lines not yet known to be done, oldest first.
+    pending_motion: VecDeque<usize>,
+    last_acked: usize,
+    last_executed: Option<usize>,
+}
+
+impl Progress {
+    fn acked(&mut self, line: usize, text: &str) {
+        self.last_acked = line;
+        if is_motion(text) {
+            self.pending_motion.push_back(line);
+        } else if self.pending_motion.is_empty() && self.planner_blocks.is_some() {
+            self.last_executed = Some(line);
+        }
+    }
+
+    fn status(&mut self, s: &StatusReport) {
+        let (Some(total), Some((free, _))) = (self.planner_blocks, s.buffer) else { return };
+        let queued = total.saturating_sub(free as usize);
+        while self.pending_motion.len() > queued {
+            self.last_executed = self.pending_motion.pop_front();
+        }
+        if self.pending_motion.is_empty() {
+            self.last_executed = Some(self.last_acked);
+        }
+    }
+}
+
+/// Whether a G-code line makes the machine move (has axis words and is not one
+/// of the commands that take axis words without moving).
+fn is_motion(text: &str) -> bool {
+    let t = text.to_ascii_uppercase();
+    if t.starts_with('$') || t.contains("G10") || t.contains("G92") || t.contains("G28.1") || t.contains("G30.1") {
+        return false;
+    }
+    let b = t.as_bytes();
+    b.windows(2).any(|w| b"XYZABCUVW".contains(&w[0]) && (w[1].is_ascii_digit() || w[1] == b'-' || w[1] == b'.' || w[1] == b'+'))
 }
 
 /// Streams `lines`, pulled one at a time as the controller has room, so a file
@@ -257,8 +310,23 @@ where
         }
     }
 
+    // An idle controller reports its whole planner and receive buffer free: learn
+    // their sizes, and never count on more receive buffer than it has.
+    let mut rx_buffer = options.rx_buffer;
+    let mut progress = Progress::default();
+    if let (MachineState::Idle, Some((blocks, rx))) = (&status.state, status.buffer) {
+        progress.planner_blocks = Some(blocks as usize);
+        if (rx as usize) < rx_buffer {
+            tracing::warn!("the controller's receive buffer is {rx} bytes, less than the configured {rx_buffer}: using {rx}");
+            rx_buffer = rx as usize;
+        }
+    }
+
     let mut out = StreamOutcome { final_status: Some(status), ..Default::default() };
     let stream_start = secs(origin);
+    // Consecutive status reports showing an idle controller with nothing queued
+    // while lines are unanswered: bytes were lost on the way.
+    let mut idle_with_lines_out = 0;
     // Lines sent and not yet answered: (number, text). Their bytes (text + `\n`)
     // are what the controller's receive buffer holds or will hold.
     let mut fifo: VecDeque<(usize, String)> = VecDeque::new();
@@ -283,7 +351,7 @@ where
                     }
                     Some(Ok(text)) => {
                         next_number += 1;
-                        if text.len() + 1 > options.rx_buffer {
+                        if text.len() + 1 > rx_buffer {
                             fault = Some(format!("{}: longer than the controller's receive buffer", describe(next_number, &text)));
                             break;
                         }
@@ -293,7 +361,7 @@ where
             }
             // A line goes out when it and its `\n` fit in what is left of the buffer.
             match next.take() {
-                Some(text) if in_flight + text.len() < options.rx_buffer => {
+                Some(text) if in_flight + text.len() < rx_buffer => {
                     link.send_line(next_number, &text).await?;
                     in_flight += text.len() + 1;
                     fifo.push_back((next_number, text));
@@ -325,6 +393,7 @@ where
                         if let Some((n, text)) = fifo.pop_front() {
                             in_flight -= text.len() + 1;
                             out.last_acked_line = n;
+                            progress.acked(n, &text);
                             last_acked_text = text;
                         }
                     }
@@ -346,7 +415,23 @@ where
                     Response::Banner(_) => {
                         fault = Some(format!("the controller reset itself during the job (last acknowledged: {})", describe(out.last_acked_line, &last_acked_text)));
                     }
-                    Response::Status(s) => out.final_status = Some(s),
+                    Response::Status(s) => {
+                        progress.status(&s);
+                        let nothing_queued = s.buffer.is_none_or(|(blocks, rx)| {
+                            rx as usize >= rx_buffer && progress.planner_blocks.is_none_or(|p| blocks as usize >= p)
+                        });
+                        if s.state == MachineState::Idle && nothing_queued && !fifo.is_empty() {
+                            idle_with_lines_out += 1;
+                        } else {
+                            idle_with_lines_out = 0;
+                        }
+                        if idle_with_lines_out >= 2 {
+                            fault = Some(format!(
+                                "the controller is idle with nothing queued while {} line(s) are unanswered: bytes were lost on the link (last acknowledged: {})",
+                                fifo.len(), describe(out.last_acked_line, &last_acked_text)));
+                        }
+                        out.final_status = Some(s);
+                    }
                     Response::Other(_) => tracing::warn!("unexpected line from the controller: {text}"),
                     _ => {}
                 }
@@ -365,7 +450,8 @@ where
     out.stream_time_s = secs(origin) - stream_start;
 
     if let Some(reason) = fault {
-        out.final_status = link.safe_stop().await;
+        out.final_status = link.safe_stop(&mut progress).await;
+        out.last_executed_line = progress.last_executed;
         out.stop_reason = Some(reason);
         out.bytes_sent = link.bytes_sent;
         return Ok(out);
@@ -387,6 +473,7 @@ where
         match link.query_status(Duration::from_secs(2)).await? {
             Some(s) if s.state == MachineState::Idle => {
                 out.final_status = Some(s);
+                out.last_executed_line = Some(out.last_acked_line);
                 break;
             }
             Some(s) if matches!(s.state, MachineState::Alarm) => {
