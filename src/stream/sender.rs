@@ -103,6 +103,8 @@ struct Link<R, W, F> {
     origin: Instant,
     on_event: F,
     bytes_sent: usize,
+    /// Every answer is booked here as it is read, whoever reads it.
+    book: Book,
 }
 
 impl<R, W, F> Link<R, W, F>
@@ -127,6 +129,7 @@ where
     async fn command(&mut self, text: &str) -> Result<Response> {
         let before = self.bytes_sent;
         self.send_line(0, text).await?;
+        self.book.sent(0, text);
         self.bytes_sent = before;
         self.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Ok | Response::Error(_)))
             .await?
@@ -140,8 +143,9 @@ where
         Ok(())
     }
 
-    /// Next line from the controller; `None` when the link closed. Cancel-safe.
-    async fn next_line(&mut self) -> Result<Option<String>> {
+    /// Next line from the controller, parsed and booked, with the line it
+    /// answered (for `ok` and `error:N`); `None` when the link closed. Cancel-safe.
+    async fn next_line(&mut self) -> Result<Option<(String, Response, Option<(usize, String)>)>> {
         loop {
             let seg = self.reader.next_segment().await.map_err(|e| Error::Stream(format!("read failed: {e}")))?;
             let Some(seg) = seg else { return Ok(None) };
@@ -150,7 +154,9 @@ where
                 continue;
             }
             (self.on_event)(secs(self.origin), LinkEvent::Received { text: text.clone() });
-            return Ok(Some(text));
+            let response = Response::parse(&text);
+            let answered = self.book.answer(&response);
+            return Ok(Some((text, response, answered)));
         }
     }
 
@@ -163,8 +169,7 @@ where
                 Err(_) => return Ok(None),
                 Ok(Err(e)) => return Err(e),
                 Ok(Ok(None)) => return Err(Error::Stream("the controller closed the link".into())),
-                Ok(Ok(Some(text))) => {
-                    let r = Response::parse(&text);
+                Ok(Ok(Some((_, r, _)))) => {
                     if want(&r) {
                         return Ok(Some(r));
                     }
@@ -187,7 +192,7 @@ where
 
     /// Feed hold until stopped, then soft reset: the laser ends off, nothing queued
     /// is executed any more. Returns the state it left the machine in.
-    async fn safe_stop(&mut self, progress: &mut Progress) -> Option<StatusReport> {
+    async fn safe_stop(&mut self) -> Option<StatusReport> {
         if self.send_realtime(realtime::FEED_HOLD).await.is_err() {
             return None;
         }
@@ -195,7 +200,6 @@ where
         while Instant::now() < deadline {
             match self.query_status(Duration::from_millis(500)).await {
                 Ok(Some(s)) => {
-                    progress.status(&s);
                     if matches!(s.state, MachineState::Hold(0) | MachineState::Idle | MachineState::Alarm) {
                         break;
                     }
@@ -212,19 +216,63 @@ where
     }
 }
 
-/// Which acknowledged lines the machine has executed, from the free planner
-/// blocks of status reports (`Bf:`): the newest acknowledged motion lines, as
-/// many as the planner holds blocks, are still to run; the ones before are done.
+/// The sender's books: lines sent and not yet answered (their bytes are what
+/// the controller's receive buffer holds or will hold), and which answered
+/// lines the machine has executed, from the free planner blocks of status
+/// reports (`Bf:`): the newest acknowledged motion lines, as many as the
+/// planner holds blocks, are still to run; the ones before are done.
 #[derive(Debug, Default)]
-struct Progress {
+struct Book {
+    fifo: VecDeque<(usize, String)>,
+    in_flight: usize,
+    last_acked_text: String,
     planner_blocks: Option<usize>,
     /// Acknowledged motion lines not yet known to be done, oldest first.
     pending_motion: VecDeque<usize>,
     last_acked: usize,
     last_executed: Option<usize>,
+    /// After a reset: nothing acknowledged later than this has run.
+    executed_cap: Option<usize>,
 }
 
-impl Progress {
+impl Book {
+    fn sent(&mut self, line: usize, text: &str) {
+        self.in_flight += text.len() + 1;
+        self.fifo.push_back((line, text.to_string()));
+    }
+
+    /// Books an answer; returns the line an `ok` or `error:N` answered.
+    fn answer(&mut self, response: &Response) -> Option<(usize, String)> {
+        match response {
+            Response::Ok | Response::Error(_) => {
+                let (line, text) = self.fifo.pop_front()?;
+                self.in_flight = self.in_flight.saturating_sub(text.len() + 1);
+                // The sender's own commands (line 0) are not program lines.
+                if line > 0 && matches!(response, Response::Ok) {
+                    self.acked(line, &text);
+                    self.last_acked_text = text.clone();
+                }
+                Some((line, text))
+            }
+            Response::Status(s) => {
+                self.status(s);
+                None
+            }
+            Response::Banner(_) => {
+                // A reset flushed everything queued: those lines never run, and
+                // lines still unanswered will never be answered.
+                self.pending_motion.clear();
+                self.fifo.clear();
+                self.in_flight = 0;
+                if self.last_acked > 0 {
+                    self.executed_cap = Some(self.last_executed.unwrap_or(0));
+                }
+                None
+            }
+            _ => None,
+        }
+    }
+
     fn acked(&mut self, line: usize, text: &str) {
         self.last_acked = line;
         if is_motion(text) {
@@ -241,7 +289,7 @@ impl Progress {
             self.last_executed = self.pending_motion.pop_front();
         }
         if self.pending_motion.is_empty() {
-            self.last_executed = Some(self.last_acked);
+            self.last_executed = Some(self.executed_cap.map_or(self.last_acked, |cap| cap.min(self.last_acked)));
         }
     }
 }
@@ -276,7 +324,14 @@ where
     let mut lines = lines.into_iter();
     let (read_half, write_half) = tokio::io::split(io);
     let origin = Instant::now();
-    let mut link = Link { reader: BufReader::new(read_half).split(b'\n'), writer: write_half, origin, on_event, bytes_sent: 0 };
+    let mut link = Link {
+        reader: BufReader::new(read_half).split(b'\n'),
+        writer: write_half,
+        origin,
+        on_event,
+        bytes_sent: 0,
+        book: Book::default(),
+    };
 
     // Connect: a controller announces itself with its banner; one that did so
     // before we listened is asked again with a soft reset (nothing moves yet).
@@ -313,9 +368,8 @@ where
     // An idle controller reports its whole planner and receive buffer free: learn
     // their sizes, and never count on more receive buffer than it has.
     let mut rx_buffer = options.rx_buffer;
-    let mut progress = Progress::default();
     if let (MachineState::Idle, Some((blocks, rx))) = (&status.state, status.buffer) {
-        progress.planner_blocks = Some(blocks as usize);
+        link.book.planner_blocks = Some(blocks as usize);
         if (rx as usize) < rx_buffer {
             tracing::warn!("the controller's receive buffer is {rx} bytes, less than the configured {rx_buffer}: using {rx}");
             rx_buffer = rx as usize;
@@ -327,14 +381,9 @@ where
     // Consecutive status reports showing an idle controller with nothing queued
     // while lines are unanswered: bytes were lost on the way.
     let mut idle_with_lines_out = 0;
-    // Lines sent and not yet answered: (number, text). Their bytes (text + `\n`)
-    // are what the controller's receive buffer holds or will hold.
-    let mut fifo: VecDeque<(usize, String)> = VecDeque::new();
-    let mut in_flight = 0usize;
     let mut next: Option<String> = None;
     let mut next_number = 0usize;
     let mut exhausted = false;
-    let mut last_acked_text = String::new();
     let mut ticker = tokio::time::interval(options.status_interval);
     ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut last_heard = Instant::now();
@@ -361,10 +410,9 @@ where
             }
             // A line goes out when it and its `\n` fit in what is left of the buffer.
             match next.take() {
-                Some(text) if in_flight + text.len() < rx_buffer => {
+                Some(text) if link.book.in_flight + text.len() < rx_buffer => {
                     link.send_line(next_number, &text).await?;
-                    in_flight += text.len() + 1;
-                    fifo.push_back((next_number, text));
+                    link.book.sent(next_number, &text);
                     out.lines_sent += 1;
                 }
                 other => {
@@ -373,33 +421,26 @@ where
                 }
             }
         }
-        if fault.is_some() || (exhausted && next.is_none() && fifo.is_empty()) {
+        if fault.is_some() || (exhausted && next.is_none() && link.book.fifo.is_empty()) {
             break;
         }
         tokio::select! {
             line = link.next_line() => {
-                let Some(text) = line? else {
+                let Some((text, response, answered)) = line? else {
                     fault = Some("the controller closed the link".into());
                     break;
                 };
-                let response = Response::parse(&text);
+                out.last_acked_line = link.book.last_acked;
+                let last_acked = describe(link.book.last_acked, &link.book.last_acked_text);
                 // Garbage is not a sign of life: a controller that only babbles
                 // is as gone as a silent one.
                 if !matches!(response, Response::Other(_)) {
                     last_heard = Instant::now();
                 }
                 match response {
-                    Response::Ok => {
-                        if let Some((n, text)) = fifo.pop_front() {
-                            in_flight -= text.len() + 1;
-                            out.last_acked_line = n;
-                            progress.acked(n, &text);
-                            last_acked_text = text;
-                        }
-                    }
+                    Response::Ok => {}
                     Response::Error(code) => {
-                        let (n, text) = fifo.pop_front().unwrap_or((0, String::new()));
-                        in_flight = in_flight.saturating_sub(text.len() + 1);
+                        let (n, text) = answered.unwrap_or((0, String::new()));
                         let message = format!("controller answered error:{code} ({}) to {}", wire::error_message(code), describe(n, &text));
                         out.errors.push(LineError { line: n, code, message: message.clone() });
                         // In check mode nothing moves: go on and report every bad line.
@@ -409,18 +450,17 @@ where
                     }
                     Response::Alarm(code) => {
                         out.alarms.push(code);
-                        let after = if out.last_acked_line > 0 { format!(" after {}", describe(out.last_acked_line, &last_acked_text)) } else { String::new() };
+                        let after = if out.last_acked_line > 0 { format!(" after {last_acked}") } else { String::new() };
                         fault = Some(format!("controller raised ALARM:{code} ({}){after}", wire::alarm_message(code)));
                     }
                     Response::Banner(_) => {
-                        fault = Some(format!("the controller reset itself during the job (last acknowledged: {})", describe(out.last_acked_line, &last_acked_text)));
+                        fault = Some(format!("the controller reset itself during the job (last acknowledged: {last_acked})"));
                     }
                     Response::Status(s) => {
-                        progress.status(&s);
                         let nothing_queued = s.buffer.is_none_or(|(blocks, rx)| {
-                            rx as usize >= rx_buffer && progress.planner_blocks.is_none_or(|p| blocks as usize >= p)
+                            rx as usize >= rx_buffer && link.book.planner_blocks.is_none_or(|p| blocks as usize >= p)
                         });
-                        if s.state == MachineState::Idle && nothing_queued && !fifo.is_empty() {
+                        if s.state == MachineState::Idle && nothing_queued && !link.book.fifo.is_empty() {
                             idle_with_lines_out += 1;
                         } else {
                             idle_with_lines_out = 0;
@@ -428,7 +468,7 @@ where
                         if idle_with_lines_out >= 2 {
                             fault = Some(format!(
                                 "the controller is idle with nothing queued while {} line(s) are unanswered: bytes were lost on the link (last acknowledged: {})",
-                                fifo.len(), describe(out.last_acked_line, &last_acked_text)));
+                                link.book.fifo.len(), last_acked));
                         }
                         out.final_status = Some(s);
                     }
@@ -437,10 +477,10 @@ where
                 }
             }
             _ = ticker.tick() => {
-                if !fifo.is_empty() && last_heard.elapsed() > options.silence_timeout {
+                if !link.book.fifo.is_empty() && last_heard.elapsed() > options.silence_timeout {
                     fault = Some(format!(
                         "the controller has been silent (no answer, no status report) for {:.1} s with {} line(s) unanswered (last acknowledged: {})",
-                        last_heard.elapsed().as_secs_f64(), fifo.len(), describe(out.last_acked_line, &last_acked_text)));
+                        last_heard.elapsed().as_secs_f64(), link.book.fifo.len(), describe(link.book.last_acked, &link.book.last_acked_text)));
                     break;
                 }
                 link.send_realtime(realtime::STATUS).await?;
@@ -450,8 +490,9 @@ where
     out.stream_time_s = secs(origin) - stream_start;
 
     if let Some(reason) = fault {
-        out.final_status = link.safe_stop(&mut progress).await;
-        out.last_executed_line = progress.last_executed;
+        out.final_status = link.safe_stop().await;
+        out.last_acked_line = link.book.last_acked;
+        out.last_executed_line = link.book.last_executed;
         out.stop_reason = Some(reason);
         out.bytes_sent = link.bytes_sent;
         return Ok(out);
