@@ -110,9 +110,31 @@ enum Command {
         #[arg(long, hide = true)]
         error_on_line: Option<u64>,
     },
+    /// Benchmarks with a report.
+    Bench {
+        #[command(subcommand)]
+        which: BenchCommand,
+    },
     /// Re-derive a recording's figures from the file alone.
     Replay {
         recording: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// How well the sender uses the serial link: character counting against
+    /// send-response streaming, on a synthetic program of short 4-axis blocks.
+    Link {
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long, default_value_t = 20_000)]
+        blocks: usize,
+        /// Duration of each block in milliseconds.
+        #[arg(long, default_value_t = 1.0)]
+        block_ms: f64,
         #[arg(long)]
         json: bool,
     },
@@ -183,6 +205,34 @@ fn run_command(command: Command) -> Result<ExitCode> {
         Command::Sim { config, pty: _, link, baud, realtime: _, record, error_on_line } => {
             let machine = MachineConfig::load(config.as_deref())?;
             sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), error_on_line)
+        }
+        Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, json } } => {
+            let machine = MachineConfig::load(config.as_deref())?;
+            let report = laserd::bench::link_bench(&machine, blocks, block_ms / 1000.0)?;
+            if json {
+                print_json(&report)?;
+            } else {
+                let show = |name: &str, f: &laserd::bench::StreamFigures| {
+                    println!(
+                        "  {name:<18} stream {:>8.2} s, link {:>5.1} %, planner starved {:.3} s",
+                        f.stream_time_s,
+                        f.link_utilization * 100.0,
+                        f.planner_starved_s
+                    )
+                };
+                println!(
+                    "{} blocks of {:.3} ms, line time {:.3} ms at {} baud, {}-byte receive buffer:",
+                    report.blocks,
+                    report.block_s * 1000.0,
+                    report.line_time_s * 1000.0,
+                    report.baud,
+                    report.rx_buffer
+                );
+                show("character counting", &report.character_counting);
+                show("send-response", &report.send_response);
+                println!("  character counting is {:.2}x faster", report.speedup);
+            }
+            Ok(ExitCode::SUCCESS)
         }
         Command::Replay { recording, json } => {
             let replay = record::read(&recording)?;

@@ -17,7 +17,7 @@ use crate::job::{Job, Point};
 use crate::motion::{self, Mode, Trajectory};
 use crate::plan::{planner, PlanContext, PlannerKind, Sequence};
 use crate::program::{self, Program};
-use crate::record::{Recording, TOPIC_JOB, TOPIC_PLAN_LINES, TOPIC_REPORT, TOPIC_SETUP};
+use crate::record::{Recorder, Recording, TOPIC_JOB, TOPIC_PLAN_LINES, TOPIC_REPORT, TOPIC_SETUP};
 use crate::report::PlanReport;
 use crate::stream::{self, SenderOptions, StreamOutcome};
 
@@ -131,30 +131,61 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
         recorder.write(TOPIC_PLAN_LINES, 0.0, p);
     }
 
-    let log = RefCell::new(RunLog { setup: Some(setup), planned: planned_lines, ..Default::default() });
-    let lines: Vec<String> = planned.program.lines.iter().map(|l| l.text.clone()).collect();
     let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
     options.expect_start = Some(planned.program.start.clone());
-    let describe = |n: usize, _: &str| planned.program.describe_line(n);
-    let baud = machine.serial.baud;
+    let streamed = stream_into_simulator(&planned.program, sim, machine.serial.baud, &options, Some(&recorder));
+    let (outcome, log) = match streamed {
+        Ok(r) => r,
+        Err(e) => {
+            drop(recorder);
+            rec.finish()?;
+            return Err(e);
+        }
+    };
+    let log = RunLog { setup: Some(setup), planned: planned_lines, ..log };
+    let mut report = summary;
+    report.sim = Some(sim_figures(&log));
+    recorder.write(TOPIC_REPORT, log.knots.last().map(|k| k.t).unwrap_or(0.0), &report);
+    drop(recorder);
+    rec.finish()?;
+    Ok(DryRun { report, outcome, log })
+}
 
+/// Streams `program` into a fresh simulated controller in virtual time at
+/// `baud`, recording link and motion when a recorder is given. Returns how the
+/// stream ended and what crossed the link and moved (`setup` and `planned` of
+/// the log are left for the caller).
+pub fn stream_into_simulator(
+    program: &Program,
+    sim: SimConfig,
+    baud: u32,
+    options: &SenderOptions,
+    recorder: Option<&Recorder>,
+) -> Result<(StreamOutcome, RunLog)> {
+    let log = RefCell::new(RunLog::default());
+    let lines = program.lines.iter().map(|l| Ok(l.text.clone()));
+    let describe = |n: usize, _: &str| program.describe_line(n);
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .start_paused(true)
         .build()
         .map_err(|e| Error::Io(format!("cannot start the runtime: {e}")))?;
-    let streamed = runtime.block_on(async {
+    let outcome = runtime.block_on(async {
         let (sender_io, sim_io) = tokio::io::duplex(1 << 16);
         let origin = tokio::time::Instant::now();
         let (stop_tx, stop_rx) = watch::channel(false);
         let controller = Controller::new(sim);
         let sim_side = stream::in_process::run(controller, sim_io, baud, origin, stop_rx, |knots| {
-            recorder.knots(&knots);
+            if let Some(r) = recorder {
+                r.knots(&knots);
+            }
             log.borrow_mut().knots.extend(knots);
         });
         let sender_side = async {
-            let r = stream::stream(sender_io, lines.iter().cloned().map(Ok), &options, &describe, |t, ev| {
-                recorder.link_event(t, &ev);
+            let r = stream::stream(sender_io, lines, options, &describe, |t, ev| {
+                if let Some(r) = recorder {
+                    r.link_event(t, &ev);
+                }
                 log.borrow_mut().link.push((t, ev));
             })
             .await;
@@ -163,20 +194,6 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
         };
         let (_, outcome) = tokio::join!(sim_side, sender_side);
         outcome
-    });
-    let log = log.into_inner();
-    let outcome = match streamed {
-        Ok(o) => o,
-        Err(e) => {
-            drop(recorder);
-            rec.finish()?;
-            return Err(e);
-        }
-    };
-    let mut report = summary;
-    report.sim = Some(sim_figures(&log));
-    recorder.write(TOPIC_REPORT, log.knots.last().map(|k| k.t).unwrap_or(0.0), &report);
-    drop(recorder);
-    rec.finish()?;
-    Ok(DryRun { report, outcome, log })
+    })?;
+    Ok((outcome, log.into_inner()))
 }

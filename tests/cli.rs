@@ -210,3 +210,20 @@ fn send_streams_a_file_to_the_simulator_and_names_a_rejected_line() {
     let _ = sim.kill();
     let _ = sim.wait();
 }
+
+/// `bench link`: character counting keeps a 115200-baud link busy with short
+/// blocks, and never lets the planner starve when blocks outlast their lines.
+#[test]
+fn bench_link_reports_character_counting_against_send_response() {
+    let dir = tempfile::tempdir().unwrap();
+    let short = json(&laserd(&["bench", "link", "--blocks", "600", "--block-ms", "1", "--json"], dir.path()));
+    let cc = &short["character_counting"];
+    let sr = &short["send_response"];
+    assert_eq!(cc["completed"], true);
+    assert!(cc["link_utilization"].as_f64().unwrap() >= 0.95, "{short}");
+    assert!(sr["link_utilization"].as_f64().unwrap() < cc["link_utilization"].as_f64().unwrap());
+    assert!(short["speedup"].as_f64().unwrap() > 1.2, "{short}");
+    let long = json(&laserd(&["bench", "link", "--blocks", "600", "--block-ms", "5", "--json"], dir.path()));
+    assert!(long["block_s"].as_f64().unwrap() > long["line_time_s"].as_f64().unwrap());
+    assert_eq!(long["character_counting"]["planner_starved_s"].as_f64().unwrap(), 0.0, "{long}");
+}

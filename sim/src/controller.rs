@@ -230,6 +230,8 @@ struct Block {
     /// Slow enough for its duration that the machine may stop after it or
     /// start into it from rest within its limits (set when it enters the planner).
     gentle: bool,
+    /// The program ends its motion here: the next line was not a motion line.
+    ends_sequence: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -686,13 +688,15 @@ impl Controller {
     /// Grbl plans every queue to come to a stop at its end. Here blocks run at
     /// constant velocity, so the equivalent rule is: run the next block only when
     /// the queue holds a rest point after it (two gentle blocks in a row: the
-    /// machine can stop between them and start again). Otherwise wait for more
+    /// machine can stop between them and start again; or the end of the
+    /// program's motion, where a line without motion follows). Otherwise wait for more
     /// blocks, unless the planner is full, the pending line needs motion to end
     /// (M2, M5, G4, ...), or the link has fallen silent (a stream that never
     /// comes to rest must still run).
     fn may_start(&self) -> bool {
         let queued: Vec<bool> = self.planner.iter().map(|b| b.gentle).collect();
         queued.windows(2).any(|w| w[0] && w[1])
+            || self.planner.iter().any(|b| b.ends_sequence)
             || self.planner_full()
             || self.pending.as_ref().is_some_and(|p| !matches!(p.steps.front(), None | Some(Step::Queue(_))))
             || self.now - self.last_rx_t >= LINK_SILENCE_START - 1e-9
@@ -747,6 +751,11 @@ impl Controller {
         };
         match result {
             Ok((steps, reset_after)) => {
+                if !steps.iter().any(|s| matches!(s, Step::Queue(_))) {
+                    if let Some(last) = self.planner.back_mut() {
+                        last.ends_sequence = true;
+                    }
+                }
                 self.pending =
                     Some(Pending { steps: steps.into(), rx_len: len, dwell_until: None, reset_after })
             }
@@ -1299,6 +1308,7 @@ impl Controller {
                 line,
                 n_word,
                 gentle: false,
+                ends_sequence: false,
             });
             prev = p.clone();
         }

@@ -37,6 +37,9 @@ pub struct SenderOptions {
     /// Validate only: run the lines in the controller's check mode (`$C`), where
     /// nothing moves; every rejected line is reported, none stops the run.
     pub check_mode: bool,
+    /// Send-response streaming: one line at a time, each after the previous one
+    /// is answered (the simple method; the baseline character counting beats).
+    pub send_response: bool,
 }
 
 impl SenderOptions {
@@ -47,6 +50,7 @@ impl SenderOptions {
             silence_timeout: Duration::from_millis(800),
             expect_start: None,
             check_mode: false,
+            send_response: false,
         }
     }
 }
@@ -410,7 +414,10 @@ where
             }
             // A line goes out when it and its `\n` fit in what is left of the buffer.
             match next.take() {
-                Some(text) if link.book.in_flight + text.len() < rx_buffer => {
+                Some(text)
+                    if link.book.in_flight + text.len() < rx_buffer
+                        && !(options.send_response && !link.book.fifo.is_empty()) =>
+                {
                     link.send_line(next_number, &text).await?;
                     link.book.sent(next_number, &text);
                     out.lines_sent += 1;

@@ -1,0 +1,103 @@
+//! `laserd bench link`: how well the sender uses the serial link. A synthetic
+//! program of short 4-axis blocks (the stage drifting, the scanner circling)
+//! streams into the simulator in virtual time, once with character counting
+//! and once with send-response streaming as the baseline, in the same run.
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::config::MachineConfig;
+use crate::error::{Error, Result};
+use crate::figures::{sim_figures, RunLog};
+use crate::program::{format_number, LineKind, Program, ProgramLine};
+use crate::run::{run_setup, sim_config, stream_into_simulator};
+use crate::stream::SenderOptions;
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct StreamFigures {
+    pub stream_time_s: f64,
+    pub job_time_s: f64,
+    pub link_utilization: f64,
+    pub planner_starved_s: f64,
+    pub completed: bool,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct LinkBench {
+    pub blocks: usize,
+    pub baud: u32,
+    pub rx_buffer: usize,
+    /// Duration of every block of the program.
+    pub block_s: f64,
+    /// Mean wire time of one line at this baud rate.
+    pub line_time_s: f64,
+    pub character_counting: StreamFigures,
+    pub send_response: StreamFigures,
+    /// Send-response stream time over character-counting stream time.
+    pub speedup: f64,
+}
+
+/// The synthetic program: `blocks` G93 blocks of `block_s` seconds each, all four
+/// axes moving: the stage drifting at 0.1 mm/s (slow enough that the machine
+/// may stop after any block within its limits), the scanner round a 10 mm
+/// circle at 200 mm/s.
+pub fn link_program(machine: &MachineConfig, blocks: usize, block_s: f64) -> Result<Program> {
+    let letters = machine.axis_letters();
+    if letters.len() < 4 {
+        return Err(Error::Config("bench link needs a machine with a scanner (four axes)".into()));
+    }
+    let decimals = machine.program.decimals;
+    let omega = 200.0 / 10.0;
+    let mut lines = vec![ProgramLine { text: "G21G90G93".into(), kind: LineKind::Setup, geometry: None, plan_time: None, checks: vec![] }];
+    for k in 1..=blocks {
+        let t = k as f64 * block_s;
+        let values = [0.1 * t, 0.05 * t, 10.0 * (omega * t).sin(), 10.0 * (1.0 - (omega * t).cos())];
+        let mut text = String::from("G1");
+        for (letter, v) in letters.iter().zip(values) {
+            text.push(*letter);
+            text.push_str(&format_number(v, decimals));
+        }
+        text.push('F');
+        text.push_str(&format_number(60.0 / block_s, 3));
+        lines.push(ProgramLine { text, kind: LineKind::Jump, geometry: None, plan_time: Some((t - block_s, t)), checks: vec![] });
+    }
+    lines.push(ProgramLine { text: "G94".into(), kind: LineKind::End, geometry: None, plan_time: None, checks: vec![] });
+    Ok(Program { lines, axis_letters: letters, start: vec![0.0; 4], sources: vec![] })
+}
+
+fn measure(machine: &MachineConfig, program: &Program, send_response: bool) -> Result<StreamFigures> {
+    let sim = sim_config(machine, Default::default());
+    let setup = run_setup(machine, &sim);
+    let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.send_response = send_response;
+    let (outcome, log) = stream_into_simulator(program, sim, machine.serial.baud, &options, None)?;
+    let figures = sim_figures(&RunLog { setup: Some(setup), ..log });
+    Ok(StreamFigures {
+        stream_time_s: outcome.stream_time_s,
+        job_time_s: figures.job_time_s,
+        link_utilization: figures.link_utilization,
+        planner_starved_s: figures.planner_starved_s,
+        completed: outcome.completed,
+    })
+}
+
+pub fn link_bench(machine: &MachineConfig, blocks: usize, block_s: f64) -> Result<LinkBench> {
+    if blocks == 0 || !(block_s.is_finite() && block_s > 0.0) {
+        return Err(Error::Config(format!("bench link: --blocks must be positive and --block-ms a positive number (got {blocks}, {block_s} s)")));
+    }
+    let program = link_program(machine, blocks, block_s)?;
+    let bytes: usize = program.lines.iter().map(|l| l.text.len() + 1).sum();
+    let baud = machine.serial.baud;
+    let counting = measure(machine, &program, false)?;
+    let ping_pong = measure(machine, &program, true)?;
+    Ok(LinkBench {
+        blocks,
+        baud,
+        rx_buffer: machine.serial.rx_buffer,
+        block_s,
+        line_time_s: bytes as f64 / program.lines.len() as f64 * 10.0 / baud as f64,
+        speedup: ping_pong.stream_time_s / counting.stream_time_s,
+        character_counting: counting,
+        send_response: ping_pong,
+    })
+}
