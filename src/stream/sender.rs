@@ -416,7 +416,7 @@ where
             match next.take() {
                 Some(text)
                     if link.book.in_flight + text.len() < rx_buffer
-                        && !(options.send_response && !link.book.fifo.is_empty()) =>
+                        && (!options.send_response || link.book.fifo.is_empty()) =>
                 {
                     link.send_line(next_number, &text).await?;
                     link.book.sent(next_number, &text);
