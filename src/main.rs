@@ -106,9 +106,11 @@ enum Command {
         /// Record the executed motion to this MCAP file.
         #[arg(long)]
         record: Option<PathBuf>,
-        /// Answer error:20 to the N-th received line (fault injection for tests).
-        #[arg(long, hide = true)]
-        error_on_line: Option<u64>,
+        /// Inject a fault, e.g. `--fault error-on-line=40`; repeatable. Faults:
+        /// error-on-line, drop-byte, corrupt-byte, mute-from-line, reset-at-line,
+        /// limit-alarm-at-line, close-link-at-line (lines and bytes count from 1).
+        #[arg(long = "fault", value_name = "NAME=N")]
+        faults: Vec<String>,
     },
     /// Benchmarks with a report.
     Bench {
@@ -202,9 +204,10 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Send { file, port, baud, config, check, json } => send(&file, &port, baud, config.as_deref(), check, json),
-        Command::Sim { config, pty: _, link, baud, realtime: _, record, error_on_line } => {
+        Command::Sim { config, pty: _, link, baud, realtime: _, record, faults } => {
+            let faults = parse_faults(&faults)?;
             let machine = MachineConfig::load(config.as_deref())?;
-            sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), error_on_line)
+            sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), faults)
         }
         Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, json } } => {
             let machine = MachineConfig::load(config.as_deref())?;
@@ -321,8 +324,30 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
     Ok(ExitCode::SUCCESS)
 }
 
-fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: Option<&Path>, error_on_line: Option<u64>) -> Result<ExitCode> {
-    let sim = run::sim_config(machine, Faults { error_on_line, ..Default::default() });
+/// `--fault NAME=N` options into the simulator's faults.
+fn parse_faults(specs: &[String]) -> Result<Faults> {
+    let mut faults = Faults::default();
+    for spec in specs {
+        let bad = || Error::Config(format!("--fault {spec}: expected NAME=N with N a positive whole number"));
+        let (name, value) = spec.split_once('=').ok_or_else(bad)?;
+        let n: u64 = value.trim().parse().ok().filter(|n| *n > 0).ok_or_else(bad)?;
+        let slot = match name.trim() {
+            "error-on-line" => &mut faults.error_on_line,
+            "drop-byte" => &mut faults.drop_byte,
+            "corrupt-byte" => &mut faults.corrupt_byte,
+            "mute-from-line" => &mut faults.mute_from_line,
+            "reset-at-line" => &mut faults.reset_at_line,
+            "limit-alarm-at-line" => &mut faults.limit_alarm_at_line,
+            "close-link-at-line" => &mut faults.close_link_at_line,
+            other => return Err(Error::Config(format!("--fault {spec}: unknown fault '{other}'"))),
+        };
+        *slot = Some(n);
+    }
+    Ok(faults)
+}
+
+fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: Option<&Path>, faults: Faults) -> Result<ExitCode> {
+    let sim = run::sim_config(machine, faults);
     let setup = run::run_setup(machine, &sim);
     let device = laserd_sim::pty::open_pty(link).map_err(|e| Error::Io(format!("cannot open a pseudo-terminal: {e}")))?;
     let recording = record.map(Recording::create).transpose()?;
@@ -338,9 +363,13 @@ fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: O
     let stop_sim = stop.clone();
     let controller = Controller::new(sim);
     let sim_recorder = recorder.clone();
+    let (ended_tx, ended_rx) = tokio::sync::oneshot::channel::<()>();
     let thread = std::thread::Builder::new()
         .name("simulator".into())
         .spawn(move || {
+            // Tell the main thread when the simulator stops by itself (an
+            // injected link closing), so the process ends with it.
+            let _ended = DropSignal(Some(ended_tx));
             let mut link = LinkLog::default();
             laserd_sim::pty::run_realtime(controller, device, baud, stop_sim, |observed| {
                 if let Some(r) = &sim_recorder {
@@ -359,6 +388,7 @@ fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: O
         tokio::select! {
             _ = tokio::signal::ctrl_c() => {}
             _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending::<()>().await } } => {}
+            _ = ended_rx => {}
         }
     });
     stop.store(true, Ordering::SeqCst);
@@ -407,6 +437,17 @@ impl LinkLog {
             } else {
                 self.to_host.push(b);
             }
+        }
+    }
+}
+
+/// Sends on its channel when dropped, however the owning thread ends.
+struct DropSignal(Option<tokio::sync::oneshot::Sender<()>>);
+
+impl Drop for DropSignal {
+    fn drop(&mut self) {
+        if let Some(tx) = self.0.take() {
+            let _ = tx.send(());
         }
     }
 }

@@ -227,3 +227,46 @@ fn bench_link_reports_character_counting_against_send_response() {
     assert!(long["block_s"].as_f64().unwrap() > long["line_time_s"].as_f64().unwrap());
     assert_eq!(long["character_counting"]["planner_starved_s"].as_f64().unwrap(), 0.0, "{long}");
 }
+
+/// The pseudo-terminal closing in the middle of a job (`--fault
+/// close-link-at-line`): `send` stops with a message saying so, and the
+/// simulator's recording of what ran is complete.
+#[test]
+fn send_reports_the_pseudo_terminal_closing_mid_job() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyGONE");
+    let rec = dir.path().join("gone.mcap");
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_laserd"))
+        .args(["sim", "--link", link.to_str().unwrap(), "--baud", "1000000", "--record", rec.to_str().unwrap(), "--fault", "close-link-at-line=50"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(sim.stdout.take().unwrap()).read_line(&mut first).unwrap();
+    let nc = dir.path().join("job.nc");
+    let mut text = String::from("G21G90G93\n");
+    for i in 1..=400 {
+        text.push_str(&format!("G1X{}F6000\n", i as f64 * 0.01));
+    }
+    std::fs::write(&nc, &text).unwrap();
+    let out = laserd(&["send", nc.to_str().unwrap(), "--port", link.to_str().unwrap(), "--json"], dir.path());
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("closed the link") || err.contains("read failed"), "{err}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(report["last_acked_line"].as_u64().unwrap() <= 50);
+    // The simulator ends by itself with the link, and its recording is whole.
+    let status = sim.wait().unwrap();
+    assert!(status.success());
+    let replay = laserd::record::read(&rec).unwrap();
+    assert!(replay.truncated.is_none());
+    assert!(!replay.log.knots.is_empty());
+}
+
+#[test]
+fn an_unknown_fault_is_one_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    assert_clean_error(&laserd(&["sim", "--fault", "gremlins=3"], dir.path()), "gremlins");
+}
