@@ -120,6 +120,13 @@ enum Command {
     /// Re-derive a recording's figures from the file alone.
     Replay {
         recording: PathBuf,
+        /// Re-stream the recorded program into a fresh simulator and compare.
+        #[arg(long)]
+        to_sim: bool,
+        /// Machine config for --to-sim (default: the shipped one; the recording's
+        /// axes and baud rate are used either way).
+        #[arg(long)]
+        config: Option<PathBuf>,
         #[arg(long)]
         json: bool,
     },
@@ -237,11 +244,22 @@ fn run_command(command: Command) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Replay { recording, json } => {
+        Command::Replay { recording, to_sim, config, json } => {
             let replay = record::read(&recording)?;
             let figures = sim_figures(&replay.log);
             if let Some(why) = &replay.truncated {
                 eprintln!("laserd: warning: {}: recording ends early ({why}); figures cover what it holds", recording.display());
+            }
+            if to_sim {
+                let machine = MachineConfig::load(config.as_deref())?;
+                let again = laserd::run::restream(&replay.log, &machine)?;
+                let report = serde_json::json!({ "recorded": figures, "re_simulated": again, "same": figures == again });
+                if json {
+                    print_json(&report)?;
+                } else {
+                    println!("{}", serde_json::to_string_pretty(&report).unwrap_or_default());
+                }
+                return Ok(if figures == again { ExitCode::SUCCESS } else { ExitCode::from(3) });
             }
             if json {
                 print_json(&figures)?;

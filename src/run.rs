@@ -197,3 +197,33 @@ pub fn stream_into_simulator(
     })?;
     Ok((outcome, log.into_inner()))
 }
+
+/// Re-streams the program a recording sent into a fresh simulator (with the
+/// recording's axes and baud rate) and measures it again against the same plan.
+pub fn restream(log: &RunLog, machine: &MachineConfig) -> Result<crate::figures::SimFigures> {
+    let setup = log.setup.clone().ok_or_else(|| Error::Record("the recording has no machine setup".into()))?;
+    let lines: Vec<program::ProgramLine> = log
+        .link
+        .iter()
+        .filter_map(|(_, e)| match e {
+            crate::stream::LinkEvent::Sent { line, text } if *line > 0 => Some(program::ProgramLine {
+                text: text.clone(),
+                kind: log.planned.iter().find(|p| p.line == *line).map(|p| p.kind).unwrap_or(program::LineKind::Setup),
+                geometry: None,
+                plan_time: None,
+                checks: vec![],
+            }),
+            _ => None,
+        })
+        .collect();
+    if lines.is_empty() {
+        return Err(Error::Record("the recording holds no sent program lines".into()));
+    }
+    let program = Program { lines, axis_letters: setup.axes.iter().map(|a| a.letter).collect(), start: vec![0.0; setup.axes.len()], sources: vec![] };
+    let mut sim = sim_config(machine, Faults::default());
+    sim.axes = setup.axes.clone();
+    let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.expect_start = Some(program.start.clone());
+    let (_, again) = stream_into_simulator(&program, sim, setup.baud, &options, None)?;
+    Ok(sim_figures(&RunLog { setup: Some(setup), planned: log.planned.clone(), ..again }))
+}

@@ -48,6 +48,12 @@ fn dry_run_json_and_replay_reproduce_the_same_sim_figures() {
 
     let replayed = json(&laserd(&["replay", rec.to_str().unwrap(), "--json"], dir.path()));
     assert_eq!(&replayed, sim, "replay re-derives the dry-run's figures exactly");
+
+    // Re-streaming the recorded program into a fresh simulator gives the same
+    // run again: the virtual-time simulation is deterministic.
+    let again = json(&laserd(&["replay", rec.to_str().unwrap(), "--to-sim", "--json"], dir.path()));
+    assert_eq!(again["same"], true, "{again}");
+    assert_eq!(&again["re_simulated"], sim);
 }
 
 #[test]
