@@ -232,6 +232,8 @@ struct Block {
     gentle: bool,
     /// The program ends its motion here: the next line was not a motion line.
     ends_sequence: bool,
+    /// A `$J=` jog block.
+    jog: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -385,6 +387,8 @@ impl Controller {
             MachineState::Hold(if self.exec.is_some() { 1 } else { 0 })
         } else if self.check_mode {
             MachineState::Check
+        } else if self.jogging() {
+            MachineState::Jog
         } else if self.exec.is_some() {
             MachineState::Run
         } else {
@@ -513,6 +517,8 @@ impl Controller {
                 let line = self.status_report().to_line();
                 self.send(&line);
             }
+            JOG_CANCEL => self.cancel_jog(),
+            FEED_HOLD if self.jogging() => self.cancel_jog(),
             FEED_HOLD if !(self.alarm || self.check_mode || self.sleep || self.hold) => {
                 self.hold = true;
                 self.pause_starvation();
@@ -541,7 +547,7 @@ impl Controller {
             SPINDLE_OVR_FINE_PLUS => self.ovr_spindle = (self.ovr_spindle + 1).min(200),
             SPINDLE_OVR_FINE_MINUS => self.ovr_spindle = self.ovr_spindle.saturating_sub(1).max(10),
             COOLANT_FLOOD_TOGGLE if !self.alarm && !self.sleep => self.modal.flood = !self.modal.flood,
-            // Safety door, jog cancel, spindle stop and mist are not modelled.
+            // Safety door, spindle stop and mist are not modelled.
             _ => {}
         }
     }
@@ -843,13 +849,116 @@ impl Controller {
         if text.is_empty() {
             return Ok((Vec::new(), false));
         }
+        if let Some(jog) = text.strip_prefix("$J=") {
+            return self.jog(jog, line).map(|s| (s, false));
+        }
         if let Some(cmd) = text.strip_prefix('$') {
             return self.system_command(cmd);
         }
-        if self.alarm || self.sleep {
+        if self.alarm || self.sleep || self.jogging() {
             return Err(9);
         }
         self.gcode(text, line).map(|s| (s, false))
+    }
+
+    fn jogging(&self) -> bool {
+        self.exec.as_ref().is_some_and(|e| e.block.jog) || self.planner.iter().any(|b| b.jog)
+    }
+
+    /// `$J=`: a G1-like move with a mandatory F in units/min, one-shot G20/G21,
+    /// G90/G91 and G53, nothing else (error 16); accepted only when idle or
+    /// jogging (error 8); a target beyond travel answers error 15, no alarm. The
+    /// parser's modal state is left alone. The laser stays off while jogging
+    /// (Grbl would inherit the laser state; a simulator should not teach that).
+    fn jog(&mut self, text: &str, line: u64) -> Result<Vec<Step>, u16> {
+        if self.alarm || self.sleep || self.hold || (self.busy() && !self.jogging()) {
+            return Err(8);
+        }
+        let words = split_words(text)?;
+        let mut axes: Vec<Option<f64>> = vec![None; self.cfg.axes.len()];
+        let (mut inches, mut incremental, mut machine_coords) = (self.modal.inches, self.modal.incremental, false);
+        let mut feed = None;
+        for w in &words {
+            match (w.letter, w.value) {
+                ('G', g) if g == 20.0 || g == 21.0 => inches = g == 20.0,
+                ('G', g) if g == 90.0 || g == 91.0 => incremental = g == 91.0,
+                ('G', g) if g == 53.0 => machine_coords = true,
+                ('F', f) => {
+                    if feed.replace(f).is_some() {
+                        return Err(25);
+                    }
+                }
+                ('N', _) => {}
+                (c, v) => {
+                    let i = self.axis_index(c).ok_or(16u16)?;
+                    if axes[i].replace(v).is_some() {
+                        return Err(25);
+                    }
+                }
+            }
+        }
+        let scale = if inches { 25.4 } else { 1.0 };
+        let feed = feed.ok_or(22u16)? * scale;
+        if feed <= 0.0 {
+            return Err(4);
+        }
+        if axes.iter().all(Option::is_none) {
+            return Err(26);
+        }
+        let mut target = self.gc_pos.clone();
+        for (i, v) in axes.iter().enumerate() {
+            let Some(v) = v else { continue };
+            let mm = v * scale;
+            target[i] = if machine_coords {
+                mm
+            } else if incremental {
+                self.gc_pos[i] + mm
+            } else {
+                mm + self.g92[i]
+            };
+        }
+        if self.cfg.axes.iter().enumerate().any(|(i, a)| target[i] < a.min - 1e-6 || target[i] > a.max + 1e-6) {
+            return Err(15);
+        }
+        let len = dist(&self.gc_pos, &target);
+        if len <= EPS_POS {
+            return Ok(Vec::new());
+        }
+        let min_duration = self
+            .cfg
+            .axes
+            .iter()
+            .enumerate()
+            .map(|(i, a)| (target[i] - self.gc_pos[i]).abs() / a.max_velocity)
+            .fold(0.0, f64::max);
+        let block = Block {
+            target: target.clone(),
+            duration: (len / (feed / 60.0)).max(min_duration),
+            min_duration,
+            rapid: false,
+            power: 0.0,
+            line,
+            n_word: None,
+            gentle: false,
+            ends_sequence: true,
+            jog: true,
+        };
+        self.gc_pos = target;
+        if self.check_mode {
+            return Ok(Vec::new());
+        }
+        Ok(vec![Step::Queue(block)])
+    }
+
+    /// Jog cancel: stop the jog and drop every queued jog block.
+    fn cancel_jog(&mut self) {
+        if !self.jogging() {
+            return;
+        }
+        self.stop_motion_now();
+        self.planner.retain(|b| !b.jog);
+        self.gc_pos = self.pos.clone();
+        self.mark_idle(self.now);
     }
 
     fn busy(&self) -> bool {
@@ -1309,6 +1418,7 @@ impl Controller {
                 n_word,
                 gentle: false,
                 ends_sequence: false,
+                jog: false,
             });
             prev = p.clone();
         }

@@ -503,3 +503,41 @@ fn feed_hold_runs_on_to_the_next_rest_point_with_the_laser_off() {
     let after: Vec<&Knot> = s.knots.iter().filter(|k| k.t > 0.15).collect();
     assert!(after.iter().skip(1).all(|k| k.power == 0.0), "laser off while holding: {after:?}");
 }
+
+#[test]
+fn jogging() {
+    let mut s = Sim::new(cfg());
+    // Forbidden words, missing feed, beyond travel: refused, nothing moves.
+    for (line, code) in [("$J=G1X10F100", 16), ("$J=X10S100F100", 16), ("$J=X10", 22), ("$J=X-5F100", 15), ("$J=F100", 26)] {
+        s.send(&format!("{line}\n"));
+        s.run_until(s.t + 0.1);
+        assert_eq!(s.responses().last().unwrap().1, Response::Error(code), "{line}");
+    }
+    assert!(s.knots.is_empty());
+    // A jog runs in state Jog with the laser off and leaves the parser modes alone.
+    s.send("G91\n$J=G90X10F600\n");
+    s.run_until(s.t + 0.5);
+    assert_eq!(s.ctl.state(), MachineState::Jog);
+    s.send("G1X1F100\n");
+    s.run_until(s.t + 0.05);
+    assert_eq!(s.responses().last().unwrap().1, Response::Error(9), "G-code while jogging");
+    s.run_until(s.t + 2.0);
+    assert_eq!(s.ctl.state(), MachineState::Idle);
+    assert_eq!(s.ctl.position(), vec![10.0, 0.0]);
+    assert!(s.knots.iter().all(|k| k.power == 0.0));
+    s.realtime(realtime::STATUS);
+    s.send("$G\n");
+    s.run_until(s.t + 0.1);
+    assert!(s.texts().iter().any(|t| t.starts_with("[GC:") && t.contains("G91")), "G91 kept: {:?}", s.texts());
+    // Jog cancel stops at once and drops what is queued.
+    s.send("$J=G90X100F600\n$J=G90Y50F600\n");
+    s.run_until(s.t + 0.5);
+    assert_eq!(s.ctl.state(), MachineState::Jog);
+    s.realtime(realtime::JOG_CANCEL);
+    assert_eq!(s.ctl.state(), MachineState::Idle);
+    let x = s.ctl.position()[0];
+    assert!(x > 10.0 && x < 100.0, "{x}");
+    s.run_until(s.t + 5.0);
+    assert_eq!(s.ctl.position()[0], x, "nothing runs after the cancel");
+    assert_eq!(s.ctl.position()[1], 0.0);
+}
