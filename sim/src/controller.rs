@@ -882,7 +882,7 @@ impl Controller {
             match (w.letter, w.value) {
                 ('G', g) if g == 20.0 || g == 21.0 => inches = g == 20.0,
                 ('G', g) if g == 90.0 || g == 91.0 => incremental = g == 91.0,
-                ('G', g) if g == 53.0 => machine_coords = true,
+                ('G', 53.0) => machine_coords = true,
                 ('F', f) => {
                     if feed.replace(f).is_some() {
                         return Err(25);
