@@ -3,4 +3,4 @@
 pub mod in_process;
 pub mod sender;
 
-pub use sender::{stream, LineError, LinkEvent, SenderOptions, StreamOutcome};
+pub use sender::{stream, Connection, Control, LineError, LinkEvent, SenderOptions, StreamOutcome};

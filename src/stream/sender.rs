@@ -18,7 +18,9 @@ use std::time::Duration;
 use laserd_sim::wire::{self, realtime, MachineState, Response, StatusReport};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
-use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader};
+use tokio::io::{
+    AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader, ReadHalf, WriteHalf,
+};
 use tokio::time::{timeout, Instant};
 
 use crate::error::{Error, Result};
@@ -121,10 +123,22 @@ where
         let mut bytes = Vec::with_capacity(text.len() + 1);
         bytes.extend_from_slice(text.as_bytes());
         bytes.push(b'\n');
-        self.writer.write_all(&bytes).await.map_err(|e| Error::Stream(format!("write failed: {e}")))?;
-        self.writer.flush().await.map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        self.writer
+            .write_all(&bytes)
+            .await
+            .map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        self.writer
+            .flush()
+            .await
+            .map_err(|e| Error::Stream(format!("write failed: {e}")))?;
         self.bytes_sent += bytes.len();
-        (self.on_event)(secs(self.origin), LinkEvent::Sent { line, text: text.to_string() });
+        (self.on_event)(
+            secs(self.origin),
+            LinkEvent::Sent {
+                line,
+                text: text.to_string(),
+            },
+        );
         Ok(())
     }
 
@@ -135,14 +149,22 @@ where
         self.send_line(0, text).await?;
         self.book.sent(0, text);
         self.bytes_sent = before;
-        self.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Ok | Response::Error(_)))
-            .await?
-            .ok_or_else(|| Error::Stream(format!("no answer to `{text}`")))
+        self.wait_for(Duration::from_secs(3), |r| {
+            matches!(r, Response::Ok | Response::Error(_))
+        })
+        .await?
+        .ok_or_else(|| Error::Stream(format!("no answer to `{text}`")))
     }
 
     async fn send_realtime(&mut self, byte: u8) -> Result<()> {
-        self.writer.write_all(&[byte]).await.map_err(|e| Error::Stream(format!("write failed: {e}")))?;
-        self.writer.flush().await.map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        self.writer
+            .write_all(&[byte])
+            .await
+            .map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        self.writer
+            .flush()
+            .await
+            .map_err(|e| Error::Stream(format!("write failed: {e}")))?;
         (self.on_event)(secs(self.origin), LinkEvent::Realtime { byte });
         Ok(())
     }
@@ -151,13 +173,22 @@ where
     /// answered (for `ok` and `error:N`); `None` when the link closed. Cancel-safe.
     async fn next_line(&mut self) -> Result<Option<(String, Response, Option<(usize, String)>)>> {
         loop {
-            let seg = self.reader.next_segment().await.map_err(|e| Error::Stream(format!("read failed: {e}")))?;
+            let seg = self
+                .reader
+                .next_segment()
+                .await
+                .map_err(|e| Error::Stream(format!("read failed: {e}")))?;
             let Some(seg) = seg else { return Ok(None) };
-            let text = String::from_utf8_lossy(&seg).trim_matches(|c| c == '\r' || c == '\n').to_string();
+            let text = String::from_utf8_lossy(&seg)
+                .trim_matches(|c| c == '\r' || c == '\n')
+                .to_string();
             if text.is_empty() {
                 continue;
             }
-            (self.on_event)(secs(self.origin), LinkEvent::Received { text: text.clone() });
+            (self.on_event)(
+                secs(self.origin),
+                LinkEvent::Received { text: text.clone() },
+            );
             let response = Response::parse(&text);
             let answered = self.book.answer(&response);
             return Ok(Some((text, response, answered)));
@@ -165,7 +196,11 @@ where
     }
 
     /// Reads responses until `want` accepts one, or `limit` passes.
-    async fn wait_for(&mut self, limit: Duration, mut want: impl FnMut(&Response) -> bool) -> Result<Option<Response>> {
+    async fn wait_for(
+        &mut self,
+        limit: Duration,
+        mut want: impl FnMut(&Response) -> bool,
+    ) -> Result<Option<Response>> {
         let deadline = Instant::now() + limit;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
@@ -187,7 +222,12 @@ where
         let deadline = Instant::now() + limit;
         while Instant::now() < deadline {
             self.send_realtime(realtime::STATUS).await?;
-            if let Some(Response::Status(s)) = self.wait_for(Duration::from_millis(250), |r| matches!(r, Response::Status(_))).await? {
+            if let Some(Response::Status(s)) = self
+                .wait_for(Duration::from_millis(250), |r| {
+                    matches!(r, Response::Status(_))
+                })
+                .await?
+            {
                 return Ok(Some(s));
             }
         }
@@ -204,7 +244,10 @@ where
         while Instant::now() < deadline {
             match self.query_status(Duration::from_millis(500)).await {
                 Ok(Some(s)) => {
-                    if matches!(s.state, MachineState::Hold(0) | MachineState::Idle | MachineState::Alarm) {
+                    if matches!(
+                        s.state,
+                        MachineState::Hold(0) | MachineState::Idle | MachineState::Alarm
+                    ) {
                         break;
                     }
                 }
@@ -215,8 +258,13 @@ where
         if self.send_realtime(realtime::SOFT_RESET).await.is_err() {
             return None;
         }
-        let _ = self.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_))).await;
-        self.query_status(Duration::from_secs(1)).await.ok().flatten()
+        let _ = self
+            .wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_)))
+            .await;
+        self.query_status(Duration::from_secs(1))
+            .await
+            .ok()
+            .flatten()
     }
 }
 
@@ -287,13 +335,18 @@ impl Book {
     }
 
     fn status(&mut self, s: &StatusReport) {
-        let (Some(total), Some((free, _))) = (self.planner_blocks, s.buffer) else { return };
+        let (Some(total), Some((free, _))) = (self.planner_blocks, s.buffer) else {
+            return;
+        };
         let queued = total.saturating_sub(free as usize);
         while self.pending_motion.len() > queued {
             self.last_executed = self.pending_motion.pop_front();
         }
         if self.pending_motion.is_empty() {
-            self.last_executed = Some(self.executed_cap.map_or(self.last_acked, |cap| cap.min(self.last_acked)));
+            self.last_executed = Some(
+                self.executed_cap
+                    .map_or(self.last_acked, |cap| cap.min(self.last_acked)),
+            );
         }
     }
 }
@@ -302,17 +355,393 @@ impl Book {
 /// of the commands that take axis words without moving).
 fn is_motion(text: &str) -> bool {
     let t = text.to_ascii_uppercase();
-    if t.starts_with('$') || t.contains("G10") || t.contains("G92") || t.contains("G28.1") || t.contains("G30.1") {
+    if t.starts_with('$')
+        || t.contains("G10")
+        || t.contains("G92")
+        || t.contains("G28.1")
+        || t.contains("G30.1")
+    {
         return false;
     }
     let b = t.as_bytes();
-    b.windows(2).any(|w| b"XYZABCUVW".contains(&w[0]) && (w[1].is_ascii_digit() || w[1] == b'-' || w[1] == b'.' || w[1] == b'+'))
+    b.windows(2).any(|w| {
+        b"XYZABCUVW".contains(&w[0])
+            && (w[1].is_ascii_digit() || w[1] == b'-' || w[1] == b'.' || w[1] == b'+')
+    })
 }
 
-/// Streams `lines`, pulled one at a time as the controller has room, so a file
-/// of any size streams in constant memory. The n-th item is program line n.
-/// `describe(n, text)` turns a line into a message naming it and where it came
-/// from.
+/// What the caller can ask of a running stream (the operator's buttons).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Control {
+    /// Feed hold: decelerate and stop, laser off; the job stays loaded.
+    FeedHold,
+    /// Cycle start after a hold.
+    Resume,
+    /// Stop the job for good: hold, laser off, soft reset.
+    Abort,
+    /// A realtime override byte (`wire::realtime::FEED_OVR_*`, `RAPID_OVR_*`,
+    /// `SPINDLE_OVR_*`).
+    Override(u8),
+}
+
+/// An open connection to a GRBL-style controller: announced (banner), its
+/// state and buffer sizes known, every answer booked.
+pub struct Connection<T, F> {
+    link: Link<ReadHalf<T>, WriteHalf<T>, F>,
+    options: SenderOptions,
+    /// The receive buffer counted on: the configured one, or the controller's
+    /// if that is smaller.
+    rx_buffer: usize,
+    /// The status just read, if nothing was sent since (saves a round trip).
+    fresh_status: Option<StatusReport>,
+}
+
+impl<T, F> Connection<T, F>
+where
+    T: AsyncRead + AsyncWrite,
+    F: FnMut(f64, LinkEvent),
+{
+    /// Connects: waits for the banner (asking with a soft reset if it came
+    /// before we listened; nothing moves yet) and reads the first status.
+    pub async fn open(io: T, options: &SenderOptions, on_event: F) -> Result<Self> {
+        let (read_half, write_half) = tokio::io::split(io);
+        let mut link = Link {
+            reader: BufReader::new(read_half).split(b'\n'),
+            writer: write_half,
+            origin: Instant::now(),
+            on_event,
+            bytes_sent: 0,
+            book: Book::default(),
+        };
+        let is_banner = |r: &Response| matches!(r, Response::Banner(_));
+        if link
+            .wait_for(Duration::from_millis(500), is_banner)
+            .await?
+            .is_none()
+        {
+            link.send_realtime(realtime::SOFT_RESET).await?;
+            if link
+                .wait_for(Duration::from_millis(2500), is_banner)
+                .await?
+                .is_none()
+            {
+                return Err(Error::Stream(
+                    "no GRBL banner from the controller within 3 s of connecting".into(),
+                ));
+            }
+        }
+        let mut connection = Connection {
+            link,
+            options: options.clone(),
+            rx_buffer: options.rx_buffer,
+            fresh_status: None,
+        };
+        connection.status().await?;
+        Ok(connection)
+    }
+
+    /// The controller's status now. An idle controller reports its whole
+    /// planner and receive buffer free: learn their sizes, and never count on
+    /// more receive buffer than it has.
+    pub async fn status(&mut self) -> Result<StatusReport> {
+        let status = self
+            .link
+            .query_status(Duration::from_secs(2))
+            .await?
+            .ok_or_else(|| {
+                Error::Stream("the controller does not answer status requests".into())
+            })?;
+        if let (MachineState::Idle, Some((blocks, rx))) = (&status.state, status.buffer) {
+            self.link.book.planner_blocks = Some(blocks as usize);
+            if (rx as usize) < self.rx_buffer {
+                tracing::warn!("the controller's receive buffer is {rx} bytes, less than the configured {}: using {rx}", self.rx_buffer);
+                self.rx_buffer = rx as usize;
+            }
+        }
+        self.fresh_status = Some(status.clone());
+        Ok(status)
+    }
+
+    /// Sends a command of the sender's own and waits for its answer.
+    async fn expect_ok(&mut self, command: &str) -> Result<()> {
+        self.fresh_status = None;
+        match self.link.command(command).await? {
+            Response::Error(code) => Err(Error::Stream(format!(
+                "`{command}` refused: error:{code} ({})",
+                wire::error_message(code)
+            ))),
+            _ => Ok(()),
+        }
+    }
+
+    /// Clears an alarm (`$X`).
+    pub async fn unlock(&mut self) -> Result<()> {
+        self.expect_ok("$X").await
+    }
+
+    /// Runs the homing cycle (`$H`); the answer comes when it is done.
+    pub async fn home(&mut self) -> Result<()> {
+        self.expect_ok("$H").await
+    }
+
+    /// Jogs (`$J=` + a block such as `G91 X10 F600`).
+    pub async fn jog(&mut self, block: &str) -> Result<()> {
+        self.expect_ok(&format!("$J={block}")).await
+    }
+
+    /// Stops a jog at once and drops the queued jog moves.
+    pub async fn jog_cancel(&mut self) -> Result<()> {
+        self.fresh_status = None;
+        self.link.send_realtime(realtime::JOG_CANCEL).await
+    }
+
+    /// Streams `lines`, pulled one at a time as the controller has room, so a
+    /// file of any size streams in constant memory. The n-th item is program
+    /// line n. `describe(n, text)` turns a line into a message naming it and
+    /// where it came from. `control` carries the operator's hold, resume,
+    /// abort and overrides while the job runs.
+    pub async fn stream<I>(
+        &mut self,
+        lines: I,
+        describe: &dyn Fn(usize, &str) -> String,
+        mut control: Option<&mut tokio::sync::mpsc::UnboundedReceiver<Control>>,
+    ) -> Result<StreamOutcome>
+    where
+        I: IntoIterator<Item = Result<String>>,
+    {
+        let status = match self.fresh_status.take() {
+            Some(s) => s,
+            None => self.status().await?,
+        };
+        if matches!(status.state, MachineState::Alarm) {
+            return Err(Error::Stream(
+                "the controller is in alarm: home ($H) or unlock ($X) it first".into(),
+            ));
+        }
+        if let Some(start) = &self.options.expect_start {
+            let off = start
+                .iter()
+                .zip(&status.mpos)
+                .any(|(a, b)| (a - b).abs() > 0.01);
+            if off || status.mpos.len() < start.len() {
+                return Err(Error::Stream(format!(
+                    "the machine is at {:?} but the program starts at {:?}: home it first",
+                    status.mpos, start
+                )));
+            }
+        }
+        if self.options.check_mode {
+            if let Response::Error(code) = self.link.command("$C").await? {
+                return Err(Error::Stream(format!(
+                    "the controller refused check mode ($C): error:{code} ({})",
+                    wire::error_message(code)
+                )));
+            }
+        }
+        let mut lines = lines.into_iter();
+        let options = self.options.clone();
+        let rx_buffer = self.rx_buffer;
+        let origin = self.link.origin;
+        let link = &mut self.link;
+        let mut out = StreamOutcome {
+            final_status: Some(status),
+            ..Default::default()
+        };
+        let stream_start = secs(origin);
+        // Consecutive status reports showing an idle controller with nothing queued
+        // while lines are unanswered: bytes were lost on the way.
+        let mut idle_with_lines_out = 0;
+        let mut next: Option<String> = None;
+        let mut next_number = 0usize;
+        let mut exhausted = false;
+        let mut ticker = tokio::time::interval(options.status_interval);
+        ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut last_heard = Instant::now();
+        let mut fault: Option<String> = None;
+
+        while fault.is_none() {
+            loop {
+                if next.is_none() && !exhausted {
+                    match lines.next() {
+                        None => exhausted = true,
+                        Some(Err(e)) => {
+                            fault = Some(format!("cannot read line {}: {e}", next_number + 1));
+                            break;
+                        }
+                        Some(Ok(text)) => {
+                            next_number += 1;
+                            if text.len() + 1 > rx_buffer {
+                                fault = Some(format!(
+                                    "{}: longer than the controller's receive buffer",
+                                    describe(next_number, &text)
+                                ));
+                                break;
+                            }
+                            next = Some(text);
+                        }
+                    }
+                }
+                // A line goes out when it and its `\n` fit in what is left of the buffer.
+                match next.take() {
+                    Some(text)
+                        if link.book.in_flight + text.len() < rx_buffer
+                            && (!options.send_response || link.book.fifo.is_empty()) =>
+                    {
+                        link.send_line(next_number, &text).await?;
+                        link.book.sent(next_number, &text);
+                        out.lines_sent += 1;
+                    }
+                    other => {
+                        next = other;
+                        break;
+                    }
+                }
+            }
+            if fault.is_some() || (exhausted && next.is_none() && link.book.fifo.is_empty()) {
+                break;
+            }
+            tokio::select! {
+                line = link.next_line() => {
+                    let Some((text, response, answered)) = line? else {
+                        fault = Some("the controller closed the link".into());
+                        break;
+                    };
+                    out.last_acked_line = link.book.last_acked;
+                    let last_acked = describe(link.book.last_acked, &link.book.last_acked_text);
+                    // Garbage is not a sign of life: a controller that only babbles
+                    // is as gone as a silent one.
+                    if !matches!(response, Response::Other(_)) {
+                        last_heard = Instant::now();
+                    }
+                    match response {
+                        Response::Ok => {}
+                        Response::Error(code) => {
+                            let (n, text) = answered.unwrap_or((0, String::new()));
+                            let message = format!("controller answered error:{code} ({}) to {}", wire::error_message(code), describe(n, &text));
+                            out.errors.push(LineError { line: n, code, message: message.clone() });
+                            // In check mode nothing moves: go on and report every bad line.
+                            if !options.check_mode {
+                                fault = Some(message);
+                            }
+                        }
+                        Response::Alarm(code) => {
+                            out.alarms.push(code);
+                            let after = if out.last_acked_line > 0 { format!(" after {last_acked}") } else { String::new() };
+                            fault = Some(format!("controller raised ALARM:{code} ({}){after}", wire::alarm_message(code)));
+                        }
+                        Response::Banner(_) => {
+                            fault = Some(format!("the controller reset itself during the job (last acknowledged: {last_acked})"));
+                        }
+                        Response::Status(s) => {
+                            let nothing_queued = s.buffer.is_none_or(|(blocks, rx)| {
+                                rx as usize >= rx_buffer && link.book.planner_blocks.is_none_or(|p| blocks as usize >= p)
+                            });
+                            if s.state == MachineState::Idle && nothing_queued && !link.book.fifo.is_empty() {
+                                idle_with_lines_out += 1;
+                            } else {
+                                idle_with_lines_out = 0;
+                            }
+                            if idle_with_lines_out >= 2 {
+                                fault = Some(format!(
+                                    "the controller is idle with nothing queued while {} line(s) are unanswered: bytes were lost on the link (last acknowledged: {})",
+                                    link.book.fifo.len(), last_acked));
+                            }
+                            out.final_status = Some(s);
+                        }
+                        Response::Other(_) => tracing::warn!("unexpected line from the controller: {text}"),
+                        _ => {}
+                    }
+                }
+                command = async {
+                    match control.as_mut() {
+                        Some(rx) => rx.recv().await,
+                        None => std::future::pending().await,
+                    }
+                } => {
+                    match command {
+                        None => control = None,
+                        Some(Control::FeedHold) => link.send_realtime(realtime::FEED_HOLD).await?,
+                        Some(Control::Resume) => link.send_realtime(realtime::CYCLE_START).await?,
+                        Some(Control::Override(byte)) => link.send_realtime(byte).await?,
+                        Some(Control::Abort) => {
+                            fault = Some(format!(
+                                "aborted by the operator (last acknowledged: {})",
+                                describe(link.book.last_acked, &link.book.last_acked_text)
+                            ));
+                        }
+                    }
+                }
+                _ = ticker.tick() => {
+                    if !link.book.fifo.is_empty() && last_heard.elapsed() > options.silence_timeout {
+                        fault = Some(format!(
+                            "the controller has been silent (no answer, no status report) for {:.1} s with {} line(s) unanswered (last acknowledged: {})",
+                            last_heard.elapsed().as_secs_f64(), link.book.fifo.len(), describe(link.book.last_acked, &link.book.last_acked_text)));
+                        break;
+                    }
+                    link.send_realtime(realtime::STATUS).await?;
+                }
+            }
+        }
+        out.stream_time_s = secs(origin) - stream_start;
+
+        if let Some(reason) = fault {
+            out.final_status = link.safe_stop().await;
+            out.last_acked_line = link.book.last_acked;
+            out.last_executed_line = link.book.last_executed;
+            out.stop_reason = Some(reason);
+            out.bytes_sent = link.bytes_sent;
+            return Ok(out);
+        }
+        if options.check_mode {
+            // Leaving check mode answers ok and resets the controller (banner).
+            link.command("$C").await?;
+            let _ = link
+                .wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_)))
+                .await?;
+            out.final_status = link.query_status(Duration::from_secs(2)).await?;
+            out.bytes_sent = link.bytes_sent;
+            out.completed = out.errors.is_empty();
+            if let Some(first) = out.errors.first() {
+                out.stop_reason = Some(format!(
+                    "{} line(s) rejected; first: {}",
+                    out.errors.len(),
+                    first.message
+                ));
+            }
+            return Ok(out);
+        }
+        // Every line is answered; wait until the machine has finished moving.
+        loop {
+            match link.query_status(Duration::from_secs(2)).await? {
+                Some(s) if s.state == MachineState::Idle => {
+                    out.final_status = Some(s);
+                    out.last_executed_line = Some(out.last_acked_line);
+                    break;
+                }
+                Some(s) if matches!(s.state, MachineState::Alarm) => {
+                    out.stop_reason =
+                        Some("the controller went into alarm at the end of the job".into());
+                    out.final_status = Some(s);
+                    out.bytes_sent = link.bytes_sent;
+                    return Ok(out);
+                }
+                Some(_) => tokio::time::sleep(options.status_interval).await,
+                None => {
+                    out.stop_reason =
+                        Some("the controller stopped answering at the end of the job".into());
+                    out.bytes_sent = link.bytes_sent;
+                    return Ok(out);
+                }
+            }
+        }
+        out.bytes_sent = link.bytes_sent;
+        out.completed = true;
+        Ok(out)
+    }
+}
+
+/// Connects and streams `lines` (see [`Connection::stream`]), the whole job in
+/// one call.
 pub async fn stream<T, I, F>(
     io: T,
     lines: I,
@@ -325,222 +754,8 @@ where
     I: IntoIterator<Item = Result<String>>,
     F: FnMut(f64, LinkEvent),
 {
-    let mut lines = lines.into_iter();
-    let (read_half, write_half) = tokio::io::split(io);
-    let origin = Instant::now();
-    let mut link = Link {
-        reader: BufReader::new(read_half).split(b'\n'),
-        writer: write_half,
-        origin,
-        on_event,
-        bytes_sent: 0,
-        book: Book::default(),
-    };
-
-    // Connect: a controller announces itself with its banner; one that did so
-    // before we listened is asked again with a soft reset (nothing moves yet).
-    let is_banner = |r: &Response| matches!(r, Response::Banner(_));
-    if link.wait_for(Duration::from_millis(500), is_banner).await?.is_none() {
-        link.send_realtime(realtime::SOFT_RESET).await?;
-        if link.wait_for(Duration::from_millis(2500), is_banner).await?.is_none() {
-            return Err(Error::Stream("no GRBL banner from the controller within 3 s of connecting".into()));
-        }
-    }
-    let status = link
-        .query_status(Duration::from_secs(2))
-        .await?
-        .ok_or_else(|| Error::Stream("the controller does not answer status requests".into()))?;
-    if matches!(status.state, MachineState::Alarm) {
-        return Err(Error::Stream("the controller is in alarm: home ($H) or unlock ($X) it first".into()));
-    }
-    if let Some(start) = &options.expect_start {
-        let off = start.iter().zip(&status.mpos).any(|(a, b)| (a - b).abs() > 0.01);
-        if off || status.mpos.len() < start.len() {
-            return Err(Error::Stream(format!(
-                "the machine is at {:?} but the program starts at {:?}: home it first",
-                status.mpos, start
-            )));
-        }
-    }
-
-    if options.check_mode {
-        if let Response::Error(code) = link.command("$C").await? {
-            return Err(Error::Stream(format!("the controller refused check mode ($C): error:{code} ({})", wire::error_message(code))));
-        }
-    }
-
-    // An idle controller reports its whole planner and receive buffer free: learn
-    // their sizes, and never count on more receive buffer than it has.
-    let mut rx_buffer = options.rx_buffer;
-    if let (MachineState::Idle, Some((blocks, rx))) = (&status.state, status.buffer) {
-        link.book.planner_blocks = Some(blocks as usize);
-        if (rx as usize) < rx_buffer {
-            tracing::warn!("the controller's receive buffer is {rx} bytes, less than the configured {rx_buffer}: using {rx}");
-            rx_buffer = rx as usize;
-        }
-    }
-
-    let mut out = StreamOutcome { final_status: Some(status), ..Default::default() };
-    let stream_start = secs(origin);
-    // Consecutive status reports showing an idle controller with nothing queued
-    // while lines are unanswered: bytes were lost on the way.
-    let mut idle_with_lines_out = 0;
-    let mut next: Option<String> = None;
-    let mut next_number = 0usize;
-    let mut exhausted = false;
-    let mut ticker = tokio::time::interval(options.status_interval);
-    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut last_heard = Instant::now();
-    let mut fault: Option<String> = None;
-
-    while fault.is_none() {
-        loop {
-            if next.is_none() && !exhausted {
-                match lines.next() {
-                    None => exhausted = true,
-                    Some(Err(e)) => {
-                        fault = Some(format!("cannot read line {}: {e}", next_number + 1));
-                        break;
-                    }
-                    Some(Ok(text)) => {
-                        next_number += 1;
-                        if text.len() + 1 > rx_buffer {
-                            fault = Some(format!("{}: longer than the controller's receive buffer", describe(next_number, &text)));
-                            break;
-                        }
-                        next = Some(text);
-                    }
-                }
-            }
-            // A line goes out when it and its `\n` fit in what is left of the buffer.
-            match next.take() {
-                Some(text)
-                    if link.book.in_flight + text.len() < rx_buffer
-                        && (!options.send_response || link.book.fifo.is_empty()) =>
-                {
-                    link.send_line(next_number, &text).await?;
-                    link.book.sent(next_number, &text);
-                    out.lines_sent += 1;
-                }
-                other => {
-                    next = other;
-                    break;
-                }
-            }
-        }
-        if fault.is_some() || (exhausted && next.is_none() && link.book.fifo.is_empty()) {
-            break;
-        }
-        tokio::select! {
-            line = link.next_line() => {
-                let Some((text, response, answered)) = line? else {
-                    fault = Some("the controller closed the link".into());
-                    break;
-                };
-                out.last_acked_line = link.book.last_acked;
-                let last_acked = describe(link.book.last_acked, &link.book.last_acked_text);
-                // Garbage is not a sign of life: a controller that only babbles
-                // is as gone as a silent one.
-                if !matches!(response, Response::Other(_)) {
-                    last_heard = Instant::now();
-                }
-                match response {
-                    Response::Ok => {}
-                    Response::Error(code) => {
-                        let (n, text) = answered.unwrap_or((0, String::new()));
-                        let message = format!("controller answered error:{code} ({}) to {}", wire::error_message(code), describe(n, &text));
-                        out.errors.push(LineError { line: n, code, message: message.clone() });
-                        // In check mode nothing moves: go on and report every bad line.
-                        if !options.check_mode {
-                            fault = Some(message);
-                        }
-                    }
-                    Response::Alarm(code) => {
-                        out.alarms.push(code);
-                        let after = if out.last_acked_line > 0 { format!(" after {last_acked}") } else { String::new() };
-                        fault = Some(format!("controller raised ALARM:{code} ({}){after}", wire::alarm_message(code)));
-                    }
-                    Response::Banner(_) => {
-                        fault = Some(format!("the controller reset itself during the job (last acknowledged: {last_acked})"));
-                    }
-                    Response::Status(s) => {
-                        let nothing_queued = s.buffer.is_none_or(|(blocks, rx)| {
-                            rx as usize >= rx_buffer && link.book.planner_blocks.is_none_or(|p| blocks as usize >= p)
-                        });
-                        if s.state == MachineState::Idle && nothing_queued && !link.book.fifo.is_empty() {
-                            idle_with_lines_out += 1;
-                        } else {
-                            idle_with_lines_out = 0;
-                        }
-                        if idle_with_lines_out >= 2 {
-                            fault = Some(format!(
-                                "the controller is idle with nothing queued while {} line(s) are unanswered: bytes were lost on the link (last acknowledged: {})",
-                                link.book.fifo.len(), last_acked));
-                        }
-                        out.final_status = Some(s);
-                    }
-                    Response::Other(_) => tracing::warn!("unexpected line from the controller: {text}"),
-                    _ => {}
-                }
-            }
-            _ = ticker.tick() => {
-                if !link.book.fifo.is_empty() && last_heard.elapsed() > options.silence_timeout {
-                    fault = Some(format!(
-                        "the controller has been silent (no answer, no status report) for {:.1} s with {} line(s) unanswered (last acknowledged: {})",
-                        last_heard.elapsed().as_secs_f64(), link.book.fifo.len(), describe(link.book.last_acked, &link.book.last_acked_text)));
-                    break;
-                }
-                link.send_realtime(realtime::STATUS).await?;
-            }
-        }
-    }
-    out.stream_time_s = secs(origin) - stream_start;
-
-    if let Some(reason) = fault {
-        out.final_status = link.safe_stop().await;
-        out.last_acked_line = link.book.last_acked;
-        out.last_executed_line = link.book.last_executed;
-        out.stop_reason = Some(reason);
-        out.bytes_sent = link.bytes_sent;
-        return Ok(out);
-    }
-    if options.check_mode {
-        // Leaving check mode answers ok and resets the controller (banner).
-        link.command("$C").await?;
-        let _ = link.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_))).await?;
-        out.final_status = link.query_status(Duration::from_secs(2)).await?;
-        out.bytes_sent = link.bytes_sent;
-        out.completed = out.errors.is_empty();
-        if let Some(first) = out.errors.first() {
-            out.stop_reason = Some(format!("{} line(s) rejected; first: {}", out.errors.len(), first.message));
-        }
-        return Ok(out);
-    }
-    // Every line is answered; wait until the machine has finished moving.
-    loop {
-        match link.query_status(Duration::from_secs(2)).await? {
-            Some(s) if s.state == MachineState::Idle => {
-                out.final_status = Some(s);
-                out.last_executed_line = Some(out.last_acked_line);
-                break;
-            }
-            Some(s) if matches!(s.state, MachineState::Alarm) => {
-                out.stop_reason = Some("the controller went into alarm at the end of the job".into());
-                out.final_status = Some(s);
-                out.bytes_sent = link.bytes_sent;
-                return Ok(out);
-            }
-            Some(_) => tokio::time::sleep(options.status_interval).await,
-            None => {
-                out.stop_reason = Some("the controller stopped answering at the end of the job".into());
-                out.bytes_sent = link.bytes_sent;
-                return Ok(out);
-            }
-        }
-    }
-    out.bytes_sent = link.bytes_sent;
-    out.completed = true;
-    Ok(out)
+    let mut connection = Connection::open(io, options, on_event).await?;
+    connection.stream(lines, describe, None).await
 }
 
 #[cfg(test)]
@@ -551,8 +766,14 @@ mod tests {
     /// A scripted controller: banner, status on `?`, one answer per line after a
     /// delay, `error:20` on line `fail_on`. Asserts it never holds more than
     /// `rx` unanswered bytes (what GRBL's receive buffer could take).
-    async fn fake_controller(mut io: DuplexStream, rx: usize, fail_on: Option<usize>) -> (usize, Vec<u8>) {
-        io.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n").await.unwrap();
+    async fn fake_controller(
+        mut io: DuplexStream,
+        rx: usize,
+        fail_on: Option<usize>,
+    ) -> (usize, Vec<u8>) {
+        io.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n")
+            .await
+            .unwrap();
         let mut pending: VecDeque<usize> = VecDeque::new();
         let mut current = 0usize;
         let mut lines = 0usize;
@@ -567,15 +788,28 @@ mod tests {
                     for &b in &buf[..n] {
                         match b {
                             b'?' => {
-                                let state = if realtime_seen.contains(&b'!') { "Hold:0" } else if pending.is_empty() { "Idle" } else { "Run" };
-                                io.write_all(format!("<{state}|MPos:0.000,0.000|Bf:15,128|FS:0,0>\r\n").as_bytes()).await.unwrap();
+                                let state = if realtime_seen.contains(&b'!') {
+                                    "Hold:0"
+                                } else if pending.is_empty() {
+                                    "Idle"
+                                } else {
+                                    "Run"
+                                };
+                                io.write_all(
+                                    format!("<{state}|MPos:0.000,0.000|Bf:15,128|FS:0,0>\r\n")
+                                        .as_bytes(),
+                                )
+                                .await
+                                .unwrap();
                             }
                             b'!' | 0x18 => {
                                 realtime_seen.push(b);
                                 if b == 0x18 {
                                     pending.clear();
                                     realtime_seen.retain(|&c| c != b'!');
-                                    io.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n").await.unwrap();
+                                    io.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n")
+                                        .await
+                                        .unwrap();
                                 }
                             }
                             b'\n' => {
@@ -592,18 +826,27 @@ mod tests {
                     // Answer the oldest line once per tick: a slow controller.
                     if pending.pop_front().is_some() {
                         lines += 1;
-                        let answer = if Some(lines) == fail_on { "error:20\r\n" } else { "ok\r\n" };
+                        let answer = if Some(lines) == fail_on {
+                            "error:20\r\n"
+                        } else {
+                            "ok\r\n"
+                        };
                         io.write_all(answer.as_bytes()).await.unwrap();
                     }
                 }
             }
-            assert!(max_in_flight <= rx, "{max_in_flight} bytes in flight > receive buffer {rx}");
+            assert!(
+                max_in_flight <= rx,
+                "{max_in_flight} bytes in flight > receive buffer {rx}"
+            );
         }
         (lines, realtime_seen)
     }
 
     fn program(n: usize) -> Vec<String> {
-        (0..n).map(|i| format!("G1X{}.12345Y{}.54321F60000", i, i)).collect()
+        (0..n)
+            .map(|i| format!("G1X{}.12345Y{}.54321F60000", i, i))
+            .collect()
     }
 
     #[tokio::test(start_paused = true)]
@@ -613,18 +856,27 @@ mod tests {
         let opts = SenderOptions::new(128, 5.0);
         let controller = tokio::spawn(fake_controller(b, 128, None));
         let mut sent = 0;
-        let out = stream(a, lines.iter().cloned().map(Ok), &opts, &|n, _| format!("line {n}"), |_, e| {
-            if matches!(e, LinkEvent::Sent { .. }) {
-                sent += 1
-            }
-        })
+        let out = stream(
+            a,
+            lines.iter().cloned().map(Ok),
+            &opts,
+            &|n, _| format!("line {n}"),
+            |_, e| {
+                if matches!(e, LinkEvent::Sent { .. }) {
+                    sent += 1
+                }
+            },
+        )
         .await
         .unwrap();
         assert!(out.completed, "{:?}", out.stop_reason);
         assert_eq!(out.last_acked_line, 60);
         assert_eq!(out.lines_sent, 60);
         assert_eq!(sent, 60);
-        assert_eq!(out.bytes_sent, lines.iter().map(|l| l.len() + 1).sum::<usize>());
+        assert_eq!(
+            out.bytes_sent,
+            lines.iter().map(|l| l.len() + 1).sum::<usize>()
+        );
         drop(controller);
     }
 
@@ -634,11 +886,23 @@ mod tests {
         let lines = program(60);
         let opts = SenderOptions::new(128, 5.0);
         let controller = tokio::spawn(fake_controller(b, 128, Some(17)));
-        let out = stream(a, lines.iter().cloned().map(Ok), &opts, &|n, _| format!("G-code line {n}"), |_, _| {}).await.unwrap();
+        let out = stream(
+            a,
+            lines.iter().cloned().map(Ok),
+            &opts,
+            &|n, _| format!("G-code line {n}"),
+            |_, _| {},
+        )
+        .await
+        .unwrap();
         assert!(!out.completed);
         assert_eq!(out.errors[0].line, 17);
-        assert!(out.stop_reason.unwrap().contains("error:20") );
-        assert!(out.lines_sent < 17 + 5, "stopped sending at the error: {}", out.lines_sent);
+        assert!(out.stop_reason.unwrap().contains("error:20"));
+        assert!(
+            out.lines_sent < 17 + 5,
+            "stopped sending at the error: {}",
+            out.lines_sent
+        );
         assert_eq!(out.last_acked_line, 16);
         drop(controller);
     }
@@ -656,14 +920,24 @@ mod tests {
                     break;
                 }
                 if buf[..n].contains(&b'?') {
-                    b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n").await.unwrap();
+                    b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n")
+                        .await
+                        .unwrap();
                     break;
                 }
             }
             tokio::time::sleep(Duration::from_secs(3600)).await;
         });
         let opts = SenderOptions::new(128, 5.0);
-        let out = stream(a, program(10).into_iter().map(Ok), &opts, &|n, _| format!("line {n}"), |_, _| {}).await.unwrap();
+        let out = stream(
+            a,
+            program(10).into_iter().map(Ok),
+            &opts,
+            &|n, _| format!("line {n}"),
+            |_, _| {},
+        )
+        .await
+        .unwrap();
         assert!(!out.completed);
         assert!(out.stop_reason.unwrap().contains("silent"));
         keep.abort();
@@ -677,7 +951,9 @@ mod tests {
             let mut buf = [0u8; 64];
             let n = b.read(&mut buf).await.unwrap_or(0);
             if buf[..n].contains(&b'?') {
-                b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n").await.unwrap();
+                b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n")
+                    .await
+                    .unwrap();
             }
             loop {
                 if b.write_all(b"\x07#~garbage~#\r\n").await.is_err() {
@@ -687,7 +963,15 @@ mod tests {
             }
         });
         let opts = SenderOptions::new(128, 5.0);
-        let out = stream(a, program(10).into_iter().map(Ok), &opts, &|n, _| format!("line {n}"), |_, _| {}).await.unwrap();
+        let out = stream(
+            a,
+            program(10).into_iter().map(Ok),
+            &opts,
+            &|n, _| format!("line {n}"),
+            |_, _| {},
+        )
+        .await
+        .unwrap();
         assert!(!out.completed);
         assert!(out.stop_reason.unwrap().contains("silent"));
         babble.abort();

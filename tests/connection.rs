@@ -1,0 +1,88 @@
+//! The sender as a library API, against the in-process simulator in virtual
+//! time: jog, unlock, and the operator's hold, resume, override and abort
+//! while a job streams.
+
+use std::path::Path;
+use std::time::Duration;
+
+use laserd::config::MachineConfig;
+use laserd::plan::PlannerKind;
+use laserd::run;
+use laserd::stream::{in_process, Connection, Control, SenderOptions};
+use laserd_sim::controller::{Controller, Faults};
+use laserd_sim::wire::{realtime, MachineState};
+use tokio::sync::{mpsc, watch};
+
+#[test]
+fn jog_unlock_hold_resume_override_and_abort() {
+    let machine = MachineConfig::load(None).unwrap();
+    let job = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/one-field.svg");
+    let planned = run::plan(&job, &machine, PlannerKind::Nearest, None).unwrap();
+    let lines: Vec<String> = planned.program.lines.iter().map(|l| l.text.clone()).collect();
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().start_paused(true).build().unwrap();
+    runtime.block_on(async {
+        let (sender_io, sim_io) = tokio::io::duplex(1 << 16);
+        let origin = tokio::time::Instant::now();
+        let (stop_tx, stop_rx) = watch::channel(false);
+        let controller = Controller::new(run::sim_config(&machine, Faults::default()));
+        let sim = in_process::run(controller, sim_io, machine.serial.baud, origin, stop_rx, |_| {});
+        let operator = async {
+            let options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+            let heard = std::cell::RefCell::new(Vec::<String>::new());
+            let mut c = Connection::open(sender_io, &options, |_, e| {
+                if let laserd::stream::LinkEvent::Received { text } = e {
+                    heard.borrow_mut().push(text);
+                }
+            })
+            .await
+            .unwrap();
+            assert_eq!(c.status().await.unwrap().state, MachineState::Idle);
+            c.unlock().await.unwrap();
+
+            // Jog out and back; the controller reports Jog meanwhile.
+            c.jog("G91X10F600").await.unwrap();
+            tokio::time::sleep(Duration::from_millis(300)).await;
+            assert_eq!(c.status().await.unwrap().state, MachineState::Jog);
+            tokio::time::sleep(Duration::from_secs(2)).await;
+            assert_eq!(c.status().await.unwrap().mpos[0], 10.0);
+            assert!(c.jog("G90X-5F600").await.is_err(), "beyond travel: error 15");
+            c.jog("G90X0F600").await.unwrap();
+            tokio::time::sleep(Duration::from_secs(2)).await;
+            assert_eq!(c.status().await.unwrap().mpos[0], 0.0);
+
+            // A job with a hold, an override and a resume: it completes.
+            let (tx, mut rx) = mpsc::unbounded_channel();
+            let buttons = async {
+                tokio::time::sleep(Duration::from_millis(800)).await;
+                tx.send(Control::FeedHold).unwrap();
+                tokio::time::sleep(Duration::from_millis(500)).await;
+                tx.send(Control::Override(realtime::FEED_OVR_RESET)).unwrap();
+                tx.send(Control::Resume).unwrap();
+            };
+            let describe = |n: usize, _: &str| format!("line {n}");
+            let (outcome, _) = tokio::join!(c.stream(lines.iter().cloned().map(Ok), &describe, Some(&mut rx)), buttons);
+            let outcome = outcome.unwrap();
+            assert!(outcome.completed, "{:?}", outcome.stop_reason);
+            assert_eq!(outcome.last_executed_line, Some(lines.len()));
+            assert!(heard.borrow().iter().any(|t| t.starts_with("<Hold:0")), "the hold took effect");
+
+            // The same job aborted half way: held, reset, laser off.
+            let (tx, mut rx) = mpsc::unbounded_channel();
+            let abort = async {
+                tokio::time::sleep(Duration::from_millis(1200)).await;
+                tx.send(Control::Abort).unwrap();
+            };
+            let (outcome, _) = tokio::join!(c.stream(lines.iter().cloned().map(Ok), &describe, Some(&mut rx)), abort);
+            let outcome = outcome.unwrap();
+            assert!(!outcome.completed);
+            assert!(outcome.stop_reason.as_deref().unwrap().contains("aborted by the operator"));
+            let executed = outcome.last_executed_line.unwrap();
+            assert!(executed > 2 && executed < lines.len(), "{executed}");
+            let status = outcome.final_status.unwrap();
+            assert_eq!(status.state, MachineState::Idle);
+            assert_eq!(status.spindle.unwrap_or(0.0), 0.0);
+            let _ = stop_tx.send(true);
+        };
+        tokio::join!(sim, operator);
+    });
+}
