@@ -1,6 +1,6 @@
 //! The sender as a library API, against the in-process simulator in virtual
-//! time: jog, unlock, and the operator's hold, resume, override and abort
-//! while a job streams.
+//! time: jog, unlock, the operator's hold, resume, override and abort while a
+//! job streams, and resuming the job from a line.
 
 use std::path::Path;
 use std::time::Duration;
@@ -14,7 +14,7 @@ use laserd_sim::wire::{realtime, MachineState};
 use tokio::sync::{mpsc, watch};
 
 #[test]
-fn jog_unlock_hold_resume_override_and_abort() {
+fn jog_unlock_hold_resume_override_abort_and_resume_from_a_line() {
     let machine = MachineConfig::load(None).unwrap();
     let job = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/one-field.svg");
     let planned = run::plan(&job, &machine, PlannerKind::Nearest, None).unwrap();
@@ -25,7 +25,8 @@ fn jog_unlock_hold_resume_override_and_abort() {
         let origin = tokio::time::Instant::now();
         let (stop_tx, stop_rx) = watch::channel(false);
         let controller = Controller::new(run::sim_config(&machine, Faults::default()));
-        let sim = in_process::run(controller, sim_io, machine.serial.baud, origin, stop_rx, |_| {});
+        let knots = std::cell::RefCell::new(Vec::new());
+        let sim = in_process::run(controller, sim_io, machine.serial.baud, origin, stop_rx, |k| knots.borrow_mut().extend(k));
         let operator = async {
             let options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
             let heard = std::cell::RefCell::new(Vec::<String>::new());
@@ -81,6 +82,20 @@ fn jog_unlock_hold_resume_override_and_abort() {
             let status = outcome.final_status.unwrap();
             assert_eq!(status.state, MachineState::Idle);
             assert_eq!(status.spindle.unwrap_or(0.0), 0.0);
+
+            // Resume right after the last executed line: modes, position and
+            // laser come back, and the job finishes where the plan ends.
+            let knots_before = knots.borrow().len();
+            let letters = machine.axis_letters();
+            let outcome = c.resume(lines.iter().cloned().map(Ok), executed + 1, &letters, &describe, None).await.unwrap();
+            assert!(outcome.completed, "{:?}", outcome.stop_reason);
+            assert_eq!(outcome.last_acked_line, lines.len(), "numbered as in the program");
+            let end = c.status().await.unwrap().mpos;
+            let planned_end = planned.trajectory.segments.last().map(|s| s.state_at(s.duration())).unwrap();
+            assert!((end[0] - planned_end.stage.x).abs() < 1e-3 && (end[2] - planned_end.scanner.x).abs() < 1e-3, "{end:?}");
+            // The move back into place ran with the laser off.
+            let resumed = &knots.borrow()[knots_before..];
+            assert!(resumed.len() > 2 && resumed[1].power == 0.0, "{:?}", &resumed[..2]);
             let _ = stop_tx.send(true);
         };
         tokio::join!(sim, operator);

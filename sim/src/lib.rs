@@ -2,12 +2,13 @@
 //!
 //! * [`wire`]: protocol definitions shared by sender and simulator;
 //! * [`controller`]: the controller state machine, driven by an external clock;
+//! * [`gcode`]: Grbl's line cleaning and word splitting, shared with the sender;
 //! * [`limits`]: an independent kinematic limit checker over executed knots;
 //! * [`link`]: serial byte pacing;
 //! * [`pty`]: the real-time driver on a pseudo-terminal.
 
 pub mod controller;
-mod gcode;
+pub mod gcode;
 pub mod limits;
 pub mod link;
 pub mod pty;

@@ -504,11 +504,51 @@ where
         &mut self,
         lines: I,
         describe: &dyn Fn(usize, &str) -> String,
-        mut control: Option<&mut tokio::sync::mpsc::UnboundedReceiver<Control>>,
+        control: Option<&mut tokio::sync::mpsc::UnboundedReceiver<Control>>,
     ) -> Result<StreamOutcome>
     where
         I: IntoIterator<Item = Result<String>>,
     {
+        self.stream_from(lines.into_iter(), 1, true, describe, control).await
+    }
+
+    /// Resumes a program at line `from` (1-based) after an interruption: reads
+    /// the lines before it to rebuild the modal state and position, brings the
+    /// controller there (modes, a move with the laser off, laser and feed
+    /// modes), then streams from line `from` on, numbered as in the program.
+    pub async fn resume<I>(
+        &mut self,
+        lines: I,
+        from: usize,
+        axis_letters: &[char],
+        describe: &dyn Fn(usize, &str) -> String,
+        control: Option<&mut tokio::sync::mpsc::UnboundedReceiver<Control>>,
+    ) -> Result<StreamOutcome>
+    where
+        I: IntoIterator<Item = Result<String>>,
+    {
+        let mut lines = lines.into_iter();
+        let mut state = super::resume::ModalState::new(axis_letters);
+        for n in 1..from {
+            match lines.next() {
+                Some(line) => state.apply(&line?),
+                None => return Err(Error::Stream(format!("cannot resume at line {from}: the program has {} line(s)", n - 1))),
+            }
+        }
+        for line in state.preamble() {
+            self.expect_ok(&line).await?;
+        }
+        self.stream_from(lines, from, false, describe, control).await
+    }
+
+    async fn stream_from(
+        &mut self,
+        mut lines: impl Iterator<Item = Result<String>>,
+        first_line: usize,
+        check_start: bool,
+        describe: &dyn Fn(usize, &str) -> String,
+        mut control: Option<&mut tokio::sync::mpsc::UnboundedReceiver<Control>>,
+    ) -> Result<StreamOutcome> {
         let status = match self.fresh_status.take() {
             Some(s) => s,
             None => self.status().await?,
@@ -518,7 +558,7 @@ where
                 "the controller is in alarm: home ($H) or unlock ($X) it first".into(),
             ));
         }
-        if let Some(start) = &self.options.expect_start {
+        if let Some(start) = self.options.expect_start.as_ref().filter(|_| check_start) {
             let off = start
                 .iter()
                 .zip(&status.mpos)
@@ -538,7 +578,8 @@ where
                 )));
             }
         }
-        let mut lines = lines.into_iter();
+        // A new job: fresh books (the controller's sizes stay known).
+        self.link.book = Book { planner_blocks: self.link.book.planner_blocks, ..Book::default() };
         let options = self.options.clone();
         let rx_buffer = self.rx_buffer;
         let origin = self.link.origin;
@@ -552,7 +593,7 @@ where
         // while lines are unanswered: bytes were lost on the way.
         let mut idle_with_lines_out = 0;
         let mut next: Option<String> = None;
-        let mut next_number = 0usize;
+        let mut next_number = first_line.saturating_sub(1);
         let mut exhausted = false;
         let mut ticker = tokio::time::interval(options.status_interval);
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
