@@ -306,6 +306,9 @@ pub struct Controller {
     last_rx_t: f64,
     /// Bytes arrived on the wire so far (for fault injection).
     bytes_received: u64,
+    /// Status reports until WCO and Ov are included again.
+    wco_countdown: u32,
+    ov_countdown: u32,
 }
 
 const EPS_POS: f64 = 1e-9;
@@ -348,6 +351,8 @@ impl Controller {
             starve_acc: 0.0,
             last_rx_t: 0.0,
             bytes_received: 0,
+            wco_countdown: 0,
+            ov_countdown: 1,
         };
         c.out.extend_from_slice(format!("\r\n{BANNER}\r\n").as_bytes());
         c
@@ -482,7 +487,7 @@ impl Controller {
         self.send(&format!("error:{code}"));
     }
 
-    fn status_report(&self) -> StatusReport {
+    fn status_report(&mut self) -> StatusReport {
         let used = self.planner.len() + usize::from(self.exec.is_some());
         let (feed, line) = match &self.exec {
             Some(e) => {
@@ -492,9 +497,37 @@ impl Controller {
             }
             None => (0.0, None),
         };
+        // WCO comes in the first report after a reset or an offset change, then
+        // every 10th (idle) / 30th (busy); Ov in the second, on a change, then
+        // every 10th / 20th, a report later when WCO takes its turn (reference §4).
+        let busy = used > 0;
+        let wco = if self.wco_countdown == 0 {
+            self.wco_countdown = if busy { 29 } else { 9 };
+            Some(self.g92.clone())
+        } else {
+            self.wco_countdown -= 1;
+            None
+        };
+        let overrides = if self.ov_countdown == 0 && wco.is_none() {
+            self.ov_countdown = if busy { 19 } else { 9 };
+            Some([self.ovr_feed, self.ovr_rapid, self.ovr_spindle])
+        } else {
+            self.ov_countdown = self.ov_countdown.saturating_sub(1);
+            None
+        };
+        let accessories = overrides.and_then(|_| {
+            let mut a = String::new();
+            match self.modal.spindle {
+                Spindle::Cw => a.push('S'),
+                Spindle::Ccw => a.push('C'),
+                Spindle::Off => {}
+            }
+            if self.modal.flood {
+                a.push('F');
+            }
+            (!a.is_empty()).then_some(a)
+        });
         StatusReport {
-            state: self.state(),
-            mpos: self.position(),
             buffer: Some((
                 self.cfg.planner_blocks.saturating_sub(used) as u32,
                 self.cfg.rx_buffer.saturating_sub(self.rx.len()) as u32,
@@ -502,6 +535,10 @@ impl Controller {
             line,
             feed: Some(feed),
             spindle: Some(self.laser_power()),
+            wco,
+            overrides,
+            accessories,
+            ..StatusReport::new(self.state(), self.position())
         }
     }
 
@@ -509,6 +546,10 @@ impl Controller {
 
     fn realtime(&mut self, b: u8) {
         use crate::wire::realtime::*;
+        if (FEED_OVR_RESET..=SPINDLE_OVR_FINE_MINUS).contains(&b) && !self.critical {
+            // An override change shows in the next report.
+            self.ov_countdown = 0;
+        }
         match b {
             SOFT_RESET => self.soft_reset(),
             // A critical alarm ignores everything but reset (reference §5).
@@ -566,6 +607,8 @@ impl Controller {
         self.ovr_feed = 100;
         self.ovr_rapid = 100;
         self.ovr_spindle = 100;
+        self.wco_countdown = 0;
+        self.ov_countdown = 1;
         self.check_mode = false;
         self.hold = false;
         self.critical = false;
@@ -1462,6 +1505,9 @@ impl Controller {
         m.coord = new_coord;
         m.tool = tool;
         m.feed = feed;
+        if self.g92 != new_g92 {
+            self.wco_countdown = 0;
+        }
         self.g92 = new_g92;
         match stop {
             Some(0) => steps.extend([Step::Sync, Step::Pause]),

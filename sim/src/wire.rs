@@ -123,6 +123,22 @@ pub struct StatusReport {
     pub feed: Option<f64>,
     /// `FS:` spindle speed / laser S.
     pub spindle: Option<f64>,
+    /// `WPos:` when the controller reports work positions instead (`$10` bit 0
+    /// clear); `mpos` is then empty.
+    #[serde(default)]
+    pub wpos: Option<Vec<f64>>,
+    /// `WCO:` work coordinate offset (sent now and then: cache the last one).
+    #[serde(default)]
+    pub wco: Option<Vec<f64>>,
+    /// `Ov:` feed, rapid and spindle overrides in percent.
+    #[serde(default)]
+    pub overrides: Option<[u32; 3]>,
+    /// `Pn:` input pins triggered (letters).
+    #[serde(default)]
+    pub pins: Option<String>,
+    /// `A:` accessories on (`S` M3, `C` M4, `F` flood, `M` mist).
+    #[serde(default)]
+    pub accessories: Option<String>,
 }
 
 /// Formats with a fixed number of decimals; avoids printing `-0.000`.
@@ -136,10 +152,40 @@ pub fn fmt_num(x: f64, decimals: usize) -> String {
 }
 
 impl StatusReport {
-    /// `<Run|MPos:1.000,2.000|Bf:15,128|Ln:3|FS:500,0>` without CR/LF.
+    /// A report with the state and machine position only.
+    pub fn new(state: MachineState, mpos: Vec<f64>) -> StatusReport {
+        StatusReport {
+            state,
+            mpos,
+            buffer: None,
+            line: None,
+            feed: None,
+            spindle: None,
+            wpos: None,
+            wco: None,
+            overrides: None,
+            pins: None,
+            accessories: None,
+        }
+    }
+
+    /// The reported position: machine position, or work position when the
+    /// controller reports that instead.
+    pub fn position(&self) -> &[f64] {
+        match (&self.wpos, self.mpos.is_empty()) {
+            (Some(w), true) => w,
+            _ => &self.mpos,
+        }
+    }
+
+    /// `<Run|MPos:1.000,2.000|Bf:15,128|Ln:3|FS:500,0|WCO:0.000,0.000>` without
+    /// CR/LF, fields in Grbl's order.
     pub fn to_line(&self) -> String {
-        let pos: Vec<String> = self.mpos.iter().map(|v| fmt_num(*v, 3)).collect();
-        let mut s = format!("<{}|MPos:{}", self.state.as_field(), pos.join(","));
+        let join = |v: &[f64]| v.iter().map(|x| fmt_num(*x, 3)).collect::<Vec<_>>().join(",");
+        let mut s = match (&self.wpos, self.mpos.is_empty()) {
+            (Some(w), true) => format!("<{}|WPos:{}", self.state.as_field(), join(w)),
+            _ => format!("<{}|MPos:{}", self.state.as_field(), join(&self.mpos)),
+        };
         if let Some((b, r)) = self.buffer {
             s.push_str(&format!("|Bf:{b},{r}"));
         }
@@ -155,6 +201,18 @@ impl StatusReport {
                 fmt_num(sp.unwrap_or(0.0), 0)
             )),
         }
+        if let Some(p) = &self.pins {
+            s.push_str(&format!("|Pn:{p}"));
+        }
+        if let Some(w) = &self.wco {
+            s.push_str(&format!("|WCO:{}", join(w)));
+        }
+        if let Some([f, r, sp]) = self.overrides {
+            s.push_str(&format!("|Ov:{f},{r},{sp}"));
+        }
+        if let Some(a) = &self.accessories {
+            s.push_str(&format!("|A:{a}"));
+        }
         s.push('>');
         s
     }
@@ -169,7 +227,7 @@ impl StatusReport {
             .ok_or_else(|| WireError::NotStatus(t.to_string()))?;
         let mut fields = inner.split('|');
         let state = MachineState::parse_field(fields.next().unwrap_or(""))?;
-        let mut rep = StatusReport { state, mpos: Vec::new(), buffer: None, line: None, feed: None, spindle: None };
+        let mut rep = StatusReport::new(state, Vec::new());
         let mut have_pos = false;
         for field in fields {
             let Some((key, val)) = field.split_once(':') else { continue };
@@ -199,6 +257,20 @@ impl StatusReport {
                     rep.spindle = Some(v[1]);
                 }
                 "F" => rep.feed = Some(val.trim().parse().map_err(|_| bad())?),
+                "WPos" => {
+                    rep.wpos = Some(nums()?);
+                    have_pos = true;
+                }
+                "WCO" => rep.wco = Some(nums()?),
+                "Ov" => {
+                    let v = nums()?;
+                    if v.len() != 3 || v.iter().any(|x| *x < 0.0) {
+                        return Err(bad());
+                    }
+                    rep.overrides = Some([v[0] as u32, v[1] as u32, v[2] as u32]);
+                }
+                "Pn" => rep.pins = Some(val.to_string()),
+                "A" => rep.accessories = Some(val.to_string()),
                 _ => {}
             }
         }
@@ -320,12 +392,11 @@ mod tests {
     #[test]
     fn status_round_trip() {
         let r = StatusReport {
-            state: MachineState::Run,
-            mpos: vec![1.0, 2.0, -0.0001, 300.5],
             buffer: Some((15, 128)),
             line: Some(7),
             feed: Some(500.0),
             spindle: Some(0.0),
+            ..StatusReport::new(MachineState::Run, vec![1.0, 2.0, -0.0001, 300.5])
         };
         let s = r.to_line();
         assert_eq!(s, "<Run|MPos:1.000,2.000,0.000,300.500|Bf:15,128|Ln:7|FS:500,0>");
@@ -344,7 +415,13 @@ mod tests {
         assert_eq!(r.buffer, Some((14, 100)));
         assert_eq!(r.feed, Some(0.0));
         assert!(StatusReport::parse("<Bogus|MPos:0>").is_err());
-        assert!(StatusReport::parse("<Idle|WPos:0,0>").is_err());
+        let w = StatusReport::parse("<Idle|WPos:1,2|WCO:0.5,0|Ov:100,50,110|A:CF|Pn:XZ>").unwrap();
+        assert_eq!((w.mpos.len(), w.position()), (0, &[1.0, 2.0][..]));
+        assert_eq!(w.wco, Some(vec![0.5, 0.0]));
+        assert_eq!(w.overrides, Some([100, 50, 110]));
+        assert_eq!((w.accessories.as_deref(), w.pins.as_deref()), (Some("CF"), Some("XZ")));
+        assert_eq!(StatusReport::parse(&w.to_line()).unwrap(), w);
+        assert!(StatusReport::parse("<Idle|Bf:1,2>").is_err(), "a position is required");
         assert!(StatusReport::parse("<Idle|MPos:a,0>").is_err());
         assert!(StatusReport::parse("Idle|MPos:0").is_err());
     }

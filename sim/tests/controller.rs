@@ -94,7 +94,7 @@ fn banner_and_idle_status() {
     let mut s = Sim::new(cfg());
     assert_eq!(s.texts(), vec![BANNER]);
     let st = s.status();
-    assert_eq!(s.lines.last().unwrap().1, "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0>");
+    assert_eq!(s.lines.last().unwrap().1, "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|WCO:0.000,0.000>", "WCO in the first report after reset");
     assert_eq!(st.state, MachineState::Idle);
 }
 
@@ -540,4 +540,30 @@ fn jogging() {
     s.run_until(s.t + 5.0);
     assert_eq!(s.ctl.position()[0], x, "nothing runs after the cancel");
     assert_eq!(s.ctl.position()[1], 0.0);
+}
+
+#[test]
+fn wco_and_overrides_come_in_their_turn() {
+    let mut s = Sim::new(cfg());
+    let first = s.status();
+    assert!(first.wco.is_some() && first.overrides.is_none(), "WCO in the first report after reset");
+    let second = s.status();
+    assert_eq!(second.overrides, Some([100, 100, 100]), "Ov in the second");
+    assert!(second.wco.is_none());
+    let quiet: Vec<StatusReport> = (0..8).map(|_| s.status()).collect();
+    assert!(quiet.iter().all(|r| r.wco.is_none()), "then WCO every tenth report");
+    assert!(s.status().wco.is_some());
+    // An override change and the laser on show in the next report that has room.
+    s.realtime(realtime::FEED_OVR_COARSE_PLUS);
+    s.send("M4 S100\n");
+    s.run_until(s.t + 0.1);
+    let r = s.status();
+    assert_eq!(r.overrides, Some([110, 100, 100]));
+    assert_eq!(r.accessories.as_deref(), Some("C"));
+    // An offset change brings WCO back at once.
+    s.send("G92 X-5\n");
+    s.run_until(s.t + 0.1);
+    assert_eq!(s.status().wco, Some(vec![5.0, 0.0]));
+    let line = s.lines.iter().rev().find(|(_, l)| l.starts_with('<')).unwrap().1.clone();
+    assert!(line.contains("|WCO:5.000,0.000"), "{line}");
 }

@@ -561,12 +561,12 @@ where
         if let Some(start) = self.options.expect_start.as_ref().filter(|_| check_start) {
             let off = start
                 .iter()
-                .zip(&status.mpos)
+                .zip(status.position())
                 .any(|(a, b)| (a - b).abs() > 0.01);
-            if off || status.mpos.len() < start.len() {
+            if off || status.position().len() < start.len() {
                 return Err(Error::Stream(format!(
                     "the machine is at {:?} but the program starts at {:?}: home it first",
-                    status.mpos, start
+                    status.position(), start
                 )));
             }
         }
