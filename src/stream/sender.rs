@@ -948,6 +948,16 @@ mod tests {
         drop(controller);
     }
 
+    /// Streams ten lines to a controller that will not answer them sensibly:
+    /// the stream must stop, calling the controller silent.
+    async fn assert_streaming_stops_as_silent(a: DuplexStream) {
+        let opts = SenderOptions::new(128, 5.0);
+        let lines = program(10).into_iter().map(Ok);
+        let out = stream(a, lines, &opts, &|n, _| format!("line {n}"), |_, _| {}).await.unwrap();
+        assert!(!out.completed);
+        assert!(out.stop_reason.unwrap().contains("silent"));
+    }
+
     #[tokio::test(start_paused = true)]
     async fn a_silent_controller_is_detected() {
         let (a, mut b) = tokio::io::duplex(4096);
@@ -969,18 +979,7 @@ mod tests {
             }
             tokio::time::sleep(Duration::from_secs(3600)).await;
         });
-        let opts = SenderOptions::new(128, 5.0);
-        let out = stream(
-            a,
-            program(10).into_iter().map(Ok),
-            &opts,
-            &|n, _| format!("line {n}"),
-            |_, _| {},
-        )
-        .await
-        .unwrap();
-        assert!(!out.completed);
-        assert!(out.stop_reason.unwrap().contains("silent"));
+        assert_streaming_stops_as_silent(a).await;
         keep.abort();
     }
 
@@ -1003,18 +1002,7 @@ mod tests {
                 tokio::time::sleep(Duration::from_millis(50)).await;
             }
         });
-        let opts = SenderOptions::new(128, 5.0);
-        let out = stream(
-            a,
-            program(10).into_iter().map(Ok),
-            &opts,
-            &|n, _| format!("line {n}"),
-            |_, _| {},
-        )
-        .await
-        .unwrap();
-        assert!(!out.completed);
-        assert!(out.stop_reason.unwrap().contains("silent"));
+        assert_streaming_stops_as_silent(a).await;
         babble.abort();
     }
 }
