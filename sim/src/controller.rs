@@ -1073,6 +1073,15 @@ impl Controller {
                 self.send("[MSG:Enabled]");
             }
             "H" => return Err(5),
+            "RST=$" | "RST=#" | "RST=*" => {
+                if self.busy() {
+                    return Err(8);
+                }
+                // Settings and offsets come from the config here, so restoring
+                // them changes nothing; the message and the reset are Grbl's.
+                self.send("[MSG:Restoring defaults]");
+                return Ok((Vec::new(), true));
+            }
             "SLP" => {
                 if self.busy() {
                     return Err(8);

@@ -55,6 +55,8 @@ fn responses_match_the_reference_exactly() {
         (&["G0X100F100\n"], "\u{18}", &["ALARM:3", "", BANNER, "[MSG:'$H'|'$X' to unlock]"]),
         (&["$SLP\n"], "G0X1\n", &["error:9"]),
         (&[], "M2\n", &["[MSG:Pgm End]", "ok"]),
+        (&[], "$RST=$\n", &["[MSG:Restoring defaults]", "ok", BANNER]),
+        (&[], "$RST=x\n", &["error:3"]),
     ];
     for (before, input, expected) in cases {
         let mut s = Sim::new(cfg());
