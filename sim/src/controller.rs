@@ -289,6 +289,10 @@ pub struct Controller {
     g92: Vec<f64>,
     modal: Modal,
     hold: bool,
+    /// A safety-door hold is in force (until the door is closed and `~`).
+    door: bool,
+    /// The door switch: open or closed.
+    door_open: bool,
     alarm: bool,
     /// Soft-limit alarm before reset: everything is locked out.
     critical: bool,
@@ -337,6 +341,8 @@ impl Controller {
             g92: vec![0.0; n],
             modal: Modal::default(),
             hold: false,
+            door: false,
+            door_open: false,
             alarm: false,
             critical: false,
             check_mode: false,
@@ -388,6 +394,9 @@ impl Controller {
             MachineState::Sleep
         } else if self.alarm {
             MachineState::Alarm
+        } else if self.door {
+            // 2: stopping, 1: stopped with the door open, 0: closed, ready to resume.
+            MachineState::Door(if self.exec.is_some() { 2 } else if self.door_open { 1 } else { 0 })
         } else if self.hold {
             MachineState::Hold(if self.exec.is_some() { 1 } else { 0 })
         } else if self.check_mode {
@@ -564,8 +573,10 @@ impl Controller {
                 self.hold = true;
                 self.pause_starvation();
             }
-            CYCLE_START if self.hold && !self.alarm => {
+            SAFETY_DOOR if !(self.alarm || self.sleep) => self.open_door(),
+            CYCLE_START if self.hold && !self.alarm && !(self.door && self.door_open) => {
                 self.hold = false;
+                self.door = false;
                 if self.exec.is_none() {
                     if self.planner.is_empty() {
                         self.mark_idle(self.now);
@@ -588,7 +599,7 @@ impl Controller {
             SPINDLE_OVR_FINE_PLUS => self.ovr_spindle = (self.ovr_spindle + 1).min(200),
             SPINDLE_OVR_FINE_MINUS => self.ovr_spindle = self.ovr_spindle.saturating_sub(1).max(10),
             COOLANT_FLOOD_TOGGLE if !self.alarm && !self.sleep => self.modal.flood = !self.modal.flood,
-            // Safety door, spindle stop and mist are not modelled.
+            // Spindle stop and mist are not modelled.
             _ => {}
         }
     }
@@ -611,6 +622,7 @@ impl Controller {
         self.ov_countdown = 1;
         self.check_mode = false;
         self.hold = false;
+        self.door = false;
         self.critical = false;
         if self.sleep {
             // Leaving sleep always goes through Alarm (reference §7).
@@ -991,6 +1003,29 @@ impl Controller {
             return Ok(Vec::new());
         }
         Ok(vec![Step::Queue(block)])
+    }
+
+    /// The safety door switch (an input of the machine, not a byte on the link):
+    /// opening it holds the machine with the laser off, as `0x84` does; after
+    /// closing it, `~` resumes.
+    pub fn set_door(&mut self, open: bool) {
+        if open {
+            self.open_door();
+        } else {
+            self.door_open = false;
+        }
+    }
+
+    fn open_door(&mut self) {
+        self.door_open = true;
+        if self.jogging() {
+            self.cancel_jog();
+        }
+        if !self.check_mode {
+            self.door = true;
+            self.hold = true;
+            self.pause_starvation();
+        }
     }
 
     /// Jog cancel: stop the jog and drop every queued jog block.

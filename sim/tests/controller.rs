@@ -484,3 +484,24 @@ fn wco_and_overrides_come_in_their_turn() {
     let line = s.lines.iter().rev().find(|(_, l)| l.starts_with('<')).unwrap().1.clone();
     assert!(line.contains("|WCO:5.000,0.000"), "{line}");
 }
+
+#[test]
+fn safety_door_holds_until_closed_and_resumed() {
+    let mut s = Sim::new(cfg());
+    s.send("G93 M4 S300\nG1X5F60\nG1X10F60\n");
+    s.run_until(0.5);
+    assert_eq!(s.ctl.state(), MachineState::Run);
+    s.realtime(realtime::SAFETY_DOOR);
+    assert_eq!(s.ctl.state(), MachineState::Door(2), "stopping");
+    s.run_until(2.0);
+    assert_eq!(s.ctl.state(), MachineState::Door(1), "stopped, door open");
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    s.realtime(realtime::CYCLE_START);
+    assert_eq!(s.ctl.state(), MachineState::Door(1), "no resume with the door open");
+    s.ctl.set_door(false);
+    assert_eq!(s.ctl.state(), MachineState::Door(0));
+    s.realtime(realtime::CYCLE_START);
+    assert_eq!(s.ctl.state(), MachineState::Run);
+    s.run_until(4.0);
+    assert_eq!(s.ctl.position(), vec![10.0, 0.0], "the job finishes after the door closed");
+}
