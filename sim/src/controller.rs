@@ -313,6 +313,8 @@ pub struct Controller {
     /// Status reports until WCO and Ov are included again.
     wco_countdown: u32,
     ov_countdown: u32,
+    /// `$n=value` writes: kept across soft resets, as Grbl keeps its EEPROM.
+    written_settings: std::collections::BTreeMap<u32, f64>,
 }
 
 const EPS_POS: f64 = 1e-9;
@@ -359,6 +361,7 @@ impl Controller {
             bytes_received: 0,
             wco_countdown: 0,
             ov_countdown: 1,
+            written_settings: std::collections::BTreeMap::new(),
         };
         c.out.extend_from_slice(format!("\r\n{BANNER}\r\n").as_bytes());
         c
@@ -536,18 +539,29 @@ impl Controller {
             }
             (!a.is_empty()).then_some(a)
         });
+        let mask = self.status_mask();
+        let position = self.position();
+        let (mpos, wpos) = if mask & 1 == 1 {
+            (position, None)
+        } else {
+            // WPos = MPos - WCO.
+            (Vec::new(), Some(position.iter().zip(&self.g92).map(|(p, o)| p - o).collect()))
+        };
         StatusReport {
-            buffer: Some((
-                self.cfg.planner_blocks.saturating_sub(used) as u32,
-                self.cfg.rx_buffer.saturating_sub(self.rx.len()) as u32,
-            )),
+            buffer: (mask & 2 == 2).then(|| {
+                (
+                    self.cfg.planner_blocks.saturating_sub(used) as u32,
+                    self.cfg.rx_buffer.saturating_sub(self.rx.len()) as u32,
+                )
+            }),
             line,
             feed: Some(feed),
             spindle: Some(self.laser_power()),
+            wpos,
             wco,
             overrides,
             accessories,
-            ..StatusReport::new(self.state(), self.position())
+            ..StatusReport::new(self.state(), mpos)
         }
     }
 
@@ -1125,19 +1139,14 @@ impl Controller {
                 self.send("[MSG:Sleeping]");
             }
             _ => {
-                // `$n=value`: settings come from SimConfig; writing the value
-                // already in effect is accepted, anything else is refused.
+                // `$n=value`: written like Grbl's EEPROM, kept across resets.
                 let (n, v) = cmd.split_once('=').ok_or(3u16)?;
                 let n: u32 = n.parse().map_err(|_| 3u16)?;
                 let v: f64 = v.parse().map_err(|_| 3u16)?;
                 if self.busy() {
                     return Err(8);
                 }
-                let cur = self.settings().into_iter().find(|(k, _)| *k == n).ok_or(3u16)?;
-                let cur: f64 = cur.1.parse().map_err(|_| 3u16)?;
-                if (cur - v).abs() > 5e-4 {
-                    return Err(3);
-                }
+                self.write_setting(n, v)?;
             }
         }
         done
@@ -1183,7 +1192,45 @@ impl Controller {
         for (i, a) in axes.iter().enumerate() {
             s.push((130 + i as u32, fmt_num(a.max - a.min, 3)));
         }
+        // Written values win; integer settings print without decimals.
+        for (n, text) in &mut s {
+            if let Some(v) = self.written_settings.get(n) {
+                *text = if text.contains('.') { fmt_num(*v, 3) } else { fmt_num(*v, 0) };
+            }
+        }
         s
+    }
+
+    /// The `$10` status report mask in force (bit 0: MPos, else WPos; bit 1: Bf).
+    fn status_mask(&self) -> u32 {
+        self.written_settings.get(&10).map_or(3, |v| *v as u32)
+    }
+
+    /// Writes setting `n` (`$n=value`), with the effect Grbl gives it.
+    fn write_setting(&mut self, n: u32, v: f64) -> Result<(), u16> {
+        let known = self.settings().iter().any(|(k, _)| *k == n);
+        if !known {
+            return Err(3);
+        }
+        if v < 0.0 {
+            return Err(4);
+        }
+        if n == 0 && v < 3.0 {
+            return Err(6);
+        }
+        let axis = |base: u32| (n >= base && n < base + 10).then(|| (n - base) as usize);
+        if let Some(i) = axis(110) {
+            self.cfg.axes[i].max_velocity = v / 60.0;
+        } else if let Some(i) = axis(120) {
+            self.cfg.axes[i].max_acceleration = v;
+        } else if let Some(i) = axis(130) {
+            let a = &mut self.cfg.axes[i];
+            a.max = a.min + v;
+        } else if n == 30 {
+            self.cfg.laser_max_s = v;
+        }
+        self.written_settings.insert(n, v);
+        Ok(())
     }
 
     fn gc_line(&self) -> String {

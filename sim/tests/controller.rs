@@ -256,7 +256,9 @@ fn error_codes() {
         ("F-1", 4),
         ("$Q", 3),
         ("$H", 5),
-        ("$110=1", 3),
+        ("$999=1", 3),
+        ("$0=2", 6),
+        ("$11=-1", 4),
     ];
     for (line, code) in cases {
         let mut s = Sim::new(cfg());
@@ -504,4 +506,31 @@ fn safety_door_holds_until_closed_and_resumed() {
     assert_eq!(s.ctl.state(), MachineState::Run);
     s.run_until(4.0);
     assert_eq!(s.ctl.position(), vec![10.0, 0.0], "the job finishes after the door closed");
+}
+
+#[test]
+fn settings_are_written_act_and_survive_a_reset() {
+    let mut s = Sim::new(cfg());
+    s.send("$110=600\n$130=50\n$10=0\n$32=1\n");
+    s.run_until(0.2);
+    assert!(s.responses().iter().all(|r| r.1 == Response::Ok), "{:?}", s.responses());
+    s.realtime(realtime::SOFT_RESET);
+    s.send("$$\n");
+    s.run_until(0.4);
+    let t = s.texts();
+    assert!(t.contains(&"$110=600.000") && t.contains(&"$130=50.000") && t.contains(&"$10=0"), "kept across the reset: {t:?}");
+    // $10=0: work positions, no buffer field.
+    let r = s.status();
+    assert!(r.mpos.is_empty() && r.wpos.is_some() && r.buffer.is_none(), "{r:?}");
+    // The new travel is a soft limit; the new rate limits G0.
+    s.send("G0X40\n");
+    s.run_until(0.5);
+    s.run_until(10.0);
+    let moved = s.knots.last().unwrap();
+    assert_eq!(moved.pos[0], 40.0);
+    let took = moved.t - s.knots[s.knots.len() - 2].t;
+    assert!(close(took, 4.0), "40 mm at 600 mm/min: {took}");
+    s.send("G0X60\n");
+    s.run_until(11.0);
+    assert!(s.texts().contains(&"ALARM:2"));
 }
