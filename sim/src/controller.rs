@@ -234,6 +234,8 @@ struct Block {
     ends_sequence: bool,
     /// A `$J=` jog block.
     jog: bool,
+    /// A `$H` homing move.
+    homing: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -404,6 +406,8 @@ impl Controller {
             MachineState::Hold(if self.exec.is_some() { 1 } else { 0 })
         } else if self.check_mode {
             MachineState::Check
+        } else if self.exec.as_ref().is_some_and(|e| e.block.homing) {
+            MachineState::Home
         } else if self.jogging() {
             MachineState::Jog
         } else if self.exec.is_some() {
@@ -620,6 +624,7 @@ impl Controller {
 
     fn soft_reset(&mut self) {
         let moving = self.exec.is_some();
+        let homing = self.exec.as_ref().is_some_and(|e| e.block.homing);
         self.stop_motion_now();
         self.planner.clear();
         self.rx.clear();
@@ -646,8 +651,10 @@ impl Controller {
         self.reset_starvation();
         if moving {
             self.alarm = true;
-            self.stats.alarms.push(3);
-            self.send("ALARM:3");
+            // A reset during homing fails the cycle (6); otherwise position is lost (3).
+            let code = if homing { 6 } else { 3 };
+            self.stats.alarms.push(code);
+            self.send(&format!("ALARM:{code}"));
         }
         self.out.extend_from_slice(format!("\r\n{BANNER}\r\n").as_bytes());
         if self.alarm {
@@ -854,7 +861,8 @@ impl Controller {
         while let Some(step) = p.steps.front() {
             match step {
                 Step::Sync => {
-                    if !stopped {
+                    // Checked live: a block this same line queued must finish too.
+                    if self.exec.is_some() || !self.planner.is_empty() {
                         break;
                     }
                 }
@@ -1011,6 +1019,7 @@ impl Controller {
             gentle: false,
             ends_sequence: true,
             jog: true,
+            homing: false,
         };
         self.gc_pos = target;
         if self.check_mode {
@@ -1121,7 +1130,40 @@ impl Controller {
                 self.check_mode = true;
                 self.send("[MSG:Enabled]");
             }
-            "H" => return Err(5),
+            "H" => {
+                // Homing only when enabled ($22=1), from Idle or Alarm. The
+                // machine has no switches to seek: it moves every axis to its
+                // home (0) at the seek rate ($25), answers when there, and
+                // clears the alarm as a successful cycle does.
+                if self.written_settings.get(&22).is_none_or(|v| *v != 1.0) {
+                    return Err(5);
+                }
+                if self.busy() || self.sleep {
+                    return Err(8);
+                }
+                self.alarm = false;
+                let seek = self.written_settings.get(&25).copied().unwrap_or(500.0) / 60.0;
+                let home = vec![0.0; self.pos.len()];
+                let duration = self.pos.iter().map(|p| p.abs() / seek).fold(0.0, f64::max);
+                self.gc_pos = home.clone();
+                if duration <= 0.0 {
+                    return done;
+                }
+                let block = Block {
+                    target: home,
+                    duration,
+                    min_duration: 0.0,
+                    rapid: true,
+                    power: 0.0,
+                    line: self.line_count,
+                    n_word: None,
+                    gentle: false,
+                    ends_sequence: true,
+                    jog: false,
+                    homing: true,
+                };
+                return Ok((vec![Step::Queue(block), Step::Sync], false));
+            }
             "RST=$" | "RST=#" | "RST=*" => {
                 if self.busy() {
                     return Err(8);
@@ -1553,6 +1595,7 @@ impl Controller {
                 gentle: false,
                 ends_sequence: false,
                 jog: false,
+                homing: false,
             });
             prev = p.clone();
         }

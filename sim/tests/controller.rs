@@ -534,3 +534,32 @@ fn settings_are_written_act_and_survive_a_reset() {
     s.run_until(11.0);
     assert!(s.texts().contains(&"ALARM:2"));
 }
+
+#[test]
+fn homing_when_enabled() {
+    let mut s = Sim::new(cfg());
+    s.send("$H\n");
+    s.run_until(0.1);
+    assert_eq!(s.responses().last().unwrap().1, Response::Error(5), "homing disabled by default");
+    s.send("$22=1\n$25=600\nG0X20\n");
+    s.run_until(2.0);
+    s.send("$H\n");
+    s.run_until(2.5);
+    assert_eq!(s.ctl.state(), MachineState::Home);
+    let oks_before = s.responses().len();
+    s.run_until(5.0);
+    assert_eq!(s.ctl.state(), MachineState::Idle);
+    assert_eq!(s.ctl.position(), vec![0.0, 0.0]);
+    assert_eq!(s.responses().len(), oks_before + 1, "the ok comes when homing is done: {:?}", s.lines);
+    // A reset during homing fails the cycle: ALARM:6; homing again clears it.
+    s.send("G0X20\n");
+    s.run_until(8.0);
+    s.send("$H\n");
+    s.run_until(8.5);
+    s.realtime(realtime::SOFT_RESET);
+    assert!(s.texts().contains(&"ALARM:6"));
+    assert_eq!(s.ctl.state(), MachineState::Alarm);
+    s.send("$H\n");
+    s.run_until(12.0);
+    assert_eq!(s.ctl.state(), MachineState::Idle);
+}

@@ -145,11 +145,16 @@ where
     /// A command of the sender's own (not a program line), answered before
     /// anything else is sent: waits for its `ok` or `error:N`.
     async fn command(&mut self, text: &str) -> Result<Response> {
+        self.command_within(text, Duration::from_secs(3)).await
+    }
+
+    /// `command` for commands that answer only when done (homing).
+    async fn command_within(&mut self, text: &str, limit: Duration) -> Result<Response> {
         let before = self.bytes_sent;
         self.send_line(0, text).await?;
         self.book.sent(0, text);
         self.bytes_sent = before;
-        self.wait_for(Duration::from_secs(3), |r| {
+        self.wait_for(limit, |r| {
             matches!(r, Response::Ok | Response::Error(_))
         })
         .await?
@@ -479,9 +484,14 @@ where
         self.expect_ok("$X").await
     }
 
-    /// Runs the homing cycle (`$H`); the answer comes when it is done.
+    /// Runs the homing cycle (`$H`); the answer comes when it is done, which
+    /// may take as long as crossing the whole travel at the seek rate.
     pub async fn home(&mut self) -> Result<()> {
-        self.expect_ok("$H").await
+        self.fresh_status = None;
+        match self.link.command_within("$H", Duration::from_secs(300)).await? {
+            Response::Error(code) => Err(Error::Stream(format!("`$H` refused: error:{code} ({})", wire::error_message(code)))),
+            _ => Ok(()),
+        }
     }
 
     /// Jogs (`$J=` + a block such as `G91 X10 F600`).
