@@ -119,18 +119,18 @@ where
     W: AsyncWrite + Unpin,
     F: FnMut(f64, LinkEvent),
 {
+    /// Puts bytes on the wire now (flushed: the link must not sit on them).
+    async fn write(&mut self, bytes: &[u8]) -> Result<()> {
+        let failed = |e: std::io::Error| Error::Stream(format!("write failed: {e}"));
+        self.writer.write_all(bytes).await.map_err(failed)?;
+        self.writer.flush().await.map_err(failed)
+    }
+
     async fn send_line(&mut self, line: usize, text: &str) -> Result<()> {
         let mut bytes = Vec::with_capacity(text.len() + 1);
         bytes.extend_from_slice(text.as_bytes());
         bytes.push(b'\n');
-        self.writer
-            .write_all(&bytes)
-            .await
-            .map_err(|e| Error::Stream(format!("write failed: {e}")))?;
-        self.writer
-            .flush()
-            .await
-            .map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        self.write(&bytes).await?;
         self.bytes_sent += bytes.len();
         (self.on_event)(
             secs(self.origin),
@@ -162,14 +162,7 @@ where
     }
 
     async fn send_realtime(&mut self, byte: u8) -> Result<()> {
-        self.writer
-            .write_all(&[byte])
-            .await
-            .map_err(|e| Error::Stream(format!("write failed: {e}")))?;
-        self.writer
-            .flush()
-            .await
-            .map_err(|e| Error::Stream(format!("write failed: {e}")))?;
+        self.write(&[byte]).await?;
         (self.on_event)(secs(self.origin), LinkEvent::Realtime { byte });
         Ok(())
     }
@@ -467,16 +460,20 @@ where
         Ok(status)
     }
 
-    /// Sends a command of the sender's own and waits for its answer.
-    async fn expect_ok(&mut self, command: &str) -> Result<()> {
+    /// Sends a command of the sender's own and waits (up to `limit`) for its answer.
+    async fn expect_ok_within(&mut self, command: &str, limit: Duration) -> Result<()> {
         self.fresh_status = None;
-        match self.link.command(command).await? {
+        match self.link.command_within(command, limit).await? {
             Response::Error(code) => Err(Error::Stream(format!(
                 "`{command}` refused: error:{code} ({})",
                 wire::error_message(code)
             ))),
             _ => Ok(()),
         }
+    }
+
+    async fn expect_ok(&mut self, command: &str) -> Result<()> {
+        self.expect_ok_within(command, Duration::from_secs(3)).await
     }
 
     /// Clears an alarm (`$X`).
@@ -487,11 +484,7 @@ where
     /// Runs the homing cycle (`$H`); the answer comes when it is done, which
     /// may take as long as crossing the whole travel at the seek rate.
     pub async fn home(&mut self) -> Result<()> {
-        self.fresh_status = None;
-        match self.link.command_within("$H", Duration::from_secs(300)).await? {
-            Response::Error(code) => Err(Error::Stream(format!("`$H` refused: error:{code} ({})", wire::error_message(code)))),
-            _ => Ok(()),
-        }
+        self.expect_ok_within("$H", Duration::from_secs(300)).await
     }
 
     /// Jogs (`$J=` + a block such as `G91 X10 F600`).
