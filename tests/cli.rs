@@ -1,7 +1,11 @@
 //! The command line as a user runs it: the binary, real files, exit codes.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+
+use common::SimProcess;
 
 fn laserd(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_laserd")).args(args).current_dir(dir).output().expect("laserd runs")
@@ -168,17 +172,9 @@ print(json.dumps(counts))
 /// line the controller rejects, naming the file and line.
 #[test]
 fn send_streams_a_file_to_the_simulator_and_names_a_rejected_line() {
-    use std::io::{BufRead, BufReader};
-    use std::process::Stdio;
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttySEND");
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_laserd"))
-        .args(["sim", "--link", link.to_str().unwrap(), "--baud", "1000000"])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    BufReader::new(sim.stdout.take().unwrap()).read_line(&mut first).unwrap();
+    let _sim = SimProcess::start(&link, &["--baud", "1000000"]);
 
     let good = dir.path().join("good.nc");
     let mut text = String::from("G21G90G93\r\nM4S0\n");
@@ -213,8 +209,6 @@ fn send_streams_a_file_to_the_simulator_and_names_a_rejected_line() {
     assert_eq!(report["errors"][0]["line"], 4);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.nc:4 `G1Z1F600`") && err.contains("error:20"), "{err}");
-    let _ = sim.kill();
-    let _ = sim.wait();
 }
 
 /// `bench link`: character counting keeps a 115200-baud link busy with short
@@ -239,18 +233,10 @@ fn bench_link_reports_character_counting_against_send_response() {
 /// simulator's recording of what ran is complete.
 #[test]
 fn send_reports_the_pseudo_terminal_closing_mid_job() {
-    use std::io::{BufRead, BufReader};
-    use std::process::Stdio;
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttyGONE");
     let rec = dir.path().join("gone.mcap");
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_laserd"))
-        .args(["sim", "--link", link.to_str().unwrap(), "--baud", "1000000", "--record", rec.to_str().unwrap(), "--fault", "close-link-at-line=50"])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    BufReader::new(sim.stdout.take().unwrap()).read_line(&mut first).unwrap();
+    let sim = SimProcess::start(&link, &["--baud", "1000000", "--record", rec.to_str().unwrap(), "--fault", "close-link-at-line=50"]);
     let nc = dir.path().join("job.nc");
     let mut text = String::from("G21G90G93\n");
     for i in 1..=400 {
@@ -264,7 +250,7 @@ fn send_reports_the_pseudo_terminal_closing_mid_job() {
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(report["last_acked_line"].as_u64().unwrap() <= 50);
     // The simulator ends by itself with the link, and its recording is whole.
-    let status = sim.wait().unwrap();
+    let status = sim.wait();
     assert!(status.success());
     let replay = laserd::record::read(&rec).unwrap();
     assert!(replay.truncated.is_none());

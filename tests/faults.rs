@@ -74,7 +74,7 @@ fn assert_safe_and_recorded(dry: &DryRun, dir: &tempfile::TempDir) {
 
 #[test]
 fn a_dropped_line_end_is_caught_and_the_machine_stopped() {
-    let (p, _, _) = dry_run(Faults::default());
+    let (_, p) = planned();
     let n = middle_mark(&p);
     // Drop the `\n` of line n: lines n and n+1 arrive as one.
     let newline = first_byte_of(&p, n + 1) - 1;
@@ -87,7 +87,7 @@ fn a_dropped_line_end_is_caught_and_the_machine_stopped() {
 
 #[test]
 fn a_garbled_byte_is_caught_at_its_line() {
-    let (p, _, _) = dry_run(Faults::default());
+    let (_, p) = planned();
     let n = middle_mark(&p);
     let (_, dry, dir) = dry_run(Faults { corrupt_byte: Some(first_byte_of(&p, n)), ..Default::default() });
     assert_eq!(dry.outcome.errors.len(), 1);
@@ -98,7 +98,7 @@ fn a_garbled_byte_is_caught_at_its_line() {
 
 #[test]
 fn a_controller_that_stops_answering_is_held_within_a_second() {
-    let (p, _, _) = dry_run(Faults::default());
+    let (_, p) = planned();
     let n = middle_mark(&p);
     let (_, dry, dir) = dry_run(Faults { mute_from_line: Some(n as u64), ..Default::default() });
     let reason = dry.outcome.stop_reason.clone().unwrap();
@@ -119,7 +119,7 @@ fn a_controller_that_stops_answering_is_held_within_a_second() {
 
 #[test]
 fn a_controller_resetting_itself_mid_job_is_reported() {
-    let (p, _, _) = dry_run(Faults::default());
+    let (_, p) = planned();
     let n = middle_mark(&p);
     let (_, dry, dir) = dry_run(Faults { reset_at_line: Some(n as u64), ..Default::default() });
     let reason = dry.outcome.stop_reason.clone().unwrap();
@@ -132,7 +132,7 @@ fn a_controller_resetting_itself_mid_job_is_reported() {
 
 #[test]
 fn a_hard_limit_mid_job_stops_everything() {
-    let (p, _, _) = dry_run(Faults::default());
+    let (_, p) = planned();
     let n = middle_mark(&p);
     let (_, dry, dir) = dry_run(Faults { limit_alarm_at_line: Some(n as u64), ..Default::default() });
     assert_eq!(dry.outcome.alarms, vec![1]);
@@ -144,7 +144,7 @@ fn a_hard_limit_mid_job_stops_everything() {
 
 #[test]
 fn the_link_closing_mid_job_is_reported() {
-    let (p, _, _) = dry_run(Faults::default());
+    let (_, p) = planned();
     let n = middle_mark(&p);
     let (_, dry, dir) = dry_run(Faults { close_link_at_line: Some(n as u64), ..Default::default() });
     let reason = dry.outcome.stop_reason.clone().unwrap();
@@ -155,7 +155,7 @@ fn the_link_closing_mid_job_is_reported() {
 
 #[test]
 fn the_last_executed_line_matches_what_the_machine_ran() {
-    let (p, _, _) = dry_run(Faults::default());
+    let (_, p) = planned();
     let n = middle_mark(&p);
     let (_, dry, _) = dry_run(Faults { error_on_line: Some(n as u64), ..Default::default() });
     let ran = dry.log.knots.iter().map(|k| k.line as usize).max().unwrap();

@@ -1,10 +1,13 @@
 //! The pipeline through the library: a fault injected in the simulator, and a
 //! real pseudo-terminal between the sender and `laserd sim --pty` in real time.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::Duration;
+
+use common::SimProcess;
 
 use laserd::config::MachineConfig;
 use laserd::figures::{sim_figures, PlannedLine};
@@ -48,31 +51,12 @@ fn error_20_on_a_chosen_line_stops_the_job_there_with_the_laser_off() {
     assert_eq!(sim.limit_violations, 0, "{sim:?}");
 }
 
-/// Kills the simulator child on drop, so a failing test never leaves it running.
-struct Child(std::process::Child);
-impl Drop for Child {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 #[test]
 fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttyLASER");
     let rec = dir.path().join("sim.mcap");
-    let mut child = Child(
-        Command::new(env!("CARGO_BIN_EXE_laserd"))
-            .args(["sim", "--pty", "--baud", "115200", "--link", link.to_str().unwrap(), "--record", rec.to_str().unwrap()])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("laserd sim starts"),
-    );
-    let mut first = String::new();
-    BufReader::new(child.0.stdout.take().unwrap()).read_line(&mut first).unwrap();
-    assert_eq!(first.trim(), link.to_str().unwrap(), "prints the device path");
+    let sim = SimProcess::start(&link, &["--pty", "--baud", "115200", "--record", rec.to_str().unwrap()]);
 
     let machine = MachineConfig::load(None).unwrap();
     let planned = run::plan(&sample("one-field.svg"), &machine, PlannerKind::Nearest, None).unwrap();
@@ -95,8 +79,7 @@ fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
 
     // Stop the simulator cleanly so it finishes its recording, then compare the
     // motion it executed with the plan.
-    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.0.id() as i32), nix::sys::signal::Signal::SIGTERM).unwrap();
-    let status = child.0.wait().unwrap();
+    let status = sim.terminate();
     assert!(status.success());
     let replay = laserd::record::read(&rec).expect("the simulator's recording reads back");
     assert!(replay.truncated.is_none());
@@ -121,23 +104,14 @@ fn a_simulator_killed_mid_run_leaves_a_readable_recording() {
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttyCRASH");
     let rec = dir.path().join("crash.mcap");
-    let mut child = Child(
-        Command::new(env!("CARGO_BIN_EXE_laserd"))
-            .args(["sim", "--pty", "--link", link.to_str().unwrap(), "--record", rec.to_str().unwrap()])
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("laserd sim starts"),
-    );
-    let mut first = String::new();
-    BufReader::new(child.0.stdout.take().unwrap()).read_line(&mut first).unwrap();
+    let sim = SimProcess::start(&link, &["--pty", "--record", rec.to_str().unwrap()]);
     let mut port = std::fs::OpenOptions::new().read(true).write(true).open(&link).unwrap();
     port.write_all(b"G93\nG1X1F600\nG1X2F600\nG1X3F600\nG1X4F600\n").unwrap();
     // Let it move and record for longer than the recorder's flush interval.
     std::thread::sleep(Duration::from_millis(1600));
     let mut buf = [0u8; 512];
     let _ = port.read(&mut buf);
-    child.0.kill().unwrap(); // SIGKILL: no chance to finish the file
-    child.0.wait().unwrap();
+    sim.kill(); // SIGKILL: no chance to finish the file
     let replay = laserd::record::read(&rec).expect("what was flushed reads back");
     assert!(!replay.log.knots.is_empty(), "executed motion up to the crash is there");
     assert!(replay.log.setup.is_some());
