@@ -126,11 +126,15 @@ impl Default for ProgramConfig {
 #[serde(deny_unknown_fields)]
 pub struct SimulatorConfig {
     pub planner_blocks: usize,
+    /// How the simulated controller executes blocks: `timed` (each in its
+    /// programmed time) or `grbl` (Grbl 1.1's trapezoids and junction speeds).
+    #[serde(default)]
+    pub motion: laserd_sim::controller::MotionModel,
 }
 
 impl Default for SimulatorConfig {
     fn default() -> Self {
-        SimulatorConfig { planner_blocks: 15 }
+        SimulatorConfig { planner_blocks: 15, motion: Default::default() }
     }
 }
 

@@ -92,6 +92,7 @@ pub fn sim_config(machine: &MachineConfig, faults: Faults) -> SimConfig {
         rx_buffer: machine.serial.rx_buffer,
         planner_blocks: machine.simulator.planner_blocks,
         laser_max_s: machine.laser.max_power,
+        motion: machine.simulator.motion,
         faults,
     }
 }

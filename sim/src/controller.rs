@@ -47,6 +47,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::gcode::{split_words, LineBuilder};
+use crate::planner::{self, Kinematics, Planned, SegmentInput};
 use crate::wire::{fmt_num, MachineState, StatusReport, BANNER};
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -114,8 +115,26 @@ pub struct SimConfig {
     pub planner_blocks: usize,
     /// `$30`: S value for full laser power.
     pub laser_max_s: f64,
+    /// How the controller executes its blocks.
+    #[serde(default)]
+    pub motion: MotionModel,
     #[serde(default)]
     pub faults: Faults,
+}
+
+/// How planner blocks turn into motion.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum MotionModel {
+    /// Every block runs at constant velocity in exactly its programmed time (a
+    /// controller that keeps G93 timing, as laserd's programs assume); the limit
+    /// checker then judges what the sender planned.
+    #[default]
+    Timed,
+    /// Grbl 1.1's planner: trapezoidal speed profiles at each block's
+    /// acceleration, junction speeds from the junction deviation (`$11`),
+    /// the queue always planned to stop at its end, feed hold decelerating.
+    Grbl,
 }
 
 impl SimConfig {
@@ -135,6 +154,7 @@ impl Default for SimConfig {
             rx_buffer: 128,
             planner_blocks: 15,
             laser_max_s: 1000.0,
+            motion: MotionModel::default(),
             faults: Faults::default(),
         }
     }
@@ -236,14 +256,49 @@ struct Block {
     jog: bool,
     /// A `$H` homing move.
     homing: bool,
+    /// Geometry and limits, set when the block enters the planner.
+    kin: Kinematics,
 }
 
+impl Block {
+    /// A feed or rapid move to `target` taking `duration` seconds (at least
+    /// `min_duration`, the time at the axes' max velocities), laser off.
+    fn new(target: Vec<f64>, duration: f64, min_duration: f64, line: u64) -> Block {
+        Block {
+            target,
+            duration: duration.max(min_duration),
+            min_duration,
+            rapid: false,
+            power: 0.0,
+            line,
+            n_word: None,
+            gentle: false,
+            ends_sequence: false,
+            jog: false,
+            homing: false,
+            kin: Kinematics::default(),
+        }
+    }
+}
+
+/// The block executing now and the constant-speed segment of it that runs:
+/// from `start_pos` at `start_t` to `end_pos` at `end_t`. In the timed model
+/// the segment is the whole block.
 #[derive(Debug, Clone)]
 struct Exec {
     block: Block,
+    /// Where the block started.
+    origin: Vec<f64>,
     start_t: f64,
     end_t: f64,
     start_pos: Vec<f64>,
+    end_pos: Vec<f64>,
+    /// Distance along the block at the segment's end.
+    done: f64,
+    /// Speed of the profile at the segment's end.
+    speed: f64,
+    /// False when a feed hold has stopped the machine inside the block.
+    running: bool,
     power: f64,
 }
 
@@ -401,9 +456,9 @@ impl Controller {
             MachineState::Alarm
         } else if self.door {
             // 2: stopping, 1: stopped with the door open, 0: closed, ready to resume.
-            MachineState::Door(if self.exec.is_some() { 2 } else if self.door_open { 1 } else { 0 })
+            MachineState::Door(if self.moving() { 2 } else if self.door_open { 1 } else { 0 })
         } else if self.hold {
-            MachineState::Hold(if self.exec.is_some() { 1 } else { 0 })
+            MachineState::Hold(if self.moving() { 1 } else { 0 })
         } else if self.check_mode {
             MachineState::Check
         } else if self.exec.as_ref().is_some_and(|e| e.block.homing) {
@@ -427,12 +482,17 @@ impl Controller {
 
     /// Laser S in effect now, after override; 0 when off or not moving.
     pub fn laser_power(&self) -> f64 {
-        self.exec.as_ref().map_or(0.0, |e| e.power)
+        self.exec.as_ref().filter(|e| e.running).map_or(0.0, |e| e.power)
+    }
+
+    /// A segment of motion is running.
+    fn moving(&self) -> bool {
+        self.exec.as_ref().is_some_and(|e| e.running)
     }
 
     /// Earliest time at which `advance` has work to do without new input.
     pub fn next_event(&self) -> Option<f64> {
-        let a = self.exec.as_ref().map(|e| e.end_t);
+        let a = self.exec.as_ref().filter(|e| e.running).map(|e| e.end_t);
         let b = self.pending.as_ref().and_then(|p| p.dwell_until);
         // Blocks waiting for a stop point start when the link falls silent.
         let c = (self.exec.is_none() && !self.hold && !self.alarm && !self.planner.is_empty())
@@ -448,8 +508,8 @@ impl Controller {
             match self.next_event() {
                 Some(t) if t <= now => {
                     self.now = t.max(self.now);
-                    if self.exec.as_ref().is_some_and(|e| e.end_t <= self.now) {
-                        self.finish_block();
+                    if self.exec.as_ref().is_some_and(|e| e.running && e.end_t <= self.now) {
+                        self.finish_segment();
                     }
                 }
                 _ => break,
@@ -507,9 +567,9 @@ impl Controller {
         let used = self.planner.len() + usize::from(self.exec.is_some());
         let (feed, line) = match &self.exec {
             Some(e) => {
-                let len = dist(&e.start_pos, &e.block.target);
+                let len = dist(&e.start_pos, &e.end_pos);
                 let dur = e.end_t - e.start_t;
-                (if dur > 0.0 { len / dur * 60.0 } else { 0.0 }, e.block.n_word)
+                (if e.running && dur > 0.0 { len / dur * 60.0 } else { 0.0 }, e.block.n_word)
             }
             None => (0.0, None),
         };
@@ -577,6 +637,15 @@ impl Controller {
             // An override change shows in the next report.
             self.ov_countdown = 0;
         }
+        self.realtime_command(b);
+        if (FEED_OVR_RESET..=RAPID_OVR_LOW).contains(&b) {
+            // A speed override takes effect now, not at the end of a long segment.
+            self.replan_now();
+        }
+    }
+
+    fn realtime_command(&mut self, b: u8) {
+        use crate::wire::realtime::*;
         match b {
             SOFT_RESET => self.soft_reset(),
             // A critical alarm ignores everything but reset (reference §5).
@@ -590,17 +659,22 @@ impl Controller {
             FEED_HOLD if !(self.alarm || self.check_mode || self.sleep || self.hold) => {
                 self.hold = true;
                 self.pause_starvation();
+                self.replan_now();
             }
             SAFETY_DOOR if !(self.alarm || self.sleep) => self.open_door(),
             CYCLE_START if self.hold && !self.alarm && !(self.door && self.door_open) => {
                 self.hold = false;
                 self.door = false;
-                if self.exec.is_none() {
-                    if self.planner.is_empty() {
-                        self.mark_idle(self.now);
-                    } else {
-                        self.start_next(self.now, true);
+                match &self.exec {
+                    None if self.planner.is_empty() => self.mark_idle(self.now),
+                    None => self.start_next(self.now, true, 0.0),
+                    // Stopped inside a block (grbl model): start again from rest there.
+                    Some(e) if !e.running => {
+                        let knot = Knot { t: self.now, pos: e.end_pos.clone(), power: 0.0, line: e.block.line };
+                        self.knots.push(knot);
+                        self.next_segment(self.now);
                     }
+                    Some(_) => {}
                 }
             }
             FEED_OVR_RESET => self.ovr_feed = 100,
@@ -623,7 +697,7 @@ impl Controller {
     }
 
     fn soft_reset(&mut self) {
-        let moving = self.exec.is_some();
+        let moving = self.moving();
         let homing = self.exec.as_ref().is_some_and(|e| e.block.homing);
         self.stop_motion_now();
         self.planner.clear();
@@ -666,8 +740,10 @@ impl Controller {
     fn stop_motion_now(&mut self) {
         if let Some(e) = self.exec.take() {
             let p = interpolate(&e, self.now);
-            self.knots.push(Knot { t: self.now, pos: p.clone(), power: e.power, line: e.block.line });
-            self.stats.last_motion_end_t = Some(self.now);
+            if e.running {
+                self.knots.push(Knot { t: self.now, pos: p.clone(), power: e.power, line: e.block.line });
+                self.stats.last_motion_end_t = Some(self.now);
+            }
             self.pos = p;
         }
     }
@@ -697,11 +773,11 @@ impl Controller {
         self.planner.len() + usize::from(self.exec.is_some()) >= self.cfg.planner_blocks
     }
 
-    fn start_next(&mut self, t: f64, from_rest: bool) {
+    /// Starts the next queued block at `t`, entering it at `entry_speed` (grbl
+    /// model; the timed model runs every block at its own constant speed).
+    fn start_next(&mut self, t: f64, from_rest: bool, entry_speed: f64) {
         let Some(block) = self.planner.pop_front() else { return };
-        let scale = if block.rapid { self.ovr_rapid } else { self.ovr_feed } as f64 / 100.0;
-        let dur = (block.duration / scale).max(block.min_duration);
-        let power = if self.hold { 0.0 } else { (block.power * self.ovr_spindle as f64 / 100.0).min(self.cfg.laser_max_s) };
+        let power = if self.hold { 0.0 } else { self.block_power(&block) };
         if from_rest {
             // A restart at the instant the last block ended needs no knot of its own.
             if !self.knots.last().is_some_and(|k| k.t == t && k.pos == self.pos) {
@@ -714,26 +790,153 @@ impl Controller {
             self.starve_acc = 0.0;
         }
         self.stats.first_motion_t.get_or_insert(t);
-        self.exec = Some(Exec { start_t: t, end_t: t + dur, start_pos: self.pos.clone(), power, block });
+        let pos = self.pos.clone();
+        match self.cfg.motion {
+            MotionModel::Timed => {
+                let dur = self.block_time(&block);
+                let (target, length) = (block.target.clone(), block.kin.length);
+                self.exec = Some(Exec {
+                    origin: pos.clone(), start_t: t, end_t: t + dur, start_pos: pos, end_pos: target,
+                    done: length, speed: 0.0, running: true, power, block,
+                });
+            }
+            MotionModel::Grbl => {
+                self.exec = Some(Exec {
+                    origin: pos.clone(), start_t: t, end_t: t, start_pos: pos.clone(), end_pos: pos,
+                    done: 0.0, speed: entry_speed, running: false, power, block,
+                });
+                self.next_segment(t);
+            }
+        }
     }
 
-    fn finish_block(&mut self) {
-        let Some(e) = self.exec.take() else { return };
+    /// Laser S of a block after the spindle override.
+    fn block_power(&self, b: &Block) -> f64 {
+        (b.power * self.ovr_spindle as f64 / 100.0).min(self.cfg.laser_max_s)
+    }
+
+    /// A block's speed now: the programmed one scaled by its override (feed,
+    /// or rapid for G0; none for jogs and homing), never above what the axes allow.
+    fn nominal_speed(&self, b: &Block) -> f64 {
+        let dur = self.block_time(b);
+        if dur > 0.0 { b.kin.length / dur } else { b.kin.max_speed }
+    }
+
+    /// A block's duration at constant speed, after its override.
+    fn block_time(&self, b: &Block) -> f64 {
+        let percent = if b.jog || b.homing {
+            100
+        } else if b.rapid {
+            self.ovr_rapid
+        } else {
+            self.ovr_feed
+        };
+        (b.duration * 100.0 / percent as f64).max(b.min_duration)
+    }
+
+    /// Cuts and starts the next segment of the executing block (grbl model);
+    /// finishes the block at its end, or stops in it when a hold has braked
+    /// the machine to rest.
+    fn next_segment(&mut self, t: f64) {
+        let Some(e) = self.exec.as_ref() else { return };
+        let nominal = self.nominal_speed(&e.block);
+        let queue: Vec<Planned> = self.planner.iter().map(|b| Planned { nominal: self.nominal_speed(b), kin: &b.kin }).collect();
+        let input = SegmentInput {
+            speed: e.speed,
+            remaining: e.block.kin.length - e.done,
+            nominal,
+            exit: planner::exit_speed(nominal, &queue),
+            acceleration: e.block.kin.acceleration,
+            stopping: self.hold,
+        };
+        let power = if self.hold { 0.0 } else { self.block_power(&e.block) };
+        let Some(e) = self.exec.as_mut() else { return };
+        match planner::next_segment(input) {
+            Some(seg) => {
+                e.start_t = t;
+                e.end_t = t + seg.duration;
+                e.start_pos = std::mem::take(&mut e.end_pos);
+                e.done += seg.distance;
+                e.end_pos = if e.block.kin.length - e.done <= 1e-9 {
+                    e.block.target.clone()
+                } else {
+                    e.origin.iter().zip(&e.block.kin.unit).map(|(o, u)| o + u * e.done).collect()
+                };
+                e.speed = seg.end_speed;
+                e.running = true;
+                e.power = power;
+            }
+            None if self.hold && input.remaining > 1e-9 => {
+                // Braked to rest inside the block: Hold:0, the rest of it waits for `~`.
+                e.running = false;
+                e.speed = 0.0;
+                e.start_t = t;
+                e.end_t = t;
+                e.start_pos = e.end_pos.clone();
+            }
+            None => self.finish_block(t),
+        }
+    }
+
+    /// The segment running now has ended: a knot, then the next segment or block.
+    fn finish_segment(&mut self) {
+        let Some(e) = self.exec.as_ref() else { return };
         let t = e.end_t;
+        self.knots.push(Knot { t, pos: e.end_pos.clone(), power: e.power, line: e.block.line });
+        self.stats.last_motion_end_t = Some(t);
+        let block_done = e.block.kin.length - e.done <= 1e-9;
+        if self.cfg.motion == MotionModel::Timed || block_done {
+            self.finish_block(t);
+        } else {
+            self.next_segment(t);
+        }
+    }
+
+    /// Grbl model: a hold or an override acts now, not at the end of a long
+    /// cruise segment. The running segment is cut at the present position and
+    /// the profile planned again from there. (A ramp segment, at most 10 ms,
+    /// runs out, as Grbl's prepared segments do.)
+    fn replan_now(&mut self) {
+        if self.cfg.motion != MotionModel::Grbl {
+            return;
+        }
+        let now = self.now;
+        let Some(e) = self.exec.as_mut() else { return };
+        if !e.running || e.end_t - now <= planner::SEGMENT_S || now <= e.start_t {
+            return;
+        }
+        let here = interpolate(e, now);
+        e.done -= dist(&here, &e.end_pos);
+        e.end_pos = here;
+        e.end_t = now;
+        self.finish_segment();
+    }
+
+    fn finish_block(&mut self, t: f64) {
+        let Some(e) = self.exec.take() else { return };
         self.pos = e.block.target.clone();
-        self.knots.push(Knot { t, pos: self.pos.clone(), power: e.power, line: e.block.line });
         self.stats.blocks_executed += 1;
         self.stats.last_motion_end_t = Some(t);
+        if self.cfg.motion == MotionModel::Grbl {
+            if self.hold && e.speed <= 1e-9 {
+                // Braked to rest exactly at a block end: Hold:0.
+            } else if !self.planner.is_empty() {
+                self.start_next(t, false, e.speed);
+            } else if !self.hold {
+                self.mark_idle(t);
+            }
+            return;
+        }
         if self.hold {
             // A hold runs on (laser off) to the next point where the machine can
             // stop within its limits, as Grbl decelerates; then Hold:0. Waiting for
             // `~` is not starvation.
             let at_rest_point = e.block.gentle && self.planner.front().is_none_or(|b| b.gentle);
             if !at_rest_point && !self.planner.is_empty() {
-                self.start_next(t, false);
+                self.start_next(t, false, 0.0);
             }
         } else if !self.planner.is_empty() && self.may_start() {
-            self.start_next(t, false);
+            self.start_next(t, false, 0.0);
         } else {
             self.mark_idle(t);
         }
@@ -741,8 +944,27 @@ impl Controller {
 
     fn auto_start(&mut self) {
         if self.exec.is_none() && !self.hold && !self.alarm && !self.planner.is_empty() && self.may_start() {
-            self.start_next(self.now, true);
+            self.start_next(self.now, true, 0.0);
         }
+    }
+
+    /// Geometry, axis limits and junction speed of a block entering the planner
+    /// behind what is queued. A block that finds the machine idle and the
+    /// planner empty starts from rest (Grbl's rule).
+    fn plan_block(&self, b: &mut Block) {
+        let before = match (self.planner.back(), &self.exec) {
+            (Some(last), _) => Some(last),
+            (None, Some(e)) => Some(&e.block),
+            (None, None) => None,
+        };
+        let start = before.map_or(&self.pos, |p| &p.target);
+        b.kin = planner::kinematics(start, &b.target, &self.cfg.axes);
+        b.kin.max_junction = before.map_or(0.0, |p| planner::junction_speed(&p.kin.unit, &b.kin.unit, &self.cfg.axes, self.junction_deviation()));
+    }
+
+    /// `$11`, in mm.
+    fn junction_deviation(&self) -> f64 {
+        self.written_settings.get(&11).copied().unwrap_or(0.010)
     }
 
     /// Whether the machine may stop after `b` (coming after what is queued), or
@@ -776,6 +998,11 @@ impl Controller {
     /// (M2, M5, G4, ...), or the link has fallen silent (a stream that never
     /// comes to rest must still run).
     fn may_start(&self) -> bool {
+        if self.cfg.motion == MotionModel::Grbl {
+            // Grbl starts a cycle as soon as it has parsed everything received,
+            // which the simulator does the moment a line arrives.
+            return true;
+        }
         let queued: Vec<bool> = self.planner.iter().map(|b| b.gentle).collect();
         queued.windows(2).any(|w| w[0] && w[1])
             || self.planner.iter().any(|b| b.ends_sequence)
@@ -887,6 +1114,7 @@ impl Controller {
                     }
                     if let Some(Step::Queue(mut b)) = p.steps.pop_front() {
                         b.gentle = self.is_gentle(&b);
+                        self.plan_block(&mut b);
                         self.planner.push_back(b);
                     }
                     continue;
@@ -1008,19 +1236,7 @@ impl Controller {
             .enumerate()
             .map(|(i, a)| (target[i] - self.gc_pos[i]).abs() / a.max_velocity)
             .fold(0.0, f64::max);
-        let block = Block {
-            target: target.clone(),
-            duration: (len / (feed / 60.0)).max(min_duration),
-            min_duration,
-            rapid: false,
-            power: 0.0,
-            line,
-            n_word: None,
-            gentle: false,
-            ends_sequence: true,
-            jog: true,
-            homing: false,
-        };
+        let block = Block { ends_sequence: true, jog: true, ..Block::new(target.clone(), len / (feed / 60.0), min_duration, line) };
         self.gc_pos = target;
         if self.check_mode {
             return Ok(Vec::new());
@@ -1149,19 +1365,7 @@ impl Controller {
                 if duration <= 0.0 {
                     return done;
                 }
-                let block = Block {
-                    target: home,
-                    duration,
-                    min_duration: 0.0,
-                    rapid: true,
-                    power: 0.0,
-                    line: self.line_count,
-                    n_word: None,
-                    gentle: false,
-                    ends_sequence: true,
-                    jog: false,
-                    homing: true,
-                };
+                let block = Block { rapid: true, ends_sequence: true, homing: true, ..Block::new(home, duration, 0.0, self.line_count) };
                 return Ok((vec![Step::Queue(block), Step::Sync], false));
             }
             "RST=$" | "RST=#" | "RST=*" => {
@@ -1584,19 +1788,7 @@ impl Controller {
                 _ => len / (feed / 60.0),
             }
             .max(min_duration);
-            blocks.push(Block {
-                target: p.clone(),
-                duration,
-                min_duration,
-                rapid: mode == Motion::Rapid,
-                power,
-                line,
-                n_word,
-                gentle: false,
-                ends_sequence: false,
-                jog: false,
-                homing: false,
-            });
+            blocks.push(Block { rapid: mode == Motion::Rapid, power, n_word, ..Block::new(p.clone(), duration, min_duration, line) });
             prev = p.clone();
         }
 
@@ -1786,8 +1978,8 @@ fn join3(v: &[f64]) -> String {
 
 fn interpolate(e: &Exec, t: f64) -> Vec<f64> {
     let dur = e.end_t - e.start_t;
-    let f = if dur > 0.0 { ((t - e.start_t) / dur).clamp(0.0, 1.0) } else { 1.0 };
-    e.start_pos.iter().zip(&e.block.target).map(|(s, g)| s + (g - s) * f).collect()
+    let f = if e.running && dur > 0.0 { ((t - e.start_t) / dur).clamp(0.0, 1.0) } else { 1.0 };
+    e.start_pos.iter().zip(&e.end_pos).map(|(s, g)| s + (g - s) * f).collect()
 }
 
 /// Makes any config usable rather than failing later: 1..=6 axes, positive
@@ -1810,6 +2002,9 @@ fn sanitize(mut c: SimConfig) -> SimConfig {
         }
         if !(a.max_velocity.is_finite() && a.max_velocity > 0.0) {
             a.max_velocity = 1.0;
+        }
+        if !(a.max_acceleration.is_finite() && a.max_acceleration > 0.0) {
+            a.max_acceleration = 1.0;
         }
     }
     c.rx_buffer = c.rx_buffer.max(2);

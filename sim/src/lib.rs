@@ -4,6 +4,7 @@
 //! * [`controller`]: the controller state machine, driven by an external clock;
 //! * [`gcode`]: Grbl's line cleaning and word splitting, shared with the sender;
 //! * [`limits`]: an independent kinematic limit checker over executed knots;
+//! * [`planner`]: Grbl's look-ahead velocity planner (the `grbl` motion model);
 //! * [`link`]: serial byte pacing;
 //! * [`pty`]: the real-time driver on a pseudo-terminal.
 
@@ -11,6 +12,7 @@ pub mod controller;
 pub mod gcode;
 pub mod limits;
 pub mod link;
+pub mod planner;
 pub mod pty;
 pub mod wire;
 

@@ -1,0 +1,182 @@
+//! The `grbl` motion model: Grbl 1.1's look-ahead planner (trapezoids at each
+//! block's acceleration, junction deviation, the queue planned to stop at its
+//! end, feed hold braking within the acceleration), checked against textbook
+//! figures and the independent limit checker.
+
+mod common;
+
+use common::Sim;
+use laserd_sim::controller::{Knot, MotionModel, SimConfig};
+use laserd_sim::limits::LimitChecker;
+use laserd_sim::wire::{realtime, MachineState};
+
+/// X and Y, 0..300 mm, 100 mm/s, 1000 mm/s².
+fn grbl(planner_blocks: usize) -> SimConfig {
+    SimConfig { motion: MotionModel::Grbl, planner_blocks, ..SimConfig::with_axes("XY") }
+}
+
+/// Speed of every segment between knots (mm/s), with its start time.
+fn speeds(knots: &[Knot]) -> Vec<(f64, f64)> {
+    knots
+        .windows(2)
+        .filter(|w| w[1].t > w[0].t)
+        .map(|w| {
+            let d: f64 = w[0].pos.iter().zip(&w[1].pos).map(|(a, b)| (b - a) * (b - a)).sum::<f64>().sqrt();
+            (w[0].t, d / (w[1].t - w[0].t))
+        })
+        .collect()
+}
+
+/// Streams `lines` with Grbl's character counting (never more than the
+/// 128-byte receive buffer unanswered), running the machine meanwhile. Call
+/// it once per program: it counts every answer from its start on.
+fn stream(s: &mut Sim, lines: &[&str]) {
+    let mut in_flight: std::collections::VecDeque<usize> = Default::default();
+    let mut answered = s.responses().len();
+    for line in lines {
+        let len = line.len() + 1;
+        loop {
+            let now = s.responses().len();
+            for _ in answered..now {
+                in_flight.pop_front();
+            }
+            answered = now;
+            if in_flight.iter().sum::<usize>() + len <= 128 {
+                break;
+            }
+            let t = s.t + 1e-4;
+            s.run_until(t);
+        }
+        s.send(&format!("{line}\n"));
+        in_flight.push_back(len);
+    }
+}
+
+fn peak_acceleration_use(cfg: &SimConfig, knots: &[Knot]) -> f64 {
+    let mut checker = LimitChecker::new(&cfg.axes);
+    knots.iter().for_each(|k| checker.push(k));
+    let report = checker.finish();
+    report.peak_acceleration_use.iter().copied().fold(0.0, f64::max)
+}
+
+#[test]
+fn a_long_move_is_a_trapezoid_at_the_axis_acceleration() {
+    let cfg = grbl(15);
+    let mut s = Sim::new(cfg.clone());
+    s.send("G1X100F6000\n");
+    s.run_until(5.0);
+    let k = &s.knots;
+    let (t0, t1) = (k.first().unwrap().t, k.last().unwrap().t);
+    // 0.1 s up to 100 mm/s, 0.1 s down, 0.9 s cruising: 1.1 s.
+    assert!((t1 - t0 - 1.1).abs() < 1e-6, "{}", t1 - t0);
+    assert!((k.last().unwrap().pos[0] - 100.0).abs() < 1e-9);
+    let top = speeds(k).iter().map(|s| s.1).fold(0.0, f64::max);
+    assert!((top - 100.0).abs() < 1e-6, "{top}");
+    // Ramps in 10 ms segments; the limit checker sees the acceleration it has.
+    let use_ = peak_acceleration_use(&cfg, k);
+    assert!(use_ <= 1.0 + 1e-6 && use_ > 0.9, "{use_}");
+}
+
+#[test]
+fn corners_slow_to_the_junction_speed_of_the_deviation() {
+    let corner_speed = |deviation: &str| {
+        let mut s = Sim::new(grbl(15));
+        s.send(&format!("$11={deviation}\nG1X50F6000\nY50\n"));
+        s.run_until(5.0);
+        // The knot at the corner: its neighbouring segments' speeds.
+        let k = &s.knots;
+        let i = k.iter().position(|k| (k.pos[0] - 50.0).abs() < 1e-9 && k.pos[1].abs() < 1e-9).unwrap();
+        let v = speeds(&k[i - 1..=i + 1]);
+        assert!((k.last().unwrap().pos[1] - 50.0).abs() < 1e-9);
+        (v[0].1 + v[1].1) / 2.0
+    };
+    // 90°: v² = a·δ·sin(45°)/(1 − sin(45°)), a = 1000·√2 along the diagonal.
+    let s45 = 0.5f64.sqrt();
+    let expected = |d: f64| (1000.0 * 2f64.sqrt() * d * s45 / (1.0 - s45)).sqrt();
+    let (slow, fast) = (corner_speed("0.010"), corner_speed("0.500"));
+    // The segments next to the corner average the ramp around it: within one
+    // segment's change of speed (10 ms · 1000 mm/s² = 10 mm/s).
+    assert!((slow - expected(0.01)).abs() < 10.0, "{slow} vs {}", expected(0.01));
+    assert!((fast - expected(0.5)).abs() < 10.0, "{fast} vs {}", expected(0.5));
+    assert!(fast > slow + 20.0);
+}
+
+#[test]
+fn the_look_ahead_depth_caps_the_speed_of_short_blocks() {
+    // 0.1 mm blocks at up to 100 mm/s, sent faster than they run: the machine
+    // may only go as fast as it can stop within what is queued.
+    let peak = |blocks: usize| {
+        let mut s = Sim::new(grbl(blocks));
+        let mut lines = vec!["G91G1F6000"];
+        lines.extend(["X0.1"; 400]);
+        stream(&mut s, &lines);
+        s.run_until(s.t + 10.0);
+        assert!((s.knots.last().unwrap().pos[0] - 40.0).abs() < 1e-6, "{:?} {:?}", s.knots.last(), &s.texts()[s.texts().len().saturating_sub(3)..]);
+        speeds(&s.knots).iter().map(|s| s.1).fold(0.0, f64::max)
+    };
+    let (shallow, deep) = (peak(15), peak(100));
+    // 15 blocks (one executing): at most sqrt(2·a·15·0.1 mm) = 54.8 mm/s.
+    assert!(shallow <= (2.0f64 * 1000.0 * 1.5).sqrt() + 1e-6, "{shallow}");
+    assert!(shallow > 40.0, "{shallow}");
+    assert!(deep > 99.0, "a 100-block planner reaches the feed: {deep}");
+}
+
+#[test]
+fn feed_hold_brakes_within_the_acceleration_and_resumes() {
+    let cfg = grbl(15);
+    let mut s = Sim::new(cfg.clone());
+    s.send("M4S500\nG1X200F6000\n");
+    s.run_until(0.5);
+    let before = s.ctl.position()[0];
+    s.realtime(realtime::FEED_HOLD);
+    assert_eq!(s.status().state, MachineState::Hold(1));
+    s.run_until(0.55);
+    assert_eq!(s.ctl.laser_power(), 0.0, "the laser is off while braking");
+    s.run_until(0.7);
+    assert_eq!(s.status().state, MachineState::Hold(0));
+    // From 100 mm/s at 1000 mm/s²: 5 mm to a stop (within one 10 ms segment's latency).
+    let stopped = s.ctl.position()[0];
+    assert!((stopped - before - 5.0).abs() < 1.0 + 1e-6, "{}", stopped - before);
+    s.run_until(2.0);
+    assert_eq!(s.ctl.position()[0], stopped, "held");
+    s.realtime(realtime::CYCLE_START);
+    s.run_until(5.0);
+    assert_eq!(s.status().state, MachineState::Idle);
+    assert!((s.ctl.position()[0] - 200.0).abs() < 1e-9);
+    assert!(peak_acceleration_use(&cfg, &s.knots) <= 1.0 + 1e-6);
+}
+
+#[test]
+fn a_starved_queue_brakes_to_a_stop_instead_of_stopping_dead() {
+    // Lines spaced 0.3 s apart, each 10 mm at 100 mm/s (0.1 s of motion plus
+    // ramps): the machine must stop after each one, within its acceleration.
+    let cfg = grbl(15);
+    let mut s = Sim::new(cfg.clone());
+    s.send("G91G1F6000\n");
+    for i in 0..5 {
+        s.run_until(0.3 * i as f64 + 0.01);
+        s.send("X10\n");
+    }
+    s.run_until(3.0);
+    assert!((s.ctl.position()[0] - 50.0).abs() < 1e-9);
+    assert!(peak_acceleration_use(&cfg, &s.knots) <= 1.0 + 1e-6);
+    // Each move takes 0.2 s (a triangle: 5 mm up, 5 mm down), so the machine
+    // waits 0.1 s for each of the four later lines.
+    assert!((s.ctl.stats().starved_s - 0.4).abs() < 1e-3, "{:?}", s.ctl.stats());
+}
+
+#[test]
+fn status_reports_the_free_planner_blocks() {
+    let mut s = Sim::new(grbl(15));
+    let mut lines = vec!["G91G1F600"];
+    lines.extend(["X1"; 40]);
+    stream(&mut s, &lines);
+    s.run_until(s.t + 0.1);
+    let st = s.status();
+    assert_eq!(st.state, MachineState::Run);
+    // The planner is full (the executing block counts), RX holds what waits.
+    assert_eq!(st.buffer.unwrap().0, 0, "{st:?}");
+    s.run_until(60.0);
+    assert_eq!(s.status().buffer, Some((15, 128)));
+    assert!((s.ctl.position()[0] - 40.0).abs() < 1e-9);
+}
