@@ -17,6 +17,7 @@ use laserd::stream::{self, SenderOptions};
 use laserd::stream::LinkEvent;
 use laserd_sim::controller::{Controller, Faults};
 use laserd_sim::pty::Observed;
+use laserd_sim::controller::MotionModel;
 use laserd_sim::wire::realtime;
 
 #[derive(Parser)]
@@ -57,6 +58,10 @@ enum Command {
         /// MCAP recording of the run (default: <job stem>.mcap here).
         #[arg(long)]
         record: Option<PathBuf>,
+        /// How the simulated controller executes blocks (default: the config's
+        /// [simulator] motion): timed, or grbl (Grbl 1.1's planner).
+        #[arg(long)]
+        motion: Option<MotionModel>,
         #[arg(long)]
         json: bool,
     },
@@ -106,6 +111,10 @@ enum Command {
         /// Record the executed motion to this MCAP file.
         #[arg(long)]
         record: Option<PathBuf>,
+        /// How the simulated controller executes blocks (default: the config's
+        /// [simulator] motion): timed, or grbl (Grbl 1.1's planner).
+        #[arg(long)]
+        motion: Option<MotionModel>,
         /// Inject a fault, e.g. `--fault error-on-line=40`; repeatable. Faults:
         /// error-on-line, drop-byte, corrupt-byte, mute-from-line, reset-at-line,
         /// limit-alarm-at-line, close-link-at-line (lines and bytes count from 1).
@@ -144,6 +153,9 @@ enum BenchCommand {
         /// Duration of each block in milliseconds.
         #[arg(long, default_value_t = 1.0)]
         block_ms: f64,
+        /// How the simulated controller executes blocks (default: the config's).
+        #[arg(long)]
+        motion: Option<MotionModel>,
         #[arg(long)]
         json: bool,
     },
@@ -174,8 +186,9 @@ fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
 
 fn run_command(command: Command) -> Result<ExitCode> {
     match command {
-        Command::DryRun { job, record, json } => {
-            let (machine, planned) = job.plan()?;
+        Command::DryRun { job, record, motion, json } => {
+            let (mut machine, planned) = job.plan()?;
+            machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
             let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
             let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
             if json {
@@ -211,13 +224,15 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Send { file, port, baud, config, check, json } => send(&file, &port, baud, config.as_deref(), check, json),
-        Command::Sim { config, pty: _, link, baud, realtime: _, record, faults } => {
+        Command::Sim { config, pty: _, link, baud, realtime: _, record, motion, faults } => {
             let faults = parse_faults(&faults)?;
-            let machine = MachineConfig::load(config.as_deref())?;
+            let mut machine = MachineConfig::load(config.as_deref())?;
+            machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
             sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), faults)
         }
-        Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, json } } => {
-            let machine = MachineConfig::load(config.as_deref())?;
+        Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, motion, json } } => {
+            let mut machine = MachineConfig::load(config.as_deref())?;
+            machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
             let report = laserd::bench::link_bench(&machine, blocks, block_ms / 1000.0)?;
             if json {
                 print_json(&report)?;

@@ -123,7 +123,7 @@ pub struct SimConfig {
 }
 
 /// How planner blocks turn into motion.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum MotionModel {
     /// Every block runs at constant velocity in exactly its programmed time (a
