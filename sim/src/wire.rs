@@ -65,6 +65,8 @@ pub enum MachineState {
     Check,
     Home,
     Sleep,
+    /// grblHAL: a manual tool change is pending (jogging allowed).
+    Tool,
 }
 
 impl MachineState {
@@ -80,6 +82,7 @@ impl MachineState {
             MachineState::Check => "Check".into(),
             MachineState::Home => "Home".into(),
             MachineState::Sleep => "Sleep".into(),
+            MachineState::Tool => "Tool".into(),
         }
     }
 
@@ -106,6 +109,7 @@ impl MachineState {
             "Check" => MachineState::Check,
             "Home" => MachineState::Home,
             "Sleep" => MachineState::Sleep,
+            "Tool" => MachineState::Tool,
             _ => return Err(WireError::BadState(s.to_string())),
         })
     }
@@ -405,6 +409,10 @@ mod tests {
         assert_eq!(back, r);
         let h = StatusReport { state: MachineState::Hold(1), line: None, ..r };
         assert_eq!(StatusReport::parse(&h.to_line()).unwrap().state, MachineState::Hold(1));
+        // grblHAL's extra state and substates.
+        assert_eq!(StatusReport::parse("<Tool|MPos:0,0>").unwrap().state, MachineState::Tool);
+        assert_eq!(StatusReport::parse("<Alarm:10|MPos:0,0>").unwrap().state, MachineState::Alarm);
+        assert_eq!(StatusReport::parse("<Run:2|MPos:0,0,0,0,0,0,0,0>").unwrap().mpos.len(), 8);
     }
 
     #[test]
