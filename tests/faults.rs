@@ -150,6 +150,12 @@ fn the_link_closing_mid_job_is_reported() {
     let reason = dry.outcome.stop_reason.clone().unwrap();
     assert!(reason.contains("closed the link"), "{reason}");
     assert!(dry.outcome.last_acked_line < n + 5);
+    // Noticed at once: the stream ends within a second of line n going out.
+    let first_sent = sent_time(&dry, 1);
+    assert!(first_sent + dry.outcome.stream_time_s - sent_time(&dry, n) < 1.0, "stream ran {} s", dry.outcome.stream_time_s);
+    // Unreachable now, the controller runs out what it had queued and stops:
+    // nothing from beyond the lines it received, and it ends at rest.
+    assert!(dry.log.knots.iter().all(|k| k.line <= n as u64));
     laserd::record::read(&dir.path().join("fault.mcap")).expect("the recording reads back");
 }
 
