@@ -130,11 +130,14 @@ pub struct SimulatorConfig {
     /// programmed time) or `grbl` (Grbl 1.1's trapezoids and junction speeds).
     #[serde(default)]
     pub motion: laserd_sim::controller::MotionModel,
+    /// Which firmware the simulated controller answers as: `grbl` or `grblhal`.
+    #[serde(default)]
+    pub flavor: laserd_sim::controller::Flavor,
 }
 
 impl Default for SimulatorConfig {
     fn default() -> Self {
-        SimulatorConfig { planner_blocks: 15, motion: Default::default() }
+        SimulatorConfig { planner_blocks: 15, motion: Default::default(), flavor: Default::default() }
     }
 }
 

@@ -17,7 +17,7 @@ use laserd::stream::{self, SenderOptions};
 use laserd::stream::LinkEvent;
 use laserd_sim::controller::{Controller, Faults};
 use laserd_sim::pty::Observed;
-use laserd_sim::controller::MotionModel;
+use laserd_sim::controller::{Flavor, MotionModel};
 use laserd_sim::wire::realtime;
 
 #[derive(Parser)]
@@ -115,6 +115,11 @@ enum Command {
         /// [simulator] motion): timed, or grbl (Grbl 1.1's planner).
         #[arg(long)]
         motion: Option<MotionModel>,
+        /// The firmware it answers as (default: the config's [simulator]
+        /// flavor). For grblhal also set [serial] rx_buffer and
+        /// [simulator] planner_blocks to the board's (1024, 100).
+        #[arg(long)]
+        flavor: Option<Flavor>,
         /// Inject a fault, e.g. `--fault error-on-line=40`; repeatable. Faults:
         /// error-on-line, drop-byte, corrupt-byte, mute-from-line, reset-at-line,
         /// limit-alarm-at-line, close-link-at-line (lines and bytes count from 1).
@@ -224,10 +229,11 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Send { file, port, baud, config, check, json } => send(&file, &port, baud, config.as_deref(), check, json),
-        Command::Sim { config, pty: _, link, baud, realtime: _, record, motion, faults } => {
+        Command::Sim { config, pty: _, link, baud, realtime: _, record, motion, flavor, faults } => {
             let faults = parse_faults(&faults)?;
             let mut machine = MachineConfig::load(config.as_deref())?;
             machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
+            machine.simulator.flavor = flavor.unwrap_or(machine.simulator.flavor);
             sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), faults)
         }
         Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, motion, json } } => {

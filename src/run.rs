@@ -93,6 +93,7 @@ pub fn sim_config(machine: &MachineConfig, faults: Faults) -> SimConfig {
         planner_blocks: machine.simulator.planner_blocks,
         laser_max_s: machine.laser.max_power,
         motion: machine.simulator.motion,
+        flavor: machine.simulator.flavor,
         faults,
     }
 }

@@ -46,9 +46,14 @@ use std::collections::VecDeque;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use crate::gcode::{split_words, LineBuilder};
+use crate::gcode::LineBuilder;
 use crate::planner::{self, Kinematics, Planned, SegmentInput};
-use crate::wire::{fmt_num, MachineState, StatusReport, BANNER};
+use crate::wire::{fmt_num, MachineState, StatusReport, BANNER, BANNER_HAL};
+
+mod parser;
+mod system;
+
+use system::{Protocol, StepOutcome};
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct AxisConfig {
@@ -98,13 +103,27 @@ pub struct Faults {
     /// the reset button), losing everything queued.
     #[serde(default)]
     pub reset_at_line: Option<u64>,
-    /// A hard limit switch trips on receiving the n-th line: `ALARM:1`.
+    /// A hard limit switch (the first axis') trips on receiving the n-th
+    /// line: `ALARM:1`. It stays pressed (`Pn:`) until the machine next moves
+    /// or homes.
     #[serde(default)]
     pub limit_alarm_at_line: Option<u64>,
     /// The link itself closes (pseudo-terminal closed, USB unplugged) once the
     /// controller has received n lines. Acted on by the drivers, not here.
     #[serde(default)]
     pub close_link_at_line: Option<u64>,
+    /// Work for the probe this many mm along every probing move (G38.x):
+    /// toward it the probe closes there, away from it it opens there, and the
+    /// move stops. None: the probe never changes state (G38.2/.4 then fail).
+    #[serde(default)]
+    pub probe_contact_mm: Option<f64>,
+    /// Homing finds no switch: `$H` ends in `ALARM:9` (the search is cut
+    /// short at the home position, so the machine stays within travel).
+    #[serde(default)]
+    pub homing_switch_missing: bool,
+    /// The homing switch stays pressed after the pull-off: `ALARM:8`.
+    #[serde(default)]
+    pub homing_pull_off_fails: bool,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -118,8 +137,25 @@ pub struct SimConfig {
     /// How the controller executes its blocks.
     #[serde(default)]
     pub motion: MotionModel,
+    /// Which firmware the controller answers as.
+    #[serde(default)]
+    pub flavor: Flavor,
     #[serde(default)]
     pub faults: Faults,
+}
+
+/// The firmware the simulated controller is: its banner, build info, line
+/// length, realtime aliases, axes and the receive buffer it reports.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Flavor {
+    /// Grbl 1.1h (here with up to 6 axes, for the scanner's two).
+    #[default]
+    Grbl,
+    /// grblHAL: 256-character lines, CR LF as one line end, `0x80`–`0x82`
+    /// and `0x87`, up to 8 axes, `[AXS:]` and `[FIRMWARE:]` in `$I`; set
+    /// `rx_buffer` (1024) and `planner_blocks` (100) to match a board.
+    Grblhal,
 }
 
 /// How planner blocks turn into motion.
@@ -155,6 +191,7 @@ impl Default for SimConfig {
             planner_blocks: 15,
             laser_max_s: 1000.0,
             motion: MotionModel::default(),
+            flavor: Flavor::default(),
             faults: Faults::default(),
         }
     }
@@ -190,6 +227,8 @@ enum Motion {
     Linear,
     ArcCw,
     ArcCcw,
+    /// G38.2 (toward, alarm on no contact), G38.3, G38.4 (away), G38.5.
+    Probe { away: bool, no_error: bool },
     None,
 }
 
@@ -211,6 +250,7 @@ struct Modal {
     coord: u8,
     spindle: Spindle,
     flood: bool,
+    mist: bool,
     /// mm/min in G94; the raw inverse-time value after a G93 block.
     feed: f64,
     s: f64,
@@ -228,6 +268,7 @@ impl Default for Modal {
             coord: 54,
             spindle: Spindle::Off,
             flood: false,
+            mist: false,
             feed: 0.0,
             s: 0.0,
             tool: 0,
@@ -315,6 +356,16 @@ enum Step {
     Pause,
     /// M2/M30 after motion ends.
     ProgramEnd,
+    /// M0: wait for the `~` that ends the pause (Grbl answers M0 then).
+    AwaitResume,
+    /// Raise this non-critical alarm now (probe fails).
+    Alarm(u16),
+    /// A probing move ended here: record it, report `[PRB:]`, maybe ALARM:5.
+    Probed { pos: Vec<f64>, touched: bool, alarm: bool },
+    /// `$H` reached home: fail (a fault) or run the startup lines.
+    HomingDone,
+    /// Send this line (startup line echoes).
+    Say(String),
 }
 
 #[derive(Debug)]
@@ -325,6 +376,8 @@ struct Pending {
     dwell_until: Option<f64>,
     /// `$C` off: soft reset after the `ok`.
     reset_after: bool,
+    /// No `ok` at the end (startup lines, which echo `>line:ok` instead).
+    quiet: bool,
 }
 
 pub struct Controller {
@@ -372,6 +425,10 @@ pub struct Controller {
     ov_countdown: u32,
     /// `$n=value` writes: kept across soft resets, as Grbl keeps its EEPROM.
     written_settings: std::collections::BTreeMap<u32, f64>,
+    /// The last line byte received (grblHAL pairs CR and LF).
+    prev_byte: u8,
+    /// Work offsets, stored positions, startup lines, probe, pins, ...
+    proto: Protocol,
 }
 
 const EPS_POS: f64 = 1e-9;
@@ -385,6 +442,7 @@ impl Controller {
     pub fn new(config: SimConfig) -> Controller {
         let cfg = sanitize(config);
         let n = cfg.axes.len();
+        let proto = Protocol::new(&cfg);
         let mut c = Controller {
             cfg,
             now: 0.0,
@@ -419,9 +477,27 @@ impl Controller {
             wco_countdown: 0,
             ov_countdown: 1,
             written_settings: std::collections::BTreeMap::new(),
+            prev_byte: 0,
+            proto,
         };
-        c.out.extend_from_slice(format!("\r\n{BANNER}\r\n").as_bytes());
+        let banner = c.banner();
+        c.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
         c
+    }
+
+    fn banner(&self) -> &'static str {
+        match self.cfg.flavor {
+            Flavor::Grbl => BANNER,
+            Flavor::Grblhal => BANNER_HAL,
+        }
+    }
+
+    /// An empty line buffer of the firmware's size.
+    fn line_builder(&self) -> LineBuilder {
+        LineBuilder::with_max(match self.cfg.flavor {
+            Flavor::Grbl => crate::gcode::MAX_LINE,
+            Flavor::Grblhal => crate::gcode::MAX_LINE_HAL,
+        })
     }
 
     pub fn config(&self) -> &SimConfig {
@@ -523,6 +599,22 @@ impl Controller {
         self.advance(now);
         self.last_rx_t = self.now;
         let mut byte = byte;
+        if self.cfg.flavor == Flavor::Grblhal {
+            use crate::wire::realtime::*;
+            byte = match byte {
+                STATUS_ALT => STATUS,
+                CYCLE_START_ALT => CYCLE_START,
+                FEED_HOLD_ALT => FEED_HOLD,
+                FULL_STATUS => {
+                    if !self.critical {
+                        let line = self.full_status_report().to_line();
+                        self.send(&line);
+                    }
+                    return;
+                }
+                b => b,
+            };
+        }
         if !crate::wire::realtime::is_realtime(byte) {
             self.bytes_received += 1;
             if self.cfg.faults.drop_byte == Some(self.bytes_received) {
@@ -530,6 +622,15 @@ impl Controller {
             }
             if self.cfg.faults.corrupt_byte == Some(self.bytes_received) {
                 byte = b'#';
+            }
+        }
+        if self.cfg.flavor == Flavor::Grblhal {
+            // A CR LF (or LF CR) pair ends one line, not two.
+            let eol = |b: u8| b == b'\n' || b == b'\r';
+            let pair = eol(byte) && eol(self.prev_byte) && byte != self.prev_byte;
+            self.prev_byte = if pair { 0 } else { byte };
+            if pair {
+                return;
             }
         }
         if crate::wire::realtime::is_realtime(byte) {
@@ -543,7 +644,7 @@ impl Controller {
             if byte == b'\n' || byte == b'\r' {
                 self.rx_lines += 1;
             } else if self.rx.len() >= self.cfg.rx_buffer && self.rx_lines == 0 {
-                let mut lb = self.carry.take().unwrap_or_default();
+                let mut lb = self.carry.take().unwrap_or_else(|| self.line_builder());
                 self.rx.drain(..).for_each(|b| lb.push(b));
                 self.carry = Some(lb);
             }
@@ -563,6 +664,17 @@ impl Controller {
         self.send(&format!("error:{code}"));
     }
 
+    /// `Bf:` free planner blocks and receive-buffer bytes (grblHAL's ring
+    /// keeps one byte unused, so an empty 1024-byte buffer reports 1023).
+    fn free_buffers(&self) -> (u32, u32) {
+        let used = self.planner.len() + usize::from(self.exec.is_some());
+        let ring = match self.cfg.flavor {
+            Flavor::Grbl => self.cfg.rx_buffer,
+            Flavor::Grblhal => self.cfg.rx_buffer.saturating_sub(1),
+        };
+        (self.cfg.planner_blocks.saturating_sub(used) as u32, ring.saturating_sub(self.rx.len()) as u32)
+    }
+
     fn status_report(&mut self) -> StatusReport {
         let used = self.planner.len() + usize::from(self.exec.is_some());
         let (feed, line) = match &self.exec {
@@ -579,7 +691,7 @@ impl Controller {
         let busy = used > 0;
         let wco = if self.wco_countdown == 0 {
             self.wco_countdown = if busy { 29 } else { 9 };
-            Some(self.g92.clone())
+            Some(self.wco())
         } else {
             self.wco_countdown -= 1;
             None
@@ -591,33 +703,17 @@ impl Controller {
             self.ov_countdown = self.ov_countdown.saturating_sub(1);
             None
         };
-        let accessories = overrides.and_then(|_| {
-            let mut a = String::new();
-            match self.modal.spindle {
-                Spindle::Cw => a.push('S'),
-                Spindle::Ccw => a.push('C'),
-                Spindle::Off => {}
-            }
-            if self.modal.flood {
-                a.push('F');
-            }
-            (!a.is_empty()).then_some(a)
-        });
+        let accessories = overrides.and_then(|_| self.accessories());
         let mask = self.status_mask();
         let position = self.position();
         let (mpos, wpos) = if mask & 1 == 1 {
             (position, None)
         } else {
             // WPos = MPos - WCO.
-            (Vec::new(), Some(position.iter().zip(&self.g92).map(|(p, o)| p - o).collect()))
+            (Vec::new(), Some(position.iter().zip(&self.wco()).map(|(p, o)| p - o).collect()))
         };
         StatusReport {
-            buffer: (mask & 2 == 2).then(|| {
-                (
-                    self.cfg.planner_blocks.saturating_sub(used) as u32,
-                    self.cfg.rx_buffer.saturating_sub(self.rx.len()) as u32,
-                )
-            }),
+            buffer: (mask & 2 == 2).then(|| self.free_buffers()),
             line,
             feed: Some(feed),
             spindle: Some(self.laser_power()),
@@ -625,19 +721,36 @@ impl Controller {
             wco,
             overrides,
             accessories,
+            pins: self.pins(),
             ..StatusReport::new(self.state(), mpos)
         }
+    }
+
+    /// grblHAL's `0x87`: every optional field, whatever `$10` and the report
+    /// counters say, and the firmware's name.
+    fn full_status_report(&mut self) -> StatusReport {
+        self.wco_countdown = 0;
+        let mut r = self.status_report();
+        r.wco = Some(self.wco());
+        r.overrides = Some([self.ovr_feed, self.ovr_rapid, self.ovr_spindle]);
+        r.accessories = self.accessories();
+        if r.buffer.is_none() {
+            r.buffer = Some(self.free_buffers());
+        }
+        r.firmware = Some("grblHAL".into());
+        r
     }
 
     // ----- realtime -----
 
     fn realtime(&mut self, b: u8) {
         use crate::wire::realtime::*;
-        if (FEED_OVR_RESET..=SPINDLE_OVR_FINE_MINUS).contains(&b) && !self.critical {
+        let before = [self.ovr_feed, self.ovr_rapid, self.ovr_spindle];
+        self.realtime_command(b);
+        if b != SOFT_RESET && [self.ovr_feed, self.ovr_rapid, self.ovr_spindle] != before {
             // An override change shows in the next report.
             self.ov_countdown = 0;
         }
-        self.realtime_command(b);
         if (FEED_OVR_RESET..=RAPID_OVR_LOW).contains(&b) {
             // A speed override takes effect now, not at the end of a long segment.
             self.replan_now();
@@ -650,7 +763,8 @@ impl Controller {
             SOFT_RESET => self.soft_reset(),
             // A critical alarm ignores everything but reset (reference §5).
             _ if self.critical => {}
-            STATUS => {
+            // No reports while homing (reference §3).
+            STATUS if !self.homing_active() => {
                 let line = self.status_report().to_line();
                 self.send(&line);
             }
@@ -658,11 +772,13 @@ impl Controller {
             FEED_HOLD if self.jogging() => self.cancel_jog(),
             FEED_HOLD if !(self.alarm || self.check_mode || self.sleep || self.hold) => {
                 self.hold = true;
+                self.hold_stops_laser();
                 self.pause_starvation();
                 self.replan_now();
             }
             SAFETY_DOOR if !(self.alarm || self.sleep) => self.open_door(),
             CYCLE_START if self.hold && !self.alarm && !(self.door && self.door_open) => {
+                self.restore_spindle();
                 self.hold = false;
                 self.door = false;
                 match &self.exec {
@@ -690,8 +806,18 @@ impl Controller {
             SPINDLE_OVR_COARSE_MINUS => self.ovr_spindle = self.ovr_spindle.saturating_sub(10).max(10),
             SPINDLE_OVR_FINE_PLUS => self.ovr_spindle = (self.ovr_spindle + 1).min(200),
             SPINDLE_OVR_FINE_MINUS => self.ovr_spindle = self.ovr_spindle.saturating_sub(1).max(10),
-            COOLANT_FLOOD_TOGGLE if !self.alarm && !self.sleep => self.modal.flood = !self.modal.flood,
-            // Spindle stop and mist are not modelled.
+            SPINDLE_OVR_STOP if matches!(self.state(), MachineState::Hold(_)) => self.toggle_spindle_stop(),
+            // Coolant toggles act in Idle, Run and Hold, on the parser state (M7/M8/M9).
+            COOLANT_FLOOD_TOGGLE | COOLANT_MIST_TOGGLE
+                if matches!(self.state(), MachineState::Idle | MachineState::Run | MachineState::Hold(_)) =>
+            {
+                if b == COOLANT_FLOOD_TOGGLE {
+                    self.modal.flood = !self.modal.flood;
+                } else {
+                    self.modal.mist = !self.modal.mist;
+                }
+                self.ov_countdown = 0;
+            }
             _ => {}
         }
     }
@@ -706,6 +832,7 @@ impl Controller {
         self.carry = None;
         self.pending = None;
         self.modal = Modal::default();
+        self.proto.reset();
         self.g92 = vec![0.0; self.pos.len()];
         self.gc_pos = self.pos.clone();
         self.ovr_feed = 100;
@@ -730,10 +857,9 @@ impl Controller {
             self.stats.alarms.push(code);
             self.send(&format!("ALARM:{code}"));
         }
-        self.out.extend_from_slice(format!("\r\n{BANNER}\r\n").as_bytes());
-        if self.alarm {
-            self.send("[MSG:'$H'|'$X' to unlock]");
-        }
+        let banner = self.banner();
+        self.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
+        self.after_banner();
     }
 
     /// Stops the executing block where it is (reset or alarm), with a knot.
@@ -1019,7 +1145,10 @@ impl Controller {
                 if !self.progress_pending() {
                     break;
                 }
-            } else if self.rx_lines > 0 {
+            } else if self.startup_ready() {
+                self.begin_startup();
+            } else if self.rx_lines > 0 && !self.critical {
+                // A critical alarm processes no lines until reset (reference §5).
                 self.take_line();
             } else {
                 break;
@@ -1029,7 +1158,7 @@ impl Controller {
     }
 
     fn take_line(&mut self) {
-        let mut lb = self.carry.take().unwrap_or_default();
+        let mut lb = self.carry.take().unwrap_or_else(|| self.line_builder());
         let mut len = 0;
         for &b in self.rx.iter() {
             len += 1;
@@ -1055,7 +1184,10 @@ impl Controller {
         } else {
             match lb.finish() {
                 None => Err(11),
-                Some(text) => self.execute_line(&text, n),
+                Some(text) => {
+                    self.echo_line(&text);
+                    self.execute_line(&text, n)
+                }
             }
         };
         match result {
@@ -1066,7 +1198,7 @@ impl Controller {
                     }
                 }
                 self.pending =
-                    Some(Pending { steps: steps.into(), rx_len: len, dwell_until: None, reset_after })
+                    Some(Pending { steps: steps.into(), rx_len: len, dwell_until: None, reset_after, quiet: false })
             }
             Err(code) => {
                 self.drop_rx(len);
@@ -1124,6 +1256,7 @@ impl Controller {
                         break;
                     }
                     self.hold = true;
+                    self.hold_stops_laser();
                     self.pause_starvation();
                 }
                 Step::ProgramEnd => {
@@ -1133,6 +1266,19 @@ impl Controller {
                     self.reset_starvation();
                     self.send("[MSG:Pgm End]");
                 }
+                other => match self.protocol_step(other) {
+                    StepOutcome::Wait => break,
+                    StepOutcome::Done => {}
+                    StepOutcome::Then(more) => {
+                        p.steps.pop_front();
+                        for s in more.into_iter().rev() {
+                            p.steps.push_front(s);
+                        }
+                        continue;
+                    }
+                    // The controller reset itself: the line is gone.
+                    StepOutcome::Reset => return true,
+                },
             }
             p.steps.pop_front();
         }
@@ -1141,7 +1287,9 @@ impl Controller {
             return false;
         }
         self.drop_rx(p.rx_len);
-        self.send("ok");
+        if !p.quiet {
+            self.send("ok");
+        }
         if p.reset_after {
             self.soft_reset();
         }
@@ -1170,80 +1318,6 @@ impl Controller {
         self.exec.as_ref().is_some_and(|e| e.block.jog) || self.planner.iter().any(|b| b.jog)
     }
 
-    /// `$J=`: a G1-like move with a mandatory F in units/min, one-shot G20/G21,
-    /// G90/G91 and G53, nothing else (error 16); accepted only when idle or
-    /// jogging (error 8); a target beyond travel answers error 15, no alarm. The
-    /// parser's modal state is left alone. The laser stays off while jogging
-    /// (Grbl would inherit the laser state; a simulator should not teach that).
-    fn jog(&mut self, text: &str, line: u64) -> Result<Vec<Step>, u16> {
-        if self.alarm || self.sleep || self.hold || (self.busy() && !self.jogging()) {
-            return Err(8);
-        }
-        let words = split_words(text)?;
-        let mut axes: Vec<Option<f64>> = vec![None; self.cfg.axes.len()];
-        let (mut inches, mut incremental, mut machine_coords) = (self.modal.inches, self.modal.incremental, false);
-        let mut feed = None;
-        for w in &words {
-            match (w.letter, w.value) {
-                ('G', g) if g == 20.0 || g == 21.0 => inches = g == 20.0,
-                ('G', g) if g == 90.0 || g == 91.0 => incremental = g == 91.0,
-                ('G', 53.0) => machine_coords = true,
-                ('F', f) => {
-                    if feed.replace(f).is_some() {
-                        return Err(25);
-                    }
-                }
-                ('N', _) => {}
-                (c, v) => {
-                    let i = self.axis_index(c).ok_or(16u16)?;
-                    if axes[i].replace(v).is_some() {
-                        return Err(25);
-                    }
-                }
-            }
-        }
-        let scale = if inches { 25.4 } else { 1.0 };
-        let feed = feed.ok_or(22u16)? * scale;
-        if feed <= 0.0 {
-            return Err(4);
-        }
-        if axes.iter().all(Option::is_none) {
-            return Err(26);
-        }
-        let mut target = self.gc_pos.clone();
-        for (i, v) in axes.iter().enumerate() {
-            let Some(v) = v else { continue };
-            let mm = v * scale;
-            target[i] = if machine_coords {
-                mm
-            } else if incremental {
-                self.gc_pos[i] + mm
-            } else {
-                mm + self.g92[i]
-            };
-        }
-        if self.cfg.axes.iter().enumerate().any(|(i, a)| target[i] < a.min - 1e-6 || target[i] > a.max + 1e-6) {
-            return Err(15);
-        }
-        let len = dist(&self.gc_pos, &target);
-        if len <= EPS_POS {
-            return Ok(Vec::new());
-        }
-        let min_duration = self
-            .cfg
-            .axes
-            .iter()
-            .enumerate()
-            .map(|(i, a)| (target[i] - self.gc_pos[i]).abs() / a.max_velocity)
-            .fold(0.0, f64::max);
-        let block = Block { ends_sequence: true, jog: true, ..Block::new(target.clone(), len / (feed / 60.0), min_duration, line) };
-        self.gc_pos = target;
-        if self.check_mode {
-            return Ok(Vec::new());
-        }
-        Ok(vec![Step::Queue(block)])
-    }
-
     /// The safety door switch (an input of the machine, not a byte on the link):
     /// opening it holds the machine with the laser off, as `0x84` does; after
     /// closing it, `~` resumes.
@@ -1257,6 +1331,15 @@ impl Controller {
 
     fn open_door(&mut self) {
         self.door_open = true;
+        if self.homing_active() {
+            // The door fails a homing cycle (reference §3).
+            self.homing_fail(7);
+            return;
+        }
+        if self.alarm || self.sleep {
+            return;
+        }
+        self.door_clears_spindle_stop();
         if self.jogging() {
             self.cancel_jog();
         }
@@ -1278,582 +1361,8 @@ impl Controller {
         self.mark_idle(self.now);
     }
 
-    fn busy(&self) -> bool {
-        self.exec.is_some() || !self.planner.is_empty() || self.hold
-    }
-
-    fn system_command(&mut self, cmd: &str) -> Result<(Vec<Step>, bool), u16> {
-        if self.critical {
-            return Err(9);
-        }
-        let done = Ok((Vec::new(), false));
-        match cmd {
-            "" => self.send("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"),
-            "$" => {
-                if self.busy() {
-                    return Err(8);
-                }
-                for (n, v) in self.settings() {
-                    self.send(&format!("${n}={v}"));
-                }
-            }
-            "G" => {
-                let gc = self.gc_line();
-                self.send(&gc);
-            }
-            "I" => {
-                if self.busy() {
-                    return Err(8);
-                }
-                self.send("[VER:1.1h.laserd-sim:]");
-                let opt = format!("[OPT:V,{},{}]", self.cfg.planner_blocks, self.cfg.rx_buffer);
-                self.send(&opt);
-            }
-            "N" => {
-                if self.busy() {
-                    return Err(8);
-                }
-                self.send("$N0=");
-                self.send("$N1=");
-            }
-            "#" => {
-                if self.busy() {
-                    return Err(8);
-                }
-                let zero = vec![0.0; self.pos.len()];
-                for cs in ["G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30"] {
-                    self.send(&format!("[{cs}:{}]", join3(&zero)));
-                }
-                let g92 = format!("[G92:{}]", join3(&self.g92));
-                self.send(&g92);
-                self.send("[TLO:0.000]");
-                self.send(&format!("[PRB:{}:0]", join3(&zero)));
-            }
-            "X" => {
-                if self.alarm {
-                    self.alarm = false;
-                    self.send("[MSG:Caution: Unlocked]");
-                }
-            }
-            "C" => {
-                if self.check_mode {
-                    self.send("[MSG:Disabled]");
-                    return Ok((Vec::new(), true));
-                }
-                if self.busy() || self.alarm || self.sleep {
-                    return Err(8);
-                }
-                self.check_mode = true;
-                self.send("[MSG:Enabled]");
-            }
-            "H" => {
-                // Homing only when enabled ($22=1), from Idle or Alarm. The
-                // machine has no switches to seek: it moves every axis to its
-                // home (0) at the seek rate ($25), answers when there, and
-                // clears the alarm as a successful cycle does.
-                if self.written_settings.get(&22).is_none_or(|v| *v != 1.0) {
-                    return Err(5);
-                }
-                if self.busy() || self.sleep {
-                    return Err(8);
-                }
-                self.alarm = false;
-                let seek = self.written_settings.get(&25).copied().unwrap_or(500.0) / 60.0;
-                let home = vec![0.0; self.pos.len()];
-                let duration = self.pos.iter().map(|p| p.abs() / seek).fold(0.0, f64::max);
-                self.gc_pos = home.clone();
-                if duration <= 0.0 {
-                    return done;
-                }
-                let block = Block { rapid: true, ends_sequence: true, homing: true, ..Block::new(home, duration, 0.0, self.line_count) };
-                return Ok((vec![Step::Queue(block), Step::Sync], false));
-            }
-            "RST=$" | "RST=#" | "RST=*" => {
-                if self.busy() {
-                    return Err(8);
-                }
-                // Settings and offsets come from the config here, so restoring
-                // them changes nothing; the message and the reset are Grbl's.
-                self.send("[MSG:Restoring defaults]");
-                return Ok((Vec::new(), true));
-            }
-            "SLP" => {
-                if self.busy() {
-                    return Err(8);
-                }
-                self.sleep = true;
-                self.send("[MSG:Sleeping]");
-            }
-            _ => {
-                // `$n=value`: written like Grbl's EEPROM, kept across resets.
-                let (n, v) = cmd.split_once('=').ok_or(3u16)?;
-                let n: u32 = n.parse().map_err(|_| 3u16)?;
-                let v: f64 = v.parse().map_err(|_| 3u16)?;
-                if self.busy() {
-                    return Err(8);
-                }
-                self.write_setting(n, v)?;
-            }
-        }
-        done
-    }
-
-    fn settings(&self) -> Vec<(u32, String)> {
-        let mut s: Vec<(u32, String)> = vec![
-            (0, "10".into()),
-            (1, "25".into()),
-            (2, "0".into()),
-            (3, "0".into()),
-            (4, "0".into()),
-            (5, "0".into()),
-            (6, "0".into()),
-            // MPos + Bf: what the reports contain.
-            (10, "3".into()),
-            (11, "0.010".into()),
-            (12, "0.002".into()),
-            (13, "0".into()),
-            // Soft limits are always checked; there is no homing.
-            (20, "1".into()),
-            (21, "0".into()),
-            (22, "0".into()),
-            (23, "0".into()),
-            (24, "25.000".into()),
-            (25, "500.000".into()),
-            (26, "250".into()),
-            (27, "1.000".into()),
-            (30, fmt_num(self.cfg.laser_max_s, 0)),
-            (31, "0".into()),
-            (32, "1".into()),
-        ];
-        let axes = &self.cfg.axes;
-        for (i, _) in axes.iter().enumerate() {
-            s.push((100 + i as u32, "250.000".into()));
-        }
-        for (i, a) in axes.iter().enumerate() {
-            s.push((110 + i as u32, fmt_num(a.max_velocity * 60.0, 3)));
-        }
-        for (i, a) in axes.iter().enumerate() {
-            s.push((120 + i as u32, fmt_num(a.max_acceleration, 3)));
-        }
-        for (i, a) in axes.iter().enumerate() {
-            s.push((130 + i as u32, fmt_num(a.max - a.min, 3)));
-        }
-        // Written values win; integer settings print without decimals.
-        for (n, text) in &mut s {
-            if let Some(v) = self.written_settings.get(n) {
-                *text = if text.contains('.') { fmt_num(*v, 3) } else { fmt_num(*v, 0) };
-            }
-        }
-        s
-    }
-
-    /// The `$10` status report mask in force (bit 0: MPos, else WPos; bit 1: Bf).
-    fn status_mask(&self) -> u32 {
-        self.written_settings.get(&10).map_or(3, |v| *v as u32)
-    }
-
-    /// Writes setting `n` (`$n=value`), with the effect Grbl gives it.
-    fn write_setting(&mut self, n: u32, v: f64) -> Result<(), u16> {
-        let known = self.settings().iter().any(|(k, _)| *k == n);
-        if !known {
-            return Err(3);
-        }
-        if v < 0.0 {
-            return Err(4);
-        }
-        if n == 0 && v < 3.0 {
-            return Err(6);
-        }
-        let axis = |base: u32| (n >= base && n < base + 10).then(|| (n - base) as usize);
-        if let Some(i) = axis(110) {
-            self.cfg.axes[i].max_velocity = v / 60.0;
-        } else if let Some(i) = axis(120) {
-            self.cfg.axes[i].max_acceleration = v;
-        } else if let Some(i) = axis(130) {
-            let a = &mut self.cfg.axes[i];
-            a.max = a.min + v;
-        } else if n == 30 {
-            self.cfg.laser_max_s = v;
-        }
-        self.written_settings.insert(n, v);
-        Ok(())
-    }
-
-    fn gc_line(&self) -> String {
-        let m = &self.modal;
-        let motion = match m.motion {
-            Motion::Rapid => "G0",
-            Motion::Linear => "G1",
-            Motion::ArcCw => "G2",
-            Motion::ArcCcw => "G3",
-            Motion::None => "G80",
-        };
-        let spindle = match m.spindle {
-            Spindle::Off => "M5",
-            Spindle::Cw => "M3",
-            Spindle::Ccw => "M4",
-        };
-        let feed = if m.inverse_time {
-            fmt_num(m.feed, 0)
-        } else if m.inches {
-            fmt_num(m.feed / 25.4, 1)
-        } else {
-            fmt_num(m.feed, 0)
-        };
-        format!(
-            "[GC:{motion} G{} G{} {} {} {} {spindle} {} T{} F{feed} S{}]",
-            m.coord,
-            m.plane,
-            if m.inches { "G20" } else { "G21" },
-            if m.incremental { "G91" } else { "G90" },
-            if m.inverse_time { "G93" } else { "G94" },
-            if m.flood { "M8" } else { "M9" },
-            m.tool,
-            fmt_num(m.s, 0),
-        )
-    }
-
     fn axis_index(&self, letter: char) -> Option<usize> {
         self.cfg.axes.iter().position(|a| a.letter == letter)
-    }
-
-    /// Parses and checks one G-code block; mutates state only on success.
-    fn gcode(&mut self, text: &str, line: u64) -> Result<Vec<Step>, u16> {
-        let words = split_words(text)?;
-        let naxes = self.cfg.axes.len();
-        let mut groups = 0u32;
-        let mut set_group = |g: u32| -> Result<(), u16> {
-            if groups & (1 << g) != 0 {
-                return Err(21);
-            }
-            groups |= 1 << g;
-            Ok(())
-        };
-        let mut motion: Option<Motion> = None;
-        #[derive(PartialEq, Clone, Copy)]
-        enum NonModal {
-            Dwell,
-            Absolute,
-            SetOffset,
-            ClearOffset,
-        }
-        let mut non_modal: Option<NonModal> = None;
-        let (mut plane, mut units, mut distance_mode, mut feed_mode, mut coord) = (None, None, None, None, None);
-        let mut spindle: Option<Spindle> = None;
-        let mut flood: Option<bool> = None;
-        let mut stop: Option<u32> = None;
-        let mut vals: [Option<f64>; 26] = [None; 26];
-        let mut axes: Vec<Option<f64>> = vec![None; naxes];
-
-        for w in &words {
-            let v = w.value;
-            match w.letter {
-                'G' | 'M' => {
-                    if v < 0.0 {
-                        return Err(20);
-                    }
-                    let int = v.trunc() as u32;
-                    let mant = ((v - v.trunc()) * 100.0).round() as u32;
-                    if w.letter == 'M' {
-                        if mant != 0 {
-                            return Err(23);
-                        }
-                        match int {
-                            0 | 1 | 2 | 30 => {
-                                set_group(20)?;
-                                stop = Some(int);
-                            }
-                            3..=5 => {
-                                set_group(21)?;
-                                spindle = Some(match int {
-                                    3 => Spindle::Cw,
-                                    4 => Spindle::Ccw,
-                                    _ => Spindle::Off,
-                                });
-                            }
-                            8 | 9 => {
-                                set_group(22)?;
-                                flood = Some(int == 8);
-                            }
-                            _ => return Err(20),
-                        }
-                        continue;
-                    }
-                    match (int, mant) {
-                        (0..=3 | 80, 0) => {
-                            set_group(1)?;
-                            motion = Some(match int {
-                                0 => Motion::Rapid,
-                                1 => Motion::Linear,
-                                2 => Motion::ArcCw,
-                                3 => Motion::ArcCcw,
-                                _ => Motion::None,
-                            });
-                        }
-                        (4, 0) | (53, 0) | (92, 0) | (92, 10) => {
-                            set_group(0)?;
-                            non_modal = Some(match (int, mant) {
-                                (4, _) => NonModal::Dwell,
-                                (53, _) => NonModal::Absolute,
-                                (92, 0) => NonModal::SetOffset,
-                                _ => NonModal::ClearOffset,
-                            });
-                        }
-                        (17..=19, 0) => {
-                            set_group(2)?;
-                            plane = Some(int as u8);
-                        }
-                        (90 | 91, 0) => {
-                            set_group(3)?;
-                            distance_mode = Some(int == 91);
-                        }
-                        (91, 10) => set_group(4)?,
-                        (93 | 94, 0) => {
-                            set_group(5)?;
-                            feed_mode = Some(int == 93);
-                        }
-                        (20 | 21, 0) => {
-                            set_group(6)?;
-                            units = Some(int == 20);
-                        }
-                        (40, 0) => set_group(7)?,
-                        (49, 0) => set_group(8)?,
-                        (54..=59, 0) => {
-                            set_group(12)?;
-                            coord = Some(int as u8);
-                        }
-                        (59, _) => return Err(29),
-                        (61, 0) => set_group(13)?,
-                        (0..=4 | 17..=21 | 40 | 49 | 53..=58 | 61 | 80 | 90 | 93 | 94, _) => return Err(23),
-                        _ => return Err(20),
-                    }
-                }
-                c @ ('F' | 'I' | 'J' | 'K' | 'L' | 'N' | 'P' | 'R' | 'S' | 'T') => {
-                    let slot = &mut vals[(c as u8 - b'A') as usize];
-                    if slot.is_some() {
-                        return Err(25);
-                    }
-                    if matches!(c, 'F' | 'N' | 'P' | 'S' | 'T') && v < 0.0 {
-                        return Err(4);
-                    }
-                    *slot = Some(v);
-                }
-                c => {
-                    let i = self.axis_index(c).ok_or(20u16)?;
-                    if axes[i].is_some() {
-                        return Err(25);
-                    }
-                    axes[i] = Some(v);
-                }
-            }
-        }
-        let get = |c: char| vals[(c as u8 - b'A') as usize];
-        let n_word = match get('N') {
-            Some(n) if n > 9_999_999.0 => return Err(27),
-            Some(n) if n >= 1.0 => Some(n as u32),
-            _ => None,
-        };
-        let tool = match get('T') {
-            Some(t) if t > 255.0 => return Err(38),
-            Some(t) => t as u32,
-            None => self.modal.tool,
-        };
-        if get('L').is_some() {
-            return Err(36);
-        }
-
-        let m = &self.modal;
-        let inches = units.unwrap_or(m.inches);
-        let scale = if inches { 25.4 } else { 1.0 };
-        let incremental = distance_mode.unwrap_or(m.incremental);
-        let inverse = feed_mode.unwrap_or(m.inverse_time);
-        let plane = plane.unwrap_or(m.plane);
-        let mode = motion.unwrap_or(m.motion);
-        let new_spindle = spindle.unwrap_or(m.spindle);
-        let new_s = get('S').unwrap_or(m.s);
-        let new_flood = flood.unwrap_or(m.flood);
-        let new_coord = coord.unwrap_or(m.coord);
-        let has_axes = axes.iter().any(|a| a.is_some());
-        let offset_cmd = matches!(non_modal, Some(NonModal::SetOffset | NonModal::ClearOffset));
-        let explicit_move = matches!(motion, Some(Motion::Rapid | Motion::Linear | Motion::ArcCw | Motion::ArcCcw));
-        if non_modal == Some(NonModal::SetOffset) && explicit_move {
-            return Err(24);
-        }
-        if non_modal == Some(NonModal::SetOffset) && !has_axes {
-            return Err(26);
-        }
-        let motion_cmd = non_modal != Some(NonModal::SetOffset) && (has_axes || explicit_move);
-        if mode == Motion::None && has_axes && non_modal != Some(NonModal::SetOffset) {
-            return Err(31);
-        }
-        // Feed: Grbl keeps F across G94 blocks, requires it on every G93
-        // motion block, and forgets it when leaving G93.
-        let f_word = get('F');
-        let feed = if inverse {
-            f_word.unwrap_or(0.0)
-        } else if m.inverse_time {
-            f_word.map_or(0.0, |f| f * scale)
-        } else {
-            f_word.map_or(m.feed, |f| f * scale)
-        };
-        let feed_move = motion_cmd && matches!(mode, Motion::Linear | Motion::ArcCw | Motion::ArcCcw);
-        if feed_move && ((inverse && f_word.is_none()) || feed <= 0.0) {
-            return Err(22);
-        }
-        let dwell = if non_modal == Some(NonModal::Dwell) { Some(get('P').ok_or(28u16)?) } else { None };
-        if dwell.is_none() && get('P').is_some() {
-            return Err(36);
-        }
-        let absolute = non_modal == Some(NonModal::Absolute);
-        if absolute && !(motion_cmd && matches!(mode, Motion::Rapid | Motion::Linear)) {
-            return Err(30);
-        }
-        let is_arc = motion_cmd && matches!(mode, Motion::ArcCw | Motion::ArcCcw);
-        if !is_arc && ['I', 'J', 'K', 'R'].iter().any(|c| get(*c).is_some()) {
-            return Err(36);
-        }
-
-        // Targets in machine coordinates (mm).
-        let mut target = self.gc_pos.clone();
-        let mut new_g92 = self.g92.clone();
-        for (i, v) in axes.iter().enumerate() {
-            let Some(v) = v else { continue };
-            let mm = v * scale;
-            if non_modal == Some(NonModal::SetOffset) {
-                new_g92[i] = self.gc_pos[i] - mm;
-            } else if absolute {
-                target[i] = mm;
-            } else if incremental {
-                target[i] = self.gc_pos[i] + mm;
-            } else {
-                target[i] = mm + self.g92[i];
-            }
-        }
-        if non_modal == Some(NonModal::ClearOffset) {
-            new_g92 = vec![0.0; naxes];
-        }
-
-        let fires = matches!(mode, Motion::Linear | Motion::ArcCw | Motion::ArcCcw)
-            && new_spindle != Spindle::Off
-            && new_s > 0.0;
-        let power = if fires { new_s.min(self.cfg.laser_max_s) } else { 0.0 };
-        let mut points: Vec<Vec<f64>> = Vec::new();
-        if motion_cmd && mode != Motion::None {
-            if is_arc {
-                let arc = ArcInput {
-                    start: &self.gc_pos,
-                    end: &target,
-                    plane,
-                    cw: mode == Motion::ArcCw,
-                    ijk: [get('I'), get('J'), get('K')].map(|o| o.map(|v| v * scale)),
-                    r: get('R').map(|v| v * scale),
-                    has_axes,
-                };
-                points = self.arc_points(&arc, &axes)?;
-            } else {
-                points.push(target.clone());
-            }
-        }
-
-        // Soft limits, checked on every point before anything is queued.
-        for p in &points {
-            for (i, a) in self.cfg.axes.iter().enumerate() {
-                if p[i] < a.min - 1e-6 || p[i] > a.max + 1e-6 {
-                    self.soft_limit_alarm();
-                    return Err(9);
-                }
-            }
-        }
-
-        // Build the blocks.
-        let mut blocks = Vec::new();
-        let mut prev = self.gc_pos.clone();
-        let nchords = points.len().max(1) as f64;
-        for p in &points {
-            let min_duration = self
-                .cfg
-                .axes
-                .iter()
-                .enumerate()
-                .map(|(i, a)| (p[i] - prev[i]).abs() / a.max_velocity)
-                .fold(0.0, f64::max);
-            let len = dist(&prev, p);
-            if prev.iter().zip(p).all(|(a, b)| (a - b).abs() <= EPS_POS) {
-                prev = p.clone();
-                continue;
-            }
-            let duration = match mode {
-                Motion::Rapid => min_duration,
-                _ if inverse => 60.0 / feed / nchords,
-                _ => len / (feed / 60.0),
-            }
-            .max(min_duration);
-            blocks.push(Block { rapid: mode == Motion::Rapid, power, n_word, ..Block::new(p.clone(), duration, min_duration, line) });
-            prev = p.clone();
-        }
-
-        // Everything checked: commit and describe what is left to do.
-        let mut steps = Vec::new();
-        let m = &self.modal;
-        let spindle_sync = new_spindle != m.spindle
-            || (new_spindle == Spindle::Cw && new_s != m.s && !motion_cmd)
-            || new_flood != m.flood
-            || new_coord != m.coord
-            || offset_cmd;
-        if spindle_sync {
-            steps.push(Step::Sync);
-        }
-        if let Some(p) = dwell {
-            steps.push(Step::Sync);
-            if !self.check_mode {
-                steps.push(Step::Dwell(p));
-            }
-        }
-        if let Some(last) = points.last() {
-            self.gc_pos = last.clone();
-        }
-        if !self.check_mode {
-            steps.extend(blocks.into_iter().map(Step::Queue));
-        }
-        let m = &mut self.modal;
-        m.inches = inches;
-        m.incremental = incremental;
-        m.inverse_time = inverse;
-        m.plane = plane;
-        if !absolute {
-            m.motion = mode;
-        } else if let Some(mo) = motion {
-            m.motion = mo;
-        }
-        m.spindle = new_spindle;
-        m.s = new_s;
-        m.flood = new_flood;
-        m.coord = new_coord;
-        m.tool = tool;
-        m.feed = feed;
-        if self.g92 != new_g92 {
-            self.wco_countdown = 0;
-        }
-        self.g92 = new_g92;
-        match stop {
-            Some(0) => steps.extend([Step::Sync, Step::Pause]),
-            Some(2 | 30) => {
-                steps.extend([Step::Sync, Step::ProgramEnd]);
-                let m = &mut self.modal;
-                m.motion = Motion::Linear;
-                m.plane = 17;
-                m.incremental = false;
-                m.inverse_time = false;
-                m.coord = 54;
-                m.spindle = Spindle::Off;
-                m.flood = false;
-            }
-            _ => {}
-        }
-        if self.check_mode {
-            steps.retain(|s| !matches!(s, Step::Pause));
-        }
-        Ok(steps)
     }
 
     fn soft_limit_alarm(&mut self) {
@@ -1870,102 +1379,14 @@ impl Controller {
         self.alarm = true;
         self.critical = true;
         self.reset_starvation();
+        if code == 1 {
+            self.proto.limit_pin = self.cfg.axes.first().map(|a| a.letter);
+        }
         self.stats.alarms.push(code);
         self.send(&format!("ALARM:{code}"));
         self.send("[MSG:Reset to continue]");
     }
 
-    /// Chord end points of an arc (reference §9; sagitta <= 0.002 mm).
-    fn arc_points(&self, arc: &ArcInput, axes: &[Option<f64>]) -> Result<Vec<Vec<f64>>, u16> {
-        const TOLERANCE: f64 = 0.002;
-        let (l0, l1, o0, o1) = match arc.plane {
-            17 => ('X', 'Y', 0, 1),
-            18 => ('Z', 'X', 2, 0),
-            _ => ('Y', 'Z', 1, 2),
-        };
-        let (Some(a0), Some(a1)) = (self.axis_index(l0), self.axis_index(l1)) else { return Err(20) };
-        if !arc.has_axes {
-            return Err(26);
-        }
-        if axes[a0].is_none() && axes[a1].is_none() {
-            return Err(32);
-        }
-        let (s0, s1) = (arc.start[a0], arc.start[a1]);
-        let (x, y) = (arc.end[a0] - s0, arc.end[a1] - s1);
-        let (ci, cj) = if let Some(r) = arc.r {
-            // Centre from the radius (Grbl's formula; negative R = long way).
-            if x.abs() < EPS_POS && y.abs() < EPS_POS {
-                return Err(33);
-            }
-            let h2 = 4.0 * r * r - x * x - y * y;
-            if h2 < 0.0 {
-                return Err(33);
-            }
-            let mut h = -h2.sqrt() / x.hypot(y);
-            if !arc.cw {
-                h = -h;
-            }
-            if r < 0.0 {
-                h = -h;
-            }
-            (0.5 * (x - y * h), 0.5 * (y + x * h))
-        } else {
-            let (i, j) = (arc.ijk[o0], arc.ijk[o1]);
-            if i.is_none() && j.is_none() {
-                return Err(35);
-            }
-            (i.unwrap_or(0.0), j.unwrap_or(0.0))
-        };
-        let (c0, c1) = (s0 + ci, s1 + cj);
-        let (r0x, r0y) = (s0 - c0, s1 - c1);
-        let (r1x, r1y) = (arc.end[a0] - c0, arc.end[a1] - c1);
-        let radius = r0x.hypot(r0y);
-        let end_radius = r1x.hypot(r1y);
-        if radius.is_nan() || radius <= 0.0 || ((end_radius - radius).abs() > 0.005 && (end_radius - radius).abs() > 0.001 * radius) {
-            return Err(33);
-        }
-        let mut travel = (r0x * r1y - r0y * r1x).atan2(r0x * r1x + r0y * r1y);
-        if arc.cw {
-            if travel >= -5e-7 {
-                travel -= std::f64::consts::TAU;
-            }
-        } else if travel <= 5e-7 {
-            travel += std::f64::consts::TAU;
-        }
-        let max_step = if radius <= TOLERANCE / 2.0 {
-            std::f64::consts::PI
-        } else {
-            (2.0 * (1.0 - TOLERANCE / radius).acos()).min(std::f64::consts::PI)
-        };
-        let n = (travel.abs() / max_step).ceil().max(1.0);
-        if n > 1e6 {
-            return Err(33);
-        }
-        let n = n as usize;
-        let theta0 = r0y.atan2(r0x);
-        let mut pts = Vec::with_capacity(n);
-        for k in 1..n {
-            let f = k as f64 / n as f64;
-            let th = theta0 + travel * f;
-            let mut p: Vec<f64> =
-                arc.start.iter().zip(arc.end.iter()).map(|(s, e)| s + (e - s) * f).collect();
-            p[a0] = c0 + radius * th.cos();
-            p[a1] = c1 + radius * th.sin();
-            pts.push(p);
-        }
-        pts.push(arc.end.to_vec());
-        Ok(pts)
-    }
-}
-
-struct ArcInput<'a> {
-    start: &'a [f64],
-    end: &'a [f64],
-    plane: u8,
-    cw: bool,
-    ijk: [Option<f64>; 3],
-    r: Option<f64>,
-    has_axes: bool,
 }
 
 fn dist(a: &[f64], b: &[f64]) -> f64 {
@@ -1988,7 +1409,7 @@ fn sanitize(mut c: SimConfig) -> SimConfig {
     if c.axes.is_empty() {
         c.axes.push(AxisConfig::new('X'));
     }
-    c.axes.truncate(6);
+    c.axes.truncate(if c.flavor == Flavor::Grblhal { 8 } else { 6 });
     for a in &mut c.axes {
         a.letter = a.letter.to_ascii_uppercase();
         if !a.min.is_finite() {

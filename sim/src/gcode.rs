@@ -3,19 +3,33 @@
 
 /// Longest line Grbl accepts after stripping.
 pub const MAX_LINE: usize = 79;
+/// grblHAL's: a 257-byte line buffer.
+pub const MAX_LINE_HAL: usize = 256;
 
 /// Incremental line cleaner: fed raw bytes of one line, it applies Grbl's
 /// pre-processing (drop bytes <= 0x20, comments, `/`, upper-case). It is
 /// incremental because a line longer than the RX buffer is consumed in pieces.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct LineBuilder {
     text: String,
     in_paren: bool,
     in_semicolon: bool,
     too_long: bool,
+    max: usize,
+}
+
+impl Default for LineBuilder {
+    fn default() -> Self {
+        LineBuilder::with_max(MAX_LINE)
+    }
 }
 
 impl LineBuilder {
+    /// A builder for lines of at most `max` characters after stripping.
+    pub fn with_max(max: usize) -> LineBuilder {
+        LineBuilder { text: String::new(), in_paren: false, in_semicolon: false, too_long: false, max }
+    }
+
     pub fn push(&mut self, b: u8) {
         if self.in_semicolon || b <= 0x20 || b >= 0x7F {
             return;
@@ -31,7 +45,7 @@ impl LineBuilder {
             b';' => self.in_semicolon = true,
             b'/' => {}
             _ => {
-                if self.text.len() >= MAX_LINE {
+                if self.text.len() >= self.max {
                     self.too_long = true;
                 } else {
                     self.text.push(b.to_ascii_uppercase() as char);
@@ -40,7 +54,7 @@ impl LineBuilder {
         }
     }
 
-    /// The cleaned line, or None if it exceeded 79 characters (error:11).
+    /// The cleaned line, or None if it was too long (error:11).
     pub fn finish(self) -> Option<String> {
         if self.too_long {
             None

@@ -16,7 +16,7 @@ pub mod planner;
 pub mod pty;
 pub mod wire;
 
-pub use controller::{AxisConfig, Controller, Faults, Knot, SimConfig, SimStats};
+pub use controller::{AxisConfig, Controller, Faults, Flavor, Knot, MotionModel, SimConfig, SimStats};
 pub use limits::{LimitChecker, LimitReport};
 pub use link::PacedLink;
 pub use pty::{open_pty, run_realtime, Observed, PtyDevice};

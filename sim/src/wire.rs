@@ -31,6 +31,12 @@ pub mod realtime {
     pub const COOLANT_FLOOD_TOGGLE: u8 = 0xA0;
     pub const COOLANT_MIST_TOGGLE: u8 = 0xA1;
 
+    /// grblHAL's non-printable aliases of `?`, `~` and `!`, and its full report.
+    pub const STATUS_ALT: u8 = 0x80;
+    pub const CYCLE_START_ALT: u8 = 0x81;
+    pub const FEED_HOLD_ALT: u8 = 0x82;
+    pub const FULL_STATUS: u8 = 0x87;
+
     /// True for the bytes Grbl 1.1h acts on in its RX interrupt.
     pub fn is_realtime(b: u8) -> bool {
         matches!(b, STATUS | FEED_HOLD | CYCLE_START | SOFT_RESET)
@@ -40,6 +46,8 @@ pub mod realtime {
 
 /// Banner text (without the surrounding CR/LF) printed at power-up and reset.
 pub const BANNER: &str = "Grbl 1.1h ['$' for help]";
+/// grblHAL's banner.
+pub const BANNER_HAL: &str = "GrblHAL 1.1f ['$' or '$HELP' for help]";
 
 /// Errors from parsing wire text.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -143,6 +151,9 @@ pub struct StatusReport {
     /// `A:` accessories on (`S` M3, `C` M4, `F` flood, `M` mist).
     #[serde(default)]
     pub accessories: Option<String>,
+    /// grblHAL's `FW:` (in a full report, `0x87`).
+    #[serde(default)]
+    pub firmware: Option<String>,
 }
 
 /// Formats with a fixed number of decimals; avoids printing `-0.000`.
@@ -170,6 +181,7 @@ impl StatusReport {
             overrides: None,
             pins: None,
             accessories: None,
+            firmware: None,
         }
     }
 
@@ -216,6 +228,9 @@ impl StatusReport {
         }
         if let Some(a) = &self.accessories {
             s.push_str(&format!("|A:{a}"));
+        }
+        if let Some(f) = &self.firmware {
+            s.push_str(&format!("|FW:{f}"));
         }
         s.push('>');
         s
@@ -275,6 +290,7 @@ impl StatusReport {
                 }
                 "Pn" => rep.pins = Some(val.to_string()),
                 "A" => rep.accessories = Some(val.to_string()),
+                "FW" => rep.firmware = Some(val.to_string()),
                 _ => {}
             }
         }

@@ -1,0 +1,691 @@
+//! The protocol side of the controller apart from G-code (reference §3–§8):
+//! `$` system commands and settings, what Grbl keeps in EEPROM (work offsets,
+//! G28/G30 positions, startup lines, build info), feedback messages, the
+//! status report's `Pn:`/`A:`/`WCO:` contents, the spindle stop override,
+//! probing results and homing outcomes.
+
+use super::{join3, Block, Controller, Flavor, Motion, Pending, SimConfig, Spindle, Step};
+use crate::wire::{fmt_num, MachineState};
+
+/// Release and build id in `[VER:]`.
+const VERSION: &str = "1.1h.laserd-sim";
+/// `[OPT:]` codes of this build: variable spindle, line numbers (`Ln:`), mist
+/// (M7) and a safety door input pin.
+const OPT_CODES: &str = "VNM+";
+/// Longest text an EEPROM line (startup line, build info) holds: 79
+/// characters and a terminator. A line never gets longer than that after
+/// cleaning, so error 14 cannot actually occur here (nor in Grbl 1.1h).
+const EEPROM_LINE: usize = 79;
+
+/// Protocol state besides the modal G-code state. The first group is Grbl's
+/// EEPROM: it survives soft resets (not a new `Controller`).
+#[derive(Debug, Clone)]
+pub(super) struct Protocol {
+    /// The configuration as given: `$RST=$` returns the settings to it.
+    defaults: SimConfig,
+    /// Origins of G54..G59 in machine coordinates.
+    pub(super) coord: Vec<Vec<f64>>,
+    /// G28.1 / G30.1 positions (machine coordinates).
+    pub(super) g28: Vec<f64>,
+    pub(super) g30: Vec<f64>,
+    /// `$N0=` / `$N1=`.
+    startup: [String; 2],
+    /// `$I=`.
+    build_info: String,
+
+    /// G43.1 tool length offset (Z); cleared by a reset.
+    pub(super) tlo: f64,
+    /// Last probe position (machine) and whether it touched; cleared by a reset.
+    probe: Vec<f64>,
+    probe_ok: bool,
+    /// The spindle stop override is engaged (only during a hold).
+    spindle_stop: bool,
+    /// The startup lines are to run (after a reset that left no alarm; once a
+    /// door open at the reset has been closed and resumed).
+    startup_due: bool,
+    /// Echo each received line as `[echo:...]` (a Grbl compile option).
+    echo: bool,
+
+    /// Machine inputs. The probe touches the work (`Pn:P`).
+    pub(super) probe_pin: bool,
+    /// A limit switch held down since a hard limit tripped (`Pn:` + axis
+    /// letter); the machine leaves it with its next move or homing.
+    pub(super) limit_pin: Option<char>,
+}
+
+impl Protocol {
+    pub(super) fn new(cfg: &SimConfig) -> Protocol {
+        let n = cfg.axes.len();
+        Protocol {
+            defaults: cfg.clone(),
+            coord: vec![vec![0.0; n]; 6],
+            g28: vec![0.0; n],
+            g30: vec![0.0; n],
+            startup: Default::default(),
+            build_info: String::new(),
+            tlo: 0.0,
+            probe: vec![0.0; n],
+            probe_ok: false,
+            spindle_stop: false,
+            startup_due: false,
+            echo: false,
+            probe_pin: false,
+            limit_pin: None,
+        }
+    }
+
+    /// What a soft reset clears (reference §6).
+    pub(super) fn reset(&mut self) {
+        self.tlo = 0.0;
+        self.probe.iter_mut().for_each(|p| *p = 0.0);
+        self.probe_ok = false;
+        self.spindle_stop = false;
+    }
+}
+
+/// How a protocol step went, for the line handler.
+pub(super) enum StepOutcome {
+    /// Not yet: try again later.
+    Wait,
+    Done,
+    /// Done; these steps come next.
+    Then(Vec<Step>),
+    /// The controller reset itself: the line is gone, no `ok`.
+    Reset,
+}
+
+/// How a setting is stored and printed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Kind {
+    /// Whole number, written truncated.
+    Int,
+    /// 0 or 1 (any non-zero whole part counts as 1).
+    Bool,
+    /// Float printed without decimals (`$30`, `$31`).
+    Rpm,
+    /// Float printed with 3 decimals.
+    Float,
+}
+
+impl Controller {
+    /// Echo every received line as `[echo:<line after cleaning>]`, as Grbl
+    /// built with its echo option does (for debugging a link).
+    pub fn set_echo(&mut self, on: bool) {
+        self.proto.echo = on;
+    }
+
+    pub(super) fn echo_line(&mut self, text: &str) {
+        if self.proto.echo {
+            self.send(&format!("[echo:{text}]"));
+        }
+    }
+
+    // ----- report contents -----
+
+    /// Work coordinate offset in force: active G54..G59 + G92 + TLO (on Z).
+    pub(super) fn wco(&self) -> Vec<f64> {
+        let wcs = &self.proto.coord[usize::from(self.modal.coord.clamp(54, 59) - 54)];
+        let z = self.axis_index('Z');
+        (0..self.pos.len())
+            .map(|i| wcs[i] + self.g92[i] + if Some(i) == z { self.proto.tlo } else { 0.0 })
+            .collect()
+    }
+
+    /// `Pn:` letters: probe, limit switch, door.
+    pub(super) fn pins(&self) -> Option<String> {
+        let mut p = String::new();
+        if self.proto.probe_pin {
+            p.push('P');
+        }
+        if let Some(axis) = self.proto.limit_pin {
+            p.push(axis);
+        }
+        if self.door_open {
+            p.push('D');
+        }
+        (!p.is_empty()).then_some(p)
+    }
+
+    /// `A:` letters: what is actually on. A door or sleep switches spindle
+    /// and coolant off, the spindle stop override the spindle.
+    pub(super) fn accessories(&self) -> Option<String> {
+        if self.door || self.sleep {
+            return None;
+        }
+        let mut a = String::new();
+        match self.modal.spindle {
+            _ if self.proto.spindle_stop => {}
+            Spindle::Cw => a.push('S'),
+            Spindle::Ccw => a.push('C'),
+            Spindle::Off => {}
+        }
+        if self.modal.flood {
+            a.push('F');
+        }
+        if self.modal.mist {
+            a.push('M');
+        }
+        (!a.is_empty()).then_some(a)
+    }
+
+    // ----- reset, startup lines -----
+
+    /// What follows the banner (reference §6): the alarm lock message, a
+    /// limit switch still pressed with hard limits on (which locks too), a door
+    /// left open (Door state); otherwise the startup lines are due.
+    pub(super) fn after_banner(&mut self) {
+        let limit = self.proto.limit_pin.is_some() && self.setting(21) != 0.0;
+        if limit {
+            self.alarm = true;
+        }
+        if self.alarm {
+            self.send("[MSG:'$H'|'$X' to unlock]");
+        }
+        if limit {
+            self.send("[MSG:Check Limits]");
+        }
+        if !self.alarm && self.door_open {
+            self.send("[MSG:Check Door]");
+            self.door = true;
+            self.hold = true;
+        }
+        self.proto.startup_due = !self.alarm;
+    }
+
+    /// Startup lines wait for the door to be closed and `~`, and never run
+    /// in an alarm.
+    pub(super) fn startup_ready(&self) -> bool {
+        self.proto.startup_due && !self.alarm && !self.door && !self.sleep
+    }
+
+    /// Runs the startup lines as a line of their own that answers with
+    /// `>line:ok` echoes instead of an `ok`.
+    pub(super) fn begin_startup(&mut self) {
+        self.proto.startup_due = false;
+        let steps = self.startup_steps();
+        if !steps.is_empty() {
+            self.pending = Some(Pending { steps: steps.into(), rx_len: 0, dwell_until: None, reset_after: false, quiet: true });
+        }
+    }
+
+    /// Each stored line executed as G-code, followed by its `>line:ok` or
+    /// replaced by `>line:error:N`.
+    fn startup_steps(&mut self) -> Vec<Step> {
+        let mut steps = Vec::new();
+        for text in self.proto.startup.clone().iter().filter(|l| !l.is_empty()) {
+            match self.gcode(text, self.line_count) {
+                Ok(s) => {
+                    steps.extend(s);
+                    steps.push(Step::Say(format!(">{text}:ok")));
+                }
+                Err(code) => steps.push(Step::Say(format!(">{text}:error:{code}"))),
+            }
+        }
+        steps
+    }
+
+    // ----- holds, spindle stop, alarms -----
+
+    /// A hold begins (`!` or M0). In laser mode Grbl stops the laser with its
+    /// spindle stop override (build default), so resuming restores it.
+    pub(super) fn hold_stops_laser(&mut self) {
+        if self.setting(32) != 0.0 && self.modal.spindle != Spindle::Off {
+            self.proto.spindle_stop = true;
+            self.ov_countdown = 0;
+        }
+    }
+
+    /// `0x9E` in Hold: stop the spindle, or restore it if stopped.
+    pub(super) fn toggle_spindle_stop(&mut self) {
+        if self.proto.spindle_stop {
+            self.restore_spindle();
+        } else if self.modal.spindle != Spindle::Off {
+            self.proto.spindle_stop = true;
+            self.ov_countdown = 0;
+        }
+    }
+
+    /// Ends a spindle stop override (on `~` or a second `0x9E`). Grbl does
+    /// not wait for spin-up in laser mode; this simulator never does.
+    pub(super) fn restore_spindle(&mut self) {
+        if std::mem::take(&mut self.proto.spindle_stop) {
+            if self.modal.spindle != Spindle::Off {
+                self.send("[MSG:Restoring spindle]");
+            }
+            self.ov_countdown = 0;
+        }
+    }
+
+    /// A door turns spindle and coolant off itself and restores them on
+    /// resume without a message: it supersedes the spindle stop override.
+    pub(super) fn door_clears_spindle_stop(&mut self) {
+        self.proto.spindle_stop = false;
+    }
+
+    /// A non-critical alarm (probe fail): locked until `$X`/`$H`, no reset.
+    fn raise_alarm(&mut self, code: u16) {
+        self.alarm = true;
+        self.stats.alarms.push(code);
+        self.send(&format!("ALARM:{code}"));
+    }
+
+    pub(super) fn homing_active(&self) -> bool {
+        self.exec.as_ref().is_some_and(|e| e.block.homing) || self.planner.iter().any(|b| b.homing)
+    }
+
+    /// A failed homing cycle: the alarm, then Grbl resets itself (banner) and
+    /// stays locked.
+    pub(super) fn homing_fail(&mut self, code: u16) {
+        self.stop_motion_now();
+        self.planner.clear();
+        self.stats.alarms.push(code);
+        self.send(&format!("ALARM:{code}"));
+        self.alarm = true;
+        self.soft_reset();
+    }
+
+    /// The protocol's own steps of a pending line.
+    pub(super) fn protocol_step(&mut self, step: &Step) -> StepOutcome {
+        match step {
+            Step::Say(text) => self.send(text),
+            Step::Alarm(code) => {
+                if *code == 4 {
+                    // A probing cycle that cannot start has not succeeded either.
+                    self.proto.probe_ok = false;
+                }
+                self.raise_alarm(*code);
+            }
+            Step::AwaitResume if self.hold => return StepOutcome::Wait,
+            Step::Probed { pos, touched, alarm } => {
+                if *touched {
+                    // Toward the work it now touches, away from it it has left.
+                    self.proto.probe_pin = !self.proto.probe_pin;
+                    self.proto.probe = pos.clone();
+                } else if !*alarm {
+                    self.proto.probe = pos.clone();
+                }
+                // A failed G38.2/.4 leaves the last probe position as it was
+                // (Grbl records the position only on contact or in the
+                // no-error variants) and reports that.
+                self.proto.probe_ok = *touched;
+                if *alarm {
+                    self.raise_alarm(5);
+                }
+                let prb = format!("[PRB:{}:{}]", join3(&self.proto.probe), u8::from(*touched));
+                self.send(&prb);
+            }
+            Step::HomingDone => {
+                let f = &self.cfg.faults;
+                let fail = if f.homing_switch_missing {
+                    Some(9)
+                } else if f.homing_pull_off_fails {
+                    Some(8)
+                } else {
+                    None
+                };
+                if let Some(code) = fail {
+                    self.homing_fail(code);
+                    return StepOutcome::Reset;
+                }
+                self.proto.limit_pin = None;
+                return StepOutcome::Then(self.startup_steps());
+            }
+            _ => {}
+        }
+        StepOutcome::Done
+    }
+
+    // ----- `$` commands -----
+
+    /// A `$` line (without the `$`; `$J=` is handled by the jog parser).
+    /// Ok(steps before the `ok`, reset after the `ok`) or Err(code).
+    pub(super) fn system_command(&mut self, cmd: &str) -> Result<(Vec<Step>, bool), u16> {
+        let done = Ok((Vec::new(), false));
+        let state = self.state();
+        let idle_or_alarm = matches!(state, MachineState::Idle | MachineState::Alarm);
+        match cmd {
+            "" => self.send("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"),
+            "$" => {
+                if matches!(state, MachineState::Run | MachineState::Hold(_)) {
+                    return Err(8);
+                }
+                for (n, kind, v) in self.settings() {
+                    let text = match kind {
+                        Kind::Float => fmt_num(v, 3),
+                        _ => fmt_num(v, 0),
+                    };
+                    self.send(&format!("${n}={text}"));
+                }
+            }
+            "G" => {
+                let gc = self.gc_line();
+                self.send(&gc);
+            }
+            "C" => {
+                if self.check_mode {
+                    self.send("[MSG:Disabled]");
+                    return Ok((Vec::new(), true));
+                }
+                if state != MachineState::Idle {
+                    return Err(8);
+                }
+                self.check_mode = true;
+                self.send("[MSG:Enabled]");
+            }
+            "X" => {
+                if self.alarm {
+                    if self.door_open {
+                        return Err(13);
+                    }
+                    self.alarm = false;
+                    self.send("[MSG:Caution: Unlocked]");
+                }
+            }
+            // `$J` without `=` (reference: error 16).
+            _ if cmd.starts_with('J') => {
+                return Err(if matches!(state, MachineState::Idle | MachineState::Jog) { 16 } else { 8 });
+            }
+            // Everything else needs Idle or Alarm.
+            _ if !idle_or_alarm => return Err(8),
+            "#" => {
+                let names = ["G54", "G55", "G56", "G57", "G58", "G59"];
+                let mut lines: Vec<String> =
+                    names.iter().zip(&self.proto.coord).map(|(n, c)| format!("[{n}:{}]", join3(c))).collect();
+                lines.push(format!("[G28:{}]", join3(&self.proto.g28)));
+                lines.push(format!("[G30:{}]", join3(&self.proto.g30)));
+                lines.push(format!("[G92:{}]", join3(&self.g92)));
+                lines.push(format!("[TLO:{}]", fmt_num(self.proto.tlo, 3)));
+                lines.push(format!("[PRB:{}:{}]", join3(&self.proto.probe), u8::from(self.proto.probe_ok)));
+                lines.iter().for_each(|l| self.send(l));
+            }
+            "H" => return self.home(),
+            "SLP" => {
+                self.sleep = true;
+                self.send("[MSG:Sleeping]");
+            }
+            "I" => match self.cfg.flavor {
+                Flavor::Grbl => {
+                    let ver = format!("[VER:{VERSION}:{}]", self.proto.build_info);
+                    self.send(&ver);
+                    let opt = format!("[OPT:{OPT_CODES},{},{}]", self.cfg.planner_blocks, self.cfg.rx_buffer);
+                    self.send(&opt);
+                }
+                Flavor::Grblhal => {
+                    // The receive buffer as its reports count it (one byte
+                    // of the ring stays unused), then the axes.
+                    let letters: String = self.cfg.axes.iter().map(|a| a.letter).collect();
+                    let ver = format!("[VER:1.1f.laserd-sim:{}]", self.proto.build_info);
+                    self.send(&ver);
+                    // (grblHAL's own codes are left as its author set them.)
+                    let opt = format!(
+                        "[OPT:V,{},{},{},0]",
+                        self.cfg.planner_blocks,
+                        self.free_buffers().1 + self.rx.len() as u32,
+                        letters.len()
+                    );
+                    self.send(&opt);
+                    self.send(&format!("[AXS:{}:{letters}]", letters.len()));
+                    self.send("[FIRMWARE:grblHAL]");
+                }
+            },
+            "N" => {
+                for (i, text) in self.proto.startup.clone().iter().enumerate() {
+                    self.send(&format!("$N{i}={text}"));
+                }
+            }
+            "RST=$" | "RST=#" | "RST=*" => {
+                if cmd != "RST=#" {
+                    self.restore_settings();
+                }
+                if cmd != "RST=$" {
+                    let n = self.pos.len();
+                    self.proto.coord = vec![vec![0.0; n]; 6];
+                    self.proto.g28 = vec![0.0; n];
+                    self.proto.g30 = vec![0.0; n];
+                }
+                if cmd == "RST=*" {
+                    self.proto.startup = Default::default();
+                    self.proto.build_info.clear();
+                }
+                self.send("[MSG:Restoring defaults]");
+                return Ok((Vec::new(), true));
+            }
+            _ => {
+                if let Some(text) = cmd.strip_prefix("I=") {
+                    if text.len() > EEPROM_LINE {
+                        return Err(14);
+                    }
+                    self.proto.build_info = text.to_string();
+                } else if let Some(rest) = cmd.strip_prefix('N') {
+                    return self.store_startup_line(rest);
+                } else {
+                    // `$n=value`: written like Grbl's EEPROM, kept across resets.
+                    let (n, v) = cmd.split_once('=').ok_or(3u16)?;
+                    if n.is_empty() || !n.bytes().all(|b| b.is_ascii_digit()) {
+                        return Err(3);
+                    }
+                    let n: u32 = n.parse().map_err(|_| 3u16)?;
+                    let v = parse_value(v).ok_or(2u16)?;
+                    self.write_setting(n, v)?;
+                }
+            }
+        }
+        done
+    }
+
+    /// `$Nx=line`: Idle only; the line is executed (and must be valid) before
+    /// it is stored.
+    fn store_startup_line(&mut self, rest: &str) -> Result<(Vec<Step>, bool), u16> {
+        if self.state() != MachineState::Idle {
+            return Err(8);
+        }
+        let (idx, text) = rest.split_once('=').ok_or(3u16)?;
+        let idx = match idx {
+            "0" => 0,
+            "1" => 1,
+            _ => return Err(3),
+        };
+        if text.len() > EEPROM_LINE {
+            return Err(14);
+        }
+        let steps = self.gcode(text, self.line_count)?;
+        self.proto.startup[idx] = text.to_string();
+        Ok((steps, false))
+    }
+
+    /// `$H`. There are no switches to seek: every axis moves to its home (0)
+    /// at the seek rate (`$25`), the `ok` comes when it is there, and the
+    /// startup lines run. `Faults` can make the cycle fail there (ALARM:8/9).
+    fn home(&mut self) -> Result<(Vec<Step>, bool), u16> {
+        if self.setting(22) == 0.0 {
+            return Err(5);
+        }
+        if self.door_open {
+            return Err(13);
+        }
+        // A successful cycle clears the alarm (the state reads Home meanwhile).
+        self.alarm = false;
+        let seek = self.setting(25).max(1e-3) / 60.0;
+        let home = vec![0.0; self.pos.len()];
+        let duration = self.pos.iter().map(|p| p.abs() / seek).fold(0.0, f64::max);
+        self.gc_pos = home.clone();
+        if duration <= 0.0 {
+            return Ok((vec![Step::HomingDone], false));
+        }
+        let block = Block { rapid: true, ends_sequence: true, homing: true, ..Block::new(home, duration, 0.0, self.line_count) };
+        Ok((vec![Step::Queue(block), Step::Sync, Step::HomingDone], false))
+    }
+
+    // ----- settings -----
+
+    /// Every setting with its kind and value in force (written or default),
+    /// `$0`–`$32` then per axis `$100+i`, `$110+i`, `$120+i`, `$130+i`.
+    fn settings(&self) -> Vec<(u32, Kind, f64)> {
+        use Kind::*;
+        let d = &self.proto.defaults;
+        let mut s = vec![
+            (0, Int, 10.0),
+            (1, Int, 25.0),
+            (2, Int, 0.0),
+            (3, Int, 0.0),
+            (4, Bool, 0.0),
+            (5, Bool, 0.0),
+            (6, Bool, 0.0),
+            // MPos + Bf: what a sender wants to see.
+            (10, Int, 3.0),
+            (11, Float, 0.010),
+            (12, Float, 0.002),
+            (13, Bool, 0.0),
+            // Soft limits on (travel from the config) without homing, which
+            // Grbl itself would refuse (error 10): the simulator's default.
+            (20, Bool, 1.0),
+            (21, Bool, 0.0),
+            (22, Bool, 0.0),
+            (23, Int, 0.0),
+            (24, Float, 25.0),
+            (25, Float, 500.0),
+            (26, Int, 250.0),
+            (27, Float, 1.0),
+            (30, Rpm, d.laser_max_s),
+            (31, Rpm, 0.0),
+            (32, Bool, 1.0),
+        ];
+        let n = d.axes.len() as u32;
+        s.extend((0..n).map(|i| (100 + i, Float, 250.0)));
+        s.extend(d.axes.iter().zip(0..).map(|(a, i)| (110 + i, Float, a.max_velocity * 60.0)));
+        s.extend(d.axes.iter().zip(0..).map(|(a, i)| (120 + i, Float, a.max_acceleration)));
+        s.extend(d.axes.iter().zip(0..).map(|(a, i)| (130 + i, Float, a.max - a.min)));
+        for (k, _, v) in &mut s {
+            if let Some(w) = self.written_settings.get(k) {
+                *v = *w;
+            }
+        }
+        s
+    }
+
+    /// Value of setting `n` in force (0 for an unknown one).
+    pub(super) fn setting(&self, n: u32) -> f64 {
+        self.written_settings
+            .get(&n)
+            .copied()
+            .unwrap_or_else(|| self.settings().into_iter().find(|(k, _, _)| *k == n).map_or(0.0, |(_, _, v)| v))
+    }
+
+    /// The `$10` status report mask in force. Grbl 1.1 uses bit 0 (MPos, else
+    /// WPos) and bit 1 (`Bf:`); the other bits are grblHAL's and do nothing here.
+    pub(super) fn status_mask(&self) -> u32 {
+        self.setting(10) as u32 & 3
+    }
+
+    /// Soft limits (`$20`) in force.
+    pub(super) fn soft_limits(&self) -> bool {
+        self.setting(20) != 0.0
+    }
+
+    /// Writes setting `n` (`$n=value`), with the effect Grbl gives it.
+    fn write_setting(&mut self, n: u32, v: f64) -> Result<(), u16> {
+        let Some(kind) = self.settings().iter().find(|(k, _, _)| *k == n).map(|s| s.1) else {
+            return Err(3);
+        };
+        if v < 0.0 {
+            return Err(4);
+        }
+        let v = match kind {
+            Kind::Int => v.trunc(),
+            Kind::Bool => f64::from(u8::from(v.trunc() != 0.0)),
+            Kind::Rpm | Kind::Float => v,
+        };
+        if n == 0 && v < 3.0 {
+            return Err(6);
+        }
+        if n == 20 && v != 0.0 && self.setting(22) == 0.0 {
+            return Err(10);
+        }
+        let axis = |base: u32| (n >= base && n < base + 10).then(|| (n - base) as usize);
+        // A zero rate or acceleration would stall the machine model: it is
+        // stored and printed, but the axis keeps its last usable value.
+        if let Some(i) = axis(110).filter(|_| v > 0.0) {
+            self.cfg.axes[i].max_velocity = v / 60.0;
+        } else if let Some(i) = axis(120).filter(|_| v > 0.0) {
+            self.cfg.axes[i].max_acceleration = v;
+        } else if let Some(i) = axis(130) {
+            let a = &mut self.cfg.axes[i];
+            a.max = a.min + v;
+        } else if n == 30 && v > 0.0 {
+            self.cfg.laser_max_s = v;
+        }
+        self.written_settings.insert(n, v);
+        if n == 22 && v == 0.0 {
+            // Soft limits need homing: switching homing off switches them off.
+            self.written_settings.insert(20, 0.0);
+        }
+        Ok(())
+    }
+
+    /// `$RST=$`: every setting back to the configured default.
+    fn restore_settings(&mut self) {
+        self.written_settings.clear();
+        let d = &self.proto.defaults;
+        for (a, da) in self.cfg.axes.iter_mut().zip(&d.axes) {
+            a.max_velocity = da.max_velocity;
+            a.max_acceleration = da.max_acceleration;
+            a.min = da.min;
+            a.max = da.max;
+        }
+        self.cfg.laser_max_s = d.laser_max_s;
+    }
+
+    /// `[GC:...]`: the parser's modal state (reference §7).
+    fn gc_line(&self) -> String {
+        let m = &self.modal;
+        let motion = match m.motion {
+            Motion::Rapid => "G0",
+            Motion::Linear => "G1",
+            Motion::ArcCw => "G2",
+            Motion::ArcCcw => "G3",
+            Motion::Probe { away: false, no_error: false } => "G38.2",
+            Motion::Probe { away: false, no_error: true } => "G38.3",
+            Motion::Probe { away: true, no_error: false } => "G38.4",
+            Motion::Probe { away: true, no_error: true } => "G38.5",
+            Motion::None => "G80",
+        };
+        let spindle = match m.spindle {
+            Spindle::Off => "M5",
+            Spindle::Cw => "M3",
+            Spindle::Ccw => "M4",
+        };
+        let coolant = match (m.mist, m.flood) {
+            (false, false) => "M9",
+            (true, false) => "M7",
+            (false, true) => "M8",
+            (true, true) => "M7 M8",
+        };
+        let feed = if m.inverse_time {
+            fmt_num(m.feed, 0)
+        } else if m.inches {
+            fmt_num(m.feed / 25.4, 1)
+        } else {
+            fmt_num(m.feed, 0)
+        };
+        format!(
+            "[GC:{motion} G{} G{} {} {} {} {spindle} {coolant} T{} F{feed} S{}]",
+            m.coord,
+            m.plane,
+            if m.inches { "G20" } else { "G21" },
+            if m.incremental { "G91" } else { "G90" },
+            if m.inverse_time { "G93" } else { "G94" },
+            m.tool,
+            fmt_num(m.s, 0),
+        )
+    }
+}
+
+/// A setting value as Grbl reads it: optional sign, digits, one point; no
+/// exponent, no `inf`/`nan`.
+fn parse_value(s: &str) -> Option<f64> {
+    let body = s.strip_prefix(['-', '+']).unwrap_or(s);
+    let ok = body.bytes().any(|b| b.is_ascii_digit())
+        && body.bytes().all(|b| b.is_ascii_digit() || b == b'.')
+        && body.bytes().filter(|b| *b == b'.').count() <= 1;
+    ok.then(|| s.parse::<f64>().ok()).flatten().filter(|v| v.is_finite())
+}
