@@ -122,7 +122,9 @@ enum Command {
         flavor: Option<Flavor>,
         /// Inject a fault, e.g. `--fault error-on-line=40`; repeatable. Faults:
         /// error-on-line, drop-byte, corrupt-byte, mute-from-line, reset-at-line,
-        /// limit-alarm-at-line, close-link-at-line (lines and bytes count from 1).
+        /// limit-alarm-at-line, close-link-at-line (=N: lines and bytes count
+        /// from 1), probe-contact-mm=D (the probe touches D mm into a G38 move),
+        /// homing-switch-missing, homing-pull-off-fails.
         #[arg(long = "fault", value_name = "NAME=N")]
         faults: Vec<String>,
     },
@@ -367,20 +369,38 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
 fn parse_faults(specs: &[String]) -> Result<Faults> {
     let mut faults = Faults::default();
     for spec in specs {
-        let bad = || Error::Config(format!("--fault {spec}: expected NAME=N with N a positive whole number"));
-        let (name, value) = spec.split_once('=').ok_or_else(bad)?;
-        let n: u64 = value.trim().parse().ok().filter(|n| *n > 0).ok_or_else(bad)?;
-        let slot = match name.trim() {
-            "error-on-line" => &mut faults.error_on_line,
-            "drop-byte" => &mut faults.drop_byte,
-            "corrupt-byte" => &mut faults.corrupt_byte,
-            "mute-from-line" => &mut faults.mute_from_line,
-            "reset-at-line" => &mut faults.reset_at_line,
-            "limit-alarm-at-line" => &mut faults.limit_alarm_at_line,
-            "close-link-at-line" => &mut faults.close_link_at_line,
-            other => return Err(Error::Config(format!("--fault {spec}: unknown fault '{other}'"))),
+        let (name, value) = match spec.split_once('=') {
+            Some((n, v)) => (n.trim(), Some(v.trim())),
+            None => (spec.trim(), None),
         };
-        *slot = Some(n);
+        // Switch faults take no value; the probe's contact distance is in mm.
+        match (name, value) {
+            ("homing-switch-missing", None) => faults.homing_switch_missing = true,
+            ("homing-pull-off-fails", None) => faults.homing_pull_off_fails = true,
+            ("probe-contact-mm", Some(v)) => {
+                let mm: f64 = v.parse().ok().filter(|mm: &f64| mm.is_finite() && *mm > 0.0).ok_or_else(|| {
+                    Error::Config(format!("--fault {spec}: expected probe-contact-mm=D with D a positive distance in mm"))
+                })?;
+                faults.probe_contact_mm = Some(mm);
+            }
+            (_, Some(v)) => {
+                let slot = match name {
+                    "error-on-line" => &mut faults.error_on_line,
+                    "drop-byte" => &mut faults.drop_byte,
+                    "corrupt-byte" => &mut faults.corrupt_byte,
+                    "mute-from-line" => &mut faults.mute_from_line,
+                    "reset-at-line" => &mut faults.reset_at_line,
+                    "limit-alarm-at-line" => &mut faults.limit_alarm_at_line,
+                    "close-link-at-line" => &mut faults.close_link_at_line,
+                    other => return Err(Error::Config(format!("--fault {spec}: unknown fault '{other}'"))),
+                };
+                let n: u64 = v.parse().ok().filter(|n| *n > 0).ok_or_else(|| {
+                    Error::Config(format!("--fault {spec}: expected NAME=N with N a positive whole number"))
+                })?;
+                *slot = Some(n);
+            }
+            (other, None) => return Err(Error::Config(format!("--fault {spec}: unknown fault '{other}' or missing =N"))),
+        }
     }
     Ok(faults)
 }

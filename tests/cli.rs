@@ -261,4 +261,7 @@ fn send_reports_the_pseudo_terminal_closing_mid_job() {
 fn an_unknown_fault_is_one_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     assert_clean_error(&laserd(&["sim", "--fault", "gremlins=3"], dir.path()), "gremlins");
+    assert_clean_error(&laserd(&["sim", "--fault", "probe-contact-mm=-1"], dir.path()), "probe-contact-mm");
+    assert_clean_error(&laserd(&["sim", "--fault", "drop-byte=x"], dir.path()), "drop-byte");
+    assert_clean_error(&laserd(&["sim", "--fault", "drop-byte"], dir.path()), "drop-byte");
 }

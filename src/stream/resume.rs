@@ -1,11 +1,13 @@
 //! Resuming a program from a line after an interruption. The modal state the
 //! program had built up before that line (units, distance mode, feed mode, work
-//! coordinate system, laser mode and power, feed rate, and where the tool was)
-//! is re-established, and the tool moves to where that line starts with the
-//! laser off, before the line itself is sent.
+//! coordinate system, G92 offset, laser mode and power, feed rate, and where
+//! the tool was) is re-established, and the tool moves to where that line
+//! starts with the laser off, before the line itself is sent.
 //!
-//! Not restored: G92 and G10 offsets (a program that sets them must be resumed
-//! from before it does) and arcs' plane (G17 is assumed, Grbl's default).
+//! G10 offsets need nothing: the controller keeps them in its EEPROM through
+//! the reset that ended the interrupted run. Not restored: arcs' plane (G17 is
+//! assumed, Grbl's default), and a G92 offset set where the tool's position
+//! was unknown (after G28/G30/G53 moves, or before the first move).
 
 use laserd_sim::gcode::{split_words, LineBuilder};
 
@@ -26,6 +28,9 @@ pub struct ModalState {
     pub feed: Option<f64>,
     /// Tool position per axis in program coordinates, where known.
     pub position: Vec<Option<f64>>,
+    /// G92 offset per axis (program coordinates = work coordinates − offset);
+    /// `None` where it was set at an unknown position.
+    pub offset: Vec<Option<f64>>,
 }
 
 impl ModalState {
@@ -41,6 +46,7 @@ impl ModalState {
             power: 0.0,
             feed: None,
             position: vec![None; axis_letters.len()],
+            offset: vec![Some(0.0); axis_letters.len()],
         }
     }
 
@@ -53,8 +59,39 @@ impl ModalState {
             return;
         }
         let Ok(words) = split_words(&line) else { return };
+        let has = |g: f64| words.iter().any(|w| w.letter == 'G' && w.value == g);
+        let axis = |c: char| self.letters.iter().position(|l| *l == c);
+        if has(92.1) {
+            self.offset.iter_mut().for_each(|o| *o = Some(0.0));
+        }
+        if has(92.0) {
+            // The tool's position now reads as the word's value: the offset
+            // moves by the difference.
+            for w in &words {
+                if let Some(i) = axis(w.letter) {
+                    self.offset[i] = match (self.offset[i], self.position[i]) {
+                        (Some(o), Some(p)) => Some(o + p - w.value),
+                        _ => None,
+                    };
+                    self.position[i] = Some(w.value);
+                }
+            }
+            return;
+        }
+        if has(28.0) || has(30.0) {
+            // To a stored position: where, in program coordinates, is unknown.
+            self.position.iter_mut().for_each(|p| *p = None);
+        }
+        if has(53.0) {
+            // Machine coordinates: the named axes end up somewhere unknown here.
+            for w in &words {
+                if let Some(i) = axis(w.letter) {
+                    self.position[i] = None;
+                }
+            }
+        }
         // Axis words here set offsets or name machine coordinates, not targets.
-        let no_target = words.iter().any(|w| w.letter == 'G' && [4.0, 10.0, 28.1, 30.1, 53.0, 92.0].contains(&w.value));
+        let no_target = words.iter().any(|w| w.letter == 'G' && [4.0, 10.0, 28.0, 28.1, 30.0, 30.1, 53.0].contains(&w.value));
         for w in &words {
             match (w.letter, w.value) {
                 ('G', g) if g == 20.0 || g == 21.0 => self.inches = g == 20.0,
@@ -82,22 +119,32 @@ impl ModalState {
     }
 
     /// Lines that bring a freshly reset controller into this state: modes, the
-    /// move to the position with the laser off, then laser, feed and distance
-    /// modes as the program had them.
+    /// move to the position with the laser off (in work coordinates, the G92
+    /// offset cleared), the G92 offset set again there, then laser, feed and
+    /// distance modes as the program had them.
     pub fn preamble(&self) -> Vec<String> {
         let mut lines = vec![
             format!("{}G90G94G{}", if self.inches { "G20" } else { "G21" }, self.coordinate_system),
             "M5".to_string(),
+            "G92.1".to_string(),
         ];
         let mut rapid = String::from("G0");
-        for (letter, p) in self.letters.iter().zip(&self.position) {
+        let mut g92 = String::from("G92");
+        for ((letter, p), o) in self.letters.iter().zip(&self.position).zip(&self.offset) {
             if let Some(p) = p {
                 rapid.push(*letter);
-                rapid.push_str(&format_number(*p, 6));
+                rapid.push_str(&format_number(p + o.unwrap_or(0.0), 6));
+                if o.is_some_and(|o| o != 0.0) {
+                    g92.push(*letter);
+                    g92.push_str(&format_number(*p, 6));
+                }
             }
         }
         if rapid.len() > 2 {
             lines.push(rapid);
+        }
+        if g92.len() > 3 {
+            lines.push(g92);
         }
         if let Some(m) = self.laser {
             lines.push(format!("M{m}S{}", format_number(self.power, 3)));
@@ -130,9 +177,20 @@ mod tests {
         assert_eq!(s.power, 300.0);
         assert!(s.inverse_time && s.incremental);
         assert_eq!(s.position, vec![Some(11.0), Some(5.0), Some(1.5), Some(-2.0)]);
-        assert_eq!(s.preamble(), vec!["G21G90G94G54", "M5", "G0X11Y5U1.5V-2", "M4S300", "G93", "G91"]);
-        s.apply("G92 X0");
-        assert_eq!(s.position[0], Some(11.0), "G92 sets an offset, not a target");
+        assert_eq!(s.preamble(), vec!["G21G90G94G54", "M5", "G92.1", "G0X11Y5U1.5V-2", "M4S300", "G93", "G91"]);
+        // G92 X0 at X11: work X11 now reads 0; a later move to 4 is work X15.
+        s.apply("G90 G92 X0");
+        assert_eq!(s.position[0], Some(0.0));
+        s.apply("G1 X4 F600");
+        assert_eq!(s.offset[0], Some(11.0));
+        let pre = s.preamble();
+        assert_eq!(&pre[2..5], &["G92.1", "G0X15Y5U1.5V-2", "G92X4"], "{pre:?}");
+        s.apply("G92.1");
+        assert_eq!(s.offset[0], Some(0.0));
+        // After G28 nothing is known of the position, so nothing moves on resume.
+        s.apply("G28");
+        assert!(s.position.iter().all(Option::is_none));
+        assert!(!s.preamble().iter().any(|l| l.starts_with("G0")));
         s.apply("M5");
         s.apply("M2");
         assert_eq!(s.laser, None);
