@@ -299,6 +299,8 @@ struct Block {
     homing: bool,
     /// Geometry and limits, set when the block enters the planner.
     kin: Kinematics,
+    /// Laser power scales with actual over programmed speed (M4, laser mode).
+    dynamic_power: bool,
 }
 
 impl Block {
@@ -318,6 +320,7 @@ impl Block {
             jog: false,
             homing: false,
             kin: Kinematics::default(),
+            dynamic_power: false,
         }
     }
 }
@@ -976,9 +979,16 @@ impl Controller {
             stopping: self.hold,
         };
         let power = if self.hold { 0.0 } else { self.block_power(&e.block) };
+        let programmed_speed = if e.block.duration > 0.0 { e.block.kin.length / e.block.duration } else { 0.0 };
         let Some(e) = self.exec.as_mut() else { return };
         match planner::next_segment(input) {
             Some(seg) => {
+                // Grbl's M4 scales power by actual over programmed speed, per segment.
+                let power = if e.block.dynamic_power && programmed_speed > 0.0 {
+                    power * (seg.distance / seg.duration / programmed_speed).min(1.0)
+                } else {
+                    power
+                };
                 e.start_t = t;
                 e.end_t = t + seg.duration;
                 e.start_pos = std::mem::take(&mut e.end_pos);

@@ -180,3 +180,19 @@ fn status_reports_the_free_planner_blocks() {
     assert_eq!(s.status().buffer, Some((15, 128)));
     assert!((s.ctl.position()[0] - 40.0).abs() < 1e-9);
 }
+
+#[test]
+fn m4_power_follows_the_actual_speed_and_m3_does_not() {
+    let powers = |spindle: &str| {
+        let mut s = Sim::new(grbl(15));
+        s.send(&format!("{spindle}S500\nG1X100F6000\n"));
+        s.run_until(5.0);
+        // (speed, power) of every segment.
+        speeds(&s.knots).into_iter().zip(s.knots.windows(2).filter(|w| w[1].t > w[0].t).map(|w| w[1].power)).map(|((_, v), p)| (v, p)).collect::<Vec<_>>()
+    };
+    let m4 = powers("M4");
+    assert!(m4.iter().all(|(v, p)| (p - 500.0 * v / 100.0).abs() < 1e-6), "{m4:?}");
+    assert!(m4.iter().any(|(_, p)| *p < 100.0), "low power while slow");
+    let m3 = powers("M3");
+    assert!(m3.iter().all(|(_, p)| *p == 500.0), "{m3:?}");
+}

@@ -386,7 +386,9 @@ impl Controller {
                 _ => len / (feed / 60.0),
             }
             .max(min_duration);
-            blocks.push(Block { rapid, power, n_word, ..Block::new(p.clone(), duration, min_duration, line) });
+            // M4 in laser mode: power follows the actual speed (grbl motion model).
+            let dynamic_power = new_spindle == Spindle::Ccw && self.setting(32) != 0.0;
+            blocks.push(Block { rapid, power, n_word, dynamic_power, ..Block::new(p.clone(), duration, min_duration, line) });
             prev = p.clone();
         }
 
