@@ -430,6 +430,8 @@ pub struct Controller {
     written_settings: std::collections::BTreeMap<u32, f64>,
     /// The last line byte received (grblHAL pairs CR and LF).
     prev_byte: u8,
+    /// A jog cancel is braking the machine (grbl model).
+    jog_cancel: bool,
     /// Work offsets, stored positions, startup lines, probe, pins, ...
     proto: Protocol,
 }
@@ -481,6 +483,7 @@ impl Controller {
             ov_countdown: 1,
             written_settings: std::collections::BTreeMap::new(),
             prev_byte: 0,
+            jog_cancel: false,
             proto,
         };
         let banner = c.banner();
@@ -844,6 +847,7 @@ impl Controller {
         self.wco_countdown = 0;
         self.ov_countdown = 1;
         self.check_mode = false;
+        self.jog_cancel = false;
         self.hold = false;
         self.door = false;
         self.critical = false;
@@ -976,7 +980,7 @@ impl Controller {
             nominal,
             exit: planner::exit_speed(nominal, &queue),
             acceleration: e.block.kin.acceleration,
-            stopping: self.hold,
+            stopping: self.hold || self.jog_cancel,
         };
         let power = if self.hold { 0.0 } else { self.block_power(&e.block) };
         let programmed_speed = if e.block.duration > 0.0 { e.block.kin.length / e.block.duration } else { 0.0 };
@@ -1001,6 +1005,12 @@ impl Controller {
                 e.speed = seg.end_speed;
                 e.running = true;
                 e.power = power;
+            }
+            None if self.jog_cancel && input.remaining > 1e-9 => {
+                e.start_pos = e.end_pos.clone();
+                e.start_t = t;
+                e.end_t = t;
+                self.end_jog_cancel();
             }
             None if self.hold && input.remaining > 1e-9 => {
                 // Braked to rest inside the block: Hold:0, the rest of it waits for `~`.
@@ -1054,7 +1064,9 @@ impl Controller {
         self.stats.blocks_executed += 1;
         self.stats.last_motion_end_t = Some(t);
         if self.cfg.motion == MotionModel::Grbl {
-            if self.hold && e.speed <= 1e-9 {
+            if self.jog_cancel && e.speed <= 1e-9 {
+                self.end_jog_cancel();
+            } else if self.hold && e.speed <= 1e-9 {
                 // Braked to rest exactly at a block end: Hold:0.
             } else if !self.planner.is_empty() {
                 self.start_next(t, false, e.speed);
@@ -1361,11 +1373,28 @@ impl Controller {
     }
 
     /// Jog cancel: stop the jog and drop every queued jog block.
+    /// Jog cancel. The timed model stops at once; the grbl model brakes at the
+    /// jog's acceleration (across queued jog blocks if need be, still in Jog)
+    /// and drops the rest of the jog once stopped.
     fn cancel_jog(&mut self) {
         if !self.jogging() {
             return;
         }
+        if self.cfg.motion == MotionModel::Grbl && self.moving() {
+            self.jog_cancel = true;
+            self.replan_now();
+            return;
+        }
         self.stop_motion_now();
+        self.end_jog_cancel();
+    }
+
+    /// The machine has stopped: drop what is left of the jog.
+    fn end_jog_cancel(&mut self) {
+        if let Some(e) = self.exec.take() {
+            self.pos = e.end_pos;
+        }
+        self.jog_cancel = false;
         self.planner.retain(|b| !b.jog);
         self.gc_pos = self.pos.clone();
         self.mark_idle(self.now);

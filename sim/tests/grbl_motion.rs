@@ -196,3 +196,25 @@ fn m4_power_follows_the_actual_speed_and_m3_does_not() {
     let m3 = powers("M3");
     assert!(m3.iter().all(|(_, p)| *p == 500.0), "{m3:?}");
 }
+
+#[test]
+fn jog_cancel_brakes_in_jog_then_drops_the_jog() {
+    let cfg = grbl(15);
+    let mut s = Sim::new(cfg.clone());
+    s.send("$J=G91X100F6000\n$J=G91X50F6000\n");
+    s.run_until(0.6);
+    let before = s.ctl.position()[0];
+    s.realtime(realtime::JOG_CANCEL);
+    assert_eq!(s.status().state, MachineState::Jog, "still Jog while braking");
+    s.run_until(1.0);
+    let st = s.status();
+    assert_eq!(st.state, MachineState::Idle);
+    assert_eq!(st.buffer.unwrap().0, 15, "the queued jog is gone");
+    let stopped = s.ctl.position()[0];
+    assert!((stopped - before - 5.0).abs() < 1.0 + 1e-6, "{}", stopped - before);
+    assert!(peak_acceleration_use(&cfg, &s.knots) <= 1.0 + 1e-6);
+    // Jogging works again from where it stopped.
+    s.send("$J=G91X1F600\n");
+    s.run_until(3.0);
+    assert!((s.ctl.position()[0] - stopped - 1.0).abs() < 1e-9);
+}
