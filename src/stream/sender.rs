@@ -15,6 +15,7 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
+use laserd_sim::gcode::LineBuilder;
 use laserd_sim::wire::{self, realtime, MachineState, Response, StatusReport};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -349,6 +350,21 @@ impl Book {
     }
 }
 
+/// A line as Grbl pre-processes it (the shared definition in `laserd_sim::gcode`:
+/// spaces, control characters and comments dropped, upper case), without its
+/// length limit, which is the controller's to enforce. A `%` program
+/// demarcation line (CAM tools write them; Grbl 1.1 rejects them) is dropped.
+pub fn clean_line(raw: &str) -> String {
+    let mut builder = LineBuilder::with_max(usize::MAX);
+    raw.bytes().for_each(|b| builder.push(b));
+    let text = builder.finish().unwrap_or_default();
+    if text == "%" {
+        String::new()
+    } else {
+        text
+    }
+}
+
 /// Whether a G-code line makes the machine move (has axis words and is not one
 /// of the commands that take axis words without moving).
 fn is_motion(text: &str) -> bool {
@@ -612,8 +628,15 @@ where
                             fault = Some(format!("cannot read line {}: {e}", next_number + 1));
                             break;
                         }
-                        Some(Ok(text)) => {
+                        Some(Ok(raw)) => {
                             next_number += 1;
+                            // What the controller would keep of the line anyway:
+                            // fewer bytes on the link, and no round trip at all
+                            // for blank and comment-only lines.
+                            let text = clean_line(&raw);
+                            if text.is_empty() {
+                                continue;
+                            }
                             if text.len() + 1 > rx_buffer {
                                 fault = Some(format!(
                                     "{}: longer than the controller's receive buffer",
@@ -759,6 +782,8 @@ where
             match link.query_status(Duration::from_secs(2)).await? {
                 Some(s) if s.state == MachineState::Idle => {
                     out.final_status = Some(s);
+                    // Lines after the last one sent were blank or comments.
+                    out.last_acked_line = next_number.max(out.last_acked_line);
                     out.last_executed_line = Some(out.last_acked_line);
                     break;
                 }
@@ -921,6 +946,32 @@ mod tests {
             out.bytes_sent,
             lines.iter().map(|l| l.len() + 1).sum::<usize>()
         );
+        drop(controller);
+    }
+
+    #[test]
+    fn lines_are_cleaned_as_grbl_would() {
+        assert_eq!(clean_line("g1 x1.5 (to the edge) y2 ; then stop\r"), "G1X1.5Y2");
+        assert_eq!(clean_line("%"), "");
+        assert_eq!(clean_line("  (only a comment)"), "");
+        assert_eq!(clean_line("$J=G91 X10 F600"), "$J=G91X10F600");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn blank_and_comment_lines_cost_no_round_trip_but_count() {
+        let (a, b) = tokio::io::duplex(4096);
+        let mut lines = vec!["%".to_string(), "(header)".to_string()];
+        for l in program(20) {
+            lines.push(format!("{l} ; comment"));
+            lines.push(String::new());
+        }
+        lines.push("%".into());
+        let controller = tokio::spawn(fake_controller(b, 128, None));
+        let out = stream(a, lines.iter().cloned().map(Ok), &SenderOptions::new(128, 5.0), &|n, _| format!("line {n}"), |_, _| {}).await.unwrap();
+        assert!(out.completed, "{:?}", out.stop_reason);
+        assert_eq!(out.lines_sent, 20);
+        assert_eq!(out.bytes_sent, program(20).iter().map(|l| l.to_ascii_uppercase().len() + 1).sum::<usize>());
+        assert_eq!((out.last_acked_line, out.last_executed_line), (lines.len(), Some(lines.len())));
         drop(controller);
     }
 
