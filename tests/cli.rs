@@ -211,6 +211,25 @@ fn send_streams_a_file_to_the_simulator_and_names_a_rejected_line() {
     assert!(err.contains("bad.nc:4 `G1Z1F600`") && err.contains("error:20"), "{err}");
 }
 
+/// A fast stream of lines that do not move (setup lines, comments, what CAM
+/// headers are made of): the controller is idle with nothing queued at every
+/// status report while lines are rightly on their way, which must not be
+/// taken for lost bytes. Comments and spaces never reach the link.
+#[test]
+fn send_streams_lines_without_motion_and_strips_comments() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyFAST");
+    let _sim = SimProcess::start(&link, &["--baud", "4000000"]);
+    let file = dir.path().join("setup.nc");
+    let line = "G21 G90 G94 G17 G54 M5 M9 S0 F1000 T0 (a long comment that is stripped)\n";
+    std::fs::write(&file, format!("%\n{}%\n", line.repeat(20_000))).unwrap();
+    let report = json(&laserd(&["send", file.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "4000000", "--json"], dir.path()));
+    assert_eq!(report["completed"], true, "{report}");
+    assert_eq!(report["lines_sent"], 20_000, "the % lines are not sent");
+    assert_eq!(report["last_acked_line"], 20_002);
+    assert_eq!(report["bytes_sent"], 20_000 * "G21G90G94G17G54M5M9S0F1000T0\n".len());
+}
+
 /// `bench link`: character counting keeps a 115200-baud link busy with short
 /// blocks, and never lets the planner starve when blocks outlast their lines.
 #[test]

@@ -164,6 +164,9 @@ where
 
     async fn send_realtime(&mut self, byte: u8) -> Result<()> {
         self.write(&[byte]).await?;
+        if byte == realtime::STATUS {
+            self.book.status_requested();
+        }
         (self.on_event)(secs(self.origin), LinkEvent::Realtime { byte });
         Ok(())
     }
@@ -284,12 +287,36 @@ struct Book {
     last_executed: Option<usize>,
     /// After a reset: nothing acknowledged later than this has run.
     executed_cap: Option<usize>,
+    /// Lines sent and lines answered, ever (answers come in order).
+    sent_total: u64,
+    answered_total: u64,
+    /// `sent_total` when each status request not yet answered went out.
+    status_requests: VecDeque<u64>,
+    /// Lines sent before the request the latest status report answers: a
+    /// controller reporting an empty, idle queue has answered all of them.
+    /// `None` for a report nobody asked for (an auto-report).
+    report_covers: Option<u64>,
 }
 
 impl Book {
     fn sent(&mut self, line: usize, text: &str) {
         self.in_flight += text.len() + 1;
+        self.sent_total += 1;
         self.fifo.push_back((line, text.to_string()));
+    }
+
+    fn status_requested(&mut self) {
+        // Bounded: a controller that stops answering `?` is caught as silent.
+        if self.status_requests.len() >= 256 {
+            self.status_requests.pop_front();
+        }
+        self.status_requests.push_back(self.sent_total);
+    }
+
+    /// Lines sent before the latest report was asked for and still unanswered
+    /// although it shows the controller idle with nothing queued: lost.
+    fn lost_before_report(&self) -> u64 {
+        self.report_covers.map_or(0, |c| c.saturating_sub(self.answered_total))
     }
 
     /// Books an answer; returns the line an `ok` or `error:N` answered.
@@ -297,6 +324,7 @@ impl Book {
         match response {
             Response::Ok | Response::Error(_) => {
                 let (line, text) = self.fifo.pop_front()?;
+                self.answered_total += 1;
                 self.in_flight = self.in_flight.saturating_sub(text.len() + 1);
                 // The sender's own commands (line 0) are not program lines.
                 if line > 0 && matches!(response, Response::Ok) {
@@ -306,10 +334,17 @@ impl Book {
                 Some((line, text))
             }
             Response::Status(s) => {
+                // Reports come in the order asked; a request lost or merged
+                // with the next pairs the report with an older one, which
+                // only ever under-counts what it covers.
+                self.report_covers = self.status_requests.pop_front();
                 self.status(s);
                 None
             }
             Response::Banner(_) => {
+                self.answered_total = self.sent_total;
+                self.status_requests.clear();
+                self.report_covers = None;
                 // A reset flushed everything queued: those lines never run, and
                 // lines still unanswered will never be answered.
                 self.pending_motion.clear();
@@ -703,7 +738,7 @@ where
                             let nothing_queued = s.buffer.is_none_or(|(blocks, rx)| {
                                 rx as usize >= rx_buffer && link.book.planner_blocks.is_none_or(|p| blocks as usize >= p)
                             });
-                            if s.state == MachineState::Idle && nothing_queued && !link.book.fifo.is_empty() {
+                            if s.state == MachineState::Idle && nothing_queued && link.book.lost_before_report() > 0 {
                                 idle_with_lines_out += 1;
                             } else {
                                 idle_with_lines_out = 0;
