@@ -302,8 +302,15 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
     let opened = std::fs::File::open(file).map_err(|e| Error::Io(format!("{shown}: cannot read: {e}")))?;
     let size = opened.metadata().map(|m| m.len()).unwrap_or(0);
     // Read as the controller takes lines: memory stays constant whatever the size.
+    // Bytes read so far drive the progress bar (comments never reach the link).
+    let read = std::cell::Cell::new(0u64);
     let lines = std::io::BufReader::new(opened)
         .lines()
+        .inspect(|l| {
+            if let Ok(l) = l {
+                read.set(read.get() + l.len() as u64 + 1);
+            }
+        })
         .map(|l| l.map(|l| l.trim_end_matches('\r').to_string()).map_err(|e| Error::Io(format!("{shown}: {e}"))));
     let baud = baud.unwrap_or(machine.serial.baud);
     let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
@@ -324,8 +331,8 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
             .map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
         let describe = |n: usize, text: &str| format!("{shown}:{n} `{text}`");
         stream::stream(io, lines, &options, &describe, |_, event| {
-            if let (Some(bar), LinkEvent::Sent { line, text }) = (&progress, &event) {
-                bar.inc(text.len() as u64 + 1);
+            if let (Some(bar), LinkEvent::Sent { line, .. }) = (&progress, &event) {
+                bar.set_position(read.get());
                 bar.set_message(line.to_string());
             }
         })
