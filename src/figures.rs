@@ -71,9 +71,27 @@ pub struct SimFigures {
     pub first_violation: Option<String>,
 }
 
+/// The program line of each line the controller received, in order (the
+/// controller counts every line; the sender's own commands, such as `$I` at
+/// connect or a resume's preamble, are program line 0). Knots carry the
+/// controller's count.
+pub fn program_lines(link: &[(f64, LinkEvent)]) -> Vec<usize> {
+    link.iter().filter_map(|(_, e)| if let LinkEvent::Sent { line, .. } = e { Some(*line) } else { None }).collect()
+}
+
+/// The program line a knot's block came from (its received-line count when
+/// the link log does not say).
+pub fn program_line_of(lines: &[usize], knot: &Knot) -> usize {
+    (knot.line as usize).checked_sub(1).and_then(|i| lines.get(i)).copied().unwrap_or(knot.line as usize)
+}
+
 /// Executed blocks of program lines: (line, start knot, end knot).
-fn executed_blocks(knots: &[Knot]) -> impl Iterator<Item = (usize, &Knot, &Knot)> {
-    knots.windows(2).filter(|w| w[1].line > 0 && w[1].t > w[0].t && w[0].pos != w[1].pos).map(|w| (w[1].line as usize, &w[0], &w[1]))
+fn executed_blocks<'a>(knots: &'a [Knot], lines: &'a [usize]) -> impl Iterator<Item = (usize, &'a Knot, &'a Knot)> {
+    knots
+        .windows(2)
+        .filter(|w| w[1].t > w[0].t && w[0].pos != w[1].pos)
+        .map(move |w| (program_line_of(lines, &w[1]), &w[0], &w[1]))
+        .filter(|(line, _, _)| *line > 0)
 }
 
 pub fn sim_figures(log: &RunLog) -> SimFigures {
@@ -133,7 +151,8 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
     let planned: std::collections::HashMap<usize, &PlannedLine> = log.planned.iter().map(|p| (p.line, p)).collect();
     let mut max_dev: f64 = 0.0;
     let mut laser_state_errors = 0;
-    for (line, a, b) in executed_blocks(&log.knots) {
+    let lines = program_lines(&log.link);
+    for (line, a, b) in executed_blocks(&log.knots, &lines) {
         let Some(p) = planned.get(&line) else { continue };
         let marking = p.kind == LineKind::Mark;
         if marking != (b.power > 0.0) {

@@ -28,9 +28,23 @@ fn middle_mark(p: &Planned) -> usize {
     marks[marks.len() / 2]
 }
 
-/// 1-based offset of the first byte of program line `n` among the line bytes sent.
+/// The controller's number for program line `n`: it counts every line it
+/// receives, the sender's `$I` at connect first.
+fn received(n: usize) -> u64 {
+    n as u64 + 1
+}
+
+/// Program lines of the executed blocks (knots carry the controller's count).
+fn executed_lines(dry: &DryRun) -> Vec<usize> {
+    let lines = laserd::figures::program_lines(&dry.log.link);
+    dry.log.knots.iter().map(|k| laserd::figures::program_line_of(&lines, k)).collect()
+}
+
+/// 1-based offset of the first byte of program line `n` among the line bytes
+/// sent (after the sender's own `$I` at connect).
 fn first_byte_of(p: &Planned, n: usize) -> u64 {
-    p.program.lines[..n - 1].iter().map(|l| l.text.len() as u64 + 1).sum::<u64>() + 1
+    let connect = laserd::stream::BUILD_INFO.len() as u64 + 1;
+    connect + p.program.lines[..n - 1].iter().map(|l| l.text.len() as u64 + 1).sum::<u64>() + 1
 }
 
 fn dry_run(faults: Faults) -> (Planned, DryRun, tempfile::TempDir) {
@@ -100,7 +114,7 @@ fn a_garbled_byte_is_caught_at_its_line() {
 fn a_controller_that_stops_answering_is_held_within_a_second() {
     let (_, p) = planned();
     let n = middle_mark(&p);
-    let (_, dry, dir) = dry_run(Faults { mute_from_line: Some(n as u64), ..Default::default() });
+    let (_, dry, dir) = dry_run(Faults { mute_from_line: Some(received(n)), ..Default::default() });
     let reason = dry.outcome.stop_reason.clone().unwrap();
     assert!(reason.contains("silent"), "{reason}");
     // From the last thing heard to the hold: at most a second.
@@ -121,20 +135,20 @@ fn a_controller_that_stops_answering_is_held_within_a_second() {
 fn a_controller_resetting_itself_mid_job_is_reported() {
     let (_, p) = planned();
     let n = middle_mark(&p);
-    let (_, dry, dir) = dry_run(Faults { reset_at_line: Some(n as u64), ..Default::default() });
+    let (_, dry, dir) = dry_run(Faults { reset_at_line: Some(received(n)), ..Default::default() });
     let reason = dry.outcome.stop_reason.clone().unwrap();
     assert!(reason.contains("reset itself") || reason.contains("ALARM:3"), "{reason}");
     assert!(hold_time(&dry) - sent_time(&dry, n) < 1.0);
     assert_safe_and_recorded(&dry, &dir);
     // Nothing after line n ran: the reset flushed it.
-    assert!(dry.log.knots.iter().all(|k| k.line < n as u64), "no block of line {n} or later ran");
+    assert!(executed_lines(&dry).iter().all(|l| *l < n), "no block of line {n} or later ran");
 }
 
 #[test]
 fn a_hard_limit_mid_job_stops_everything() {
     let (_, p) = planned();
     let n = middle_mark(&p);
-    let (_, dry, dir) = dry_run(Faults { limit_alarm_at_line: Some(n as u64), ..Default::default() });
+    let (_, dry, dir) = dry_run(Faults { limit_alarm_at_line: Some(received(n)), ..Default::default() });
     assert_eq!(dry.outcome.alarms, vec![1]);
     assert!(dry.outcome.stop_reason.clone().unwrap().contains("ALARM:1"));
     assert!(hold_time(&dry) - sent_time(&dry, n) < 1.0);
@@ -146,7 +160,7 @@ fn a_hard_limit_mid_job_stops_everything() {
 fn the_link_closing_mid_job_is_reported() {
     let (_, p) = planned();
     let n = middle_mark(&p);
-    let (_, dry, dir) = dry_run(Faults { close_link_at_line: Some(n as u64), ..Default::default() });
+    let (_, dry, dir) = dry_run(Faults { close_link_at_line: Some(received(n)), ..Default::default() });
     let reason = dry.outcome.stop_reason.clone().unwrap();
     assert!(reason.contains("closed the link"), "{reason}");
     assert!(dry.outcome.last_acked_line < n + 5);
@@ -155,7 +169,7 @@ fn the_link_closing_mid_job_is_reported() {
     assert!(first_sent + dry.outcome.stream_time_s - sent_time(&dry, n) < 1.0, "stream ran {} s", dry.outcome.stream_time_s);
     // Unreachable now, the controller runs out what it had queued and stops:
     // nothing from beyond the lines it received, and it ends at rest.
-    assert!(dry.log.knots.iter().all(|k| k.line <= n as u64));
+    assert!(executed_lines(&dry).iter().all(|l| *l <= n));
     laserd::record::read(&dir.path().join("fault.mcap")).expect("the recording reads back");
 }
 
@@ -163,7 +177,7 @@ fn the_link_closing_mid_job_is_reported() {
 fn the_last_executed_line_matches_what_the_machine_ran() {
     let (_, p) = planned();
     let n = middle_mark(&p);
-    let (_, dry, _) = dry_run(Faults { error_on_line: Some(n as u64), ..Default::default() });
-    let ran = dry.log.knots.iter().map(|k| k.line as usize).max().unwrap();
+    let (_, dry, _) = dry_run(Faults { error_on_line: Some(received(n)), ..Default::default() });
+    let ran = executed_lines(&dry).into_iter().max().unwrap();
     assert_eq!(dry.outcome.last_executed_line, Some(ran), "sender's view vs the simulator's");
 }

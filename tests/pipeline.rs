@@ -30,7 +30,8 @@ fn error_20_on_a_chosen_line_stops_the_job_there_with_the_laser_off() {
     let marks: Vec<usize> = planned.program.lines.iter().enumerate().filter(|(_, l)| l.kind == LineKind::Mark).map(|(i, _)| i + 1).collect();
     let bad = marks[marks.len() / 2];
     let dir = tempfile::tempdir().unwrap();
-    let dry = run::dry_run(&planned, &machine, &dir.path().join("e.mcap"), Faults { error_on_line: Some(bad as u64), ..Default::default() }).unwrap();
+    // The controller counts the sender's `$I` at connect as its first line.
+    let dry = run::dry_run(&planned, &machine, &dir.path().join("e.mcap"), Faults { error_on_line: Some(bad as u64 + 1), ..Default::default() }).unwrap();
     let out = &dry.outcome;
     assert!(!out.completed);
     assert_eq!(out.errors.len(), 1);
@@ -40,7 +41,8 @@ fn error_20_on_a_chosen_line_stops_the_job_there_with_the_laser_off() {
     assert!(reason.contains(&format!("G-code line {bad} ")), "{reason}");
     assert!(reason.contains("one-field.svg"), "names the source geometry: {reason}");
     // Nothing past what was already in the controller's 128-byte buffer ran.
-    let last_executed = dry.log.knots.iter().map(|k| k.line as usize).max().unwrap();
+    let lines = laserd::figures::program_lines(&dry.log.link);
+    let last_executed = dry.log.knots.iter().map(|k| laserd::figures::program_line_of(&lines, k)).max().unwrap();
     assert!(last_executed < bad + 5, "executed up to {last_executed}, error at {bad}");
     assert!(last_executed >= bad.saturating_sub(20), "the job did run up to near the error");
     // The machine ends stopped with the laser off.
@@ -85,6 +87,14 @@ fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
     assert!(replay.truncated.is_none());
     let mut log = replay.log;
     log.planned = PlannedLine::from_program(&planned.program);
+    // The simulator numbers every line it received; the sender's own `$I`
+    // came first. Number the program's lines as the program does.
+    let mut program_line = 0;
+    for (_, event) in &mut log.link {
+        if let laserd::stream::LinkEvent::Sent { line, text } = event {
+            *line = if text.starts_with('$') { 0 } else { program_line += 1; program_line };
+        }
+    }
     let figures = sim_figures(&log);
     eprintln!("pty run at 115200 baud: {}", serde_json::to_string(&figures).unwrap());
     assert!(log.knots.len() > lines.len() / 2, "motion was executed: {} knots", log.knots.len());
@@ -93,8 +103,8 @@ fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
     assert_eq!(figures.limit_violations, 0, "{figures:?}");
     assert!(figures.job_time_s >= planned.trajectory.duration() * 0.999);
     // The simulator's side of the link is in its recording too.
-    assert_eq!(figures.lines_sent, lines.len());
-    assert_eq!(figures.bytes_sent, outcome.bytes_sent);
+    assert_eq!(figures.lines_sent, lines.len() + 1, "the program and `$I`");
+    assert_eq!(figures.bytes_sent, outcome.bytes_sent + laserd::stream::BUILD_INFO.len() + 1);
     assert!(figures.link_utilization > 0.0 && figures.link_utilization <= 1.0, "{figures:?}");
 }
 

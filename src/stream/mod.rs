@@ -4,4 +4,4 @@ pub mod in_process;
 pub mod resume;
 pub mod sender;
 
-pub use sender::{stream, Connection, Control, LineError, LinkEvent, SenderOptions, StreamOutcome};
+pub use sender::{clean_line, stream, Connection, Control, LineError, LinkEvent, SenderOptions, StreamOutcome, BUILD_INFO};

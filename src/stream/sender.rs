@@ -270,6 +270,10 @@ where
     }
 }
 
+/// What the sender asks of every controller it connects to (before any
+/// program line): the build options.
+pub const BUILD_INFO: &str = "$I";
+
 /// The sender's books: lines sent and not yet answered (their bytes are what
 /// the controller's receive buffer holds or will hold), and which answered
 /// lines the machine has executed, from the free planner blocks of status
@@ -486,7 +490,44 @@ where
             fresh_status: None,
         };
         connection.status().await?;
+        connection.learn_build_options().await?;
         Ok(connection)
+    }
+
+    /// Asks `$I` for the build options, `[OPT:<codes>,<blocks>,<rx bytes>…]`:
+    /// the planner's size and the receive buffer, as the controller was built
+    /// (the reference: read them, never assume them). A controller that will
+    /// not answer it now (busy: error 8) keeps what the status told.
+    async fn learn_build_options(&mut self) -> Result<()> {
+        let mut options = None;
+        self.link.send_line(0, BUILD_INFO).await?;
+        self.link.book.sent(0, BUILD_INFO);
+        self.link.bytes_sent -= BUILD_INFO.len() + 1;
+        let answer = self
+            .link
+            .wait_for(Duration::from_secs(3), |r| {
+                if let Response::Feedback(f) = r {
+                    if let Some(o) = f.strip_prefix("[OPT:").and_then(|o| o.strip_suffix(']')) {
+                        options = Some(o.to_string());
+                    }
+                }
+                matches!(r, Response::Ok | Response::Error(_))
+            })
+            .await?;
+        if answer.is_none() {
+            return Err(Error::Stream("no answer to `$I` within 3 s".into()));
+        }
+        let fields: Vec<&str> = options.as_deref().unwrap_or("").split(',').collect();
+        let number = |i: usize| fields.get(i).and_then(|f| f.trim().parse::<usize>().ok()).filter(|n| *n > 0);
+        if let Some(blocks) = number(1) {
+            self.link.book.planner_blocks = Some(blocks);
+        }
+        if let Some(rx) = number(2).filter(|rx| *rx < self.rx_buffer) {
+            tracing::warn!("the controller's receive buffer is {rx} bytes, less than the configured {}: using {rx}", self.rx_buffer);
+            self.rx_buffer = rx;
+        }
+        // `$I` changes nothing: a status read just before it is still fresh.
+        Ok(())
     }
 
     /// The controller's status now. An idle controller reports its whole
@@ -880,6 +921,7 @@ mod tests {
             .unwrap();
         let mut pending: VecDeque<usize> = VecDeque::new();
         let mut current = 0usize;
+        let mut text = String::new();
         let mut lines = 0usize;
         let mut max_in_flight = 0usize;
         let mut realtime_seen = Vec::new();
@@ -916,11 +958,21 @@ mod tests {
                                         .unwrap();
                                 }
                             }
+                            b'\n' if text.starts_with('$') => {
+                                // The sender's own `$I`: answered at once, not a program line.
+                                io.write_all(b"[VER:1.1h:]\r\n[OPT:V,15,128]\r\nok\r\n").await.unwrap();
+                                current = 0;
+                                text.clear();
+                            }
                             b'\n' => {
                                 pending.push_back(current + 1);
                                 current = 0;
+                                text.clear();
                             }
-                            _ => current += 1,
+                            _ => {
+                                current += 1;
+                                text.push(b as char);
+                            }
                         }
                     }
                     let in_flight: usize = pending.iter().sum::<usize>() + current;
@@ -966,7 +1018,7 @@ mod tests {
             &opts,
             &|n, _| format!("line {n}"),
             |_, e| {
-                if matches!(e, LinkEvent::Sent { .. }) {
+                if matches!(e, LinkEvent::Sent { line, .. } if line > 0) {
                     sent += 1
                 }
             },
@@ -1037,6 +1089,27 @@ mod tests {
         drop(controller);
     }
 
+    /// Answers what the sender asks when it connects (a status request, then
+    /// `$I`), as a controller that works so far.
+    async fn answer_connect(b: &mut DuplexStream) {
+        let mut buf = [0u8; 64];
+        let mut seen = Vec::new();
+        while !seen.ends_with(b"$I\n") {
+            let n = b.read(&mut buf).await.unwrap_or(0);
+            if n == 0 {
+                return;
+            }
+            for &c in &buf[..n] {
+                if c == b'?' {
+                    b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n").await.unwrap();
+                } else {
+                    seen.push(c);
+                }
+            }
+        }
+        b.write_all(b"[VER:1.1h:]\r\n[OPT:V,15,128]\r\nok\r\n").await.unwrap();
+    }
+
     /// Streams ten lines to a controller that will not answer them sensibly:
     /// the stream must stop, calling the controller silent.
     async fn assert_streaming_stops_as_silent(a: DuplexStream) {
@@ -1048,24 +1121,62 @@ mod tests {
     }
 
     #[tokio::test(start_paused = true)]
-    async fn a_silent_controller_is_detected() {
+    async fn build_options_set_the_buffers_counted_on() {
         let (a, mut b) = tokio::io::duplex(4096);
-        let keep = tokio::spawn(async move {
+        let board = tokio::spawn(async move {
             b.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
             let mut buf = [0u8; 64];
-            // Answer the first status request, then never again.
+            let mut seen = Vec::new();
             loop {
                 let n = b.read(&mut buf).await.unwrap_or(0);
                 if n == 0 {
                     break;
                 }
-                if buf[..n].contains(&b'?') {
-                    b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n")
-                        .await
-                        .unwrap();
-                    break;
+                for &c in &buf[..n] {
+                    if c == b'?' {
+                        // `$10=1`: no Bf field, so only `$I` tells the sizes.
+                        b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n").await.unwrap();
+                    } else {
+                        seen.push(c);
+                    }
+                }
+                if seen.ends_with(b"$I\n") {
+                    seen.clear();
+                    b.write_all(b"[VER:1.1h:]\r\n[OPT:VL,14,64]\r\nok\r\n").await.unwrap();
                 }
             }
+        });
+        let c = Connection::open(a, &SenderOptions::new(128, 5.0), |_, _| {}).await.unwrap();
+        assert_eq!((c.rx_buffer, c.link.book.planner_blocks), (64, Some(14)));
+        drop(c);
+        board.await.unwrap();
+
+        // A controller that answers status but not `$I` is not one to stream to.
+        let (a, mut b) = tokio::io::duplex(4096);
+        let mute = tokio::spawn(async move {
+            b.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
+            let mut buf = [0u8; 64];
+            while let Ok(n) = b.read(&mut buf).await {
+                if n == 0 {
+                    break;
+                }
+                if buf[..n].contains(&b'?') {
+                    b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n").await.unwrap();
+                }
+            }
+        });
+        let err = Connection::open(a, &SenderOptions::new(128, 5.0), |_, _| {}).await.err().expect("refused");
+        assert!(err.to_string().contains("$I"), "{err}");
+        mute.abort();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_silent_controller_is_detected() {
+        let (a, mut b) = tokio::io::duplex(4096);
+        let keep = tokio::spawn(async move {
+            b.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
+            answer_connect(&mut b).await;
+            // Then never a word again.
             tokio::time::sleep(Duration::from_secs(3600)).await;
         });
         assert_streaming_stops_as_silent(a).await;
@@ -1077,13 +1188,7 @@ mod tests {
         let (a, mut b) = tokio::io::duplex(4096);
         let babble = tokio::spawn(async move {
             b.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
-            let mut buf = [0u8; 64];
-            let n = b.read(&mut buf).await.unwrap_or(0);
-            if buf[..n].contains(&b'?') {
-                b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n")
-                    .await
-                    .unwrap();
-            }
+            answer_connect(&mut b).await;
             loop {
                 if b.write_all(b"\x07#~garbage~#\r\n").await.is_err() {
                     break;
