@@ -1092,6 +1092,12 @@ mod tests {
     /// Answers what the sender asks when it connects (a status request, then
     /// `$I`), as a controller that works so far.
     async fn answer_connect(b: &mut DuplexStream) {
+        answer_connect_with(b, "V,15,128").await;
+    }
+
+    /// The same, with these build options (`[OPT:...]`); the status reports
+    /// have no `Bf:` (Grbl's default `$10=1`).
+    async fn answer_connect_with(b: &mut DuplexStream, options: &str) {
         let mut buf = [0u8; 64];
         let mut seen = Vec::new();
         while !seen.ends_with(b"$I\n") {
@@ -1107,7 +1113,7 @@ mod tests {
                 }
             }
         }
-        b.write_all(b"[VER:1.1h:]\r\n[OPT:V,15,128]\r\nok\r\n").await.unwrap();
+        b.write_all(format!("[VER:1.1h:]\r\n[OPT:{options}]\r\nok\r\n").as_bytes()).await.unwrap();
     }
 
     /// Streams ten lines to a controller that will not answer them sensibly:
@@ -1125,31 +1131,13 @@ mod tests {
         let (a, mut b) = tokio::io::duplex(4096);
         let board = tokio::spawn(async move {
             b.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
-            let mut buf = [0u8; 64];
-            let mut seen = Vec::new();
-            loop {
-                let n = b.read(&mut buf).await.unwrap_or(0);
-                if n == 0 {
-                    break;
-                }
-                for &c in &buf[..n] {
-                    if c == b'?' {
-                        // `$10=1`: no Bf field, so only `$I` tells the sizes.
-                        b.write_all(b"<Idle|MPos:0.000,0.000|FS:0,0>\r\n").await.unwrap();
-                    } else {
-                        seen.push(c);
-                    }
-                }
-                if seen.ends_with(b"$I\n") {
-                    seen.clear();
-                    b.write_all(b"[VER:1.1h:]\r\n[OPT:VL,14,64]\r\nok\r\n").await.unwrap();
-                }
-            }
+            // No Bf in the reports: only `$I` tells the sizes.
+            answer_connect_with(&mut b, "VL,14,64").await;
+            b
         });
         let c = Connection::open(a, &SenderOptions::new(128, 5.0), |_, _| {}).await.unwrap();
         assert_eq!((c.rx_buffer, c.link.book.planner_blocks), (64, Some(14)));
-        drop(c);
-        board.await.unwrap();
+        drop(board.await.unwrap());
 
         // A controller that answers status but not `$I` is not one to stream to.
         let (a, mut b) = tokio::io::duplex(4096);
