@@ -2,6 +2,7 @@
 //! entered, and (on machines with a scanner, in step-and-scan) which scan field
 //! each belongs to. Input: `Job`; output: `Sequence`.
 
+pub mod ecp;
 pub mod fields;
 pub mod nearest;
 

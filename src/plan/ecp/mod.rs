@@ -1,0 +1,183 @@
+//! The End-point Cutting Problem (seed 001): every element (a line or an arc,
+//! cut in either direction) is a district of two cities, one per direction;
+//! the route visits one city of every district, from a start point back to it,
+//! and air moves between the end of one cut and the start of the next are what
+//! it minimises. Contours may be pre-empted (left and finished later), under
+//! two precedence rules that keep cut-out material from falling before it is
+//! done with:
+//! * **inner before outer**: every element of an inner contour is cut before
+//!   its outer contour is closed (the outer's last element is cut);
+//! * **common cut**: an element shared by two contours never closes both at
+//!   once (one of them still has an element to cut after it).
+//!
+//! * [`checker`]: the independent feasibility checker, written from these
+//!   definitions alone;
+//! * [`exact`]: the optimum of small instances (dynamic programming over
+//!   subsets and directions), the reference for the search's tests;
+//! * [`tsplib`]: TSPLIB instances turned into precedence-constrained ones for
+//!   `bench ecp`.
+
+pub mod checker;
+pub mod exact;
+pub mod tsplib;
+
+use crate::job::Point;
+
+/// How air-move lengths are measured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Metric {
+    /// Euclidean distance in mm.
+    Euclidean,
+    /// TSPLIB's EUC_2D: the Euclidean distance rounded to the nearest integer
+    /// (so that a benchmark's optimum is the published one).
+    TsplibRounded,
+}
+
+/// One element to cut: a line or arc from `a` to `b` (cut either way), or a
+/// point (a == b) such as a TSPLIB city.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Element {
+    pub a: Point,
+    pub b: Point,
+}
+
+/// A precedence-constrained cutting instance.
+#[derive(Debug, Clone)]
+pub struct Instance {
+    pub elements: Vec<Element>,
+    /// Each contour's elements. An element on two contours is a common cut.
+    pub contours: Vec<Vec<usize>>,
+    /// (inner, outer): every element of `inner` is cut before `outer` closes.
+    pub inner_outer: Vec<(usize, usize)>,
+    /// Where the route starts and ends.
+    pub depot: Point,
+    pub metric: Metric,
+    /// Cost of starting a cut anywhere but where the previous cut ended (a
+    /// pierce), in the same unit as the air moves.
+    pub pierce_cost: f64,
+}
+
+/// One element cut in one direction: from `a` to `b`, or from `b` to `a` when reversed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Cut {
+    pub element: usize,
+    pub reversed: bool,
+}
+
+/// An element shared by two contours.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CommonCut {
+    pub element: usize,
+    pub contours: (usize, usize),
+}
+
+impl Instance {
+    pub fn distance(&self, p: Point, q: Point) -> f64 {
+        let d = (q - p).norm();
+        match self.metric {
+            Metric::Euclidean => d,
+            Metric::TsplibRounded => (d + 0.5).floor(),
+        }
+    }
+
+    /// Where a cut starts and ends.
+    pub fn ends(&self, cut: Cut) -> (Point, Point) {
+        let e = &self.elements[cut.element];
+        if cut.reversed {
+            (e.b, e.a)
+        } else {
+            (e.a, e.b)
+        }
+    }
+
+    /// Cost of moving from the end of `from` (or the depot) to the start of
+    /// `to`: the air move, and a pierce unless the cut goes on where it was.
+    pub fn step(&self, from: Option<Cut>, to: Cut) -> f64 {
+        let here = from.map_or(self.depot, |c| self.ends(c).1);
+        let (start, _) = self.ends(to);
+        let air = self.distance(here, start);
+        if air > 0.0 || from.is_none() {
+            air + self.pierce_cost
+        } else {
+            air
+        }
+    }
+
+    /// Air length plus pierce costs of a route, back to the depot included.
+    pub fn cost(&self, route: &[Cut]) -> f64 {
+        let mut total = 0.0;
+        let mut prev = None;
+        for &c in route {
+            total += self.step(prev, c);
+            prev = Some(c);
+        }
+        let end = prev.map_or(self.depot, |c| self.ends(c).1);
+        total + self.distance(end, self.depot)
+    }
+
+    /// The air length alone (no pierce costs).
+    pub fn air_length(&self, route: &[Cut]) -> f64 {
+        let mut here = self.depot;
+        let mut total = 0.0;
+        for &c in route {
+            let (s, e) = self.ends(c);
+            total += self.distance(here, s);
+            here = e;
+        }
+        total + self.distance(here, self.depot)
+    }
+
+    /// Elements shared by two contours, with the two contours.
+    pub fn common_cuts(&self) -> Vec<CommonCut> {
+        let mut owners: Vec<Vec<usize>> = vec![Vec::new(); self.elements.len()];
+        for (k, contour) in self.contours.iter().enumerate() {
+            for &e in contour {
+                owners[e].push(k);
+            }
+        }
+        owners
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| o.len() == 2)
+            .map(|(element, o)| CommonCut { element, contours: (o[0], o[1]) })
+            .collect()
+    }
+
+    /// Precedence relations in all: inner/outer pairs plus common cuts.
+    pub fn precedences(&self) -> usize {
+        self.inner_outer.len() + self.common_cuts().len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn costs_count_air_moves_and_pierces() {
+        let p = |x: f64, y: f64| Point::new(x, y);
+        let inst = Instance {
+            elements: vec![Element { a: p(0.0, 0.0), b: p(10.0, 0.0) }, Element { a: p(10.0, 0.0), b: p(10.0, 10.0) }],
+            contours: vec![vec![0, 1]],
+            inner_outer: vec![],
+            depot: p(0.0, 0.0),
+            metric: Metric::Euclidean,
+            pierce_cost: 2.0,
+        };
+        let forward = [Cut { element: 0, reversed: false }, Cut { element: 1, reversed: false }];
+        // One pierce at the start, the second cut goes on where the first ended,
+        // then 10·√2 back home.
+        assert!((inst.cost(&forward) - (2.0 + 200f64.sqrt())).abs() < 1e-12);
+        assert!((inst.air_length(&forward) - 200f64.sqrt()).abs() < 1e-12);
+        // The same two cuts the other way round cost the same.
+        let back = [Cut { element: 1, reversed: true }, Cut { element: 0, reversed: true }];
+        assert!((inst.cost(&back) - inst.cost(&forward)).abs() < 1e-12);
+        // Cutting the second element against the first: an air move and a pierce more.
+        let broken = [Cut { element: 0, reversed: false }, Cut { element: 1, reversed: true }];
+        assert!((inst.cost(&broken) - (2.0 + 10.0 + 2.0 + 10.0)).abs() < 1e-12);
+        assert!((inst.air_length(&broken) - 20.0).abs() < 1e-12);
+        let rounded = Instance { metric: Metric::TsplibRounded, ..inst };
+        assert_eq!(rounded.distance(p(0.0, 0.0), p(1.0, 1.0)), 1.0);
+        assert_eq!(rounded.distance(p(0.0, 0.0), p(1.5, 0.0)), 2.0);
+    }
+}
