@@ -101,3 +101,59 @@ pub fn link_bench(machine: &MachineConfig, blocks: usize, block_s: f64) -> Resul
         send_response: ping_pong,
     })
 }
+
+/// `bench ecp`: the cutting planner on a TSPLIB instance made
+/// precedence-constrained (`plan::ecp::tsplib`), against its known optimum.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct EcpBench {
+    pub instance: String,
+    pub elements: usize,
+    pub contours: usize,
+    pub precedences: usize,
+    /// Of which inner/outer pairs and common cuts.
+    pub inner_outer: usize,
+    pub common_cuts: usize,
+    pub optimum: f64,
+    /// The construction (insertion, seed 001's IB, + dir-opt) and the search.
+    pub construction: f64,
+    pub best: f64,
+    pub gap: f64,
+    pub time_to_best_s: f64,
+    pub time_limit_s: f64,
+    pub iterations: u64,
+    /// Checked by the independent checker, not by the search.
+    pub feasible: bool,
+}
+
+pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_limit_s: f64) -> Result<EcpBench> {
+    use crate::plan::ecp::{checker, search, tsplib};
+    if !(time_limit_s.is_finite() && time_limit_s > 0.0) {
+        return Err(Error::Config(format!("bench ecp: --time-limit must be a positive number of seconds, got {time_limit_s}")));
+    }
+    let problem = tsplib::read_tsp(tsp)?;
+    let order = tsplib::read_tour(tour, problem.cities.len())?;
+    let bench = tsplib::bench_instance(&problem, &order, seed);
+    let inst = &bench.instance;
+    let start = search::insertion(inst);
+    let construction = inst.cost(&start);
+    let options = search::TabuOptions::new(inst, std::time::Duration::from_secs_f64(time_limit_s));
+    let found = search::tabu_search(inst, start, &options);
+    let feasible = checker::check(inst, &found.route).is_empty() && found.route.len() == inst.elements.len();
+    let best = inst.cost(&found.route);
+    Ok(EcpBench {
+        instance: problem.name,
+        elements: inst.elements.len(),
+        contours: inst.contours.len(),
+        precedences: inst.precedences(),
+        inner_outer: inst.inner_outer.len(),
+        common_cuts: inst.common_cuts().len(),
+        optimum: bench.optimum,
+        construction,
+        best,
+        gap: best / bench.optimum - 1.0,
+        time_to_best_s: found.time_to_best.as_secs_f64(),
+        time_limit_s,
+        iterations: found.iterations,
+        feasible,
+    })
+}

@@ -150,6 +150,21 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchCommand {
+    /// The cutting planner (tabu search) on a TSPLIB instance made
+    /// precedence-constrained, against the instance's known optimum.
+    Ecp {
+        #[arg(long)]
+        tsp: PathBuf,
+        #[arg(long)]
+        tour: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Seconds the search may run.
+        #[arg(long, default_value_t = 10.0)]
+        time_limit: f64,
+        #[arg(long)]
+        json: bool,
+    },
     /// How well the sender uses the serial link: character counting against
     /// send-response streaming, on a synthetic program of short 4-axis blocks.
     Link {
@@ -237,6 +252,19 @@ fn run_command(command: Command) -> Result<ExitCode> {
             machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
             machine.simulator.flavor = flavor.unwrap_or(machine.simulator.flavor);
             sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), faults)
+        }
+        Command::Bench { which: BenchCommand::Ecp { tsp, tour, seed, time_limit, json } } => {
+            let report = laserd::bench::ecp_bench(&tsp, &tour, seed, time_limit)?;
+            if json {
+                print_json(&report)?;
+            } else {
+                println!(
+                    "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {:.2} s of {} s, {} iterations, feasible: {}",
+                    report.instance, report.elements, report.contours, report.precedences, report.inner_outer, report.common_cuts,
+                    report.optimum, report.construction, report.best, report.gap * 100.0, report.time_to_best_s, report.time_limit_s, report.iterations, report.feasible
+                );
+            }
+            Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(2) })
         }
         Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, motion, json } } => {
             let mut machine = MachineConfig::load(config.as_deref())?;

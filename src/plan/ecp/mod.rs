@@ -19,6 +19,8 @@
 
 pub mod checker;
 pub mod exact;
+pub mod search;
+pub mod sheet;
 pub mod tsplib;
 
 use crate::job::Point;
