@@ -137,7 +137,8 @@ pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_
     let start = search::insertion(inst);
     let construction = inst.cost(&start);
     let options = search::TabuOptions::new(inst, std::time::Duration::from_secs_f64(time_limit_s));
-    let found = search::tabu_search(inst, start, &options);
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let found = search::parallel_tabu_search(inst, &start, &options, threads);
     let feasible = checker::check(inst, &found.route).is_empty() && found.route.len() == inst.elements.len();
     let best = inst.cost(&found.route);
     Ok(EcpBench {

@@ -156,15 +156,19 @@ pub fn construct(inst: &Instance) -> Vec<Cut> {
 /// what is already there, so a rule once kept stays kept; and with inner
 /// contours complete before their outer one starts, every rule is decided
 /// when its last element comes in, with the route's end always open to it.
-/// Falls back to the nearest-neighbour construction should a rule leave no
-/// position (a common cut on a contour inside the other, say).
+/// Common cuts come first within a depth, so the last element into a contour
+/// only ever has to come after things. Falls back to the nearest-neighbour
+/// construction should a rule still leave no position.
 pub fn insertion(inst: &Instance) -> Vec<Cut> {
     let n = inst.elements.len();
     let rules = Rules::new(inst);
     let depth = contour_depths(inst);
     let mut order: Vec<usize> = (0..n).collect();
     let element_depth = |e: usize| rules.contours_of[e].iter().map(|&k| depth[k]).max().unwrap_or(0);
-    order.sort_by_key(|&e| std::cmp::Reverse(element_depth(e)));
+    // Common cuts before the other elements of their depth: then the last
+    // element to come into a contour is never a common cut, and every rule on
+    // it only asks it to come after something, which the route's end allows.
+    order.sort_by_key(|&e| (std::cmp::Reverse(element_depth(e)), rules.contours_of[e].len() == 1));
     let mut present = vec![false; n];
     let mut route: Vec<Cut> = Vec::with_capacity(n);
     let mut pos = vec![usize::MAX; n];
@@ -275,7 +279,7 @@ pub struct TabuOptions {
 impl TabuOptions {
     pub fn new(inst: &Instance, time_limit: Duration) -> TabuOptions {
         let n = inst.elements.len();
-        TabuOptions { time_limit, tenure: (n / 4).clamp(10, 50), neighbours: 10, max_stall: 0, kick_after: 100, candidate_list: 48, seed: 1 }
+        TabuOptions { time_limit, tenure: (n / 4).clamp(10, 50), neighbours: 10, max_stall: 0, kick_after: 100, candidate_list: 24, seed: 1 }
     }
 }
 
@@ -423,6 +427,9 @@ fn neighbour_lists(inst: &Instance, k: usize) -> Vec<Vec<usize>> {
         .collect()
 }
 
+/// Longest stretch a 2-opt move reverses.
+const MAX_REVERSAL: usize = 100;
+
 /// The moves that involve element `x`: runs of 1 to 3 cuts starting or
 /// ending at it moved next to a neighbour of their ends (kept or reversed, or
 /// reversed in place), and 2-opt reversals that bring a neighbour of `x` right
@@ -461,6 +468,10 @@ fn candidates(x: usize, tour: &Tour, neighbours: &[Vec<usize>], out: &mut Vec<Mo
     }
     for &m in &neighbours[x] {
         let q = tour.pos[m];
+        // Long reversals rarely keep the precedences and cost most to check.
+        if q.abs_diff(p) > MAX_REVERSAL {
+            continue;
+        }
         if q > p + 1 {
             out.push(Move { from: p + 1, len: q - p, to: p + 1, reverse: true });
         } else if q + 1 < p {
@@ -608,6 +619,26 @@ pub fn tabu_search(inst: &Instance, start: Vec<Cut>, options: &TabuOptions) -> S
     best.cost = inst.cost(&best.route);
     best.iterations = iteration;
     best
+}
+
+/// Independent tabu searches from the same start, one per thread (their
+/// random restarts differ), the best route of all: the search's outcome varies
+/// from run to run, and the machine's cores are otherwise idle while planning.
+pub fn parallel_tabu_search(inst: &Instance, start: &[Cut], options: &TabuOptions, threads: usize) -> SearchResult {
+    let threads = threads.max(1);
+    std::thread::scope(|scope| {
+        let runs: Vec<_> = (0..threads as u64)
+            .map(|k| {
+                let options = TabuOptions { seed: options.seed.wrapping_add(k), ..options.clone() };
+                let start = start.to_vec();
+                scope.spawn(move || tabu_search(inst, start, &options))
+            })
+            .collect();
+        runs.into_iter()
+            .filter_map(|r| r.join().ok())
+            .min_by(|a, b| a.cost.total_cmp(&b.cost))
+            .unwrap_or_else(|| SearchResult { cost: inst.cost(start), route: start.to_vec(), iterations: 0, time_to_best: Duration::ZERO })
+    })
 }
 
 #[cfg(test)]
