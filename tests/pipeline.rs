@@ -18,12 +18,23 @@ use laserd::stream::{self, SenderOptions};
 use laserd_sim::controller::Faults;
 use laserd_sim::wire::MachineState;
 
+/// The real-time run below judges the executed motion against the machine's
+/// limits: a host too busy to keep the link fed stops the machine dead, which
+/// the limit checker rightly counts. The tests of this file take turns, so
+/// the CPU-bound dry-runs do not starve it (other test binaries run after).
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn take_turn() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn sample(name: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("samples").join(name)
 }
 
 #[test]
 fn error_20_on_a_chosen_line_stops_the_job_there_with_the_laser_off() {
+    let _turn = take_turn();
     let machine = MachineConfig::load(None).unwrap();
     let planned = run::plan(&sample("one-field.svg"), &machine, PlannerKind::Nearest, None).unwrap();
     // A marking line in the middle of the job: the laser is on when it fails.
@@ -55,6 +66,7 @@ fn error_20_on_a_chosen_line_stops_the_job_there_with_the_laser_off() {
 
 #[test]
 fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
+    let _turn = take_turn();
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttyLASER");
     let rec = dir.path().join("sim.mcap");
@@ -110,6 +122,7 @@ fn sample_job_through_a_real_pty_at_115200_baud_follows_the_plan() {
 
 #[test]
 fn a_simulator_killed_mid_run_leaves_a_readable_recording() {
+    let _turn = take_turn();
     use std::io::{Read, Write};
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttyCRASH");
