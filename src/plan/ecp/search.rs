@@ -160,10 +160,20 @@ pub fn construct(inst: &Instance) -> Vec<Cut> {
 /// only ever has to come after things. Falls back to the nearest-neighbour
 /// construction should a rule still leave no position.
 pub fn insertion(inst: &Instance) -> Vec<Cut> {
+    insertion_in_order(inst, None)
+}
+
+/// [`insertion`] with the elements of each depth taken in a random order
+/// (`seed`), or in index order (`None`): different starts for parallel searches.
+pub fn insertion_in_order(inst: &Instance, seed: Option<u64>) -> Vec<Cut> {
     let n = inst.elements.len();
     let rules = Rules::new(inst);
     let depth = contour_depths(inst);
     let mut order: Vec<usize> = (0..n).collect();
+    if let Some(seed) = seed {
+        use rand::seq::SliceRandom;
+        order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed));
+    }
     let element_depth = |e: usize| rules.contours_of[e].iter().map(|&k| depth[k]).max().unwrap_or(0);
     // Common cuts before the other elements of their depth: then the last
     // element to come into a contour is never a common cut, and every rule on
@@ -630,8 +640,13 @@ pub fn parallel_tabu_search(inst: &Instance, start: &[Cut], options: &TabuOption
         let runs: Vec<_> = (0..threads as u64)
             .map(|k| {
                 let options = TabuOptions { seed: options.seed.wrapping_add(k), ..options.clone() };
-                let start = start.to_vec();
-                scope.spawn(move || tabu_search(inst, start, &options))
+                scope.spawn(move || {
+                    // The first search starts from `start`, the others from
+                    // insertions in other orders: where a search ends up
+                    // depends much on where it starts.
+                    let from = if k == 0 { start.to_vec() } else { insertion_in_order(inst, Some(options.seed)) };
+                    tabu_search(inst, from, &options)
+                })
             })
             .collect();
         runs.into_iter()
