@@ -973,12 +973,12 @@ impl Controller {
     fn next_segment(&mut self, t: f64) {
         let Some(e) = self.exec.as_ref() else { return };
         let nominal = self.nominal_speed(&e.block);
-        let queue: Vec<Planned> = self.planner.iter().map(|b| Planned { nominal: self.nominal_speed(b), kin: &b.kin }).collect();
+        let queue = self.planner.iter().map(|b| Planned { nominal: self.nominal_speed(b), kin: &b.kin });
         let input = SegmentInput {
             speed: e.speed,
             remaining: e.block.kin.length - e.done,
             nominal,
-            exit: planner::exit_speed(nominal, &queue),
+            exit: planner::exit_speed(nominal, queue),
             acceleration: e.block.kin.acceleration,
             stopping: self.hold || self.jog_cancel,
         };

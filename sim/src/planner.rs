@@ -99,10 +99,11 @@ pub struct Planned<'a> {
 /// The highest speed at which the executing block (nominal `exec_nominal`) may
 /// end so that the machine can still take every junction of `queue` and stop
 /// at its end (Grbl's reverse pass). 0 for an empty queue.
-pub fn exit_speed(exec_nominal: f64, queue: &[Planned]) -> f64 {
+pub fn exit_speed<'a>(exec_nominal: f64, queue: impl DoubleEndedIterator<Item = Planned<'a>>) -> f64 {
     let mut v: f64 = 0.0;
-    for (i, b) in queue.iter().enumerate().rev() {
-        let before = if i == 0 { exec_nominal } else { queue[i - 1].nominal };
+    let mut from_the_end = queue.rev().peekable();
+    while let Some(b) = from_the_end.next() {
+        let before = from_the_end.peek().map_or(exec_nominal, |p| p.nominal);
         let max_entry = b.kin.max_junction.min(b.nominal).min(before);
         v = max_entry.min((v * v + 2.0 * b.kin.acceleration * b.kin.length).sqrt());
     }
@@ -288,9 +289,9 @@ mod tests {
         let k = Kinematics { length: 1.0, unit: vec![1.0, 0.0], acceleration: 1000.0, max_speed: 100.0, max_junction: f64::INFINITY };
         let q: Vec<Planned> = (0..3).map(|_| Planned { nominal: 100.0, kin: &k }).collect();
         // Three 1 mm blocks: from 0 at the end, sqrt(2·a·3 mm) = 77.5 mm/s before them.
-        assert!((exit_speed(100.0, &q) - (2.0f64 * 1000.0 * 3.0).sqrt()).abs() < 1e-9);
-        assert_eq!(exit_speed(100.0, &[]), 0.0);
+        assert!((exit_speed(100.0, q.iter().copied()) - (2.0f64 * 1000.0 * 3.0).sqrt()).abs() < 1e-9);
+        assert_eq!(exit_speed(100.0, std::iter::empty()), 0.0);
         // The executing block's own nominal speed caps its exit.
-        assert!((exit_speed(20.0, &q) - 20.0).abs() < 1e-12);
+        assert!((exit_speed(20.0, q.iter().copied()) - 20.0).abs() < 1e-12);
     }
 }

@@ -151,15 +151,22 @@ where
 
     /// `command` for commands that answer only when done (homing).
     async fn command_within(&mut self, text: &str, limit: Duration) -> Result<Response> {
+        self.command_seeing(text, limit, |_| {}).await
+    }
+
+    /// `command_within`, showing `seen` every line read before the answer
+    /// (the feedback a `$` command prints).
+    async fn command_seeing(&mut self, text: &str, limit: Duration, mut seen: impl FnMut(&Response)) -> Result<Response> {
         let before = self.bytes_sent;
         self.send_line(0, text).await?;
         self.book.sent(0, text);
         self.bytes_sent = before;
         self.wait_for(limit, |r| {
+            seen(r);
             matches!(r, Response::Ok | Response::Error(_))
         })
         .await?
-        .ok_or_else(|| Error::Stream(format!("no answer to `{text}`")))
+        .ok_or_else(|| Error::Stream(format!("no answer to `{text}` within {} s", limit.as_secs_f64())))
     }
 
     async fn send_realtime(&mut self, byte: u8) -> Result<()> {
@@ -500,23 +507,15 @@ where
     /// not answer it now (busy: error 8) keeps what the status told.
     async fn learn_build_options(&mut self) -> Result<()> {
         let mut options = None;
-        self.link.send_line(0, BUILD_INFO).await?;
-        self.link.book.sent(0, BUILD_INFO);
-        self.link.bytes_sent -= BUILD_INFO.len() + 1;
-        let answer = self
-            .link
-            .wait_for(Duration::from_secs(3), |r| {
+        self.link
+            .command_seeing(BUILD_INFO, Duration::from_secs(3), |r| {
                 if let Response::Feedback(f) = r {
                     if let Some(o) = f.strip_prefix("[OPT:").and_then(|o| o.strip_suffix(']')) {
                         options = Some(o.to_string());
                     }
                 }
-                matches!(r, Response::Ok | Response::Error(_))
             })
             .await?;
-        if answer.is_none() {
-            return Err(Error::Stream("no answer to `$I` within 3 s".into()));
-        }
         let fields: Vec<&str> = options.as_deref().unwrap_or("").split(',').collect();
         let number = |i: usize| fields.get(i).and_then(|f| f.trim().parse::<usize>().ok()).filter(|n| *n > 0);
         if let Some(blocks) = number(1) {

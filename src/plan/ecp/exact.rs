@@ -92,10 +92,7 @@ pub fn solve(inst: &Instance) -> Option<(f64, Vec<Cut>)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::job::Point;
     use crate::plan::ecp::checker::check;
-    use crate::plan::ecp::{Element, Metric};
-    use rand::{Rng, SeedableRng};
 
     /// Every ordering and direction, the slow way.
     fn brute_force(inst: &Instance) -> Option<f64> {
@@ -127,36 +124,9 @@ mod tests {
         best
     }
 
-    /// A random instance of `n` segments in a 100 mm square: contours of 1 to 3
-    /// elements, some inner/outer pairs and common cuts.
+    /// Contours of 1 to 3 elements.
     fn random_instance(n: usize, seed: u64) -> Instance {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let mut pt = || Point::new(rng.random_range(0.0..100.0), rng.random_range(0.0..100.0));
-        let elements: Vec<Element> = (0..n).map(|_| Element { a: pt(), b: pt() }).collect();
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed);
-        let mut contours: Vec<Vec<usize>> = Vec::new();
-        let mut e = 0;
-        while e < n {
-            let len = rng.random_range(1..=3).min(n - e);
-            contours.push((e..e + len).collect());
-            e += len;
-        }
-        // A few elements shared with a second contour.
-        for _ in 0..2 {
-            let (a, b) = (rng.random_range(0..contours.len()), rng.random_range(0..contours.len()));
-            let shared = contours[a][0];
-            if a != b && !contours[b].contains(&shared) && contours.iter().filter(|c| c.contains(&shared)).count() == 1 {
-                contours[b].push(shared);
-            }
-        }
-        let mut inner_outer = Vec::new();
-        for _ in 0..2 {
-            let (i, o) = (rng.random_range(0..contours.len()), rng.random_range(0..contours.len()));
-            if i != o && !inner_outer.contains(&(i, o)) && !inner_outer.contains(&(o, i)) {
-                inner_outer.push((i, o));
-            }
-        }
-        Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost: 5.0 }
+        crate::plan::ecp::random_instance(n, seed, 1..=3, 5.0)
     }
 
     #[test]

@@ -151,6 +151,40 @@ impl Instance {
     }
 }
 
+/// Random instances for the tests of the planner's parts: `n` segments in a
+/// 100 mm square, contours of `sizes` consecutive elements, up to two common
+/// cuts and three inner/outer pairs (each contour inside one other at most).
+#[cfg(test)]
+pub(crate) fn random_instance(n: usize, seed: u64, sizes: std::ops::RangeInclusive<usize>, pierce_cost: f64) -> Instance {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let pt = |rng: &mut rand_chacha::ChaCha8Rng| Point::new(rng.random_range(0.0..100.0), rng.random_range(0.0..100.0));
+    let elements: Vec<Element> = (0..n).map(|_| Element { a: pt(&mut rng), b: pt(&mut rng) }).collect();
+    let mut contours: Vec<Vec<usize>> = Vec::new();
+    let mut e = 0;
+    while e < n {
+        let len = rng.random_range(sizes.clone()).min(n - e);
+        contours.push((e..e + len).collect());
+        e += len;
+    }
+    let k = contours.len();
+    for _ in 0..2 {
+        let (a, b) = (rng.random_range(0..k), rng.random_range(0..k));
+        let shared = contours[a][0];
+        if a != b && !contours[b].contains(&shared) && contours.iter().filter(|c| c.contains(&shared)).count() == 1 {
+            contours[b].push(shared);
+        }
+    }
+    let mut inner_outer = Vec::new();
+    for _ in 0..3 {
+        let (i, o) = (rng.random_range(0..k), rng.random_range(0..k));
+        if i != o && !inner_outer.iter().any(|&(x, y)| (x, y) == (i, o) || (x, y) == (o, i)) && !inner_outer.iter().any(|&(x, _)| x == i) {
+            inner_outer.push((i, o));
+        }
+    }
+    Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -448,14 +448,10 @@ fn candidates(x: usize, tour: &Tour, neighbours: &[Vec<usize>], out: &mut Vec<Mo
     let n = tour.cuts.len();
     let p = tour.pos[x];
     for len in 1..=3usize.min(n - 1) {
-        let mut starts = vec![];
-        if p + len <= n {
-            starts.push(p);
-        }
-        if len > 1 && p + 1 >= len {
-            starts.push(p + 1 - len);
-        }
-        for from in starts {
+        // The run starting at x, and (longer runs) the one ending at it.
+        let starting = (p + len <= n).then_some(p);
+        let ending = (len > 1 && p + 1 >= len).then(|| p + 1 - len);
+        for from in starting.into_iter().chain(ending) {
             let ends = [tour.cuts[from].element, tour.cuts[from + len - 1].element];
             out.push(Move { from, len, to: from, reverse: true });
             for end in ends {
@@ -659,37 +655,10 @@ pub fn parallel_tabu_search(inst: &Instance, start: &[Cut], options: &TabuOption
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plan::ecp::{checker::check, exact, tsplib, Element, Metric};
-    use crate::job::Point;
-    use rand::{Rng, SeedableRng};
+    use crate::plan::ecp::{checker::check, exact, tsplib};
 
     fn random_instance(n: usize, seed: u64) -> Instance {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let pt = |rng: &mut rand_chacha::ChaCha8Rng| Point::new(rng.random_range(0.0..100.0), rng.random_range(0.0..100.0));
-        let elements: Vec<Element> = (0..n).map(|_| Element { a: pt(&mut rng), b: pt(&mut rng) }).collect();
-        let mut contours: Vec<Vec<usize>> = Vec::new();
-        let mut e = 0;
-        while e < n {
-            let len = rng.random_range(2..=4).min(n - e);
-            contours.push((e..e + len).collect());
-            e += len;
-        }
-        let k = contours.len();
-        for _ in 0..2 {
-            let (a, b) = (rng.random_range(0..k), rng.random_range(0..k));
-            let shared = contours[a][0];
-            if a != b && !contours[b].contains(&shared) && contours.iter().filter(|c| c.contains(&shared)).count() == 1 {
-                contours[b].push(shared);
-            }
-        }
-        let mut inner_outer = Vec::new();
-        for _ in 0..3 {
-            let (i, o) = (rng.random_range(0..k), rng.random_range(0..k));
-            if i != o && !inner_outer.iter().any(|&(x, y)| (x, y) == (i, o) || (x, y) == (o, i)) && !inner_outer.iter().any(|&(x, _)| x == i) {
-                inner_outer.push((i, o));
-            }
-        }
-        Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost: 3.0 }
+        crate::plan::ecp::random_instance(n, seed, 2..=4, 3.0)
     }
 
     #[test]
