@@ -12,6 +12,7 @@ use crate::figures::{sim_figures, RunLog};
 use crate::program::{format_number, LineKind, Program, ProgramLine};
 use crate::run::{run_setup, sim_config, stream_into_simulator};
 use crate::stream::SenderOptions;
+use crate::plan::ecp::SearchKind;
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct StreamFigures {
@@ -114,19 +115,24 @@ pub struct EcpBench {
     pub inner_outer: usize,
     pub common_cuts: usize,
     pub optimum: f64,
-    /// The construction (insertion, seed 001's IB, + dir-opt) and the search.
+    /// The construction (insertion, seed 001's IB, + dir-opt) and the best route found.
     pub construction: f64,
     pub best: f64,
     pub gap: f64,
     pub time_to_best_s: f64,
     pub time_limit_s: f64,
+    /// Kicks of the iterated search (or tabu iterations), over all threads.
     pub iterations: u64,
+    /// `ils` (the default) or `tabu` (seed 001's, the reference).
+    pub search: String,
+    /// Searches run side by side.
+    pub threads: usize,
     /// Checked by the independent checker, not by the search.
     pub feasible: bool,
 }
 
-pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_limit_s: f64) -> Result<EcpBench> {
-    use crate::plan::ecp::{checker, search, tsplib};
+pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_limit_s: f64, search: SearchKind) -> Result<EcpBench> {
+    use crate::plan::ecp::{checker, construct, ils, solve, tsplib};
     if !(time_limit_s.is_finite() && time_limit_s > 0.0) {
         return Err(Error::Config(format!("bench ecp: --time-limit must be a positive number of seconds, got {time_limit_s}")));
     }
@@ -134,11 +140,9 @@ pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_
     let order = tsplib::read_tour(tour, problem.cities.len())?;
     let bench = tsplib::bench_instance(&problem, &order, seed);
     let inst = &bench.instance;
-    let start = search::insertion(inst);
-    let construction = inst.cost(&start);
-    let options = search::TabuOptions::new(inst, std::time::Duration::from_secs_f64(time_limit_s));
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let found = search::parallel_tabu_search(inst, &start, &options, threads);
+    let construction = inst.cost(&construct::insertion(inst));
+    let options = ils::SearchOptions { seed, ..ils::SearchOptions::new(std::time::Duration::from_secs_f64(time_limit_s)) };
+    let found = solve(inst, search, &options);
     // The checker also counts every element cut exactly once.
     let feasible = checker::check(inst, &found.route).is_empty();
     let best = inst.cost(&found.route);
@@ -156,6 +160,8 @@ pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_
         time_to_best_s: found.time_to_best.as_secs_f64(),
         time_limit_s,
         iterations: found.iterations,
+        search: search.name().to_string(),
+        threads: options.threads,
         feasible,
     })
 }

@@ -150,7 +150,7 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchCommand {
-    /// The cutting planner (tabu search) on a TSPLIB instance made
+    /// The cutting planner's search on a TSPLIB instance made
     /// precedence-constrained, against the instance's known optimum.
     Ecp {
         #[arg(long)]
@@ -162,6 +162,9 @@ enum BenchCommand {
         /// Seconds the search may run.
         #[arg(long, default_value_t = 10.0)]
         time_limit: f64,
+        /// `ils` (iterated local search, the default) or `tabu` (seed 001's).
+        #[arg(long, default_value = "ils")]
+        search: laserd::plan::ecp::SearchKind,
         #[arg(long)]
         json: bool,
     },
@@ -253,15 +256,15 @@ fn run_command(command: Command) -> Result<ExitCode> {
             machine.simulator.flavor = flavor.unwrap_or(machine.simulator.flavor);
             sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), faults)
         }
-        Command::Bench { which: BenchCommand::Ecp { tsp, tour, seed, time_limit, json } } => {
-            let report = laserd::bench::ecp_bench(&tsp, &tour, seed, time_limit)?;
+        Command::Bench { which: BenchCommand::Ecp { tsp, tour, seed, time_limit, search, json } } => {
+            let report = laserd::bench::ecp_bench(&tsp, &tour, seed, time_limit, search)?;
             if json {
                 print_json(&report)?;
             } else {
                 println!(
-                    "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {:.2} s of {} s, {} iterations, feasible: {}",
+                    "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {:.2} s of {} s, {} iterations ({}, {} threads), feasible: {}",
                     report.instance, report.elements, report.contours, report.precedences, report.inner_outer, report.common_cuts,
-                    report.optimum, report.construction, report.best, report.gap * 100.0, report.time_to_best_s, report.time_limit_s, report.iterations, report.feasible
+                    report.optimum, report.construction, report.best, report.gap * 100.0, report.time_to_best_s, report.time_limit_s, report.iterations, report.search, report.threads, report.feasible
                 );
             }
             Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(2) })

@@ -14,16 +14,75 @@
 //!   definitions alone;
 //! * [`exact`]: the optimum of small instances (dynamic programming over
 //!   subsets and directions), the reference for the search's tests;
+//! * [`construct`]: feasible starting routes (nearest feasible, seed 001's
+//!   insertion) and dir-opt;
+//! * [`moves`]: the moves of the searches, their O(1) cost changes and
+//!   feasibility from the moved run's contours;
+//! * [`ils`]: the default search (iterated local search with relaxed starts);
+//! * [`tabu`]: seed 001's tabu search, the reference it is measured against;
+//! * [`sheet`]: nested-part sheets for tests and benchmarks;
 //! * [`tsplib`]: TSPLIB instances turned into precedence-constrained ones for
-//!   `bench ecp`.
+//!   `bench ecp`;
+//! * [`topology`]: a job's polylines as an instance (elements split at
+//!   corners, common cuts found where drawn boundaries coincide, containment,
+//!   contour levels, ranks and groups), and a route back to polylines.
 
 pub mod checker;
+pub mod construct;
 pub mod exact;
-pub mod search;
+pub mod ils;
+pub mod moves;
 pub mod sheet;
+pub mod tabu;
+pub mod topology;
 pub mod tsplib;
 
+use std::str::FromStr;
+
 use crate::job::Point;
+
+/// Which search improves the construction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SearchKind {
+    /// Iterated local search with relaxed starts ([`ils`]), the default.
+    #[default]
+    Ils,
+    /// Seed 001's tabu search ([`tabu`]), the reference.
+    Tabu,
+}
+
+impl FromStr for SearchKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "ils" => Ok(SearchKind::Ils),
+            "tabu" => Ok(SearchKind::Tabu),
+            _ => Err(format!("unknown search '{s}' (available: ils, tabu)")),
+        }
+    }
+}
+
+impl SearchKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            SearchKind::Ils => "ils",
+            SearchKind::Tabu => "tabu",
+        }
+    }
+}
+
+/// The best route `kind` finds within the options' time limit, on every core
+/// the options allow.
+pub fn solve(inst: &Instance, kind: SearchKind, options: &ils::SearchOptions) -> ils::SearchResult {
+    match kind {
+        SearchKind::Ils => ils::search(inst, options),
+        SearchKind::Tabu => {
+            let start = construct::insertion(inst);
+            let tabu_options = tabu::TabuOptions { seed: options.seed, ..tabu::TabuOptions::new(inst, options.time_limit) };
+            tabu::parallel_tabu_search(inst, &start, &tabu_options, options.threads)
+        }
+    }
+}
 
 /// How air-move lengths are measured.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -20,6 +20,10 @@
 //! sheet at full size; the element count lands within 5 % above the target.
 //! The first items are a frame and a grid, so that from about 50 elements
 //! on a sheet has common cuts, holes and nested parts.
+//!
+//! [`generate_sheet`] also keeps the centres of the arcs, and [`to_svg`]
+//! draws such a sheet as a nesting program would export it (each part whole,
+//! arcs as arcs), for `topology` to find the instance again from a drawing.
 
 use std::f64::consts::PI;
 
@@ -117,6 +121,21 @@ fn levels(inst: &Instance) -> Vec<usize> {
 
 /// A sheet of nested parts, the same for the same parameters and seed.
 pub fn generate(params: &SheetParams, seed: u64) -> Instance {
+    generate_sheet(params, seed).instance
+}
+
+/// A generated sheet: the instance, and which of its elements are arcs.
+#[derive(Debug, Clone)]
+pub struct Sheet {
+    pub instance: Instance,
+    /// Per element: the centre of the circle its arc lies on, or None for a
+    /// line. Arcs run counter-clockwise from `a` to `b` (the way the generator
+    /// goes round), each less than a half circle except the two of a 2-arc circle.
+    pub arc_centres: Vec<Option<Point>>,
+}
+
+/// [`generate`], keeping the arcs' centres (for drawing the sheet, [`to_svg`]).
+pub fn generate_sheet(params: &SheetParams, seed: u64) -> Sheet {
     let target = params.target_elements;
     let usable = (params.width - 2.0 * params.margin).max(0.0) * (params.height - 2.0 * params.margin).max(0.0);
     // Start at the scale where the target should take about 75 % of the
@@ -125,11 +144,11 @@ pub fn generate(params: &SheetParams, seed: u64) -> Instance {
     let mut last = None;
     for _ in 0..100 {
         let (gen, fits) = fill(params, seed, scale);
-        let inst = gen.into_instance(params);
+        let sheet = gen.into_sheet(params);
         if fits {
-            return inst;
+            return sheet;
         }
-        last = Some(inst);
+        last = Some(sheet);
         scale *= 0.93;
     }
     // Not even tiny parts fit (a target far beyond the sheet): what there is.
@@ -158,6 +177,7 @@ fn fill(params: &SheetParams, seed: u64, scale: f64) -> (Gen, bool) {
         gap: params.gap * scale.min(1.0),
         limit: target + target / 20,
         elements: Vec::new(),
+        arc_centres: Vec::new(),
         contours: Vec::new(),
         inner_outer: Vec::new(),
     };
@@ -208,20 +228,23 @@ struct Gen {
     /// Elements allowed in all; every item is trimmed to what is left.
     limit: usize,
     elements: Vec<Element>,
+    /// Per element, as [`Sheet::arc_centres`].
+    arc_centres: Vec<Option<Point>>,
     contours: Vec<Vec<usize>>,
     inner_outer: Vec<(usize, usize)>,
 }
 
 impl Gen {
-    fn into_instance(self, params: &SheetParams) -> Instance {
-        Instance {
+    fn into_sheet(self, params: &SheetParams) -> Sheet {
+        let instance = Instance {
             elements: self.elements,
             contours: self.contours,
             inner_outer: self.inner_outer,
             depot: Point::new(0.0, 0.0),
             metric: Metric::Euclidean,
             pierce_cost: params.pierce_cost,
-        }
+        };
+        Sheet { instance, arc_centres: self.arc_centres }
     }
 
     fn left(&self) -> usize {
@@ -230,7 +253,15 @@ impl Gen {
 
     fn seg(&mut self, a: Point, b: Point) -> usize {
         self.elements.push(Element { a, b });
+        self.arc_centres.push(None);
         self.elements.len() - 1
+    }
+
+    /// An arc counter-clockwise from `a` to `b` about `centre`.
+    fn arc(&mut self, a: Point, b: Point, centre: Point) -> usize {
+        let e = self.seg(a, b);
+        self.arc_centres[e] = Some(centre);
+        e
     }
 
     fn contour(&mut self, elements: Vec<usize>, outer: Option<usize>) -> usize {
@@ -258,7 +289,7 @@ impl Gen {
                 c + Vector2::new(t.cos(), t.sin()) * r
             })
             .collect();
-        let e = (0..arcs).map(|k| self.seg(p[k], p[(k + 1) % arcs])).collect();
+        let e = (0..arcs).map(|k| self.arc(p[k], p[(k + 1) % arcs], c)).collect();
         self.contour(e, outer)
     }
 
@@ -510,6 +541,83 @@ impl Gen {
         }
         Some(w)
     }
+}
+
+/// The sheet as an SVG document, the way a CAM program would export it for
+/// laserd's importer (`import::svg`):
+/// * millimetres: `width="…mm" height="…mm"` and a viewBox of the sheet in mm,
+///   so one user unit is one mm;
+/// * Y flipped: SVG's y runs down from the top edge, the machine's Y up from
+///   the bottom one, and the importer maps `y = height - y_svg`; so this writes
+///   `y_svg = height - y` and the import lands on the instance's coordinates;
+/// * every contour one closed `<path id="c{k}">`, in contour order (the
+///   importer's geometry k is contour k), drawn whole: a common cut is drawn
+///   twice, once with each of its parts, as a nesting program's export has it,
+///   so that whoever reads the file must find the shared edges again;
+/// * arcs as SVG arcs about their centres ([`Sheet::arc_centres`]), not as
+///   their chords: the chords of a 2-arc circle are a line there and back, no
+///   shape at all, and real arcs make the importer flatten them into the
+///   polylines of many short segments that a real job has.
+pub fn to_svg(sheet: &Sheet, params: &SheetParams) -> String {
+    use std::fmt::Write;
+    let inst = &sheet.instance;
+    let (w, h) = (params.width, params.height);
+    let mut out = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}mm\" height=\"{h}mm\" viewBox=\"0 0 {w} {h}\">\n"
+    );
+    for k in 0..inst.contours.len() {
+        let ring = outline(inst, k);
+        let (start, _) = ends(inst, ring[0]);
+        let mut d = format!("M {} {}", start.x, h - start.y);
+        for &(e, reversed) in &ring {
+            let (_, to) = ends(inst, (e, reversed));
+            match sheet.arc_centres.get(e).copied().flatten() {
+                Some(c) => {
+                    let r = (inst.elements[e].a - c).norm();
+                    // Counter-clockwise on the machine is clockwise in SVG's
+                    // y-down frame: sweep flag 0 forwards, 1 reversed. No arc
+                    // exceeds a half circle (large-arc flag 0).
+                    let sweep = u8::from(reversed);
+                    write!(d, " A {r} {r} 0 0 {sweep} {} {}", to.x, h - to.y).unwrap();
+                }
+                None => write!(d, " L {} {}", to.x, h - to.y).unwrap(),
+            }
+        }
+        writeln!(out, "<path id=\"c{k}\" d=\"{d} Z\" fill=\"none\" stroke=\"#000000\" stroke-width=\"0.1\"/>").unwrap();
+    }
+    out.push_str("</svg>\n");
+    out
+}
+
+/// Where an element cut one way starts and ends.
+fn ends(inst: &Instance, (e, reversed): (usize, bool)) -> (Point, Point) {
+    let el = &inst.elements[e];
+    if reversed {
+        (el.b, el.a)
+    } else {
+        (el.a, el.b)
+    }
+}
+
+/// A contour's elements in order round it, each with its direction (a grid
+/// cell lists its edges left, bottom, right, top, not as a chain).
+fn outline(inst: &Instance, k: usize) -> Vec<(usize, bool)> {
+    let mut left = inst.contours[k].clone();
+    let first = left.remove(0);
+    let mut ring = vec![(first, false)];
+    let mut here = inst.elements[first].b;
+    let at = |p: Point, q: Point| (p - q).norm() < 1e-9;
+    while !left.is_empty() {
+        let i = left
+            .iter()
+            .position(|&e| at(inst.elements[e].a, here) || at(inst.elements[e].b, here))
+            .expect("a sheet's contours are closed chains of elements");
+        let e = left.remove(i);
+        let reversed = !at(inst.elements[e].a, here);
+        here = ends(inst, (e, reversed)).1;
+        ring.push((e, reversed));
+    }
+    ring
 }
 
 #[cfg(test)]

@@ -1,0 +1,748 @@
+//! The default search: iterated local search (ILS) over the moves of
+//! [`super::moves`], from two kinds of start, one per core.
+//!
+//! * **Descent**: first improvement with don't-look bits (only elements whose
+//!   links changed look again), over Or-opt runs of 1 to 3, 2-opt reversals and
+//!   path-preserving 3-opt (two neighbouring stretches swapped, any length),
+//!   each generated from neighbour lists and cut short by the gain criterion:
+//!   the new link at an element must be shorter than the one it replaces.
+//! * **Kicks**: a random double bridge (two neighbouring stretches of random,
+//!   log-uniform length swapped) that keeps every rule, then descent; the
+//!   result is kept if no worse than the best, else the search goes back to
+//!   the best.
+//! * **Starts.** Seed 001's insertion (IB) is feasible but sets the route's
+//!   general direction early, and the rules then pin it: a route that visits
+//!   the sheet the "wrong way round" cannot be turned by moves that keep every
+//!   rule. So the other start is *relaxed*: the same search without rules for
+//!   part of the time, the result's better end taken as the start (a route and
+//!   its reverse cost the same, they break different rules), and the rules it
+//!   still breaks mended by moving single cuts (the fewest broken rules, then
+//!   the cheapest), and by moving each contour's last cut past its inner
+//!   contours where no single move mends one. Threads alternate between the two.
+//!
+//! Seed 001's tabu search ([`super::tabu`]) stays as the reference this is
+//! measured against.
+
+use std::time::{Duration, Instant};
+
+use rand::{Rng, SeedableRng};
+
+use super::construct::{contour_depths, insertion_in_order};
+use super::moves::{apply, delta, feasible, flip, link, Move, Neighbours, Rules, Tour};
+use super::{Cut, Instance};
+
+/// A precedence rule, to count the broken ones while a relaxed search may break them.
+#[derive(Debug, Clone, Copy)]
+enum Rule {
+    Nest { inner: usize, outer: usize },
+    Common { element: usize, a: usize, b: usize },
+}
+
+struct RuleBook {
+    rules: Vec<Rule>,
+    /// The rules each contour takes part in.
+    of_contour: Vec<Vec<usize>>,
+}
+
+impl RuleBook {
+    fn new(inst: &Instance) -> RuleBook {
+        let mut rules: Vec<Rule> = inst.inner_outer.iter().map(|&(inner, outer)| Rule::Nest { inner, outer }).collect();
+        rules.extend(inst.common_cuts().iter().map(|c| Rule::Common { element: c.element, a: c.contours.0, b: c.contours.1 }));
+        let mut of_contour = vec![Vec::new(); inst.contours.len()];
+        for r in 0..rules.len() {
+            let (a, b) = contours_of_rule(&rules[r]);
+            of_contour[a].push(r);
+            of_contour[b].push(r);
+        }
+        RuleBook { rules, of_contour }
+    }
+
+    /// Whether rule `r` is broken with elements at positions `pos`.
+    fn broken(&self, inst: &Instance, r: usize, pos: impl Fn(usize) -> usize) -> bool {
+        let closes = |k: usize| inst.contours[k].iter().map(|&e| pos(e)).max().unwrap_or(0);
+        match self.rules[r] {
+            Rule::Nest { inner, outer } => closes(inner) >= closes(outer),
+            Rule::Common { element, a, b } => {
+                let p = pos(element);
+                closes(a) == p && closes(b) == p
+            }
+        }
+    }
+}
+
+fn contours_of_rule(rule: &Rule) -> (usize, usize) {
+    match *rule {
+        Rule::Nest { inner, outer } => (inner, outer),
+        Rule::Common { a, b, .. } => (a, b),
+    }
+}
+
+/// Slack on neighbour-list pruning: TSPLIB rounding may make a link up to
+/// half a unit longer than the gap between two elements.
+const SLACK: f64 = 0.5;
+/// Longest stretch a 2-opt move reverses (longer reversals rarely keep the
+/// rules, and cost their length to apply).
+const MAX_REVERSAL: usize = 1000;
+/// Cost changes below this are rounding.
+const EPS: f64 = 1e-7;
+
+/// A route under local search.
+struct Descent<'a> {
+    inst: &'a Instance,
+    rules: Rules,
+    near: Neighbours,
+    tour: Tour,
+    cost: f64,
+    /// Elements to look at again (don't-look bits off).
+    queue: std::collections::VecDeque<usize>,
+    queued: Vec<bool>,
+    book: RuleBook,
+    broken: Vec<bool>,
+    /// Rules broken now, in all and per contour.
+    violations: usize,
+    broken_at: Vec<u32>,
+    /// What a broken rule costs: infinite while every rule must hold (moves
+    /// that break one are not taken), 0 for a search without rules.
+    penalty: f64,
+    scratch: std::cell::RefCell<Vec<usize>>,
+}
+
+impl<'a> Descent<'a> {
+    fn new(inst: &'a Instance, start: Vec<Cut>, near: Neighbours) -> Descent<'a> {
+        let n = inst.elements.len();
+        let mut pos = vec![0; n];
+        for (i, c) in start.iter().enumerate() {
+            pos[c.element] = i;
+        }
+        let cost = inst.cost(&start);
+        let mut descent = Descent {
+            inst,
+            rules: Rules::new(inst),
+            near,
+            tour: Tour { cuts: start, pos },
+            cost,
+            queue: (0..n).collect(),
+            queued: vec![true; n],
+            book: RuleBook::new(inst),
+            broken: Vec::new(),
+            violations: 0,
+            broken_at: vec![0; inst.contours.len()],
+            penalty: f64::INFINITY,
+            scratch: Default::default(),
+        };
+        descent.recount();
+        descent
+    }
+
+    fn lk(&self, p: isize, q: isize) -> f64 {
+        link(self.inst, self.tour.at(p), self.tour.at(q))
+    }
+
+    fn wake(&mut self, e: usize) {
+        if !std::mem::replace(&mut self.queued[e], true) {
+            self.queue.push_back(e);
+        }
+    }
+
+    fn wake_all(&mut self) {
+        for e in 0..self.queued.len() {
+            self.wake(e);
+        }
+    }
+
+    /// Counts the broken rules afresh.
+    fn recount(&mut self) {
+        let pos = &self.tour.pos;
+        self.broken = (0..self.book.rules.len()).map(|r| self.book.broken(self.inst, r, |e| pos[e])).collect();
+        self.violations = self.broken.iter().filter(|&&b| b).count();
+        self.broken_at.iter_mut().for_each(|b| *b = 0);
+        for r in 0..self.broken.len() {
+            if self.broken[r] {
+                let (a, b) = contours_of_rule(&self.book.rules[r]);
+                self.broken_at[a] += 1;
+                self.broken_at[b] += 1;
+            }
+        }
+    }
+
+    /// The rules a move may change: those of the moved run's contours.
+    fn touched_rules(&self, mv: &Move, out: &mut Vec<usize>) {
+        out.clear();
+        for i in mv.from..mv.from + mv.len {
+            for &k in &self.rules.contours_of[self.tour.cuts[i].element] {
+                out.extend_from_slice(&self.book.of_contour[k]);
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+    }
+
+    /// How many more rules are broken after the move.
+    fn violation_delta(&self, mv: &Move) -> isize {
+        let mut rules = self.scratch.borrow_mut();
+        self.touched_rules(mv, &mut rules);
+        let pos = &self.tour.pos;
+        rules.iter().map(|&r| self.book.broken(self.inst, r, |e| mv.new_pos(pos[e])) as isize - self.broken[r] as isize).sum()
+    }
+
+    /// Applies `mv` (cost change `d`) and wakes the elements at the links it changed.
+    fn apply(&mut self, mv: &Move, d: f64) {
+        let mut rules = std::mem::take(&mut *self.scratch.borrow_mut());
+        if self.penalty.is_finite() {
+            self.touched_rules(mv, &mut rules);
+        } else {
+            rules.clear();
+        }
+        let (s, l) = (mv.from as isize, mv.len as isize);
+        let before = [self.tour.at(s - 1), self.tour.at(s), self.tour.at(s + l - 1), self.tour.at(s + l)];
+        apply(&mut self.tour, mv);
+        let t = mv.to as isize;
+        let after = [self.tour.at(t - 1), self.tour.at(t), self.tour.at(t + l - 1), self.tour.at(t + l)];
+        for c in before.into_iter().chain(after).flatten() {
+            self.wake(c.element);
+        }
+        self.cost += d;
+        for &r in &rules {
+            let now = self.book.broken(self.inst, r, |e| self.tour.pos[e]);
+            if now != std::mem::replace(&mut self.broken[r], now) {
+                let (a, b) = contours_of_rule(&self.book.rules[r]);
+                if now {
+                    self.violations += 1;
+                    self.broken_at[a] += 1;
+                    self.broken_at[b] += 1;
+                } else {
+                    self.violations -= 1;
+                    self.broken_at[a] -= 1;
+                    self.broken_at[b] -= 1;
+                }
+            }
+        }
+        *self.scratch.borrow_mut() = rules;
+    }
+
+    /// `mv` with its cost change, if it improves the route (cost plus the
+    /// penalty of broken rules) and, with an infinite penalty, keeps every rule.
+    fn try_move(&self, mv: Move) -> Option<(Move, f64)> {
+        let d = delta(self.inst, &self.tour, &mv);
+        if self.penalty.is_infinite() {
+            return (d < -EPS && feasible(self.inst, &self.rules, &self.tour, &mv)).then_some((mv, d));
+        }
+        if d - self.penalty * self.violations as f64 >= -EPS {
+            return None;
+        }
+        let touches_broken = || (mv.from..mv.from + mv.len).any(|i| self.rules.contours_of[self.tour.cuts[i].element].iter().any(|&k| self.broken_at[k] > 0));
+        if d >= -EPS && !touches_broken() {
+            return None;
+        }
+        let dv = if self.penalty > 0.0 { self.violation_delta(&mv) } else { 0 };
+        (d + self.penalty * (dv as f64) < -EPS).then_some((mv, d))
+    }
+
+    /// The first improving move that changes a link at `x`.
+    fn improving_move(&self, x: usize) -> Option<(Move, f64)> {
+        let n = self.tour.cuts.len();
+        let p = self.tour.pos[x];
+        let pi = p as isize;
+        let xc = Some(self.tour.cuts[p]);
+        let near = &self.near.lists;
+        // Or-opt: runs of 1 to 3 starting or ending at x, next to a neighbour of an end.
+        for len in 1..=3usize.min(n - 1) {
+            let starting = (p + len <= n).then_some(p);
+            let ending = (len > 1 && p + 1 >= len).then(|| p + 1 - len);
+            for from in starting.into_iter().chain(ending) {
+                let (f, l) = (from as isize, len as isize);
+                let gain = self.lk(f - 1, f) + self.lk(f + l - 1, f + l) - self.lk(f - 1, f + l);
+                if gain <= 1e-7 {
+                    continue;
+                }
+                if let Some(m) = self.try_move(Move { from, len, to: from, reverse: true }) {
+                    return Some(m);
+                }
+                for end in [self.tour.cuts[from].element, self.tour.cuts[from + len - 1].element] {
+                    for &(m, g) in &near[end] {
+                        if g > gain + SLACK {
+                            break;
+                        }
+                        let q = self.tour.pos[m];
+                        if q >= from && q < from + len {
+                            continue;
+                        }
+                        let q = if q > from { q - len } else { q };
+                        for to in [q, q + 1] {
+                            for reverse in [false, true] {
+                                if to != from || reverse {
+                                    if let Some(found) = self.try_move(Move { from, len, to, reverse }) {
+                                        return Some(found);
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // 2-opt: a neighbour of x brought next to it by reversing what lies between.
+        let succ = self.lk(pi, pi + 1);
+        let pred = self.lk(pi - 1, pi);
+        for &(m, g) in &near[x] {
+            if g > succ.max(pred) + SLACK {
+                break;
+            }
+            let q = self.tour.pos[m];
+            if q > p + 1 && q - p <= MAX_REVERSAL && g <= succ + SLACK {
+                if let Some(found) = self.try_move(Move { from: p + 1, len: q - p, to: p + 1, reverse: true }) {
+                    return Some(found);
+                }
+            } else if q + 1 < p && p - q <= MAX_REVERSAL && g <= pred + SLACK {
+                if let Some(found) = self.try_move(Move { from: q, len: p - q, to: q, reverse: true }) {
+                    return Some(found);
+                }
+            }
+        }
+        // Path-preserving 3-opt (two neighbouring stretches swapped, none
+        // reversed): x followed by a neighbour y further on ...
+        if p + 1 < n {
+            let s = self.tour.cuts[p + 1].element;
+            for &(y, g) in &near[x] {
+                if g > succ + SLACK {
+                    break;
+                }
+                let b = self.tour.pos[y];
+                if b <= p + 1 {
+                    continue;
+                }
+                let g1 = succ - link(self.inst, xc, Some(self.tour.cuts[b]));
+                if g1 <= 0.0 {
+                    continue;
+                }
+                let r2 = self.lk(b as isize - 1, b as isize);
+                for &(z, gz) in &near[s] {
+                    if gz > g1 + r2 + SLACK {
+                        break;
+                    }
+                    let c1 = self.tour.pos[z];
+                    if c1 < b {
+                        continue;
+                    }
+                    if let Some(found) = self.try_move(swap(p + 1, b, c1 + 1)) {
+                        return Some(found);
+                    }
+                }
+            }
+        }
+        // ... or preceded by a neighbour y further back.
+        if p >= 2 {
+            for &(y, g) in &near[x] {
+                if g > pred + SLACK {
+                    break;
+                }
+                let b1 = self.tour.pos[y];
+                if b1 + 2 > p {
+                    continue;
+                }
+                let g1 = pred - link(self.inst, Some(self.tour.cuts[b1]), xc);
+                if g1 <= 0.0 {
+                    continue;
+                }
+                let b = b1 + 1;
+                let t = self.tour.cuts[b].element;
+                let r2 = self.lk(b1 as isize, b as isize);
+                for &(w, gw) in &near[t] {
+                    if gw > g1 + r2 + SLACK {
+                        break;
+                    }
+                    let a1 = self.tour.pos[w];
+                    if a1 + 1 >= b {
+                        continue;
+                    }
+                    if let Some(found) = self.try_move(swap(a1 + 1, b, p)) {
+                        return Some(found);
+                    }
+                }
+            }
+        }
+        None
+    }
+
+    /// First-improvement descent from the woken elements until none improves.
+    fn descend(&mut self) {
+        while let Some(x) = self.queue.pop_front() {
+            self.queued[x] = false;
+            if let Some((mv, d)) = self.improving_move(x) {
+                self.apply(&mv, d);
+                self.wake(x);
+            }
+        }
+    }
+
+    /// Back to `route` (cost `cost`), every element asleep.
+    fn reset_to(&mut self, route: &[Cut], cost: f64) {
+        self.tour.cuts.copy_from_slice(route);
+        for (i, c) in route.iter().enumerate() {
+            self.tour.pos[c.element] = i;
+        }
+        self.cost = cost;
+        if self.penalty.is_finite() {
+            self.recount();
+        }
+        self.queue.clear();
+        self.queued.iter_mut().for_each(|q| *q = false);
+    }
+
+    /// A random double bridge, or now and then a random stretch reversed
+    /// (directions the descent's moves rarely flip), that keeps the rules
+    /// (or any, without rules).
+    fn kick(&mut self, rng: &mut impl Rng) -> bool {
+        let n = self.tour.cuts.len();
+        if n < 4 {
+            return false;
+        }
+        let top = MAX_KICK.min(n / 3).max(1) as f64;
+        for _ in 0..20 {
+            let l1 = top.powf(rng.random::<f64>()).round().max(1.0) as usize;
+            let l2 = top.powf(rng.random::<f64>()).round().max(1.0) as usize;
+            if l1 + l2 >= n {
+                continue;
+            }
+            let a = rng.random_range(0..=n - l1 - l2);
+            let mv = if rng.random_ratio(1, 8) { Move { from: a, len: l1 + l2, to: a, reverse: true } } else { swap(a, a + l1, a + l1 + l2) };
+            if self.penalty.is_finite() || feasible(self.inst, &self.rules, &self.tour, &mv) {
+                let d = delta(self.inst, &self.tour, &mv);
+                self.apply(&mv, d);
+                return true;
+            }
+        }
+        false
+    }
+
+    /// The route turned end for end (the same cost on a symmetric metric).
+    fn reverse_route(&mut self) {
+        self.tour.cuts.reverse();
+        for (i, c) in self.tour.cuts.iter_mut().enumerate() {
+            *c = flip(*c);
+            self.tour.pos[c.element] = i;
+        }
+        self.cost = self.inst.cost(&self.tour.cuts);
+        self.recount();
+    }
+
+    /// Mends broken rules: single cuts moved anywhere (the move mending most
+    /// rules, then the cheapest), and where no single move mends one, each
+    /// contour's last cut moved past its inner contours. Returns whether
+    /// every rule holds.
+    fn repair(&mut self) -> bool {
+        let n = self.tour.cuts.len();
+        self.penalty = 1.0;
+        let mut pushes = 0;
+        while self.violations > 0 {
+            let mut involved: Vec<usize> = Vec::new();
+            for r in (0..self.broken.len()).filter(|&r| self.broken[r]) {
+                let (a, b) = contours_of_rule(&self.book.rules[r]);
+                involved.extend(self.inst.contours[a].iter().chain(&self.inst.contours[b]));
+            }
+            involved.sort_unstable();
+            involved.dedup();
+            let mut best: Option<(isize, f64, Move)> = None;
+            for &e in &involved {
+                let from = self.tour.pos[e];
+                for to in 0..n {
+                    for reverse in [false, true] {
+                        if to == from && !reverse {
+                            continue;
+                        }
+                        let mv = Move { from, len: 1, to, reverse };
+                        let dv = self.violation_delta(&mv);
+                        if dv >= 0 {
+                            continue;
+                        }
+                        let d = delta(self.inst, &self.tour, &mv);
+                        if best.as_ref().is_none_or(|(bv, bd, _)| (dv, d) < (*bv, *bd)) {
+                            best = Some((dv, d, mv));
+                        }
+                    }
+                }
+            }
+            match best {
+                Some((_, d, mv)) => self.apply(&mv, d),
+                None if pushes < 3 => {
+                    pushes += 1;
+                    self.push_closings();
+                }
+                None => break,
+            }
+        }
+        self.violations == 0
+    }
+
+    /// Each contour closed before an inner one gets its last cut moved to the
+    /// best place after its inner contours close, innermost first (moving a
+    /// cut later never breaks a rule of the contours inside).
+    fn push_closings(&mut self) {
+        let n = self.tour.cuts.len();
+        let depth = contour_depths(self.inst);
+        let mut order: Vec<usize> = (0..self.inst.contours.len()).collect();
+        order.sort_by_key(|&k| std::cmp::Reverse(depth[k]));
+        for &k in &order {
+            let closes = |k: usize| self.inst.contours[k].iter().map(|&e| self.tour.pos[e]).max().unwrap_or(0);
+            let Some(need) = self.rules.inners[k].iter().map(|&i| closes(i)).max() else { continue };
+            let from = closes(k);
+            if from > need {
+                continue;
+            }
+            // Targets counted in the route without the moved cut: `need` is
+            // the place right after the inner contour's last cut.
+            let best = (need..n)
+                .flat_map(|to| [false, true].map(|reverse| Move { from, len: 1, to, reverse }))
+                .map(|mv| (delta(self.inst, &self.tour, &mv), mv))
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((d, mv)) = best {
+                self.apply(&mv, d);
+            }
+        }
+    }
+}
+
+/// Longest stretch a kick moves.
+const MAX_KICK: usize = 100;
+
+/// Swapping the neighbouring stretches `[a, b)` and `[b, c)`, as the move of
+/// the shorter one (feasibility is checked from the moved run's contours).
+fn swap(a: usize, b: usize, c: usize) -> Move {
+    if b - a <= c - b {
+        Move { from: a, len: b - a, to: a + (c - b), reverse: false }
+    } else {
+        Move { from: b, len: c - b, to: a, reverse: false }
+    }
+}
+
+/// Where a search starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Start {
+    /// Seed 001's insertion (elements of a depth in index order, or shuffled by the seed).
+    Insertion,
+    /// The search without rules for a share of the time, then mended.
+    Relaxed,
+}
+
+/// Options of the search.
+#[derive(Debug, Clone)]
+pub struct SearchOptions {
+    pub time_limit: Duration,
+    /// Stop after this many kicks in a row that found nothing better (0: never).
+    pub max_stall: u64,
+    /// Kicks in a row finding nothing better after which a search starts
+    /// afresh (`None`: 100 per element, at least 10 000).
+    pub restart_after: Option<u64>,
+    /// Share of the time a relaxed start searches without rules.
+    pub relaxed_share: f64,
+    /// Neighbours per element that moves are taken from.
+    pub neighbours: usize,
+    /// Searches run side by side (one per core helps: the outcome depends on the start).
+    pub threads: usize,
+    pub seed: u64,
+}
+
+impl SearchOptions {
+    pub fn new(time_limit: Duration) -> SearchOptions {
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        SearchOptions { time_limit, max_stall: 0, restart_after: None, relaxed_share: 0.3, neighbours: 10, threads, seed: 1 }
+    }
+}
+
+/// What a search found.
+#[derive(Debug, Clone)]
+pub struct SearchResult {
+    /// A route that keeps every rule.
+    pub route: Vec<Cut>,
+    pub cost: f64,
+    /// Kicks (iterations of the outer loop), over all threads.
+    pub iterations: u64,
+    pub time_to_best: Duration,
+    /// The start the best route came from.
+    pub start: Start,
+}
+
+/// One search: rounds of a start and kicks from it until the round stalls
+/// (`restart_after` kicks finding nothing better), the first round from
+/// `first`, later ones from fresh insertions in random orders, relaxed and
+/// not in turn; the best route of all rounds.
+pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions) -> SearchResult {
+    let began = Instant::now();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
+    let mut insertion = insertion_in_order(inst, (options.seed > 1).then_some(options.seed));
+    let mut s = Descent::new(inst, insertion.clone(), Neighbours::new(inst, options.neighbours));
+    let mut best: Option<SearchResult> = None;
+    let mut time_to_best = Duration::ZERO;
+    let mut iterations = 0;
+    let mut since_best = 0u64;
+    let mut start = first;
+    let restart_after = options.restart_after.unwrap_or((100 * inst.elements.len() as u64).max(10_000));
+    for round in 0.. {
+        if round > 0 {
+            insertion = insertion_in_order(inst, Some(rng.random()));
+            s.penalty = f64::INFINITY;
+            s.reset_to(&insertion, inst.cost(&insertion));
+            s.wake_all();
+        }
+        if start == Start::Relaxed {
+            let now = began.elapsed();
+            let relaxed_until = now + options.time_limit.saturating_sub(now).mul_f64(options.relaxed_share.clamp(0.0, 1.0));
+            s.penalty = 0.0;
+            iterations += iterate(&mut s, &mut rng, restart_after, |_| began.elapsed() < relaxed_until);
+            // Of the route and its reverse, the one breaking fewer rules.
+            let forward = s.violations;
+            s.reverse_route();
+            if forward < s.violations {
+                s.reverse_route();
+            }
+            let mended = s.repair();
+            s.penalty = f64::INFINITY;
+            if !mended {
+                s.reset_to(&insertion, inst.cost(&insertion));
+            }
+            s.wake_all();
+        }
+        let mut best_cost = best.as_ref().map_or(f64::INFINITY, |b| b.cost);
+        iterations += iterate(&mut s, &mut rng, restart_after, |found| {
+            if let Some(cost) = found.filter(|&c| c < best_cost - EPS) {
+                best_cost = cost;
+                time_to_best = began.elapsed();
+                since_best = 0;
+            }
+            since_best += KICKS_PER_CLOCK;
+            began.elapsed() < options.time_limit && (options.max_stall == 0 || since_best < options.max_stall)
+        });
+        if best.as_ref().is_none_or(|b| s.cost < b.cost - EPS) {
+            if best.is_none() {
+                time_to_best = began.elapsed();
+            }
+            best = Some(SearchResult { route: s.tour.cuts.clone(), cost: s.cost, iterations: 0, time_to_best, start });
+        }
+        let stalled = options.max_stall > 0 && since_best >= options.max_stall;
+        if began.elapsed() >= options.time_limit || stalled || restart_after == 0 || inst.elements.len() < 4 {
+            break;
+        }
+        start = if start == Start::Relaxed { Start::Insertion } else { Start::Relaxed };
+    }
+    let mut best = best.expect("one round at least");
+    best.cost = inst.cost(&best.route);
+    best.iterations = iterations;
+    best.time_to_best = time_to_best;
+    best
+}
+
+/// Kicks between two looks at the clock (a kick and its descent take microseconds).
+const KICKS_PER_CLOCK: u64 = 16;
+
+/// Descent, then kicks while `go_on` (told the new best cost when the last
+/// kicks found one) and until `stall_limit` kicks in a row found nothing
+/// better (0: no limit); leaves the best route in `s`. Returns the kicks made.
+fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, mut go_on: impl FnMut(Option<f64>) -> bool) -> u64 {
+    s.descend();
+    let mut best = s.tour.cuts.clone();
+    let mut best_cost = s.cost;
+    let mut kicks = 0u64;
+    let mut stall = 0u64;
+    let mut found = Some(best_cost);
+    while go_on(found.take()) && (stall_limit == 0 || stall < stall_limit) && s.tour.cuts.len() >= 4 {
+        for _ in 0..KICKS_PER_CLOCK {
+            kicks += 1;
+            stall += 1;
+            if !s.kick(rng) {
+                continue;
+            }
+            s.descend();
+            if s.cost < best_cost - EPS {
+                found = Some(s.cost);
+                stall = 0;
+            }
+            if s.cost <= best_cost + EPS {
+                best_cost = s.cost;
+                best.copy_from_slice(&s.tour.cuts);
+            } else {
+                s.reset_to(&best, best_cost);
+            }
+        }
+    }
+    s.reset_to(&best, best_cost);
+    kicks
+}
+
+/// Searches side by side, starts alternating between relaxed and insertion
+/// (each thread its own random seed): the best route of all.
+pub fn search(inst: &Instance, options: &SearchOptions) -> SearchResult {
+    let threads = options.threads.max(1);
+    let runs: Vec<SearchResult> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..threads as u64)
+            .map(|k| {
+                let options = SearchOptions { seed: options.seed.wrapping_add(k), ..options.clone() };
+                let start = if k % 2 == 0 { Start::Relaxed } else { Start::Insertion };
+                scope.spawn(move || search_from(inst, start, &options))
+            })
+            .collect();
+        handles.into_iter().filter_map(|h| h.join().ok()).collect()
+    });
+    let iterations = runs.iter().map(|r| r.iterations).sum();
+    let mut best = runs.into_iter().min_by(|a, b| a.cost.total_cmp(&b.cost)).expect("at least one search ran");
+    best.iterations = iterations;
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plan::ecp::{checker::check, exact, tsplib};
+
+    #[test]
+    fn every_move_kind_predicts_its_cost_and_rules() {
+        // Or-opt, 2-opt and path-preserving 3-opt moves as the descent makes
+        // them: each applied move's cost change and broken-rule count are
+        // what the route says after it.
+        for seed in 0..10 {
+            let inst = crate::plan::ecp::random_instance(40, seed, 2..=6, 3.0);
+            let start = crate::plan::ecp::construct::construct(&inst);
+            let mut s = Descent::new(&inst, start, Neighbours::new(&inst, 8));
+            s.penalty = 0.5;
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            for _ in 0..200 {
+                s.kick(&mut rng);
+                s.descend();
+                assert!((s.cost - inst.cost(&s.tour.cuts)).abs() < 1e-6, "seed {seed}");
+                assert_eq!(s.violations, check(&inst, &s.tour.cuts).len(), "seed {seed}");
+            }
+        }
+    }
+
+    #[test]
+    fn reaches_the_optimum_of_small_instances() {
+        let mut solved = 0;
+        for seed in 0..30 {
+            let inst = crate::plan::ecp::random_instance(12, 100 + seed, 2..=4, 3.0);
+            let Some((optimum, _)) = exact::solve(&inst) else { continue };
+            for start in [Start::Insertion, Start::Relaxed] {
+                let options = SearchOptions { max_stall: 5000, restart_after: Some(500), threads: 1, ..SearchOptions::new(Duration::from_secs(5)) };
+                let found = search_from(&inst, start, &options);
+                assert!(check(&inst, &found.route).is_empty(), "seed {seed} {start:?}");
+                assert!((found.cost - optimum).abs() < 1e-6, "seed {seed} {start:?}: {} vs optimum {optimum}", found.cost);
+            }
+            solved += 1;
+        }
+        assert!(solved >= 20, "only {solved} feasible instances");
+    }
+
+    #[test]
+    fn a_relaxed_start_is_mended_and_beats_the_construction_on_a280() {
+        let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/tsplib");
+        let tsp = tsplib::read_tsp(&dir.join("a280.tsp")).unwrap();
+        let tour = tsplib::read_tour(&dir.join("a280.opt.tour"), 280).unwrap();
+        let b = tsplib::bench_instance(&tsp, &tour, 2);
+        let construction = b.instance.cost(&insertion_in_order(&b.instance, None));
+        let options = SearchOptions { threads: 1, ..SearchOptions::new(Duration::from_millis(1500)) };
+        for start in [Start::Relaxed, Start::Insertion] {
+            let found = search_from(&b.instance, start, &options);
+            assert!(check(&b.instance, &found.route).is_empty(), "{start:?}");
+            assert!(found.cost >= b.optimum, "never below the optimum");
+            assert!(found.cost < construction, "{start:?}: {} vs construction {construction}", found.cost);
+        }
+    }
+}

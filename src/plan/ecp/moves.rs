@@ -1,0 +1,232 @@
+//! The moves every search of the route shares: a run of cuts moved elsewhere
+//! in the route, kept or reversed. Or-opt (runs of 1 to 3), 2-opt (a run
+//! reversed in place) and path-preserving 3-opt (two neighbouring stretches
+//! swapped: the shorter one moved past the other) are all such moves.
+//!
+//! Move evaluation is where seed 001 lost its time. Here the cost change of a
+//! move is O(1), and its feasibility is decided from the contours of the moved
+//! run alone: moving a run changes only the order between the run and what it
+//! jumps over, so precedences between other contours cannot change.
+//! Positions after the move are computed, not applied.
+
+use super::{Cut, Instance};
+
+/// Precedence data indexed for the search.
+pub(crate) struct Rules {
+    /// Contours each element belongs to (one or two).
+    pub(super) contours_of: Vec<Vec<usize>>,
+    /// For each contour: the contours it lies inside, and those inside it.
+    pub(super) outers: Vec<Vec<usize>>,
+    pub(super) inners: Vec<Vec<usize>>,
+    /// For each contour: its common cuts and the other contour of each.
+    pub(super) shared: Vec<Vec<(usize, usize)>>,
+}
+
+impl Rules {
+    pub(super) fn new(inst: &Instance) -> Rules {
+        let (n, k) = (inst.elements.len(), inst.contours.len());
+        let mut contours_of = vec![Vec::new(); n];
+        for (c, contour) in inst.contours.iter().enumerate() {
+            for &e in contour {
+                contours_of[e].push(c);
+            }
+        }
+        let mut outers = vec![Vec::new(); k];
+        let mut inners = vec![Vec::new(); k];
+        for &(i, o) in &inst.inner_outer {
+            outers[i].push(o);
+            inners[o].push(i);
+        }
+        let mut shared = vec![Vec::new(); k];
+        for cc in inst.common_cuts() {
+            shared[cc.contours.0].push((cc.element, cc.contours.1));
+            shared[cc.contours.1].push((cc.element, cc.contours.0));
+        }
+        Rules { contours_of, outers, inners, shared }
+    }
+}
+
+/// Cost of going from `a` to `b` (`None`: the depot).
+pub(super) fn link(inst: &Instance, a: Option<Cut>, b: Option<Cut>) -> f64 {
+    match (a, b) {
+        (_, Some(b)) => inst.step(a, b),
+        (Some(a), None) => inst.distance(inst.ends(a).1, inst.depot),
+        (None, None) => 0.0,
+    }
+}
+
+pub(super) fn flip(c: Cut) -> Cut {
+    Cut { element: c.element, reversed: !c.reversed }
+}
+
+/// The route being improved, with every element's position.
+pub(super) struct Tour {
+    pub(super) cuts: Vec<Cut>,
+    pub(super) pos: Vec<usize>,
+}
+
+impl Tour {
+    pub(super) fn at(&self, i: isize) -> Option<Cut> {
+        if i < 0 || i as usize >= self.cuts.len() {
+            None
+        } else {
+            Some(self.cuts[i as usize])
+        }
+    }
+}
+
+/// A run `[from, from + len)` moved to stand before position `to` of the
+/// route without it (`to` counts positions of the route with the run taken out),
+/// reversed or not.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Move {
+    pub(super) from: usize,
+    pub(super) len: usize,
+    pub(super) to: usize,
+    pub(super) reverse: bool,
+}
+
+impl Move {
+    /// Where element position `p` ends up.
+    pub(super) fn new_pos(&self, p: usize) -> usize {
+        let (s, l, t) = (self.from, self.len, self.to);
+        if p >= s && p < s + l {
+            let k = p - s;
+            t + if self.reverse { l - 1 - k } else { k }
+        } else {
+            // Position in the route without the run, then after re-insertion.
+            let q = if p >= s + l { p - l } else { p };
+            if q >= t {
+                q + l
+            } else {
+                q
+            }
+        }
+    }
+}
+
+pub(super) fn feasible(inst: &Instance, rules: &Rules, tour: &Tour, mv: &Move) -> bool {
+    let np = |e: usize| mv.new_pos(tour.pos[e]);
+    let closes = |k: usize| inst.contours[k].iter().map(|&e| np(e)).max().unwrap_or(0);
+    for i in mv.from..mv.from + mv.len {
+        for &k in &rules.contours_of[tour.cuts[i].element] {
+            let ck = closes(k);
+            if rules.outers[k].iter().any(|&o| ck >= closes(o)) || rules.inners[k].iter().any(|&i| closes(i) >= ck) {
+                return false;
+            }
+            if rules.shared[k].iter().any(|&(c, other)| np(c) == ck && np(c) == closes(other)) {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Cost change of a move (negative: better).
+pub(super) fn delta(inst: &Instance, tour: &Tour, mv: &Move) -> f64 {
+    let (s, l) = (mv.from as isize, mv.len as isize);
+    let first = tour.cuts[mv.from];
+    let last = tour.cuts[mv.from + mv.len - 1];
+    let before = tour.at(s - 1);
+    let after = tour.at(s + l);
+    let removal = link(inst, before, Some(first)) + link(inst, Some(last), after) - link(inst, before, after);
+    // Neighbours at the target, in the route without the run.
+    let without = |q: isize| if q < s { tour.at(q) } else { tour.at(q + l) };
+    let (a, b) = (without(mv.to as isize - 1), without(mv.to as isize));
+    // Both metrics are symmetric, and so is the pierce rule: a reversed run
+    // costs inside what it cost before.
+    let (head, tail) = if mv.reverse { (flip(last), flip(first)) } else { (first, last) };
+    let insertion = link(inst, a, Some(head)) + link(inst, Some(tail), b) - link(inst, a, b);
+    insertion - removal
+}
+
+pub(super) fn apply(tour: &mut Tour, mv: &Move) {
+    let mut run: Vec<Cut> = tour.cuts.drain(mv.from..mv.from + mv.len).collect();
+    if mv.reverse {
+        run.reverse();
+        run.iter_mut().for_each(|c| *c = flip(*c));
+    }
+    let at = mv.to;
+    tour.cuts.splice(at..at, run);
+    let lo = mv.from.min(mv.to);
+    let hi = (mv.from + mv.len).max(mv.to + mv.len).min(tour.cuts.len());
+    for i in lo..hi {
+        tour.pos[tour.cuts[i].element] = i;
+    }
+}
+
+/// Nearest elements of each element, nearest first, with the gap (the
+/// shortest distance between their end points).
+pub(super) struct Neighbours {
+    pub lists: Vec<Vec<(usize, f64)>>,
+}
+
+impl Neighbours {
+    pub fn new(inst: &Instance, k: usize) -> Neighbours {
+        let n = inst.elements.len();
+        let gap = |x: usize, y: usize| {
+            let (p, q) = (&inst.elements[x], &inst.elements[y]);
+            [(p.a, q.a), (p.a, q.b), (p.b, q.a), (p.b, q.b)].iter().map(|(u, v)| (v - u).norm()).fold(f64::INFINITY, f64::min)
+        };
+        let lists = (0..n)
+            .map(|x| {
+                let mut others: Vec<(usize, f64)> = (0..n).filter(|&y| y != x).map(|y| (y, gap(x, y))).collect();
+                let k = k.min(others.len());
+                if k > 0 && k < others.len() {
+                    others.select_nth_unstable_by(k - 1, |a, b| a.1.total_cmp(&b.1));
+                }
+                others.truncate(k);
+                others.sort_by(|a, b| a.1.total_cmp(&b.1));
+                others
+            })
+            .collect();
+        Neighbours { lists }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plan::ecp::{checker::check, construct::construct, exact};
+
+    fn random_instance(n: usize, seed: u64) -> Instance {
+        crate::plan::ecp::random_instance(n, seed, 2..=4, 3.0)
+    }
+
+    #[test]
+    fn moves_predict_positions_cost_and_feasibility() {
+        for seed in 0..20 {
+            let inst = random_instance(9, seed);
+            if exact::solve(&inst).is_none() {
+                continue;
+            }
+            let start = construct(&inst);
+            assert!(check(&inst, &start).is_empty());
+            let mut pos = vec![0; 9];
+            for (i, c) in start.iter().enumerate() {
+                pos[c.element] = i;
+            }
+            let rules = Rules::new(&inst);
+            for from in 0..9 {
+                for len in 1..=3 {
+                    if from + len > 9 {
+                        continue;
+                    }
+                    for to in 0..=9 - len {
+                        for reverse in [false, true] {
+                            let mv = Move { from, len, to, reverse };
+                            let mut tour = Tour { cuts: start.clone(), pos: pos.clone() };
+                            let predicted: Vec<usize> = (0..9).map(|e| mv.new_pos(pos[e])).collect();
+                            let d = delta(&inst, &tour, &mv);
+                            let fits = feasible(&inst, &rules, &tour, &mv);
+                            apply(&mut tour, &mv);
+                            assert_eq!(predicted, tour.pos, "{mv:?}");
+                            assert!((inst.cost(&tour.cuts) - inst.cost(&start) - d).abs() < 1e-9, "{mv:?}");
+                            assert_eq!(fits, check(&inst, &tour.cuts).is_empty(), "seed {seed} {mv:?}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
