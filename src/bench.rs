@@ -165,3 +165,143 @@ pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_
         feasible,
     })
 }
+
+/// One way of ordering a sheet's cuts, measured as the machine would cut it.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct SheetOrder {
+    /// Air moves between cuts (the contract's idle stroke), mm.
+    pub air_mm: f64,
+    /// Paths, each entered with a pierce.
+    pub pierces: usize,
+    /// Cuts after the part they belong to has fallen out.
+    pub precedence_violations: usize,
+    /// Wall-clock planning time, s (topology included).
+    pub plan_time_s: f64,
+}
+
+/// `bench sheet`: a generated sheet of nested parts (issue 4), written as SVG
+/// and imported as any job, ordered three ways: the nearest-neighbour
+/// baseline (whole parts, nearest first), seed 001's construction alone
+/// (IB + dir-opt), and the cutting planner (`ecp`).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct SheetBench {
+    pub seed: u64,
+    pub width_mm: f64,
+    pub height_mm: f64,
+    pub geometries: usize,
+    pub elements: usize,
+    pub contours: usize,
+    pub inner_outer: usize,
+    pub common_cuts: usize,
+    /// Pierce cost the planners weigh against air, mm.
+    pub pierce_cost_mm: f64,
+    pub time_limit_s: f64,
+    pub nearest: SheetOrder,
+    /// Seed 001's insertion construction (IB) + dir-opt, and its contour-order one (COB) + dir-opt.
+    pub construction: SheetOrder,
+    pub contour_order: SheetOrder,
+    pub ecp: SheetOrder,
+    /// ecp air / nearest air, and ecp air / construction air.
+    pub air_vs_nearest: f64,
+    pub air_vs_construction: f64,
+    /// Where the sheet's SVG was written, if asked.
+    pub svg: Option<String>,
+}
+
+/// The machine a sheet is cut on: `machine` as a flatbed cutter (no
+/// scanner) whose travel covers the sheet.
+pub fn flatbed_for(machine: &MachineConfig, width: f64, height: f64) -> MachineConfig {
+    let mut m = machine.clone();
+    m.scanner = None;
+    m.stage.travel_x = m.stage.travel_x.max(width);
+    m.stage.travel_y = m.stage.travel_y.max(height);
+    m
+}
+
+pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_limit_s: f64, svg_out: Option<&std::path::Path>) -> Result<SheetBench> {
+    use crate::plan::cutting::{cutting_model, plan_cutting, sequence_precedence_violations};
+    use crate::plan::ecp::{checker, construct, sheet};
+    use crate::plan::{PathGroup, PlanContext, PlannedPath, Planner, Sequence};
+    if !(time_limit_s.is_finite() && time_limit_s > 0.0) {
+        return Err(Error::Config(format!("bench sheet: --time-limit must be a positive number of seconds, got {time_limit_s}")));
+    }
+    if elements == 0 {
+        return Err(Error::Config("bench sheet: --elements must be at least 1".into()));
+    }
+    let params = sheet::SheetParams::with_target(elements);
+    let generated = sheet::generate_sheet(&params, seed);
+    let svg = sheet::to_svg(&generated, &params);
+    // The sheet goes through the importer as any job would.
+    let path = match svg_out {
+        Some(p) => p.to_path_buf(),
+        None => std::env::temp_dir().join(format!("laserd-sheet-{}-{elements}-{seed}.svg", std::process::id())),
+    };
+    std::fs::write(&path, svg).map_err(|e| Error::Io(format!("{}: cannot write: {e}", path.display())))?;
+    let mut machine = flatbed_for(machine, params.width, params.height);
+    machine.cutting.time_limit = time_limit_s;
+    let job = crate::import::import_job(&path, &machine)?;
+    if svg_out.is_none() {
+        let _ = std::fs::remove_file(&path);
+    }
+    let ctx = PlanContext { machine: &machine, mode: crate::motion::Mode::StageOnly, start: crate::run::job_start() };
+    let timed = |f: &mut dyn FnMut() -> Result<(Sequence, usize)>| -> Result<SheetOrder> {
+        let started = std::time::Instant::now();
+        let (sequence, precedence_violations) = f()?;
+        let plan_time_s = started.elapsed().as_secs_f64();
+        Ok(SheetOrder { air_mm: sequence.idle_stroke(), pierces: sequence.paths().count(), precedence_violations, plan_time_s })
+    };
+    let model = cutting_model(&job, ctx.start, &machine.cutting)?;
+    let nearest = timed(&mut || {
+        let sequence = crate::plan::nearest::NearestNeighbour.plan(&job, &ctx)?;
+        let model = cutting_model(&job, ctx.start, &machine.cutting)?;
+        let violations = sequence_precedence_violations(&model, &sequence);
+        Ok((sequence, violations))
+    })?;
+    let constructed = |build: fn(&crate::plan::ecp::Instance) -> Vec<crate::plan::ecp::Cut>| {
+        timed(&mut || {
+            let model = cutting_model(&job, ctx.start, &machine.cutting)?;
+            let route = build(&model.instance);
+            let paths = model
+                .polylines(&route)
+                .into_iter()
+                .map(|(geometry, points)| PlannedPath { geometry, points, process: job.geometries[geometry].process })
+                .collect();
+            Ok((Sequence { groups: vec![PathGroup { field_center: None, paths }] }, checker::check(&model.instance, &route).len()))
+        })
+    };
+    let contour_order = constructed(construct::contour_order_construction)?;
+    let construction = timed(&mut || {
+        let model = cutting_model(&job, ctx.start, &machine.cutting)?;
+        let route = construct::insertion(&model.instance);
+        let paths = model
+            .polylines(&route)
+            .into_iter()
+            .map(|(geometry, points)| PlannedPath { geometry, points, process: job.geometries[geometry].process })
+            .collect();
+        Ok((Sequence { groups: vec![PathGroup { field_center: None, paths }] }, checker::check(&model.instance, &route).len()))
+    })?;
+    let ecp = timed(&mut || {
+        let plan = plan_cutting(&job, &ctx)?;
+        Ok((plan.sequence, plan.precedence_violations))
+    })?;
+    let inst = &model.instance;
+    Ok(SheetBench {
+        seed,
+        width_mm: params.width,
+        height_mm: params.height,
+        geometries: job.geometries.len(),
+        elements: inst.elements.len(),
+        contours: inst.contours.len(),
+        inner_outer: inst.inner_outer.len(),
+        common_cuts: inst.common_cuts().len(),
+        pierce_cost_mm: inst.pierce_cost,
+        time_limit_s,
+        air_vs_nearest: ecp.air_mm / nearest.air_mm,
+        air_vs_construction: ecp.air_mm / construction.air_mm,
+        nearest,
+        construction,
+        contour_order,
+        ecp,
+        svg: svg_out.map(|p| p.display().to_string()),
+    })
+}

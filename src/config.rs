@@ -10,6 +10,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
+/// Longest pierce accepted (s): far beyond any real pierce, well inside what a
+/// controller's dwell counts (Grbl 1.1 counts G4 in 50 ms steps in 16 bits).
+pub const MAX_PIERCE_TIME: f64 = 60.0;
+
 /// The default machine, shipped in the repository.
 pub const DEFAULT_CONFIG_PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/laserd.toml");
 
@@ -29,6 +33,8 @@ pub struct MachineConfig {
     pub program: ProgramConfig,
     #[serde(default)]
     pub simulator: SimulatorConfig,
+    #[serde(default)]
+    pub cutting: CuttingConfig,
     pub default_layer: String,
     #[serde(rename = "layer")]
     pub layers: Vec<LayerConfig>,
@@ -68,6 +74,13 @@ pub enum LaserMode {
 pub struct LaserConfig {
     pub max_power: f64,
     pub mode: LaserMode,
+    /// Seconds the head stands still over the start of every path with the
+    /// laser on before the cut begins (0: no pierce); a layer may set its own.
+    #[serde(default)]
+    pub pierce_time: f64,
+    /// S value of the pierce; a layer may set its own. None: each layer's `power`.
+    #[serde(default)]
+    pub pierce_power: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -94,6 +107,69 @@ pub struct ImportConfig {
 impl Default for ImportConfig {
     fn default() -> Self {
         ImportConfig { tolerance: 0.01, svg_dpi: 96.0 }
+    }
+}
+
+/// The cutting planner (`--planner ecp`).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CuttingConfig {
+    /// What a pierce costs, in mm of air move: a contour is left and finished
+    /// later only where that saves more air than this.
+    #[serde(default = "default_pierce_cost")]
+    pub pierce_cost: f64,
+    /// Boundaries of two parts closer than this (mm) are one common cut, cut once.
+    #[serde(default = "default_common_cut_tolerance")]
+    pub common_cut_tolerance: f64,
+    /// A turn sharper than this (degrees) is a corner, where a cut may start.
+    #[serde(default = "default_corner_angle")]
+    pub corner_angle: f64,
+    /// How long the search may run (s); `--time-limit` overrides it. Small
+    /// jobs finish earlier, once the search long finds nothing better.
+    #[serde(default = "default_cutting_time_limit")]
+    pub time_limit: f64,
+    /// "ils" (iterated local search, the default) or "tabu" (seed 001's).
+    #[serde(default, with = "search_kind")]
+    #[schemars(with = "String")]
+    pub search: crate::plan::ecp::SearchKind,
+}
+
+fn default_pierce_cost() -> f64 {
+    10.0
+}
+fn default_common_cut_tolerance() -> f64 {
+    0.01
+}
+fn default_corner_angle() -> f64 {
+    30.0
+}
+fn default_cutting_time_limit() -> f64 {
+    10.0
+}
+
+impl Default for CuttingConfig {
+    fn default() -> Self {
+        CuttingConfig {
+            pierce_cost: default_pierce_cost(),
+            common_cut_tolerance: default_common_cut_tolerance(),
+            corner_angle: default_corner_angle(),
+            time_limit: default_cutting_time_limit(),
+            search: Default::default(),
+        }
+    }
+}
+
+mod search_kind {
+    use crate::plan::ecp::SearchKind;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(kind: &SearchKind, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(kind.name())
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<SearchKind, D::Error> {
+        let name = String::deserialize(d)?;
+        name.parse().map_err(serde::de::Error::custom)
     }
 }
 
@@ -153,10 +229,31 @@ pub struct LayerConfig {
     pub power: f64,
     #[serde(default = "one")]
     pub passes: u32,
+    /// The layer's pierce time (s); None: `laser.pierce_time`.
+    #[serde(default)]
+    pub pierce_time: Option<f64>,
+    /// The layer's pierce power (S); None: `laser.pierce_power`, else `power`.
+    #[serde(default)]
+    pub pierce_power: Option<f64>,
 }
 
 fn one() -> u32 {
     1
+}
+
+/// What happens at the entry of every path of a layer before it is cut: the head
+/// stands still there with the laser on at `power` for `time` seconds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pierce {
+    pub power: f64,
+    pub time: f64,
+}
+
+impl Pierce {
+    /// Whether there is a pierce at all (a time of 0 means none).
+    pub fn active(&self) -> bool {
+        self.time > 0.0
+    }
 }
 
 /// Kinematic limits of one group of axes, per axis.
@@ -241,6 +338,25 @@ impl MachineConfig {
             }
         }
         positive("laser.max_power", self.laser.max_power)?;
+        let max_power = self.laser.max_power;
+        let power_in_range = |name: &str, v: f64| -> std::result::Result<(), String> {
+            if v.is_finite() && (0.0..=max_power).contains(&v) {
+                Ok(())
+            } else {
+                Err(format!("{name}: must be between 0 and laser.max_power ({max_power}), got {v}"))
+            }
+        };
+        let time_ok = |name: &str, v: f64| -> std::result::Result<(), String> {
+            if v.is_finite() && (0.0..=MAX_PIERCE_TIME).contains(&v) {
+                Ok(())
+            } else {
+                Err(format!("{name}: must be between 0 (no pierce) and {MAX_PIERCE_TIME} s, got {v}"))
+            }
+        };
+        time_ok("laser.pierce_time", self.laser.pierce_time)?;
+        if let Some(p) = self.laser.pierce_power {
+            power_in_range("laser.pierce_power", p)?;
+        }
         if self.serial.baud == 0 {
             return Err("serial.baud: must be positive".into());
         }
@@ -258,6 +374,15 @@ impl MachineConfig {
         if !(2..=6).contains(&self.program.decimals) {
             return Err(format!("program.decimals: must be 2 to 6, got {}", self.program.decimals));
         }
+        let c = &self.cutting;
+        if !(c.pierce_cost.is_finite() && c.pierce_cost >= 0.0) {
+            return Err(format!("cutting.pierce_cost: must be 0 or a positive number of mm, got {}", c.pierce_cost));
+        }
+        positive("cutting.common_cut_tolerance", c.common_cut_tolerance)?;
+        if !(c.corner_angle.is_finite() && c.corner_angle > 0.0 && c.corner_angle <= 180.0) {
+            return Err(format!("cutting.corner_angle: must be in (0, 180] degrees, got {}", c.corner_angle));
+        }
+        positive("cutting.time_limit", c.time_limit)?;
         if self.simulator.planner_blocks == 0 {
             return Err("simulator.planner_blocks: must be at least 1".into());
         }
@@ -266,11 +391,12 @@ impl MachineConfig {
         }
         for (i, l) in self.layers.iter().enumerate() {
             positive(&format!("layer[{i}] ({}).speed", l.name), l.speed)?;
-            if !(l.power.is_finite() && l.power >= 0.0 && l.power <= self.laser.max_power) {
-                return Err(format!(
-                    "layer[{i}] ({}).power: must be between 0 and laser.max_power ({}), got {}",
-                    l.name, self.laser.max_power, l.power
-                ));
+            power_in_range(&format!("layer[{i}] ({}).power", l.name), l.power)?;
+            if let Some(t) = l.pierce_time {
+                time_ok(&format!("layer[{i}] ({}).pierce_time", l.name), t)?;
+            }
+            if let Some(p) = l.pierce_power {
+                power_in_range(&format!("layer[{i}] ({}).pierce_power", l.name), p)?;
             }
             if l.passes == 0 {
                 return Err(format!("layer[{i}] ({}).passes: must be at least 1", l.name));
@@ -302,6 +428,20 @@ impl MachineConfig {
             acceleration: s.max_acceleration,
             jerk: s.max_jerk,
         })
+    }
+
+    /// The pierce of the layer named `layer`: its own settings, else those of
+    /// `[laser]`, the power falling back to the layer's own. An unknown layer
+    /// gets `[laser]`'s (power: its pierce power, else full power).
+    pub fn pierce(&self, layer: &str) -> Pierce {
+        let l = self.layers.iter().find(|l| l.name == layer);
+        let time = l.and_then(|l| l.pierce_time).unwrap_or(self.laser.pierce_time);
+        let power = l
+            .and_then(|l| l.pierce_power)
+            .or(self.laser.pierce_power)
+            .or(l.map(|l| l.power))
+            .unwrap_or(self.laser.max_power);
+        Pierce { power, time }
     }
 
     /// Index of the default layer in `layers` (validated to exist).
@@ -376,6 +516,53 @@ mod tests {
         let text = default_text().replace("max_jerk = 250000.0", "max_jerk = nan");
         let err = MachineConfig::parse(&text, "t.toml").unwrap_err().to_string();
         assert!(err.contains("stage.max_jerk"), "{err}");
+    }
+
+    #[test]
+    fn pierce_defaults_to_none_and_layers_inherit_from_laser() {
+        let c = MachineConfig::load(None).unwrap();
+        assert_eq!(c.laser.pierce_time, 0.0, "the shipped machine marks: no pierce");
+        for l in &c.layers {
+            assert!(!c.pierce(&l.name).active(), "{}", l.name);
+        }
+        // [laser] sets the default; a layer its own; without a power anywhere a
+        // layer pierces at its own power.
+        let text = default_text()
+            .replace("pierce_time = 0.0\n", "pierce_time = 0.2\n")
+            .replace("name = \"cut\"\n", "name = \"cut\"\npierce_time = 0.5\npierce_power = 900.0\n");
+        let c = MachineConfig::parse(&text, "t.toml").unwrap();
+        assert_eq!(c.pierce("cut"), Pierce { power: 900.0, time: 0.5 });
+        assert_eq!(c.pierce("mark"), Pierce { power: 300.0, time: 0.2 });
+        let text = text.replace("# pierce_power = 1000.0", "pierce_power = 650.0");
+        let c = MachineConfig::parse(&text, "t.toml").unwrap();
+        assert_eq!(c.pierce("mark"), Pierce { power: 650.0, time: 0.2 });
+        assert_eq!(c.pierce("cut").power, 900.0);
+    }
+
+    #[test]
+    fn bad_pierce_values_name_the_setting() {
+        let cases = [
+            ("pierce_time = 0.0\n", "pierce_time = -0.1\n", "laser.pierce_time"),
+            ("pierce_time = 0.0\n", "pierce_time = nan\n", "laser.pierce_time"),
+            ("pierce_time = 0.0\n", "pierce_time = inf\n", "laser.pierce_time"),
+            ("pierce_time = 0.0\n", "pierce_time = 61.0\n", "laser.pierce_time"),
+            ("# pierce_power = 1000.0", "pierce_power = 1000.5", "laser.pierce_power"),
+            ("# pierce_power = 1000.0", "pierce_power = -1.0", "laser.pierce_power"),
+            ("# pierce_power = 1000.0", "pierce_power = nan", "laser.pierce_power"),
+            ("name = \"cut\"\n", "name = \"cut\"\npierce_time = -2.0\n", "layer[1] (cut).pierce_time"),
+            ("name = \"cut\"\n", "name = \"cut\"\npierce_time = nan\n", "layer[1] (cut).pierce_time"),
+            ("name = \"cut\"\n", "name = \"cut\"\npierce_power = 2000.0\n", "layer[1] (cut).pierce_power"),
+            ("name = \"cut\"\n", "name = \"cut\"\npierce_power = -0.5\n", "layer[1] (cut).pierce_power"),
+        ];
+        for (from, to, setting) in cases {
+            let text = default_text();
+            assert!(text.contains(from), "{from}");
+            let err = MachineConfig::parse(&text.replacen(from, to, 1), "t.toml").unwrap_err().to_string();
+            assert!(err.contains(setting) && err.contains("t.toml"), "{to}: {err}");
+        }
+        // The edges are fine.
+        let text = default_text().replace("pierce_time = 0.0\n", "pierce_time = 60.0\n").replace("# pierce_power = 1000.0", "pierce_power = 0.0");
+        assert!(MachineConfig::parse(&text, "t.toml").is_ok());
     }
 
     #[test]

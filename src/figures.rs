@@ -79,6 +79,22 @@ pub fn program_lines(link: &[(f64, LinkEvent)]) -> Vec<usize> {
     link.iter().filter_map(|(_, e)| if let LinkEvent::Sent { line, .. } = e { Some(*line) } else { None }).collect()
 }
 
+/// Received-line numbers (the controller's count, as knots carry it) of the
+/// lines that are a dwell (`G4`).
+pub fn dwell_lines(link: &[(f64, LinkEvent)]) -> std::collections::HashSet<u64> {
+    link.iter()
+        .filter_map(|(_, e)| if let LinkEvent::Sent { text, .. } = e { Some(text) } else { None })
+        .zip(1u64..)
+        .filter(|(text, _)| {
+            let mut clean = laserd_sim::gcode::LineBuilder::default();
+            text.bytes().for_each(|b| clean.push(b));
+            let words = clean.finish().and_then(|l| laserd_sim::gcode::split_words(&l).ok()).unwrap_or_default();
+            words.iter().any(|w| w.letter == 'G' && w.value == 4.0)
+        })
+        .map(|(_, n)| n)
+        .collect()
+}
+
 /// The program line a knot's block came from (its received-line count when
 /// the link log does not say).
 pub fn program_line_of(lines: &[usize], knot: &Knot) -> usize {
@@ -108,14 +124,17 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
         _ => 0.0,
     };
 
-    // Waiting with the job unfinished: rest intervals between moving blocks.
+    // Waiting with the job unfinished: rest intervals between moving blocks,
+    // except dwells (a pierce): the program asked for those. A dwell's time is
+    // closed by a knot of its `G4` line.
+    let dwells = dwell_lines(&log.link);
     let moving = |w: &[Knot]| w[0].pos != w[1].pos;
     let first_move = log.knots.windows(2).position(moving);
     let last_move = log.knots.windows(2).rposition(moving);
     let mut planner_starved_s = 0.0;
     if let (Some(a), Some(b)) = (first_move, last_move) {
         for w in log.knots[a..=b + 1].windows(2) {
-            if !moving(w) {
+            if !moving(w) && !dwells.contains(&w[1].line) {
                 planner_starved_s += w[1].t - w[0].t;
             }
         }

@@ -39,11 +39,21 @@ struct JobArgs {
     /// on-the-fly, step-and-scan or stage-only (default: step-and-scan with a scanner, else stage-only).
     #[arg(long)]
     mode: Option<Mode>,
+    /// Planning time limit in seconds for the search planners (default: the
+    /// config's [cutting] time_limit; nearest ignores it).
+    #[arg(long)]
+    time_limit: Option<f64>,
 }
 
 impl JobArgs {
     fn plan(&self) -> Result<(MachineConfig, run::Planned)> {
-        let machine = MachineConfig::load(self.config.as_deref())?;
+        let mut machine = MachineConfig::load(self.config.as_deref())?;
+        if let Some(t) = self.time_limit {
+            if !(t.is_finite() && t > 0.0) {
+                return Err(Error::Config(format!("--time-limit: must be a positive number of seconds, got {t}")));
+            }
+            machine.cutting.time_limit = t;
+        }
         let planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
         Ok((machine, planned))
     }
@@ -69,9 +79,6 @@ enum Command {
     Plan {
         #[command(flatten)]
         job: JobArgs,
-        /// Planning time limit in seconds (for the search planners; nearest ignores it).
-        #[arg(long)]
-        time_limit: Option<f64>,
         #[arg(short = 'o', long = "output")]
         output: Option<PathBuf>,
         #[arg(long)]
@@ -168,6 +175,27 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The cutting planner on a generated sheet of nested parts (SVG through
+    /// the importer), against the nearest-neighbour baseline and seed 001's
+    /// construction alone.
+    Sheet {
+        /// Machine config; the bench cuts on it as a flatbed whose travel covers the sheet.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Elements (lines and arcs) the sheet should have (it gets up to 5 % more).
+        #[arg(long, default_value_t = 3000)]
+        elements: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Seconds the search may run.
+        #[arg(long, default_value_t = 30.0)]
+        time_limit: f64,
+        /// Also write the sheet here as SVG (to plan or dry-run it as a job).
+        #[arg(long)]
+        svg: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// How well the sender uses the serial link: character counting against
     /// send-response streaming, on a synthetic program of short 4-axis blocks.
     Link {
@@ -227,12 +255,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Plan { job, time_limit, output, json } => {
-            if let Some(t) = time_limit {
-                if !(t.is_finite() && t > 0.0) {
-                    return Err(Error::Plan(format!("--time-limit: must be a positive number of seconds, got {t}")));
-                }
-            }
+        Command::Plan { job, output, json } => {
             let (_, planned) = job.plan()?;
             if let Some(out) = &output {
                 std::fs::write(out, planned.program.to_gcode())
@@ -268,6 +291,26 @@ fn run_command(command: Command) -> Result<ExitCode> {
                 );
             }
             Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(2) })
+        }
+        Command::Bench { which: BenchCommand::Sheet { config, elements, seed, time_limit, svg, json } } => {
+            let machine = MachineConfig::load(config.as_deref())?;
+            let r = laserd::bench::sheet_bench(&machine, elements, seed, time_limit, svg.as_deref())?;
+            if json {
+                print_json(&r)?;
+            } else {
+                println!(
+                    "sheet {} x {} mm, seed {}: {} geometries, {} elements, {} contours, {} inner/outer, {} common cuts; pierce cost {} mm",
+                    r.width_mm, r.height_mm, r.seed, r.geometries, r.elements, r.contours, r.inner_outer, r.common_cuts, r.pierce_cost_mm
+                );
+                for (name, o) in [("nearest", &r.nearest), ("IB + dir-opt", &r.construction), ("COB + dir-opt", &r.contour_order), ("ecp", &r.ecp)] {
+                    println!(
+                        "  {name:<13} air {:>10.1} mm, {:>5} pierces, {:>4} precedence violations, planned in {:.2} s",
+                        o.air_mm, o.pierces, o.precedence_violations, o.plan_time_s
+                    );
+                }
+                println!("  ecp air / nearest {:.3}, / IB + dir-opt {:.3}", r.air_vs_nearest, r.air_vs_construction);
+            }
+            Ok(if r.ecp.precedence_violations == 0 { ExitCode::SUCCESS } else { ExitCode::from(2) })
         }
         Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, motion, json } } => {
             let mut machine = MachineConfig::load(config.as_deref())?;

@@ -17,7 +17,10 @@ pub struct PlanReport {
     pub mark_length_mm: f64,
     pub idle_stroke_mm: f64,
     pub plan_time_s: f64,
-    /// Cutting precedence is checked by the cutting planner (not in this version).
+    /// Cuts after the part they belong to has fallen out: by the independent
+    /// checker on the cutting planner's route, or by whole geometries (an inner
+    /// contour finished at or after its outer one) for other planners. `null`
+    /// when the job's topology cannot be built (degenerate geometry).
     pub precedence_violations: Option<u64>,
     pub trajectory_time_s: f64,
     pub lower_bound_s: f64,

@@ -42,8 +42,19 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let planner = planner(kind);
     let started = WallInstant::now();
     let ctx = PlanContext { machine, mode, start: job_start() };
-    let sequence = planner.plan(&job, &ctx)?;
+    // The cutting planner counts broken rules on its route with the
+    // independent checker; any other order is judged by whole geometries.
+    let (sequence, precedence_violations) = if kind == PlannerKind::Ecp {
+        let cutting = crate::plan::cutting::plan_cutting(&job, &ctx)?;
+        (cutting.sequence, Some(cutting.precedence_violations as u64))
+    } else {
+        (planner.plan(&job, &ctx)?, None)
+    };
     let plan_time_s = started.elapsed().as_secs_f64();
+    let precedence_violations = precedence_violations.or_else(|| {
+        let model = crate::plan::cutting::cutting_model(&job, ctx.start, &machine.cutting).ok()?;
+        Some(crate::plan::cutting::sequence_precedence_violations(&model, &sequence) as u64)
+    });
     let trajectory = motion::build(&job, &sequence, machine, mode, job_start())?;
     let lower_bound_s = motion::lower_bound(&job, &sequence, machine, mode)?;
     let program = program::generate(&job, &trajectory, machine)?;
@@ -56,7 +67,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         mark_length_mm: job.mark_length(),
         idle_stroke_mm: sequence.idle_stroke(),
         plan_time_s,
-        precedence_violations: None,
+        precedence_violations,
         trajectory_time_s: trajectory.duration(),
         lower_bound_s,
         program_lines: program.lines.len(),

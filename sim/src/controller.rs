@@ -36,6 +36,23 @@
 //! `LINK_SILENCE_START` (a stream that never comes to rest must still run).
 //! A feed hold runs on, laser off, to the next rest point, then stops.
 //!
+//! # The laser standing still
+//! In laser mode (`$32=1`) the laser follows Grbl's rules while the machine
+//! stands still (reference §9): a spindle sync (an M3/M4/M5 change, or under M3
+//! an S change or a switch between G0 and G1/G2/G3 in a line without motion)
+//! sets it once motion has stopped: M3 at S in a feed motion mode (off in G0),
+//! M4 off (dynamic power: nothing moves), M5 off; after a block the laser stays
+//! at the block's power under M3 and goes off under M4. So `M3 S500` then
+//! `G4 P0.2` in G1 mode burns standing still for 0.2 s, and `M4 S500` with
+//! `G4` does not. A hold, a door, a reset or an alarm switches it off, and in
+//! laser mode a resume does not switch it on again (Grbl restores the laser
+//! with the next motion). Knots record it: where the power at rest changes, a
+//! knot closes the time before with the power it had and one at the same
+//! instant opens the next; a dwell ends with a knot of its own line, and motion
+//! that starts after a rest first closes that rest with a knot of its power.
+//! A dwell's clock stops in a hold (Grbl dwells inside its realtime loop) and
+//! runs on after `~`.
+//!
 //! # Starvation
 //! `starved_s` counts the time the machine stood still with an empty planner
 //! between two motion blocks, excluding dwells and feed holds. Idle time after
@@ -202,8 +219,8 @@ impl Default for SimConfig {
 pub struct Knot {
     pub t: f64,
     pub pos: Vec<f64>,
-    /// Laser power (S) on the segment ending here (or starting here, for a
-    /// start-from-rest knot).
+    /// Laser power (S) on the segment ending here, moving or standing still
+    /// (on the first knot: on the segment starting there).
     pub power: f64,
     /// Received-line number (1-based count of lines received) of the block.
     pub line: u64,
@@ -351,8 +368,10 @@ struct Exec {
 enum Step {
     /// Wait until the planner is empty and motion stopped.
     Sync,
-    /// Wait this many seconds (after a Sync).
-    Dwell(f64),
+    /// Wait this many seconds (after a Sync); the line of the `G4`.
+    Dwell(f64, u64),
+    /// A spindle sync has set the laser power at rest (S before override).
+    Laser { power: f64, line: u64 },
     /// Queue a block once the planner has room.
     Queue(Block),
     /// M0: enter feed hold.
@@ -377,6 +396,8 @@ struct Pending {
     /// Bytes of the line (incl. terminator) still in RX.
     rx_len: usize,
     dwell_until: Option<f64>,
+    /// What was left of the dwell when a hold stopped its clock.
+    dwell_left: Option<f64>,
     /// `$C` off: soft reset after the `ok`.
     reset_after: bool,
     /// No `ok` at the end (startup lines, which echo `>line:ok` instead).
@@ -434,6 +455,12 @@ pub struct Controller {
     jog_cancel: bool,
     /// Work offsets, stored positions, startup lines, probe, pins, ...
     proto: Protocol,
+    /// Laser S (before override) while the machine stands still, and the line
+    /// that set it (see "The laser standing still").
+    rest_s: f64,
+    rest_line: u64,
+    /// Time of the last knot (-inf before the first), also once taken.
+    last_knot_t: f64,
 }
 
 const EPS_POS: f64 = 1e-9;
@@ -485,6 +512,9 @@ impl Controller {
             prev_byte: 0,
             jog_cancel: false,
             proto,
+            rest_s: 0.0,
+            rest_line: 0,
+            last_knot_t: f64::NEG_INFINITY,
         };
         let banner = c.banner();
         c.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
@@ -562,9 +592,56 @@ impl Controller {
         }
     }
 
-    /// Laser S in effect now, after override; 0 when off or not moving.
+    /// Laser S in effect now, after override: the running block's, or what
+    /// the laser holds while the machine stands still (0 when off).
     pub fn laser_power(&self) -> f64 {
-        self.exec.as_ref().filter(|e| e.running).map_or(0.0, |e| e.power)
+        match self.exec.as_ref().filter(|e| e.running) {
+            Some(e) => e.power,
+            None => self.rest_power(),
+        }
+    }
+
+    /// Laser S while the machine stands still, after override: 0 in a hold, a
+    /// door, an alarm, sleep, check mode or with the spindle stop override.
+    /// (`rest_s` is set in laser mode only: outside it the power here would be
+    /// a spindle's, which the simulator does not model.)
+    fn rest_power(&self) -> f64 {
+        let off = self.hold || self.door || self.alarm || self.sleep || self.check_mode || self.proto.spindle_stop;
+        if off || self.rest_s == 0.0 {
+            0.0
+        } else {
+            (self.rest_s * self.ovr_spindle as f64 / 100.0).min(self.cfg.laser_max_s)
+        }
+    }
+
+    fn push_knot(&mut self, knot: Knot) {
+        self.last_knot_t = knot.t;
+        self.knots.push(knot);
+    }
+
+    /// Runs `f`, then records in knots a change it made to the laser at rest.
+    /// Every way in (a realtime byte, lines run at an instant, the door
+    /// switch) goes through here, so resets and alarms need not.
+    fn watching_rest_laser<R>(&mut self, f: impl FnOnce(&mut Controller) -> R) -> R {
+        let (before, line) = (self.rest_power(), self.rest_line);
+        let r = f(self);
+        self.rest_laser_changed(before, line);
+        r
+    }
+
+    /// The laser at rest was `before` (set by `line`): if it changed while the
+    /// machine stands still, a knot closes the time before (unless a knot is
+    /// already here) and one opens the new state at the same instant.
+    fn rest_laser_changed(&mut self, before: f64, line: u64) {
+        let after = self.rest_power();
+        if after == before || self.exec.is_some() {
+            return;
+        }
+        let pos = self.pos.clone();
+        if self.last_knot_t.is_finite() && self.last_knot_t < self.now {
+            self.push_knot(Knot { t: self.now, pos: pos.clone(), power: before, line });
+        }
+        self.push_knot(Knot { t: self.now, pos, power: after, line: self.rest_line });
     }
 
     /// A segment of motion is running.
@@ -575,7 +652,8 @@ impl Controller {
     /// Earliest time at which `advance` has work to do without new input.
     pub fn next_event(&self) -> Option<f64> {
         let a = self.exec.as_ref().filter(|e| e.running).map(|e| e.end_t);
-        let b = self.pending.as_ref().and_then(|p| p.dwell_until);
+        // A hold stops a dwell's clock.
+        let b = self.pending.as_ref().and_then(|p| p.dwell_until).filter(|_| !self.hold);
         // Blocks waiting for a stop point start when the link falls silent.
         let c = (self.exec.is_none() && !self.hold && !self.alarm && !self.planner.is_empty())
             .then(|| (self.last_rx_t + LINK_SILENCE_START).max(self.now));
@@ -752,7 +830,8 @@ impl Controller {
     fn realtime(&mut self, b: u8) {
         use crate::wire::realtime::*;
         let before = [self.ovr_feed, self.ovr_rapid, self.ovr_spindle];
-        self.realtime_command(b);
+        // A hold, a door, a reset or the spindle override changes the laser at rest.
+        self.watching_rest_laser(|c| c.realtime_command(b));
         if b != SOFT_RESET && [self.ovr_feed, self.ovr_rapid, self.ovr_spindle] != before {
             // An override change shows in the next report.
             self.ov_countdown = 0;
@@ -793,7 +872,7 @@ impl Controller {
                     // Stopped inside a block (grbl model): start again from rest there.
                     Some(e) if !e.running => {
                         let knot = Knot { t: self.now, pos: e.end_pos.clone(), power: 0.0, line: e.block.line };
-                        self.knots.push(knot);
+                        self.push_knot(knot);
                         self.next_segment(self.now);
                     }
                     Some(_) => {}
@@ -857,6 +936,8 @@ impl Controller {
             self.alarm = true;
         }
         self.reset_starvation();
+        // Grbl's reset stops the spindle: the laser is off.
+        self.rest_s = 0.0;
         if moving {
             self.alarm = true;
             // A reset during homing fails the cycle (6); otherwise position is lost (3).
@@ -874,7 +955,7 @@ impl Controller {
         if let Some(e) = self.exec.take() {
             let p = interpolate(&e, self.now);
             if e.running {
-                self.knots.push(Knot { t: self.now, pos: p.clone(), power: e.power, line: e.block.line });
+                self.push_knot(Knot { t: self.now, pos: p.clone(), power: e.power, line: e.block.line });
                 self.stats.last_motion_end_t = Some(self.now);
             }
             self.pos = p;
@@ -912,9 +993,16 @@ impl Controller {
         let Some(block) = self.planner.pop_front() else { return };
         let power = if self.hold { 0.0 } else { self.block_power(&block) };
         if from_rest {
+            // A knot closes the time the machine stood here, with the laser as
+            // it was (on, after a pierce under M3), so that every knot's power
+            // is that of the time ending at it.
+            if self.last_knot_t.is_finite() && self.last_knot_t < t {
+                let knot = Knot { t, pos: self.pos.clone(), power: self.rest_power(), line: self.rest_line };
+                self.push_knot(knot);
+            }
             // A restart at the instant the last block ended needs no knot of its own.
             if !self.knots.last().is_some_and(|k| k.t == t && k.pos == self.pos) {
-                self.knots.push(Knot { t, pos: self.pos.clone(), power, line: block.line });
+                self.push_knot(Knot { t, pos: self.pos.clone(), power, line: block.line });
             }
             if let Some(s) = self.starve_since.take() {
                 self.starve_acc += (t - s).max(0.0);
@@ -1028,9 +1116,10 @@ impl Controller {
     fn finish_segment(&mut self) {
         let Some(e) = self.exec.as_ref() else { return };
         let t = e.end_t;
-        self.knots.push(Knot { t, pos: e.end_pos.clone(), power: e.power, line: e.block.line });
-        self.stats.last_motion_end_t = Some(t);
+        let knot = Knot { t, pos: e.end_pos.clone(), power: e.power, line: e.block.line };
         let block_done = e.block.kin.length - e.done <= 1e-9;
+        self.push_knot(knot);
+        self.stats.last_motion_end_t = Some(t);
         if self.cfg.motion == MotionModel::Timed || block_done {
             self.finish_block(t);
         } else {
@@ -1061,6 +1150,15 @@ impl Controller {
     fn finish_block(&mut self, t: f64) {
         let Some(e) = self.exec.take() else { return };
         self.pos = e.block.target.clone();
+        // Should the machine stop here: Grbl's stepper leaves the laser at an M3
+        // block's power and switches it off after an M4 (dynamic) one; a hold
+        // has switched it off.
+        self.rest_s = if self.hold || e.block.dynamic_power || e.block.power == 0.0 || self.setting(32) == 0.0 {
+            0.0
+        } else {
+            e.block.power
+        };
+        self.rest_line = e.block.line;
         self.stats.blocks_executed += 1;
         self.stats.last_motion_end_t = Some(t);
         if self.cfg.motion == MotionModel::Grbl {
@@ -1162,6 +1260,11 @@ impl Controller {
     // ----- line handling -----
 
     fn process(&mut self) {
+        // Lines run at `now`: a laser they switch at rest shows in the knots.
+        self.watching_rest_laser(Controller::process_lines);
+    }
+
+    fn process_lines(&mut self) {
         loop {
             if self.pending.is_some() {
                 if !self.progress_pending() {
@@ -1220,7 +1323,7 @@ impl Controller {
                     }
                 }
                 self.pending =
-                    Some(Pending { steps: steps.into(), rx_len: len, dwell_until: None, reset_after, quiet: false })
+                    Some(Pending { steps: steps.into(), rx_len: len, dwell_until: None, dwell_left: None, reset_after, quiet: false })
             }
             Err(code) => {
                 self.drop_rx(len);
@@ -1247,21 +1350,53 @@ impl Controller {
                         break;
                     }
                 }
-                Step::Dwell(secs) => match p.dwell_until {
-                    None => {
-                        if !stopped {
-                            break;
+                Step::Dwell(secs, line) => {
+                    let line = *line;
+                    if self.hold {
+                        // Grbl dwells inside its realtime loop: a hold suspends it
+                        // there, and the dwell's clock stands until `~`.
+                        if let Some(until) = p.dwell_until.take() {
+                            p.dwell_left = Some((until - self.now).max(0.0));
                         }
-                        self.pause_starvation();
-                        p.dwell_until = Some(self.now + secs);
-                        continue;
+                        break;
                     }
-                    Some(until) if self.now >= until => {
-                        p.dwell_until = None;
-                        self.mark_idle(self.now);
+                    if let Some(left) = p.dwell_left.take() {
+                        p.dwell_until = Some(self.now + left);
                     }
-                    Some(_) => break,
-                },
+                    match p.dwell_until {
+                        None => {
+                            if !stopped {
+                                break;
+                            }
+                            self.pause_starvation();
+                            p.dwell_until = Some(self.now + secs);
+                            // The time before the dwell ends here, with the laser as it was.
+                            if self.last_knot_t.is_finite() && self.last_knot_t < self.now {
+                                let knot = Knot { t: self.now, pos: self.pos.clone(), power: self.rest_power(), line: self.rest_line };
+                                self.push_knot(knot);
+                            }
+                            continue;
+                        }
+                        Some(until) if self.now >= until => {
+                            p.dwell_until = None;
+                            self.mark_idle(self.now);
+                            // The dwell, standing still with the laser as it is, ends here.
+                            if self.last_knot_t.is_finite() && self.last_knot_t < self.now {
+                                let knot = Knot { t: self.now, pos: self.pos.clone(), power: self.rest_power(), line };
+                                self.push_knot(knot);
+                            }
+                        }
+                        Some(_) => break,
+                    }
+                }
+                Step::Laser { power, line } => {
+                    // Checked live: Grbl syncs the planner before it sets the laser.
+                    if self.exec.is_some() || !self.planner.is_empty() {
+                        break;
+                    }
+                    self.rest_s = *power;
+                    self.rest_line = *line;
+                }
                 Step::Queue(_) => {
                     if self.planner_full() {
                         break;
@@ -1344,11 +1479,13 @@ impl Controller {
     /// opening it holds the machine with the laser off, as `0x84` does; after
     /// closing it, `~` resumes.
     pub fn set_door(&mut self, open: bool) {
-        if open {
-            self.open_door();
-        } else {
-            self.door_open = false;
-        }
+        self.watching_rest_laser(|c| {
+            if open {
+                c.open_door();
+            } else {
+                c.door_open = false;
+            }
+        });
     }
 
     fn open_door(&mut self) {
@@ -1362,6 +1499,11 @@ impl Controller {
             return;
         }
         self.door_clears_spindle_stop();
+        if self.setting(32) != 0.0 {
+            // The door switches the laser off; in laser mode Grbl brings it
+            // back with the next motion, not while standing still.
+            self.rest_s = 0.0;
+        }
         if self.jogging() {
             self.cancel_jog();
         }
@@ -1412,6 +1554,7 @@ impl Controller {
     /// locked until a reset (reference §5).
     fn limit_alarm(&mut self, code: u16) {
         self.stop_motion_now();
+        self.rest_s = 0.0;
         self.planner.clear();
         self.gc_pos = self.pos.clone();
         self.hold = false;

@@ -101,7 +101,9 @@ impl LimitChecker {
     pub fn push(&mut self, knot: &Knot) {
         self.report.samples += 1;
         if let Some(p) = &self.prev {
-            if knot.pos == p.pos && knot.t > p.t + MERGE_DT {
+            // Knots at the same instant inside a rest (the laser switched while
+            // standing still) belong to the rest.
+            if knot.pos == p.pos && (knot.t > p.t + MERGE_DT || self.rest.is_some()) {
                 let start = self.rest.take().map(|r| r.0).unwrap_or_else(|| p.clone());
                 self.rest = Some((start, knot.clone()));
                 self.prev = Some(knot.clone());
@@ -383,6 +385,28 @@ mod tests {
         let r = check(&knots, &ax);
         assert!(r.violations > 0);
         assert!(r.peak_acceleration_use[0] > 1.5, "{:?}", r.peak_acceleration_use);
+    }
+
+    #[test]
+    fn a_laser_switched_at_the_end_of_a_rest_leaves_the_rest_whole() {
+        let ax = axes(50.5, 101.0, 1010.0);
+        let k = |t: f64, x: f64, power: f64| Knot { t, pos: vec![x, x / 2.0], power, line: 1 };
+        // At rest for 2 s (the laser on, a pierce), then off at 50 mm/s at once:
+        // a start without acceleration, whether or not the laser is switched
+        // off by a knot at the instant the rest ends.
+        let harsh = |switch: bool| {
+            let mut v = vec![k(0.0, 0.0, 0.0), k(2.0, 0.0, 500.0)];
+            if switch {
+                v.push(k(2.0, 0.0, 0.0));
+            }
+            v.extend([k(2.01, 0.5, 300.0), k(2.02, 1.0, 300.0), k(2.03, 1.5, 300.0)]);
+            check(&v, &ax)
+        };
+        let (plain, switched) = (harsh(false), harsh(true));
+        assert!(plain.violations > 0 && plain.peak_acceleration_use[0] > 10.0, "{plain:?}");
+        assert_eq!(switched.violations, plain.violations);
+        assert_eq!(switched.peak_acceleration_use, plain.peak_acceleration_use);
+        assert_eq!(switched.peak_jerk_use, plain.peak_jerk_use);
     }
 
     #[test]

@@ -298,6 +298,10 @@ fn states_and_status_fields() {
         (xy, &[Q, Q, L("M3S1"), L("M8"), L("M7")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:SFM>"]),
         (xy, &[Q, Q, L("M4S1"), L("M7")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:CM>"]),
         (xy, &[Q, Q, L("M4S1"), L("M7"), Q], &[L("M9"), L("M5"), Q], &["ok", "ok", "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>"]),
+        // FS: the laser standing still in laser mode: M3 burns at S in G1 (in
+        // G0 it stays dark, rows above), M4 is dark (no motion, no power).
+        (xy, &[Q, Q, L("G1F100"), L("M3S500")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,500|Ov:100,100,100|A:S>"]),
+        (xy, &[Q, Q, L("G1F100"), L("M4S500")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:C>"]),
     ];
     check(rows);
 }

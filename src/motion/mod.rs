@@ -6,6 +6,11 @@
 //!   jumps and marks inside the field while the stage stands still;
 //! - stage-only: the stage does everything (machines without a scanner).
 //!
+//! Where a layer asks for a pierce (`pierce_time` > 0), every path starts with
+//! one: after the jump to its start the machine stands still there with the
+//! laser on at the pierce power for the pierce time (a `Pierce` segment, no
+//! motion), then the marking moves begin.
+//!
 //! Every straight segment is a rest-to-rest move (see `profile`), so each axis
 //! starts and ends every segment at rest: correct and inside the limits, though
 //! slow at polyline corners on the stage. Corner blending and on-the-fly motion
@@ -81,6 +86,9 @@ pub enum SegmentKind {
     Jump,
     /// Laser off, the stage moving to the next scan field.
     StageMove,
+    /// Laser on at `power`, nothing moving: the pierce at the entry of a
+    /// geometry, before it is marked.
+    Pierce { geometry: usize, power: f64 },
 }
 
 /// Which axes move in a segment.
@@ -128,6 +136,10 @@ impl Segment {
 
     pub fn is_marking(&self) -> bool {
         matches!(self.kind, SegmentKind::Mark { .. })
+    }
+
+    pub fn is_pierce(&self) -> bool {
+        matches!(self.kind, SegmentKind::Pierce { .. })
     }
 }
 
@@ -195,6 +207,20 @@ impl Builder<'_> {
         Ok(())
     }
 
+    /// The pierce of `process`'s layer where the machine stands now, if it has one.
+    fn pierce(&mut self, geometry: usize, process: usize, group: AxisGroup) -> Result<()> {
+        let pierce = self.machine.pierce(&self.job.processes[process].layer);
+        if !pierce.active() {
+            return Ok(());
+        }
+        let (stage, scanner) = (self.state.stage, self.state.scanner);
+        let profile = Profile::dwell(pierce.time)?;
+        let kind = SegmentKind::Pierce { geometry, power: pierce.power };
+        self.segments.push(Segment { kind, group, start_time: self.time, stage: (stage, stage), scanner: (scanner, scanner), profile });
+        self.time += pierce.time;
+        Ok(())
+    }
+
     fn check_field(&self, p: Point, half: f64, source: &str) -> Result<()> {
         if p.x.abs() > half + 1e-9 || p.y.abs() > half + 1e-9 {
             return Err(Error::Motion(format!(
@@ -244,6 +270,7 @@ pub fn build(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode
                         b.check_field(*p, half, source)?;
                     }
                     b.push(SegmentKind::Jump, AxisGroup::Scanner, local[0], None)?;
+                    b.pierce(path.geometry, path.process, AxisGroup::Scanner)?;
                     let cap = process.speed.min(scanner.mark_speed);
                     for p in &local[1..] {
                         let kind = SegmentKind::Mark { geometry: path.geometry, power: process.power };
@@ -261,6 +288,7 @@ pub fn build(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode
                     b.check_travel(*p, source)?;
                 }
                 b.push(SegmentKind::Jump, AxisGroup::Stage, path.points[0], None)?;
+                b.pierce(path.geometry, path.process, AxisGroup::Stage)?;
                 for p in &path.points[1..] {
                     let kind = SegmentKind::Mark { geometry: path.geometry, power: process.power };
                     b.push(kind, AxisGroup::Stage, *p, Some(process.speed))?;
@@ -274,8 +302,11 @@ pub fn build(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode
 
 /// The contract's `lower_bound_s` for this sequence: max(T_proc, T_stage).
 /// T_proc = marking at full mark speed plus every jump as a time-optimal move with
-/// the combined limits of stage and scanner; T_stage = the stage's time-optimal
-/// move over what the job extends beyond one usable field, per axis.
+/// the combined limits of stage and scanner, plus every pierce: the tool centre
+/// point must stand still over a path's entry with the laser on for its layer's
+/// pierce time whatever the machine, so no schedule avoids that time (while it
+/// pierces it neither marks nor jumps). T_stage = the stage's time-optimal move
+/// over what the job extends beyond one usable field, per axis.
 pub fn lower_bound(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode) -> Result<f64> {
     let stage = machine.stage_limits();
     let scanner = machine.scanner_limits().filter(|_| mode != Mode::StageOnly);
@@ -293,6 +324,7 @@ pub fn lower_bound(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode
         let speed = job.processes[path.process].speed.min(mark_speed_cap);
         let length: f64 = path.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
         t_proc += length / speed;
+        t_proc += machine.pierce(&job.processes[path.process].layer).time;
         if let Some(l) = last {
             t_proc += rest_to_rest_time((path.start() - l).norm(), combined)?;
         }
@@ -367,6 +399,62 @@ mod tests {
         assert_eq!(last.state_at(last.duration()).scanner, Point::origin());
         let lb = lower_bound(&j, &seq, &machine, Mode::StepAndScan).unwrap();
         assert!(lb > 0.0 && lb <= tr.duration(), "lower bound {lb} vs {}", tr.duration());
+    }
+
+    /// The default machine with a pierce on the `mark` layer.
+    fn piercing(mut machine: MachineConfig, time: f64, power: f64) -> MachineConfig {
+        let mark = machine.layers.iter_mut().find(|l| l.name == "mark").unwrap();
+        mark.pierce_time = Some(time);
+        mark.pierce_power = Some(power);
+        machine
+    }
+
+    #[test]
+    fn every_path_starts_with_a_pierce_standing_still_at_its_entry() {
+        for mode in [Mode::StepAndScan, Mode::StageOnly] {
+            let mut plain = MachineConfig::load(None).unwrap();
+            if mode == Mode::StageOnly {
+                plain.scanner = None;
+            }
+            let machine = piercing(plain.clone(), 0.2, 700.0);
+            let j = job();
+            let ctx = PlanContext { machine: &machine, mode, start: Point::origin() };
+            let seq = NearestNeighbour.plan(&j, &ctx).unwrap();
+            let without = build(&j, &seq, &plain, mode, Point::origin()).unwrap();
+            let tr = build(&j, &seq, &machine, mode, Point::origin()).unwrap();
+            check_continuity(&tr);
+            let paths: Vec<_> = seq.paths().collect();
+            let pierces: Vec<&Segment> = tr.segments.iter().filter(|s| s.is_pierce()).collect();
+            assert_eq!(pierces.len(), paths.len(), "{mode:?}: one pierce per path");
+            for (p, path) in pierces.iter().zip(&paths) {
+                assert_eq!(p.kind, SegmentKind::Pierce { geometry: path.geometry, power: 700.0 });
+                assert!((p.duration() - 0.2).abs() < 1e-12);
+                // Standing still over the path's start.
+                assert_eq!(p.state_at(0.0), p.state_at(0.2));
+                assert!((p.state_at(0.1).tcp() - path.start()).norm() < 1e-9, "{mode:?}");
+            }
+            // Right after its pierce comes the path's first marking move, from there.
+            for (i, s) in tr.segments.iter().enumerate().filter(|(_, s)| s.is_pierce()) {
+                let next = &tr.segments[i + 1];
+                assert!(next.is_marking(), "{mode:?}: {next:?}");
+                assert!((next.state_at(0.0).tcp() - s.state_at(0.0).tcp()).norm() < 1e-12);
+            }
+            let grown = tr.duration() - without.duration();
+            assert!((grown - 0.2 * paths.len() as f64).abs() < 1e-9, "{mode:?}: {grown}");
+            let lb = lower_bound(&j, &seq, &machine, mode).unwrap();
+            let lb_plain = lower_bound(&j, &seq, &plain, mode).unwrap();
+            // T_proc holds every pierce: the bound grows, stays a bound, and
+            // is at least the pierces themselves.
+            assert!(lb > lb_plain && lb >= 0.2 * paths.len() as f64, "{mode:?}: {lb} vs {lb_plain}");
+            assert!(lb <= tr.duration(), "{mode:?}: {lb} vs {}", tr.duration());
+        }
+        // No pierce time, no pierce segments.
+        let machine = piercing(MachineConfig::load(None).unwrap(), 0.0, 700.0);
+        let j = job();
+        let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin() };
+        let seq = NearestNeighbour.plan(&j, &ctx).unwrap();
+        let tr = build(&j, &seq, &machine, Mode::StepAndScan, Point::origin()).unwrap();
+        assert!(!tr.segments.iter().any(Segment::is_pierce));
     }
 
     #[test]

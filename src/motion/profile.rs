@@ -63,6 +63,14 @@ impl Profile {
         Ok(Profile { trajectory: Some(trajectory), length, duration, time_unit, length_unit })
     }
 
+    /// Standing still for `duration` seconds (a dwell: no motion, length 0).
+    pub fn dwell(duration: f64) -> Result<Profile> {
+        if !(duration.is_finite() && duration >= 0.0) {
+            return Err(Error::Motion(format!("invalid dwell time {duration}")));
+        }
+        Ok(Profile { trajectory: None, length: 0.0, duration, time_unit: 1.0, length_unit: 1.0 })
+    }
+
     /// Position along the move at time `t` (clamped to the move).
     pub fn position(&self, t: f64) -> f64 {
         self.state(t).0
@@ -126,6 +134,15 @@ mod tests {
         let (s, v, a) = p.state(p.duration / 2.0);
         assert!((s - 12.23).abs() < 1e-6, "symmetric move is half way at half time: {s}");
         assert!(v <= 5000.0 * (1.0 + 1e-9) && a.abs() <= 1.0e7 * (1.0 + 1e-9));
+    }
+
+    #[test]
+    fn a_dwell_stands_still_for_its_time() {
+        let p = Profile::dwell(0.2).unwrap();
+        assert_eq!((p.length, p.duration), (0.0, 0.2));
+        assert_eq!(p.state(0.1), (0.0, 0.0, 0.0));
+        assert_eq!(p.position(0.3), 0.0);
+        assert!(Profile::dwell(-1.0).is_err() && Profile::dwell(f64::NAN).is_err());
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! entered, and (on machines with a scanner, in step-and-scan) which scan field
 //! each belongs to. Input: `Job`; output: `Sequence`.
 
+pub mod cutting;
 pub mod ecp;
 pub mod fields;
 pub mod nearest;
@@ -93,6 +94,8 @@ pub trait Planner {
 pub enum PlannerKind {
     Auto,
     Nearest,
+    /// The cutting planner: End-point Cutting Problem with precedence.
+    Ecp,
 }
 
 impl FromStr for PlannerKind {
@@ -101,17 +104,19 @@ impl FromStr for PlannerKind {
         match s {
             "auto" => Ok(PlannerKind::Auto),
             "nearest" => Ok(PlannerKind::Nearest),
-            "ecp" | "hha" | "hga" => Err(format!("planner '{s}' is not available in this version (available: auto, nearest)")),
-            _ => Err(format!("unknown planner '{s}' (available: auto, nearest)")),
+            "ecp" => Ok(PlannerKind::Ecp),
+            "hha" | "hga" => Err(format!("planner '{s}' is not available in this version (available: auto, nearest, ecp)")),
+            _ => Err(format!("unknown planner '{s}' (available: auto, nearest, ecp)")),
         }
     }
 }
 
-/// The planner `kind` stands for. `auto` is the nearest-neighbour baseline until the
-/// better planners exist.
+/// The planner `kind` stands for. `auto` is the nearest-neighbour baseline
+/// until the galvo planners exist (cutting jobs ask for `ecp`).
 pub fn planner(kind: PlannerKind) -> Box<dyn Planner> {
     match kind {
         PlannerKind::Auto | PlannerKind::Nearest => Box::new(nearest::NearestNeighbour),
+        PlannerKind::Ecp => Box::new(cutting::Ecp),
     }
 }
 

@@ -6,6 +6,33 @@
 //! laser runs in M4 (or M3) with `S<power>` on marking blocks and `S0` on jumps,
 //! S changes riding on motion lines (a stand-alone S line forces a planner sync).
 //!
+//! A pierce (a `Pierce` segment of the trajectory: standing still at a path's
+//! entry with the laser on) is written as
+//!
+//! ```text
+//! G1M3S<pierce power>F60   laser on at the pierce power where the machine stands
+//! G4P<pierce time>         stand still for that long (seconds)
+//! M4                       dynamic power again for the cut (only in laser mode M4)
+//! ```
+//!
+//! Why so, in GRBL's laser mode (`$32=1`, reference §9): M4 scales the power
+//! with actual over programmed speed, so a machine standing still has the laser
+//! off, during `G4` too; M3 (constant power) keeps it at S while stopped. An
+//! M3/M4/M5 change forces a planner sync, so the laser lights only once the jump
+//! to the entry has ended, never on the way there; `G4` syncs as well and then
+//! waits, laser as it is. Grbl lights a standing M3 laser only in a feed motion
+//! mode (G1/G2/G3; in G0 it keeps it off), hence the `G1` on the line, which makes
+//! the line right whatever came before (the first line of a program, a resume):
+//! in G93 a G1 needs an F, and without axis words nothing moves. The closing
+//! `M4` switches the laser off there (a standing M4 laser is dark) and the first
+//! cut block brings its own S. A feed hold during the dwell turns the laser off
+//! and stops the dwell's clock until `~` (Grbl dwells in its realtime loop);
+//! the rest of the dwell then runs dark (in laser mode Grbl lights the laser
+//! again only with motion), so a held pierce comes out short. A reset ends it
+//! with the laser off; a job resumed at a pierce's first line pierces again
+//! (that line needs nothing before it). Grbl 1.1h counts a dwell in 50 ms
+//! steps, rounding up, so pierce times in steps of 0.05 s are exact there.
+//!
 //! Blocks are chosen per segment: each block is as long as possible while the
 //! straight, constant-velocity block stays within `program.tolerance` of the
 //! trajectory at every instant, and at least as long as the rounding of
@@ -25,6 +52,8 @@ pub enum LineKind {
     Mark,
     Jump,
     StageMove,
+    /// The lines of a pierce: laser on standing still, the dwell, laser mode back.
+    Pierce,
     End,
 }
 
@@ -112,6 +141,18 @@ struct Writer {
 impl Writer {
     fn setup(&mut self, text: &str) {
         self.lines.push(ProgramLine { text: text.into(), kind: LineKind::Setup, geometry: None, plan_time: None, checks: vec![] });
+    }
+
+    /// The pierce lines (see the module's doc) for `time` seconds at `power`,
+    /// starting at `start` in the trajectory; the dwell line carries the time.
+    fn pierce(&mut self, geometry: usize, power: f64, start: f64, time: f64, mode: LaserMode) {
+        let line = |text: String, plan_time| ProgramLine { text, kind: LineKind::Pierce, geometry: Some(geometry), plan_time, checks: vec![] };
+        self.lines.push(line(format!("G1M3S{}F60", format_number(power, 1)), None));
+        self.lines.push(line(format!("G4P{}", format_number(time, 4)), Some((start, start + time))));
+        if mode == LaserMode::M4 {
+            self.lines.push(line("M4".into(), None));
+        }
+        self.last_power = Some(power);
     }
 
     /// Appends the motion block ending at `values`, taking `duration` seconds with
@@ -272,6 +313,10 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
             SegmentKind::Mark { geometry, power } => (LineKind::Mark, power, Some(geometry)),
             SegmentKind::Jump => (LineKind::Jump, 0.0, None),
             SegmentKind::StageMove => (LineKind::StageMove, 0.0, None),
+            SegmentKind::Pierce { geometry, power } => {
+                w.pierce(geometry, power, seg.start_time, seg.duration(), machine.laser.mode);
+                continue;
+            }
         };
         let times = block_times(seg, tolerance, min_block_time(machine, seg.group, decimals));
         for pair in times.windows(2) {
@@ -333,36 +378,38 @@ mod tests {
         assert_eq!(format_number(300.0, 4), "300");
     }
 
-    #[test]
-    fn blocks_follow_the_trajectory_within_tolerance_and_time() {
-        let machine = MachineConfig::load(None).unwrap();
-        let job = circle_job();
-        let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin() };
-        let seq = NearestNeighbour.plan(&job, &ctx).unwrap();
-        let tr = build(&job, &seq, &machine, Mode::StepAndScan, Point::origin()).unwrap();
-        let prog = generate(&job, &tr, &machine).unwrap();
-        assert_eq!(prog.lines[0].text, "G21G90G93");
-        assert_eq!(prog.lines.last().unwrap().text, "M2");
-        // Re-execute the program as a controller would (constant velocity per block)
-        // and compare with the trajectory at many instants.
+    /// Re-executes `prog` as a controller would (constant velocity per block, a
+    /// dwell standing still) and returns the worst distance from the trajectory
+    /// at many instants; checks that the blocks tile the trajectory's time.
+    fn replay_against(prog: &Program, tr: &Trajectory) -> f64 {
         let mut pos = prog.start.clone();
         let mut t = 0.0;
         let mut worst: f64 = 0.0;
         let mut seg_i = 0;
+        let word = |text: &str, letter: char| -> Option<f64> {
+            let at = text.find(letter)?;
+            let rest = &text[at + 1..];
+            let len = rest.find(|c: char| c.is_ascii_alphabetic()).unwrap_or(rest.len());
+            Some(rest[..len].parse().unwrap())
+        };
         for line in prog.lines.iter().filter(|l| l.plan_time.is_some()) {
             let (a, b) = line.plan_time.unwrap();
             assert!((a - t).abs() < 1e-9, "blocks are contiguous in time");
             let mut end = pos.clone();
             let text = &line.text;
-            for (i, letter) in prog.axis_letters.iter().enumerate() {
-                if let Some(at) = text.find(*letter) {
-                    let rest = &text[at + 1..];
-                    let len = rest.find(|c: char| c.is_ascii_alphabetic()).unwrap_or(rest.len());
-                    end[i] = rest[..len].parse().unwrap();
+            if line.kind == LineKind::Pierce {
+                // The dwell: P seconds, nothing moves.
+                assert!(text.starts_with("G4P"), "{text}");
+                assert!((word(text, 'P').unwrap() - (b - a)).abs() < 1e-4);
+            } else {
+                for (i, letter) in prog.axis_letters.iter().enumerate() {
+                    if let Some(v) = word(text, *letter) {
+                        end[i] = v;
+                    }
                 }
+                let f = word(text, 'F').unwrap();
+                assert!(((60.0 / f) - (b - a)).abs() < 1e-6 * (b - a) + 1e-12);
             }
-            let f: f64 = text[text.find('F').unwrap() + 1..].parse().unwrap();
-            assert!(((60.0 / f) - (b - a)).abs() < 1e-6 * (b - a) + 1e-12);
             for k in 0..=10 {
                 let tt = a + (b - a) * k as f64 / 10.0;
                 while tr.segments[seg_i].start_time + tr.segments[seg_i].duration() < tt - 1e-12 {
@@ -380,8 +427,62 @@ mod tests {
             pos = end;
             t = b;
         }
-        assert!(worst <= machine.program.tolerance + 1e-4, "worst deviation {worst}");
         assert!((t - tr.duration()).abs() < 1e-9);
         assert!(prog.lines.iter().all(|l| l.text.len() <= 79));
+        worst
+    }
+
+    #[test]
+    fn blocks_follow_the_trajectory_within_tolerance_and_time() {
+        let machine = MachineConfig::load(None).unwrap();
+        let job = circle_job();
+        let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin() };
+        let seq = NearestNeighbour.plan(&job, &ctx).unwrap();
+        let tr = build(&job, &seq, &machine, Mode::StepAndScan, Point::origin()).unwrap();
+        let prog = generate(&job, &tr, &machine).unwrap();
+        assert_eq!(prog.lines[0].text, "G21G90G93");
+        assert_eq!(prog.lines.last().unwrap().text, "M2");
+        assert!(!prog.lines.iter().any(|l| l.kind == LineKind::Pierce), "no pierce time, no pierce");
+        let worst = replay_against(&prog, &tr);
+        assert!(worst <= machine.program.tolerance + 1e-4, "worst deviation {worst}");
+    }
+
+    #[test]
+    fn a_pierce_is_m3_then_a_dwell_then_m4_at_every_path_entry() {
+        let mut job = circle_job();
+        let mut second = job.geometries[0].clone();
+        second.points.iter_mut().for_each(|p| p.x += 25.0);
+        job.geometries.push(second);
+        for (mode, laser) in [(Mode::StepAndScan, LaserMode::M4), (Mode::StageOnly, LaserMode::M4), (Mode::StepAndScan, LaserMode::M3)] {
+            let mut machine = MachineConfig::load(None).unwrap();
+            if mode == Mode::StageOnly {
+                machine.scanner = None;
+            }
+            machine.laser.mode = laser;
+            machine.laser.pierce_time = 0.25;
+            machine.laser.pierce_power = Some(800.0);
+            let ctx = PlanContext { machine: &machine, mode, start: Point::origin() };
+            let seq = NearestNeighbour.plan(&job, &ctx).unwrap();
+            let tr = build(&job, &seq, &machine, mode, Point::origin()).unwrap();
+            let prog = generate(&job, &tr, &machine).unwrap();
+            let texts: Vec<&str> = prog.lines.iter().map(|l| l.text.as_str()).collect();
+            let starts: Vec<usize> = texts.iter().enumerate().filter(|(_, t)| t.starts_with("G1M3")).map(|(i, _)| i).collect();
+            assert_eq!(starts.len(), 2, "{mode:?} {laser:?}: one pierce per path");
+            assert_eq!(prog.lines.iter().filter(|l| l.kind == LineKind::Pierce && l.plan_time.is_some()).count(), 2);
+            for &i in &starts {
+                let n = if laser == LaserMode::M4 { 3 } else { 2 };
+                let expected: &[&str] = if laser == LaserMode::M4 { &["G1M3S800F60", "G4P0.25", "M4"] } else { &["G1M3S800F60", "G4P0.25"] };
+                assert_eq!(&texts[i..i + n], expected, "{mode:?} {laser:?}");
+                assert!(prog.lines[i..i + n].iter().all(|l| l.kind == LineKind::Pierce && l.geometry.is_some()));
+                // After the jump to the entry, before the cut, which brings its own power.
+                assert_eq!(prog.lines[i - 1].kind, LineKind::Jump, "{mode:?} {laser:?}");
+                assert_eq!(prog.lines[i + n].kind, LineKind::Mark);
+                assert!(texts[i + n].contains("S250"), "{mode:?} {laser:?}: {}", texts[i + n]);
+                let (a, b) = prog.lines[i + 1].plan_time.unwrap();
+                assert!((b - a - 0.25).abs() < 1e-12);
+            }
+            let worst = replay_against(&prog, &tr);
+            assert!(worst <= machine.program.tolerance + 1e-4, "{mode:?} {laser:?}: worst deviation {worst}");
+        }
     }
 }

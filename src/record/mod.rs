@@ -12,7 +12,8 @@
 //! - `/link`        each line sent and received, each realtime byte, with its time
 //! - `/status`      parsed status reports
 //! - `/sim/axes`    the simulated machine's executed motion: axis positions, TCP
-//!   and laser power at every block boundary (motion is linear in between)
+//!   and laser power at every block boundary (motion is linear in between), and
+//!   where the laser changes while the machine stands still (a pierce)
 //! - `/run/report`  the final report
 
 use std::collections::{BTreeMap, HashSet};

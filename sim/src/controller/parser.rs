@@ -397,7 +397,24 @@ impl Controller {
         let mut steps = Vec::new();
         let m = &self.modal;
         let accessories_change = new_spindle != m.spindle || new_flood != m.flood || new_mist != m.mist;
+        // Grbl's spindle syncs in laser mode (gcode.c, steps 4 and 7): any
+        // M3/M4/M5 change, and under M3, in a line without motion, an S change
+        // or a switch between G0 and a feed motion mode. Each waits for motion
+        // to stop, then sets the laser at rest: M3 at S in G1/G2/G3 (G0 keeps
+        // it off), M4 off (no motion, no power), M5 off. (Grbl also syncs on an
+        // S change under M4; the laser stays off there, so only timing differs.)
+        let laser_mode = self.setting(32) != 0.0;
+        let feed_mode = |mo: Motion| matches!(mo, Motion::Linear | Motion::ArcCw | Motion::ArcCcw);
+        let in_motion = motion_cmd && has_axes;
+        let mode_switch = laser_mode && feed_mode(m.motion) != feed_mode(mode);
+        let laser_sync = new_spindle != m.spindle
+            || (m.spindle == Spindle::Cw && !in_motion && (new_s != m.s || mode_switch));
+        let rest_power = match new_spindle {
+            Spindle::Cw if laser_mode && feed_mode(mode) => new_s.min(self.cfg.laser_max_s),
+            _ => 0.0,
+        };
         let sync = accessories_change
+            || laser_sync
             || (new_spindle == Spindle::Cw && new_s != m.s && !motion_cmd)
             || new_coord != m.coord
             || tool_length.is_some()
@@ -408,10 +425,13 @@ impl Controller {
         if sync {
             steps.push(Step::Sync);
         }
+        if laser_sync && !self.check_mode {
+            steps.push(Step::Laser { power: rest_power, line });
+        }
         if let Some(p) = dwell {
             steps.push(Step::Sync);
             if !self.check_mode {
-                steps.push(Step::Dwell(p));
+                steps.push(Step::Dwell(p, line));
             }
         }
         match probe {
@@ -467,7 +487,8 @@ impl Controller {
         match stop {
             Some(0) if !self.check_mode => steps.extend([Step::Sync, Step::Pause, Step::AwaitResume]),
             Some(2 | 30) => {
-                steps.extend([Step::Sync, Step::ProgramEnd]);
+                // The program's end switches the spindle off: the laser too.
+                steps.extend([Step::Sync, Step::Laser { power: 0.0, line }, Step::ProgramEnd]);
                 let m = &mut self.modal;
                 m.motion = Motion::Linear;
                 m.plane = 17;

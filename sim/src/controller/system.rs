@@ -39,7 +39,7 @@ pub(super) struct Protocol {
     probe: Vec<f64>,
     probe_ok: bool,
     /// The spindle stop override is engaged (only during a hold).
-    spindle_stop: bool,
+    pub(super) spindle_stop: bool,
     /// The startup lines are to run (after a reset that left no alarm; once a
     /// door open at the reset has been closed and resumed).
     startup_due: bool,
@@ -204,7 +204,7 @@ impl Controller {
         self.proto.startup_due = false;
         let steps = self.startup_steps();
         if !steps.is_empty() {
-            self.pending = Some(Pending { steps: steps.into(), rx_len: 0, dwell_until: None, reset_after: false, quiet: true });
+            self.pending = Some(Pending { steps: steps.into(), rx_len: 0, dwell_until: None, dwell_left: None, reset_after: false, quiet: true });
         }
     }
 
@@ -227,11 +227,16 @@ impl Controller {
     // ----- holds, spindle stop, alarms -----
 
     /// A hold begins (`!` or M0). In laser mode Grbl stops the laser with its
-    /// spindle stop override (build default), so resuming restores it.
+    /// spindle stop override (build default), so resuming restores it: with
+    /// the next motion, not while the machine stands still (a held dwell goes
+    /// on dark after `~`).
     pub(super) fn hold_stops_laser(&mut self) {
         if self.setting(32) != 0.0 && self.modal.spindle != Spindle::Off {
             self.proto.spindle_stop = true;
             self.ov_countdown = 0;
+        }
+        if self.setting(32) != 0.0 {
+            self.rest_s = 0.0;
         }
     }
 
@@ -265,6 +270,7 @@ impl Controller {
     /// A non-critical alarm (probe fail): locked until `$X`/`$H`, no reset.
     fn raise_alarm(&mut self, code: u16) {
         self.alarm = true;
+        self.rest_s = 0.0;
         self.stats.alarms.push(code);
         self.send(&format!("ALARM:{code}"));
     }
@@ -615,6 +621,10 @@ impl Controller {
             self.cfg.laser_max_s = v;
         }
         self.written_settings.insert(n, v);
+        if n == 32 {
+            // The laser at rest is a laser-mode state (see `rest_power`).
+            self.rest_s = 0.0;
+        }
         if n == 22 && v == 0.0 {
             // Soft limits need homing: switching homing off switches them off.
             self.written_settings.insert(20, 0.0);

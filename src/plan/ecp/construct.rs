@@ -166,6 +166,101 @@ pub fn insertion_in_order(inst: &Instance, seed: Option<u64>) -> Vec<Cut> {
     dir_opt(inst, &elements)
 }
 
+/// Seed 001's contour-order construction (COB): contours cut whole, one
+/// after the other. Contours linked by common cuts or nesting form a group;
+/// groups are visited nearest first, and inside a group the deepest contours
+/// come first (holes and parts in holes before the part around them), then
+/// the highest rank (a contour all of whose edges are shared before those
+/// around it, so its common cuts never close two contours), nearest first
+/// within that. Each contour is entered at its element nearest to where the
+/// previous one ended and cut element by element, nearest first; then
+/// dir-opt. Falls back to [`contour_order`] if a rule still breaks.
+pub fn contour_order_construction(inst: &Instance) -> Vec<Cut> {
+    let k = inst.contours.len();
+    let depth = contour_depths(inst);
+    let rules = Rules::new(inst);
+    // Groups: union-find over nesting and common cuts.
+    let mut parent: Vec<usize> = (0..k).collect();
+    fn root(parent: &mut [usize], mut x: usize) -> usize {
+        while parent[x] != x {
+            parent[x] = parent[parent[x]];
+            x = parent[x];
+        }
+        x
+    }
+    let common = inst.common_cuts();
+    for (a, b) in inst.inner_outer.iter().copied().chain(common.iter().map(|c| c.contours)) {
+        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+        parent[ra] = rb;
+    }
+    let group: Vec<usize> = (0..k).map(|c| root(&mut parent, c)).collect();
+    // Ranks: 0 for a contour with an element of its own, else one more than
+    // the lowest rank among the contours it shares a cut with.
+    let mut rank = vec![usize::MAX; k];
+    let mut queue: std::collections::VecDeque<usize> = (0..k)
+        .filter(|&c| inst.contours[c].iter().any(|&e| rules.contours_of[e].len() == 1) || rules.shared[c].is_empty())
+        .collect();
+    for &c in &queue {
+        rank[c] = 0;
+    }
+    while let Some(c) = queue.pop_front() {
+        for &(_, other) in &rules.shared[c] {
+            if rank[other] == usize::MAX {
+                rank[other] = rank[c] + 1;
+                queue.push_back(other);
+            }
+        }
+    }
+    let distance_to = |here: crate::job::Point, e: usize| {
+        let el = &inst.elements[e];
+        inst.distance(here, el.a).min(inst.distance(here, el.b))
+    };
+    let mut done = vec![false; inst.elements.len()];
+    let mut contour_done = vec![false; k];
+    let mut order = Vec::with_capacity(inst.elements.len());
+    let mut here = inst.depot;
+    let mut groups_left: Vec<usize> = (0..k).filter(|&c| group[c] == c).collect();
+    while !groups_left.is_empty() {
+        // The nearest group, by its nearest element.
+        let (gi, _) = groups_left
+            .iter()
+            .enumerate()
+            .map(|(i, &g)| {
+                let d = (0..k).filter(|&c| group[c] == g).flat_map(|c| inst.contours[c].iter()).map(|&e| distance_to(here, e)).fold(f64::INFINITY, f64::min);
+                (i, d)
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap();
+        let g = groups_left.swap_remove(gi);
+        loop {
+            let next = (0..k)
+                .filter(|&c| group[c] == g && !contour_done[c])
+                .map(|c| {
+                    let d = inst.contours[c].iter().filter(|&&e| !done[e]).map(|&e| distance_to(here, e)).fold(f64::INFINITY, f64::min);
+                    (std::cmp::Reverse(depth[c]), std::cmp::Reverse(rank[c]), d, c)
+                })
+                .min_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)).then(a.2.total_cmp(&b.2)));
+            let Some((_, _, _, c)) = next else { break };
+            contour_done[c] = true;
+            let mut left: Vec<usize> = inst.contours[c].iter().copied().filter(|&e| !done[e]).collect();
+            while !left.is_empty() {
+                let (i, _) = left.iter().enumerate().map(|(i, &e)| (i, distance_to(here, e))).min_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
+                let e = left.remove(i);
+                done[e] = true;
+                let el = &inst.elements[e];
+                here = if inst.distance(here, el.a) <= inst.distance(here, el.b) { el.b } else { el.a };
+                order.push(e);
+            }
+        }
+    }
+    let route = dir_opt(inst, &order);
+    if super::checker::check(inst, &route).is_empty() {
+        route
+    } else {
+        dir_opt(inst, &contour_order(inst))
+    }
+}
+
 /// Depth of each contour in the inner/outer tree (0: not inside another).
 pub(super) fn contour_depths(inst: &Instance) -> Vec<usize> {
     let k = inst.contours.len();
@@ -224,6 +319,24 @@ mod tests {
             let route: Vec<Cut> = order.iter().map(|&e| Cut { element: e, reversed: mask & (1 << e) != 0 }).collect();
             assert!(inst.cost(&best) <= inst.cost(&route) + 1e-9);
         }
+    }
+
+    #[test]
+    fn contour_order_construction_is_feasible_and_cuts_contours_whole() {
+        for seed in 0..200 {
+            let inst = random_instance(12, seed);
+            if exact::solve(&inst).is_none() {
+                continue;
+            }
+            let route = contour_order_construction(&inst);
+            assert!(check(&inst, &route).is_empty(), "seed {seed}: {:?}", check(&inst, &route));
+        }
+        let sheet = crate::plan::ecp::sheet::generate(&crate::plan::ecp::sheet::SheetParams::with_target(400), 1);
+        let route = contour_order_construction(&sheet);
+        assert!(check(&sheet, &route).is_empty());
+        // Whole contours: a pierce per contour at most (fewer where cuts run on).
+        let pierces = (0..route.len()).filter(|&i| i == 0 || sheet.step(Some(route[i - 1]), route[i]) > 0.0).count();
+        assert!(pierces <= sheet.contours.len(), "{pierces} pierces for {} contours", sheet.contours.len());
     }
 
     #[test]

@@ -1,0 +1,164 @@
+//! The laser while the machine stands still, in laser mode (`$32=1`,
+//! reference §9): a pierce as laserd writes it (`G1M3S…F…`, `G4P…`, `M4`)
+//! burns standing still at its power for its time, M4 and G0 keep a standing
+//! laser dark, and a hold or a reset during a dwell switches it off.
+
+mod common;
+
+use common::{cfg, close, Sim};
+use laserd_sim::controller::{Knot, MotionModel, SimConfig};
+use laserd_sim::wire::{realtime, MachineState, Response, BANNER};
+
+/// A cut entered at X1: the jump there (laser off), the pierce, the cut to X2.
+const PIERCE: &str = "G93 M4 S0\nG1 X1 F600\nG1M3S500F60\nG4P0.2\nM4\nG1 X2 S300 F600\n";
+
+/// Rest intervals (same position, time passing) with the power the knot that
+/// closes them records, as (start, end, power, received line).
+fn rests(knots: &[Knot]) -> Vec<(f64, f64, f64, u64)> {
+    knots.windows(2).filter(|w| w[0].pos == w[1].pos && w[1].t > w[0].t).map(|w| (w[0].t, w[1].t, w[1].power, w[1].line)).collect()
+}
+
+/// The time of the `ok` answering received line `n` (1-based).
+fn ok_of(s: &Sim, n: usize) -> f64 {
+    s.responses()[n - 1].0
+}
+
+#[test]
+fn a_pierce_burns_standing_still_for_its_dwell_then_m4_darkens_it() {
+    for motion in [MotionModel::Timed, MotionModel::Grbl] {
+        let mut s = Sim::new(SimConfig { motion, ..cfg() });
+        s.send(PIERCE);
+        s.run_until(0.5);
+        let oks = s.responses();
+        assert!(oks.iter().all(|r| r.1 == Response::Ok), "{motion:?}: {oks:?}");
+        // The jump to X1 ends, the laser lights there (the M3 line waited for
+        // motion to stop), stays on through the dwell, and the G4's ok comes after it.
+        let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0]).expect("reaches X1").t;
+        let pierce = rests(&s.knots);
+        assert_eq!(pierce.len(), 1, "{motion:?}: {:?}", s.knots);
+        let (a, b, power, line) = pierce[0];
+        assert!(close(a, arrived) && close(b - a, 0.2), "{motion:?}: {pierce:?}");
+        assert_eq!((power, line), (500.0, 4), "{motion:?}: at the pierce power, closed by the G4 line");
+        assert!(close(ok_of(&s, 4), arrived + 0.2));
+        // Then the cut, at its own power, from the entry.
+        let cut: Vec<&Knot> = s.knots.iter().filter(|k| k.t > arrived + 0.2 + 1e-9).collect();
+        assert_eq!(cut.last().unwrap().pos, vec![2.0, 0.0], "{motion:?}");
+        // M4: 300 at speed (the grbl model scales it down while it ramps).
+        assert!(cut.iter().all(|k| k.power > 0.0 && k.power <= 300.0), "{motion:?}: {cut:?}");
+        if motion == MotionModel::Timed {
+            assert!(cut.iter().all(|k| k.power == 300.0), "{cut:?}");
+        }
+    }
+
+    // What a status report and the controller say while it pierces.
+    let mut s = Sim::new(cfg());
+    s.send(PIERCE);
+    s.run_until(0.15);
+    let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0]).unwrap().t;
+    s.run_until(arrived + 0.1);
+    assert_eq!(s.ctl.state(), MachineState::Idle, "Grbl reports Idle while it dwells");
+    assert_eq!(s.ctl.laser_power(), 500.0);
+    assert_eq!(s.status().spindle, Some(500.0));
+    s.run_until(arrived + 0.25);
+    assert_eq!(s.ctl.state(), MachineState::Run);
+    assert_eq!(s.ctl.laser_power(), 300.0);
+    s.run_until(2.0);
+    assert_eq!(s.ctl.laser_power(), 0.0, "an M4 block ends dark");
+    assert_eq!(s.ctl.stats().starved_s, 0.0, "a dwell is not starvation");
+}
+
+#[test]
+fn m4_and_g0_keep_a_standing_laser_dark_and_m3_in_g1_does_not() {
+    // M4: dynamic power, nothing moves, no power, dwell or not.
+    let mut s = Sim::new(cfg());
+    s.send("G93 M4 S500\nG1 X1 F600\nG4 P0.3\nG1 X2 F600\n");
+    s.run_until(0.2);
+    assert!(s.ctl.position() == vec![1.0, 0.0] && s.ctl.laser_power() == 0.0);
+    s.run_until(2.0);
+    let r = rests(&s.knots);
+    assert_eq!(r.len(), 1);
+    assert!(close(r[0].1 - r[0].0, 0.3) && r[0].2 == 0.0, "{r:?}");
+
+    // M3 in G0 (the power-up mode): dark; switching to G1 without motion
+    // syncs and lights it; back to G0 darkens it; M5 too.
+    let mut s = Sim::new(cfg());
+    s.send("M3 S500\n");
+    s.run_until(0.1);
+    assert_eq!(s.ctl.laser_power(), 0.0, "G0 keeps the laser off");
+    s.send("G1 F100\n");
+    s.run_until(0.2);
+    assert_eq!(s.ctl.laser_power(), 500.0, "M3 in G1 burns standing still");
+    s.send("G0\n");
+    s.run_until(0.3);
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    s.send("G1 F100\nM5\n");
+    s.run_until(0.4);
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    // The laser-on interval is in the knots, even with no motion at all.
+    let r = rests(&s.knots);
+    assert_eq!(r.len(), 3, "on, off, on-then-off: {:?}", s.knots);
+    assert_eq!(r.iter().filter(|x| x.2 == 500.0).count(), 2);
+
+    // M3 leaves the laser on at a block's power once the machine stops there;
+    // the program's end switches it off.
+    let mut s = Sim::new(cfg());
+    s.send("G93 M3 S400\nG1 X1 F600\n");
+    s.run_until(1.0);
+    assert_eq!(s.ctl.laser_power(), 400.0);
+    s.send("M2\n");
+    s.run_until(1.5);
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    let r = rests(&s.knots);
+    assert_eq!(r.len(), 1, "{:?}", s.knots);
+    assert!(r[0].2 == 400.0 && close(r[0].1, 1.0 + "M2\n".len() as f64 * common::BYTE), "{r:?}");
+}
+
+#[test]
+fn a_hold_during_a_pierce_darkens_it_and_stops_the_dwell_until_resumed() {
+    let mut s = Sim::new(cfg());
+    s.send("G93 M4 S0\nG1 X1 F600\nG1M3S500F60\nG4P1\nM4\nG1 X2 S300 F600\n");
+    s.run_until(0.15);
+    let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0]).unwrap().t;
+    let held = arrived + 0.4;
+    s.run_until(held);
+    assert_eq!(s.ctl.laser_power(), 500.0);
+    s.realtime(realtime::FEED_HOLD);
+    assert_eq!(s.ctl.state(), MachineState::Hold(0));
+    assert_eq!(s.ctl.laser_power(), 0.0, "the laser goes off at once");
+    let n = s.knots.len();
+    assert!(close(s.knots[n - 1].t, held) && s.knots[n - 1].power == 0.0 && s.knots[n - 2].power == 500.0, "{:?}", s.knots);
+    // Held: the dwell's clock stands, nothing moves, no ok for the G4.
+    s.run_until(held + 3.0);
+    assert_eq!(s.responses().len(), 3);
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0]);
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    // Resumed: the rest of the dwell, dark (Grbl brings the laser back with
+    // motion), then the cut.
+    let resumed = held + 3.0;
+    s.realtime(realtime::CYCLE_START);
+    assert_eq!(s.ctl.state(), MachineState::Idle);
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    s.run_until(resumed + 2.0);
+    assert!(close(ok_of(&s, 4), resumed + 0.6), "dwell ok {} vs {}", ok_of(&s, 4), resumed + 0.6);
+    assert_eq!(s.ctl.position(), vec![2.0, 0.0]);
+    assert!(s.knots.iter().filter(|k| k.t > held + 1e-9 && k.t <= resumed + 0.6 + 1e-9).all(|k| k.power == 0.0));
+}
+
+#[test]
+fn a_reset_during_a_pierce_leaves_the_laser_off_and_the_job_dropped() {
+    let mut s = Sim::new(cfg());
+    s.send(PIERCE);
+    s.run_until(0.15);
+    let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0]).unwrap().t;
+    s.run_until(arrived + 0.1);
+    assert_eq!(s.ctl.laser_power(), 500.0);
+    let n = s.lines.len();
+    s.realtime(realtime::SOFT_RESET);
+    assert_eq!(&s.texts()[n..], &[BANNER], "standing still: no alarm");
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    let last = s.knots.last().unwrap();
+    assert!(close(last.t, arrived + 0.1) && last.power == 0.0, "{last:?}");
+    s.run_until(3.0);
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0], "the cut never starts");
+    assert_eq!(s.status().spindle, Some(0.0));
+}
