@@ -19,8 +19,9 @@ pub struct PlanReport {
     pub plan_time_s: f64,
     /// Cuts after the part they belong to has fallen out: by the independent
     /// checker on the cutting planner's route, or by whole geometries (an inner
-    /// contour finished at or after its outer one) for other planners. `null`
-    /// when the job's topology cannot be built (degenerate geometry).
+    /// contour finished at or after its outer one) for other planners on jobs
+    /// that cut through (a layer that pierces); 0 for marking jobs, where
+    /// nothing falls out. `null` when the job's topology cannot be built.
     pub precedence_violations: Option<u64>,
     pub trajectory_time_s: f64,
     pub lower_bound_s: f64,

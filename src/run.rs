@@ -51,7 +51,13 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         (planner.plan(&job, &ctx)?, None)
     };
     let plan_time_s = started.elapsed().as_secs_f64();
+    // Parts fall out only where the laser cuts through, i.e. on layers that
+    // pierce; a marking job has nothing to fall out.
+    let cuts_through = job.geometries.iter().any(|g| machine.pierce(&job.processes[g.process].layer).time > 0.0);
     let precedence_violations = precedence_violations.or_else(|| {
+        if !cuts_through {
+            return Some(0);
+        }
         let model = crate::plan::cutting::cutting_model(&job, ctx.start, &machine.cutting).ok()?;
         Some(crate::plan::cutting::sequence_precedence_violations(&model, &sequence) as u64)
     });

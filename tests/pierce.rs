@@ -204,3 +204,61 @@ fn a_hold_during_a_pierce_darkens_it_an_abort_leaves_it_dark_and_a_resume_pierce
     assert!(end - start >= PIERCE_TIME - 1e-9 && end - start < PIERCE_TIME + 0.01 && power == PIERCE_POWER, "{:?}", burns[0]);
     assert!((tcp_of(&knot.pos) - paths[2].start()).norm() < 1e-4);
 }
+
+/// The shipped flatbed cutter, piercing every cut for 0.2 s, or not at all.
+fn flatbed(pierce: bool) -> MachineConfig {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml");
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.contains("\npierce_time = 0.2\n"));
+    let text = if pierce { text } else { text.replace("\npierce_time = 0.2\n", "\npierce_time = 0.0\n") };
+    MachineConfig::parse(&text, "flatbed.toml").unwrap()
+}
+
+#[test]
+fn a_long_cut_job_waits_after_each_pierce_for_the_lines_the_dwell_held_back_and_never_stops_inside_a_cut() {
+    let _turn = take_turn();
+    // A sheet of nested parts, ordered by nearest (deterministic): many cuts of
+    // short blocks at 50 mm/s on a 115200-baud link and a 128-byte buffer.
+    // While the controller dwells, the `G4` and `M4` lines hold its receive
+    // buffer, so only a few blocks of the cut are in when the dwell ends.
+    let dir = tempfile::tempdir().unwrap();
+    let params = laserd::plan::ecp::sheet::SheetParams::with_target(120);
+    let job = dir.path().join("sheet.svg");
+    let sheet = laserd::plan::ecp::sheet::generate_sheet(&params, 3);
+    std::fs::write(&job, laserd::plan::ecp::sheet::to_svg(&sheet, &params)).unwrap();
+    let (plain_machine, pierce_machine) = (flatbed(false), flatbed(true));
+    let plain = run::plan(&job, &plain_machine, PlannerKind::Nearest, None).unwrap();
+    let planned = run::plan(&job, &pierce_machine, PlannerKind::Nearest, None).unwrap();
+    let paths: Vec<_> = planned.sequence.paths().collect();
+    assert!(paths.len() >= 30, "{} paths", paths.len());
+    let pierces = PIERCE_TIME * paths.len() as f64;
+
+    let dry_plain = run::dry_run(&plain, &plain_machine, &dir.path().join("plain.mcap"), Faults::default()).unwrap();
+    let dry = run::dry_run(&planned, &pierce_machine, &dir.path().join("pierce.mcap"), Faults::default()).unwrap();
+    assert!(dry_plain.outcome.completed && dry.outcome.completed, "{:?}", dry.outcome.stop_reason);
+    let (a, b) = (dry_plain.report.sim.as_ref().unwrap(), dry.report.sim.as_ref().unwrap());
+    eprintln!("without pierces: {}\nwith pierces:    {}", serde_json::to_string(a).unwrap(), serde_json::to_string(b).unwrap());
+    assert_eq!((a.limit_violations, a.planner_starved_s), (0, 0.0), "{a:?}");
+    // The controller starts a cut only once the rest point after it is
+    // queued: within every limit, whatever the link delivers.
+    assert_eq!(b.limit_violations, 0, "{b:?}");
+    assert_eq!(b.laser_state_errors, 0, "{b:?}");
+
+    // It waits only standing at a cut's entry, after the pierce, for the lines
+    // the dwell held back; never inside a cut. The rest of the time is the
+    // plain job's and the pierces.
+    let knots = &dry.log.knots;
+    let dwells = laserd::figures::dwell_lines(&dry.log.link);
+    let moving = |w: &[Knot]| w[0].pos != w[1].pos;
+    let (first, last) = (knots.windows(2).position(moving).unwrap(), knots.windows(2).rposition(moving).unwrap());
+    let waits: Vec<&[Knot]> = knots[first..=last + 1].windows(2).filter(|w| !moving(w) && w[1].t > w[0].t && !dwells.contains(&w[1].line)).collect();
+    for w in &waits {
+        let at = tcp_of(&w[0].pos);
+        assert!(paths.iter().any(|p| (at - p.start()).norm() < 1e-4), "waited {} s at {at:?}, not at a cut's entry (t = {})", w[1].t - w[0].t, w[0].t);
+    }
+    let waited: f64 = waits.iter().map(|w| w[1].t - w[0].t).sum();
+    assert!((waited - b.planner_starved_s).abs() < 1e-9, "{waited} vs {}", b.planner_starved_s);
+    assert!(b.planner_starved_s < 0.05 * pierces, "short waits: {} s for {} pierces", b.planner_starved_s, paths.len());
+    let busy = |f: &laserd::figures::SimFigures| f.job_time_s - f.planner_starved_s;
+    assert!((busy(b) - busy(a) - pierces).abs() < 1e-3, "{} vs {}", busy(b), busy(a));
+}

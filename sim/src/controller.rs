@@ -34,6 +34,11 @@
 //! `is_gentle`). Blocks also run when the planner is full, when the pending
 //! line needs motion to end, or when the link has been silent for
 //! `LINK_SILENCE_START` (a stream that never comes to rest must still run).
+//! Silent means the sender could have sent and did not: the time counts from
+//! the last byte received or, when the receive buffer had less room than a
+//! line, from the `ok` that made room, whichever is later. A sender counting
+//! characters waits for that `ok` (a `G4` holds its bytes and those behind it
+//! until its `ok`, after the dwell), so a link quiet then is not the stream's end.
 //! A feed hold runs on, laser off, to the next rest point, then stops.
 //!
 //! # The laser standing still
@@ -442,6 +447,11 @@ pub struct Controller {
     starve_acc: f64,
     /// When the last byte arrived.
     last_rx_t: f64,
+    /// When an answered line last made room in an RX too full for another
+    /// line: a sender waiting for room may send again from then.
+    last_room_t: f64,
+    /// Longest line received so far (bytes, terminator included).
+    longest_line: usize,
     /// Bytes arrived on the wire so far (for fault injection).
     bytes_received: u64,
     /// Status reports until WCO and Ov are included again.
@@ -464,10 +474,10 @@ pub struct Controller {
 }
 
 const EPS_POS: f64 = 1e-9;
-/// Time without a received byte after which queued blocks start even though
-/// the queue holds no rest point (a stream that never comes to rest). Long
-/// enough that a sender's scheduling hiccup on a busy host is not mistaken for
-/// the end of the stream.
+/// Time the link must stay silent (no byte received, no line answered) before
+/// queued blocks start even though the queue holds no rest point (a stream
+/// that never comes to rest). Long enough that a sender's scheduling hiccup on
+/// a busy host is not mistaken for the end of the stream.
 pub const LINK_SILENCE_START: f64 = 0.1;
 
 impl Controller {
@@ -505,6 +515,8 @@ impl Controller {
             starve_since: None,
             starve_acc: 0.0,
             last_rx_t: 0.0,
+            last_room_t: 0.0,
+            longest_line: 0,
             bytes_received: 0,
             wco_countdown: 0,
             ov_countdown: 1,
@@ -656,7 +668,7 @@ impl Controller {
         let b = self.pending.as_ref().and_then(|p| p.dwell_until).filter(|_| !self.hold);
         // Blocks waiting for a stop point start when the link falls silent.
         let c = (self.exec.is_none() && !self.hold && !self.alarm && !self.planner.is_empty())
-            .then(|| (self.last_rx_t + LINK_SILENCE_START).max(self.now));
+            .then(|| (self.link_quiet_since() + LINK_SILENCE_START).max(self.now));
         [a, b, c].into_iter().flatten().reduce(f64::min)
     }
 
@@ -1254,7 +1266,20 @@ impl Controller {
             || self.planner.iter().any(|b| b.ends_sequence)
             || self.planner_full()
             || self.pending.as_ref().is_some_and(|p| !matches!(p.steps.front(), None | Some(Step::Queue(_))))
-            || self.now - self.last_rx_t >= LINK_SILENCE_START - 1e-9
+            || self.now - self.link_quiet_since() >= LINK_SILENCE_START - 1e-9
+    }
+
+    /// Since when the link has been silent: the last byte received, or the
+    /// last answer that made room in a receive buffer too full for another
+    /// line, whichever came later. A sender counting characters that finds
+    /// the buffer full waits for an `ok` (a `G4` keeps its bytes, and those of
+    /// the lines behind it, there until its `ok`, after the dwell), so a link
+    /// quiet while the controller holds its buffer is waiting, not done. Were
+    /// this counted from the last byte only, the few blocks that fit behind a
+    /// dwell would start at its end without a rest point queued after them,
+    /// and the controller, fed a line at a time, would stop inside the cut.
+    fn link_quiet_since(&self) -> f64 {
+        self.last_rx_t.max(self.last_room_t)
     }
 
     // ----- line handling -----
@@ -1294,6 +1319,7 @@ impl Controller {
         }
         self.line_count += 1;
         self.stats.lines_received += 1;
+        self.longest_line = self.longest_line.max(len);
         let n = self.line_count;
         if self.cfg.faults.reset_at_line == Some(n) {
             self.soft_reset();
@@ -1333,6 +1359,10 @@ impl Controller {
     }
 
     fn drop_rx(&mut self, len: usize) {
+        // (Room for another line of the longest yet: the sender was not waiting.)
+        if self.cfg.rx_buffer.saturating_sub(self.rx.len()) < self.longest_line {
+            self.last_room_t = self.now;
+        }
         let len = len.min(self.rx.len());
         let removed_lines = self.rx.drain(..len).filter(|b| *b == b'\n' || *b == b'\r').count();
         self.rx_lines = self.rx_lines.saturating_sub(removed_lines);

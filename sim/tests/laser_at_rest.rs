@@ -162,3 +162,85 @@ fn a_reset_during_a_pierce_leaves_the_laser_off_and_the_job_dropped() {
     assert_eq!(s.ctl.position(), vec![1.0, 0.0], "the cut never starts");
     assert_eq!(s.status().spindle, Some(0.0));
 }
+
+/// The flatbed cutter's X axis: 500 mm/s, 5000 mm/s², 250000 mm/s³.
+fn flatbed() -> SimConfig {
+    let mut c = cfg();
+    c.axes = vec![laserd_sim::controller::AxisConfig {
+        letter: 'X',
+        min: 0.0,
+        max: 3000.0,
+        max_velocity: 500.0,
+        max_acceleration: 5000.0,
+        max_jerk: 250000.0,
+    }];
+    c
+}
+
+/// A rest-to-rest move of `blocks` G93 blocks (quintic smoothstep, peak jerk
+/// 60 d/T³): the first block is gentle, the next ones are not.
+fn smooth_move(from: f64, to: f64, duration: f64, blocks: usize) -> Vec<String> {
+    let s = |u: f64| from + (to - from) * u * u * u * (10.0 - 15.0 * u + 6.0 * u * u);
+    (1..=blocks).map(|k| format!("G1X{:.5}F{:.4}", s(k as f64 / blocks as f64), 60.0 * blocks as f64 / duration)).collect()
+}
+
+/// Streams `lines` with GRBL character counting into `rx` bytes (the next
+/// line goes as soon as the `ok`s leave room for it) until `t_end`.
+fn stream_counting(s: &mut Sim, lines: &[String], rx: usize, t_end: f64) {
+    let (mut next, mut in_rx, mut answered) = (0, std::collections::VecDeque::<usize>::new(), 0);
+    loop {
+        let answers = s.responses().len();
+        while answered < answers {
+            in_rx.pop_front();
+            answered += 1;
+        }
+        while next < lines.len() && in_rx.iter().sum::<usize>() + lines[next].len() + 1 <= rx {
+            s.send(&format!("{}\n", lines[next]));
+            in_rx.push_back(lines[next].len() + 1);
+            next += 1;
+        }
+        let t = [s.link.next_arrival(), s.ctl.next_event()].into_iter().flatten().fold(f64::INFINITY, f64::min);
+        if t > t_end {
+            break;
+        }
+        s.t = t.max(s.t);
+        for (ta, b) in s.link.pop_due(t) {
+            s.ctl.receive(ta, b);
+        }
+        s.ctl.advance(t);
+        s.collect();
+    }
+    s.run_until(t_end);
+}
+
+#[test]
+fn after_a_pierce_the_cut_waits_for_its_rest_point_though_the_dwell_held_the_link() {
+    // A jump to X10, a pierce there, then a cut of two rest-to-rest moves of
+    // blocks shorter than three lines take on the link. While the controller
+    // dwells, the `G4` and `M4` lines hold its receive buffer, so only the
+    // first few blocks of the cut are in when the dwell ends, and the link has
+    // been quiet for longer than `LINK_SILENCE_START`: not because the stream
+    // ended, but because the buffer was full.
+    let mut lines = vec!["G93 M4 S0".to_string()];
+    lines.extend(smooth_move(0.0, 10.0, 0.2, 20));
+    lines.extend(["G1M3S1000F60", "G4P0.2", "M4 S1000"].map(String::from));
+    lines.extend(smooth_move(10.0, 13.0, 0.0965, 15));
+    lines.extend(smooth_move(13.0, 16.0, 0.0965, 15));
+    lines.push("M5".to_string());
+    let mut s = Sim::new(flatbed());
+    stream_counting(&mut s, &lines, 128, 5.0);
+    assert!(s.responses().iter().all(|r| r.1 == Response::Ok) && s.responses().len() == lines.len(), "{:?}", s.texts());
+    assert_eq!(s.ctl.position(), vec![16.0]);
+
+    // The cut ran only once its rest point was queued: it never stops inside
+    // a move, so the machine stays within every limit.
+    let dwell_end = s.knots.iter().find(|k| k.line == 23).expect("the dwell ends with a knot of its line").t;
+    let cut: Vec<&Knot> = s.knots.iter().filter(|k| k.t > dwell_end + 1e-9).collect();
+    let stops: Vec<f64> = cut.windows(2).filter(|w| w[0].pos == w[1].pos && w[1].t > w[0].t).map(|w| w[0].pos[0]).collect();
+    assert!(stops.iter().all(|x| [10.0, 13.0].iter().any(|r| (x - r).abs() < 1e-6)), "stopped inside a move at X {stops:?}");
+    let mut checker = laserd_sim::limits::LimitChecker::new(&flatbed().axes);
+    s.knots.iter().for_each(|k| checker.push(k));
+    let report = checker.finish();
+    assert_eq!(report.violations, 0, "{report:?}");
+    assert!(report.peak_jerk_use[0] > 0.5, "the cut does use the axis: {report:?}");
+}

@@ -11,9 +11,9 @@
 //! content still fits the usable field, else opens the next one. The order,
 //! and so the precedence, stays the search's.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use super::ecp::{checker, construct, ils, solve, topology};
+use super::ecp::{checker, ils, solve, topology};
 use super::{check_reach, PathGroup, PlanContext, PlannedPath, Planner, Sequence};
 use crate::config::CuttingConfig;
 use crate::error::{Error, Result};
@@ -28,8 +28,7 @@ pub struct CuttingPlan {
     pub sequence: Sequence,
     /// Rules the route breaks, by the independent checker (0 unless the search is wrong).
     pub precedence_violations: usize,
-    /// Air length and pierces of the construction alone (IB + dir-opt) and of the search.
-    pub construction_air_mm: f64,
+    /// Air length (depot legs included) and pierces of the route.
     pub air_mm: f64,
     pub pierces: usize,
     pub elements: usize,
@@ -56,13 +55,15 @@ pub fn cutting_model(job: &Job, start: Point, settings: &CuttingConfig) -> Resul
 }
 
 pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
+    let started = Instant::now();
     check_reach(job, ctx.machine, ctx.mode)?;
     let settings = &ctx.machine.cutting;
     let model = cutting_model(job, ctx.start, settings)?;
     let inst = &model.instance;
-    let time_limit = Duration::from_secs_f64(settings.time_limit);
-    let construction = construct::insertion(inst);
-    let construction_air_mm = inst.air_length(&construction);
+    // The time limit is for the whole planning step, topology included, with
+    // a little kept back for turning the route into paths.
+    let keep_back = Duration::from_millis(50) + Duration::from_secs_f64(settings.time_limit / 200.0);
+    let time_limit = Duration::from_secs_f64(settings.time_limit).saturating_sub(started.elapsed() + keep_back).max(Duration::from_millis(10));
     let (route, iterations) = if inst.elements.is_empty() {
         (Vec::new(), 0)
     } else {
@@ -92,7 +93,6 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     Ok(CuttingPlan {
         sequence: Sequence { groups },
         precedence_violations,
-        construction_air_mm,
         air_mm: inst.air_length(&route),
         pierces,
         elements: inst.elements.len(),
@@ -154,4 +154,67 @@ pub fn sequence_precedence_violations(model: &topology::CuttingModel, sequence: 
         }
     }
     model.instance.inner_outer.iter().filter(|&&(inner, outer)| closes[inner] >= closes[outer]).count()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::job::{Geometry, Process};
+
+    fn job_of(n: usize) -> Job {
+        let g = |i: usize| Geometry { points: vec![Point::new(0.0, 0.0), Point::new(1.0, 0.0)], closed: false, process: 0, source: format!("g{i}") };
+        Job { source: "t".into(), geometries: (0..n).map(g).collect(), processes: vec![Process { layer: "cut".into(), speed: 10.0, power: 1.0, passes: 1 }] }
+    }
+
+    fn path(geometry: usize, from: (f64, f64), to: (f64, f64)) -> PlannedPath {
+        PlannedPath { geometry, points: vec![Point::new(from.0, from.1), Point::new(to.0, to.1)], process: 0 }
+    }
+
+    #[test]
+    fn fields_follow_the_route_and_keep_its_order() {
+        let job = job_of(4);
+        let paths = vec![path(0, (10.0, 10.0), (20.0, 10.0)), path(1, (100.0, 100.0), (110.0, 100.0)), path(2, (25.0, 15.0), (30.0, 20.0)), path(3, (105.0, 95.0), (100.0, 90.0))];
+        let groups = fields_along(&job, paths, 16.0, (300.0, 300.0)).unwrap();
+        // Paths 0 and 2 would fit one field, but 1 comes between them: the
+        // route's order (and so its precedence) is kept, fields are not merged.
+        let order: Vec<Vec<usize>> = groups.iter().map(|g| g.paths.iter().map(|p| p.geometry).collect()).collect();
+        assert_eq!(order, vec![vec![0], vec![1], vec![2], vec![3]]);
+        for g in &groups {
+            let c = g.field_center.unwrap();
+            for p in &g.paths {
+                assert!(p.points.iter().all(|q| (q.x - c.x).abs() <= 16.0 + 1e-9 && (q.y - c.y).abs() <= 16.0 + 1e-9));
+            }
+        }
+        let together = fields_along(&job, vec![path(0, (10.0, 10.0), (20.0, 10.0)), path(2, (25.0, 15.0), (30.0, 20.0))], 16.0, (300.0, 300.0)).unwrap();
+        assert_eq!(together.len(), 1);
+        let err = fields_along(&job, vec![path(3, (0.0, 0.0), (40.0, 0.0))], 16.0, (300.0, 300.0)).unwrap_err().to_string();
+        assert!(err.contains("g3") && err.contains("stage-only"), "{err}");
+    }
+
+    #[test]
+    fn whole_geometry_orders_are_judged_by_their_closing_paths() {
+        use crate::plan::ecp::{Element, Instance, Metric};
+        let model = topology::CuttingModel {
+            instance: Instance {
+                elements: vec![Element { a: Point::origin(), b: Point::origin() }; 3],
+                contours: vec![vec![0], vec![1], vec![2]],
+                // 1 inside 0, 2 inside 1.
+                inner_outer: vec![(1, 0), (2, 1)],
+                depot: Point::origin(),
+                metric: Metric::Euclidean,
+                pierce_cost: 0.0,
+            },
+            pieces: Vec::new(),
+            outer: vec![None, Some(0), Some(1)],
+            levels: vec![0, 1, 2],
+            ranks: vec![0; 3],
+            groups: vec![0; 3],
+        };
+        let seq = |order: &[usize]| Sequence { groups: vec![PathGroup { field_center: None, paths: order.iter().map(|&g| path(g, (0.0, 0.0), (1.0, 0.0))).collect() }] };
+        assert_eq!(sequence_precedence_violations(&model, &seq(&[2, 1, 0])), 0);
+        assert_eq!(sequence_precedence_violations(&model, &seq(&[0, 1, 2])), 2);
+        // A second pass of the outer after its inner: closed last, fine.
+        assert_eq!(sequence_precedence_violations(&model, &seq(&[0, 2, 1, 0])), 0);
+        assert_eq!(sequence_precedence_violations(&model, &seq(&[2, 0, 1])), 1);
+    }
 }

@@ -49,8 +49,8 @@ impl RuleBook {
         let mut rules: Vec<Rule> = inst.inner_outer.iter().map(|&(inner, outer)| Rule::Nest { inner, outer }).collect();
         rules.extend(inst.common_cuts().iter().map(|c| Rule::Common { element: c.element, a: c.contours.0, b: c.contours.1 }));
         let mut of_contour = vec![Vec::new(); inst.contours.len()];
-        for r in 0..rules.len() {
-            let (a, b) = contours_of_rule(&rules[r]);
+        for (r, rule) in rules.iter().enumerate() {
+            let (a, b) = contours_of_rule(rule);
             of_contour[a].push(r);
             of_contour[b].push(r);
         }

@@ -162,22 +162,42 @@ pub(super) struct Neighbours {
 }
 
 impl Neighbours {
+    /// From an R-tree of end points: an element's k nearest by gap are among
+    /// the k nearest elements of either of its end points (an element nearer
+    /// to that end point is nearer by gap too), so two walks of the tree
+    /// find them, in O(n log n) for the whole instance.
     pub fn new(inst: &Instance, k: usize) -> Neighbours {
+        use rstar::primitives::GeomWithData;
+        use rstar::RTree;
         let n = inst.elements.len();
+        let ends: Vec<GeomWithData<[f64; 2], usize>> =
+            inst.elements.iter().enumerate().flat_map(|(e, el)| [GeomWithData::new([el.a.x, el.a.y], e), GeomWithData::new([el.b.x, el.b.y], e)]).collect();
+        let tree = RTree::bulk_load(ends);
         let gap = |x: usize, y: usize| {
             let (p, q) = (&inst.elements[x], &inst.elements[y]);
             [(p.a, q.a), (p.a, q.b), (p.b, q.a), (p.b, q.b)].iter().map(|(u, v)| (v - u).norm()).fold(f64::INFINITY, f64::min)
         };
+        let k = k.min(n.saturating_sub(1));
         let lists = (0..n)
             .map(|x| {
-                let mut others: Vec<(usize, f64)> = (0..n).filter(|&y| y != x).map(|y| (y, gap(x, y))).collect();
-                let k = k.min(others.len());
-                if k > 0 && k < others.len() {
-                    others.select_nth_unstable_by(k - 1, |a, b| a.1.total_cmp(&b.1));
+                let el = &inst.elements[x];
+                let mut found: Vec<usize> = Vec::with_capacity(2 * k);
+                for end in [el.a, el.b] {
+                    let mut distinct = 0;
+                    for hit in tree.nearest_neighbor_iter([end.x, end.y]) {
+                        if distinct == k {
+                            break;
+                        }
+                        if hit.data != x && !found.contains(&hit.data) {
+                            found.push(hit.data);
+                            distinct += 1;
+                        }
+                    }
                 }
-                others.truncate(k);
-                others.sort_by(|a, b| a.1.total_cmp(&b.1));
-                others
+                let mut near: Vec<(usize, f64)> = found.into_iter().map(|y| (y, gap(x, y))).collect();
+                near.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+                near.truncate(k);
+                near
             })
             .collect();
         Neighbours { lists }
@@ -191,6 +211,22 @@ mod tests {
 
     fn random_instance(n: usize, seed: u64) -> Instance {
         crate::plan::ecp::random_instance(n, seed, 2..=4, 3.0)
+    }
+
+    #[test]
+    fn neighbour_lists_are_the_nearest_by_gap() {
+        let inst = crate::plan::ecp::random_instance(60, 4, 2..=4, 0.0);
+        let near = Neighbours::new(&inst, 8);
+        let gap = |x: usize, y: usize| {
+            let (p, q) = (&inst.elements[x], &inst.elements[y]);
+            [(p.a, q.a), (p.a, q.b), (p.b, q.a), (p.b, q.b)].iter().map(|(u, v)| (v - u).norm()).fold(f64::INFINITY, f64::min)
+        };
+        for x in 0..60 {
+            let mut all: Vec<f64> = (0..60).filter(|&y| y != x).map(|y| gap(x, y)).collect();
+            all.sort_by(f64::total_cmp);
+            let got: Vec<f64> = near.lists[x].iter().map(|&(_, g)| g).collect();
+            assert_eq!(got, all[..8].to_vec(), "element {x}");
+        }
     }
 
     #[test]
