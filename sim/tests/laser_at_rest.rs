@@ -194,9 +194,12 @@ fn stream_counting(s: &mut Sim, lines: &[String], rx: usize, t_end: f64) {
             in_rx.pop_front();
             answered += 1;
         }
-        while next < lines.len() && in_rx.iter().sum::<usize>() + lines[next].len() + 1 <= rx {
-            s.send(&format!("{}\n", lines[next]));
-            in_rx.push_back(lines[next].len() + 1);
+        while let Some(line) = lines.get(next).map(|l| format!("{l}\n")) {
+            if in_rx.iter().sum::<usize>() + line.len() > rx {
+                break;
+            }
+            s.send(&line);
+            in_rx.push_back(line.len());
             next += 1;
         }
         let t = [s.link.next_arrival(), s.ctl.next_event()].into_iter().flatten().fold(f64::INFINITY, f64::min);
