@@ -270,16 +270,7 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
         })
     };
     let contour_order = constructed(construct::contour_order_construction)?;
-    let construction = timed(&mut || {
-        let model = cutting_model(&job, ctx.start, &machine.cutting)?;
-        let route = construct::insertion(&model.instance);
-        let paths = model
-            .polylines(&route)
-            .into_iter()
-            .map(|(geometry, points)| PlannedPath { geometry, points, process: job.geometries[geometry].process })
-            .collect();
-        Ok((Sequence { groups: vec![PathGroup { field_center: None, paths }] }, checker::check(&model.instance, &route).len()))
-    })?;
+    let construction = constructed(construct::insertion)?;
     let ecp = timed(&mut || {
         let plan = plan_cutting(&job, &ctx)?;
         Ok((plan.sequence, plan.precedence_violations))

@@ -202,16 +202,9 @@ fn stream_counting(s: &mut Sim, lines: &[String], rx: usize, t_end: f64) {
             in_rx.push_back(line.len());
             next += 1;
         }
-        let t = [s.link.next_arrival(), s.ctl.next_event()].into_iter().flatten().fold(f64::INFINITY, f64::min);
-        if t > t_end {
+        if !s.step(t_end) {
             break;
         }
-        s.t = t.max(s.t);
-        for (ta, b) in s.link.pop_due(t) {
-            s.ctl.receive(ta, b);
-        }
-        s.ctl.advance(t);
-        s.collect();
     }
     s.run_until(t_end);
 }

@@ -42,19 +42,28 @@ impl Sim {
         self.knots.extend(self.ctl.take_knots());
     }
 
+    /// Runs the next event (a byte arrival or a controller event) if it comes
+    /// by `t_end`; false when none does.
+    pub fn step(&mut self, t_end: f64) -> bool {
+        let next = [self.link.next_arrival(), self.ctl.next_event()].into_iter().flatten().fold(f64::INFINITY, f64::min);
+        if next > t_end {
+            return false;
+        }
+        self.t = next.max(self.t);
+        for (ta, b) in self.link.pop_due(next) {
+            self.ctl.receive(ta, b);
+        }
+        self.ctl.advance(next);
+        self.collect();
+        true
+    }
+
     /// Runs events (byte arrivals, controller events) up to `t_end`.
     pub fn run_until(&mut self, t_end: f64) {
         for _ in 0..10_000_000 {
-            let next = [self.link.next_arrival(), self.ctl.next_event()].into_iter().flatten().fold(f64::INFINITY, f64::min);
-            if next > t_end {
+            if !self.step(t_end) {
                 break;
             }
-            self.t = next.max(self.t);
-            for (ta, b) in self.link.pop_due(next) {
-                self.ctl.receive(ta, b);
-            }
-            self.ctl.advance(next);
-            self.collect();
         }
         self.ctl.advance(t_end);
         self.t = t_end;

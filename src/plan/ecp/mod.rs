@@ -244,6 +244,30 @@ pub(crate) fn random_instance(n: usize, seed: u64, sizes: std::ops::RangeInclusi
     Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost }
 }
 
+/// Random instances of 12 elements (contours of 2 to 4, pierce cost 3) that
+/// have a feasible route, with their exact optimum: what the searches' tests
+/// must reach.
+#[cfg(test)]
+pub(crate) fn small_instances_with_optimum() -> Vec<(u64, Instance, f64)> {
+    let found: Vec<_> = (0..30u64)
+        .filter_map(|k| {
+            let inst = random_instance(12, 100 + k, 2..=4, 3.0);
+            exact::solve(&inst).map(|(optimum, _)| (100 + k, inst, optimum))
+        })
+        .collect();
+    assert!(found.len() >= 20, "only {} feasible instances", found.len());
+    found
+}
+
+/// a280 made precedence-constrained with `seed`, for the searches' tests.
+#[cfg(test)]
+pub(crate) fn a280(seed: u64) -> tsplib::BenchInstance {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/tsplib");
+    let tsp = tsplib::read_tsp(&dir.join("a280.tsp")).unwrap();
+    let tour = tsplib::read_tour(&dir.join("a280.opt.tour"), 280).unwrap();
+    tsplib::bench_instance(&tsp, &tour, seed)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

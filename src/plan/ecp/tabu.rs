@@ -277,34 +277,22 @@ pub fn parallel_tabu_search(inst: &Instance, start: &[Cut], options: &TabuOption
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plan::ecp::{checker::check, construct::construct, exact, tsplib};
-
-    fn random_instance(n: usize, seed: u64) -> Instance {
-        crate::plan::ecp::random_instance(n, seed, 2..=4, 3.0)
-    }
+    use crate::plan::ecp::{checker::check, construct::construct};
 
     #[test]
     fn tabu_search_reaches_the_optimum_of_small_instances() {
-        let mut solved = 0;
-        for seed in 0..30 {
-            let inst = random_instance(12, 100 + seed);
-            let Some((optimum, _)) = exact::solve(&inst) else { continue };
+        for (seed, inst, optimum) in crate::plan::ecp::small_instances_with_optimum() {
             let start = construct(&inst);
             let options = TabuOptions { max_stall: 3000, ..TabuOptions::new(&inst, Duration::from_secs(5)) };
             let found = tabu_search(&inst, start, &options);
             assert!(check(&inst, &found.route).is_empty(), "seed {seed}");
             assert!((found.cost - optimum).abs() < 1e-6, "seed {seed}: tabu {} vs optimum {optimum}", found.cost);
-            solved += 1;
         }
-        assert!(solved >= 20, "only {solved} feasible instances");
     }
 
     #[test]
     fn a280_improves_on_the_construction_and_stays_feasible() {
-        let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/tsplib");
-        let tsp = tsplib::read_tsp(&dir.join("a280.tsp")).unwrap();
-        let tour = tsplib::read_tour(&dir.join("a280.opt.tour"), 280).unwrap();
-        let b = tsplib::bench_instance(&tsp, &tour, 1);
+        let b = crate::plan::ecp::a280(1);
         let start = construct(&b.instance);
         assert!(check(&b.instance, &start).is_empty());
         let found = tabu_search(&b.instance, start.clone(), &TabuOptions::new(&b.instance, Duration::from_millis(500)));
