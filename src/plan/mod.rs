@@ -5,6 +5,7 @@
 pub mod cutting;
 pub mod ecp;
 pub mod fields;
+pub mod galvo;
 pub mod nearest;
 
 use std::str::FromStr;
@@ -96,6 +97,8 @@ pub enum PlannerKind {
     Nearest,
     /// The cutting planner: End-point Cutting Problem with precedence.
     Ecp,
+    /// The galvo planner of seed 003, hierarchical.
+    Hha,
 }
 
 impl FromStr for PlannerKind {
@@ -105,8 +108,9 @@ impl FromStr for PlannerKind {
             "auto" => Ok(PlannerKind::Auto),
             "nearest" => Ok(PlannerKind::Nearest),
             "ecp" => Ok(PlannerKind::Ecp),
-            "hha" | "hga" => Err(format!("planner '{s}' is not available in this version (available: auto, nearest, ecp)")),
-            _ => Err(format!("unknown planner '{s}' (available: auto, nearest, ecp)")),
+            "hha" => Ok(PlannerKind::Hha),
+            "hga" => Err(format!("planner '{s}' is not available in this version (available: auto, nearest, ecp, hha)")),
+            _ => Err(format!("unknown planner '{s}' (available: auto, nearest, ecp, hha)")),
         }
     }
 }
@@ -117,6 +121,7 @@ pub fn planner(kind: PlannerKind) -> Box<dyn Planner> {
     match kind {
         PlannerKind::Auto | PlannerKind::Nearest => Box::new(nearest::NearestNeighbour),
         PlannerKind::Ecp => Box::new(cutting::Ecp),
+        PlannerKind::Hha => Box::new(galvo::Hha),
     }
 }
 
