@@ -3,7 +3,9 @@
 //! field centres, the geometries of each field in order from where the
 //! previous field ended towards the next field, then the entry vertex of every
 //! closed geometry and the direction of every open one (seed 003's vertex
-//! selection, on the true jump lengths). Fields are processed contiguously.
+//! selection, on the true jump lengths), then each field ordered again on
+//! the chosen entries and the entries chosen again, a few rounds. Fields are
+//! processed contiguously.
 //!
 //! Orders are open paths improved by 2-opt and Or-opt (runs of 1 to 3 moved,
 //! kept or reversed) until no move shortens them, from a nearest-neighbour
@@ -18,6 +20,9 @@ use crate::job::{Geometry, Job, Point};
 use crate::motion::Mode;
 
 pub struct Hha;
+
+/// Rounds of ordering on the chosen entries and choosing entries again.
+const REFINE_ROUNDS: usize = 3;
 
 impl Planner for Hha {
     fn name(&self) -> &'static str {
@@ -53,7 +58,39 @@ impl Planner for Hha {
                 here = centroid[members[last]];
             }
         }
-        let entries = select_entries(job, &sequence.iter().map(|&(_, g)| g).collect::<Vec<_>>());
+        let mut entries = select_entries(job, &sequence.iter().map(|&(_, g)| g).collect::<Vec<_>>());
+        // The orders were made on centroids; the jumps run between the chosen
+        // entries. Each field's order again on those points (a closed shape
+        // starts and ends at its entry), then the entries again.
+        for _ in 0..REFINE_ROUNDS {
+            let point_of = |i: usize, entries: &[(usize, bool)]| {
+                let g = &job.geometries[sequence[i].1];
+                if g.closed {
+                    g.points[entries[i].0]
+                } else {
+                    centroid[sequence[i].1]
+                }
+            };
+            let mut start = 0;
+            let mut refined: Vec<(usize, usize)> = Vec::with_capacity(sequence.len());
+            let mut refined_entries = Vec::with_capacity(sequence.len());
+            while start < sequence.len() {
+                let field = sequence[start].0;
+                let end = start + sequence[start..].iter().take_while(|&&(k, _)| k == field).count();
+                let from = if start == 0 { ctx.start } else { point_of(start - 1, &entries) };
+                let towards = (end < sequence.len()).then(|| point_of(end, &entries));
+                let points: Vec<Point> = (start..end).map(|i| point_of(i, &entries)).collect();
+                let mut order: Vec<usize> = (0..points.len()).collect();
+                improve_open_path(&points, &mut order, from, towards);
+                for i in order {
+                    refined.push(sequence[start + i]);
+                    refined_entries.push(entries[start + i]);
+                }
+                start = end;
+            }
+            sequence = refined;
+            entries = select_entries_from(job, &sequence.iter().map(|&(_, g)| g).collect::<Vec<_>>(), refined_entries);
+        }
         let mut groups: Vec<PathGroup> = fields.iter().map(|(c, _)| PathGroup { field_center: *c, paths: Vec::new() }).collect();
         for (&(k, g), &(entry, reversed)) in sequence.iter().zip(&entries) {
             let geometry = &job.geometries[g];
@@ -172,6 +209,11 @@ fn improve_open_path(points: &[Point], order: &mut Vec<usize>, from: Point, towa
 /// direction that makes them shorter, sweep after sweep until none changes.
 /// Returns (entry vertex, reversed) per geometry of `sequence`.
 pub fn select_entries(job: &Job, sequence: &[usize]) -> Vec<(usize, bool)> {
+    select_entries_from(job, sequence, vec![(0, false); sequence.len()])
+}
+
+/// [`select_entries`] from given choices.
+fn select_entries_from(job: &Job, sequence: &[usize], mut choice: Vec<(usize, bool)>) -> Vec<(usize, bool)> {
     let geometry = |k: usize| &job.geometries[sequence[k]];
     let ends = |k: usize, choice: (usize, bool)| -> (Point, Point) {
         let g = geometry(k);
@@ -183,7 +225,6 @@ pub fn select_entries(job: &Job, sequence: &[usize]) -> Vec<(usize, bool)> {
             (g.points[0], g.points[g.points.len() - 1])
         }
     };
-    let mut choice: Vec<(usize, bool)> = vec![(0, false); sequence.len()];
     for _ in 0..50 {
         let mut changed = false;
         for k in 0..sequence.len() {
