@@ -14,6 +14,7 @@
 use std::time::{Duration, Instant};
 
 use super::ecp::{checker, ils, solve, topology};
+use super::fields::centre_within_travel;
 use super::{check_reach, PathGroup, PlanContext, PlannedPath, Planner, Sequence};
 use crate::config::CuttingConfig;
 use crate::error::{Error, Result};
@@ -28,12 +29,6 @@ pub struct CuttingPlan {
     pub sequence: Sequence,
     /// Rules the route breaks, by the independent checker (0 unless the search is wrong).
     pub precedence_violations: usize,
-    /// Air length (depot legs included) and pierces of the route.
-    pub air_mm: f64,
-    pub pierces: usize,
-    pub elements: usize,
-    pub contours: usize,
-    pub iterations: u64,
 }
 
 impl Planner for Ecp {
@@ -64,16 +59,15 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     // a little kept back for turning the route into paths.
     let keep_back = Duration::from_millis(50) + Duration::from_secs_f64(settings.time_limit / 200.0);
     let time_limit = Duration::from_secs_f64(settings.time_limit).saturating_sub(started.elapsed() + keep_back).max(Duration::from_millis(10));
-    let (route, iterations) = if inst.elements.is_empty() {
-        (Vec::new(), 0)
+    let route = if inst.elements.is_empty() {
+        Vec::new()
     } else {
         let options = ils::SearchOptions {
             // Small jobs stop early once the search has long found nothing better.
             max_stall: 20_000 + 100 * inst.elements.len() as u64,
             ..ils::SearchOptions::new(time_limit)
         };
-        let found = solve(inst, settings.search, &options);
-        (found.route, found.iterations)
+        solve(inst, settings.search, &options).route
     };
     let precedence_violations = checker::check(inst, &route).len();
     let polylines = model.polylines(&route);
@@ -84,7 +78,6 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
             paths.push(PlannedPath { geometry, points: points.clone(), process });
         }
     }
-    let pierces = paths.len();
     let scanner = ctx.machine.scanner.as_ref().filter(|_| ctx.mode != Mode::StageOnly);
     let groups = match scanner {
         None => vec![PathGroup { field_center: None, paths }],
@@ -93,11 +86,6 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     Ok(CuttingPlan {
         sequence: Sequence { groups },
         precedence_violations,
-        air_mm: inst.air_length(&route),
-        pierces,
-        elements: inst.elements.len(),
-        contours: inst.contours.len(),
-        iterations,
     })
 }
 
@@ -131,14 +119,9 @@ fn fields_along(job: &Job, paths: Vec<PlannedPath>, usable_half: f64, travel: (f
     groups
         .into_iter()
         .map(|(lo, hi, paths)| {
-            // Centred on the content, the stage kept inside its travel.
-            let mut c = Point::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0);
-            c.x = c.x.clamp((hi.x - usable_half).max(0.0), (lo.x + usable_half).min(travel.0));
-            c.y = c.y.clamp((hi.y - usable_half).max(0.0), (lo.y + usable_half).min(travel.1));
-            if c.x < 0.0 || c.y < 0.0 || c.x > travel.0 || c.y > travel.1 {
-                return Err(Error::Plan(format!("{}: cannot be reached with the stage inside its travel", job.geometries[paths[0].geometry].source)));
-            }
-            Ok(PathGroup { field_center: Some(c), paths })
+            let center = centre_within_travel(lo, hi, usable_half, travel)
+                .ok_or_else(|| Error::Plan(format!("{}: cannot be reached with the stage inside its travel", job.geometries[paths[0].geometry].source)))?;
+            Ok(PathGroup { field_center: Some(center), paths })
         })
         .collect()
 }

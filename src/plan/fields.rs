@@ -42,17 +42,21 @@ pub fn cover(job: &Job, usable_half: f64, travel: (f64, f64)) -> Result<Vec<Fiel
     let mut out = Vec::with_capacity(groups.len());
     for members in groups {
         let (lo, hi) = group_bounds(&bounds, &members);
-        // Centre the field on its content, but keep the stage inside its travel;
-        // the content still fits because it is at most one field wide.
-        let mut c = Point::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0);
-        c.x = c.x.clamp((hi.x - usable_half).max(0.0), (lo.x + usable_half).min(travel.0));
-        c.y = c.y.clamp((hi.y - usable_half).max(0.0), (lo.y + usable_half).min(travel.1));
-        if c.x < 0.0 || c.y < 0.0 || c.x > travel.0 || c.y > travel.1 {
-            return Err(Error::Plan(format!("{}: cannot be reached with the stage inside its travel", job.geometries[members[0]].source)));
-        }
-        out.push(Field { center: c, members });
+        let center = centre_within_travel(lo, hi, usable_half, travel)
+            .ok_or_else(|| Error::Plan(format!("{}: cannot be reached with the stage inside its travel", job.geometries[members[0]].source)))?;
+        out.push(Field { center, members });
     }
     Ok(out)
+}
+
+/// The stage position of a field whose content spans `lo`..`hi`: centred on
+/// the content, but kept inside the travel (the content still fits, being at
+/// most one field wide); `None` when no position in the travel reaches it.
+pub fn centre_within_travel(lo: Point, hi: Point, usable_half: f64, travel: (f64, f64)) -> Option<Point> {
+    let mut c = Point::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0);
+    c.x = c.x.clamp((hi.x - usable_half).max(0.0), (lo.x + usable_half).min(travel.0));
+    c.y = c.y.clamp((hi.y - usable_half).max(0.0), (lo.y + usable_half).min(travel.1));
+    (c.x >= 0.0 && c.y >= 0.0 && c.x <= travel.0 && c.y <= travel.1).then_some(c)
 }
 
 fn group_bounds(bounds: &[(Point, Point)], members: &[usize]) -> (Point, Point) {

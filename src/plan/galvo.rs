@@ -130,7 +130,7 @@ pub fn open_path(points: &[Point], from: Point, towards: Option<Point>) -> Vec<u
 
 /// 2-opt and Or-opt on an open path with a fixed start point and an optional
 /// end point.
-fn improve_open_path(points: &[Point], order: &mut Vec<usize>, from: Point, towards: Option<Point>) {
+fn improve_open_path(points: &[Point], order: &mut [usize], from: Point, towards: Option<Point>) {
     let n = order.len();
     if n < 2 {
         return;
@@ -171,14 +171,11 @@ fn improve_open_path(points: &[Point], order: &mut Vec<usize>, from: Point, towa
             while s + len <= n {
                 let (before, first, last, after) = (at(order, s as isize - 1), at(order, s as isize), at(order, (s + len) as isize - 1), at(order, (s + len) as isize));
                 let gain = d(before, first) + d(last, after) - d(before, after);
+                // Targets: between positions t - 1 and t of the path as it is,
+                // outside the run (no copy of the path per run).
                 let mut best: Option<(f64, usize, bool)> = None;
-                let rest: Vec<usize> = order[..s].iter().chain(&order[s + len..]).copied().collect();
-                for t in 0..=rest.len() {
-                    if t == s {
-                        continue;
-                    }
-                    let p = if t == 0 { Some(from) } else { Some(points[rest[t - 1]]) };
-                    let q = if t == rest.len() { towards } else { Some(points[rest[t]]) };
+                for t in (0..s).chain(s + len + 1..=n) {
+                    let (p, q) = (at(order, t as isize - 1), at(order, t as isize));
                     for reverse in [false, true] {
                         let (h, e) = if reverse { (last, first) } else { (first, last) };
                         let cost = d(p, h) + d(e, q) - d(p, q);
@@ -188,13 +185,16 @@ fn improve_open_path(points: &[Point], order: &mut Vec<usize>, from: Point, towa
                     }
                 }
                 if let Some((_, t, reverse)) = best {
-                    let mut run: Vec<usize> = order[s..s + len].to_vec();
+                    let start = if t < s {
+                        order[t..s + len].rotate_right(len);
+                        t
+                    } else {
+                        order[s..t].rotate_left(len);
+                        t - len
+                    };
                     if reverse {
-                        run.reverse();
+                        order[start..start + len].reverse();
                     }
-                    let mut next = rest;
-                    next.splice(t..t, run);
-                    *order = next;
                     improved = true;
                 }
                 s += 1;
