@@ -35,6 +35,8 @@ pub struct MachineConfig {
     pub simulator: SimulatorConfig,
     #[serde(default)]
     pub cutting: CuttingConfig,
+    #[serde(default)]
+    pub galvo: GalvoConfig,
     pub default_layer: String,
     #[serde(rename = "layer")]
     pub layers: Vec<LayerConfig>,
@@ -57,10 +59,18 @@ pub struct ScannerConfig {
     pub field_x: f64,
     pub field_y: f64,
     pub usable_half_field: f64,
+    /// A geometry larger than the usable field is split at field borders into
+    /// pieces marked one after another (true), or fails the job (false).
+    #[serde(default = "default_split_oversize")]
+    pub split_oversize: bool,
     pub mark_speed: f64,
     pub jump_speed: f64,
     pub max_acceleration: f64,
     pub max_jerk: f64,
+}
+
+fn default_split_oversize() -> bool {
+    true
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -132,6 +142,48 @@ pub struct CuttingConfig {
     #[serde(default, with = "search_kind")]
     #[schemars(with = "String")]
     pub search: crate::plan::ecp::SearchKind,
+}
+
+/// The galvo planners (`--planner hha`, `--planner hga`).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GalvoConfig {
+    /// Weight of seed 003's directionality penalty (Eq. 7) with several fields.
+    #[serde(default = "default_direction_weight")]
+    pub direction_weight: f64,
+    /// The same when the job fits one field.
+    #[serde(default = "default_direction_weight_single_field")]
+    pub direction_weight_single_field: f64,
+    /// How long the HGA may run (s); `--time-limit` overrides it.
+    #[serde(default = "default_galvo_time_limit")]
+    pub time_limit: f64,
+    /// Seed of the planners' random choices; `--seed` overrides it.
+    #[serde(default = "default_galvo_seed")]
+    pub seed: u64,
+}
+
+fn default_direction_weight() -> f64 {
+    0.5
+}
+fn default_direction_weight_single_field() -> f64 {
+    0.1
+}
+fn default_galvo_time_limit() -> f64 {
+    30.0
+}
+fn default_galvo_seed() -> u64 {
+    1
+}
+
+impl Default for GalvoConfig {
+    fn default() -> Self {
+        GalvoConfig {
+            direction_weight: default_direction_weight(),
+            direction_weight_single_field: default_direction_weight_single_field(),
+            time_limit: default_galvo_time_limit(),
+            seed: default_galvo_seed(),
+        }
+    }
 }
 
 fn default_pierce_cost() -> f64 {
@@ -383,6 +435,13 @@ impl MachineConfig {
             return Err(format!("cutting.corner_angle: must be in (0, 180] degrees, got {}", c.corner_angle));
         }
         positive("cutting.time_limit", c.time_limit)?;
+        let g = &self.galvo;
+        for (name, w) in [("galvo.direction_weight", g.direction_weight), ("galvo.direction_weight_single_field", g.direction_weight_single_field)] {
+            if !(w.is_finite() && w >= 0.0) {
+                return Err(format!("{name}: must be 0 or a positive number, got {w}"));
+            }
+        }
+        positive("galvo.time_limit", g.time_limit)?;
         if self.simulator.planner_blocks == 0 {
             return Err("simulator.planner_blocks: must be at least 1".into());
         }
@@ -487,6 +546,17 @@ mod tests {
         assert_eq!(c.axis_letters(), vec!['X', 'Y', 'U', 'V']);
         assert_eq!(c.stage.travel_x, 300.0);
         assert_eq!(c.scanner.as_ref().unwrap().usable_half_field, 32.0);
+        assert!(c.scanner.as_ref().unwrap().split_oversize);
+    }
+
+    #[test]
+    fn split_oversize_defaults_to_true_and_can_be_turned_off() {
+        let text = default_text();
+        assert!(text.contains("split_oversize = true\n"));
+        let absent = MachineConfig::parse(&text.replace("split_oversize = true\n", ""), "t.toml").unwrap();
+        assert!(absent.scanner.unwrap().split_oversize);
+        let off = MachineConfig::parse(&text.replace("split_oversize = true", "split_oversize = false"), "t.toml").unwrap();
+        assert!(!off.scanner.unwrap().split_oversize);
     }
 
     #[test]

@@ -39,10 +39,14 @@ struct JobArgs {
     /// on-the-fly, step-and-scan or stage-only (default: step-and-scan with a scanner, else stage-only).
     #[arg(long)]
     mode: Option<Mode>,
-    /// Planning time limit in seconds for the search planners (default: the
-    /// config's [cutting] time_limit; nearest ignores it).
+    /// Planning time limit in seconds for the search planners ecp and hga
+    /// (default: the config's [cutting] or [galvo] time_limit; nearest and
+    /// hha ignore it).
     #[arg(long)]
     time_limit: Option<f64>,
+    /// Seed of the galvo planners' random choices (default: the config's [galvo] seed).
+    #[arg(long)]
+    seed: Option<u64>,
 }
 
 impl JobArgs {
@@ -53,6 +57,10 @@ impl JobArgs {
                 return Err(Error::Config(format!("--time-limit: must be a positive number of seconds, got {t}")));
             }
             machine.cutting.time_limit = t;
+            machine.galvo.time_limit = t;
+        }
+        if let Some(seed) = self.seed {
+            machine.galvo.seed = seed;
         }
         let planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
         Ok((machine, planned))
@@ -140,6 +148,11 @@ enum Command {
         #[command(subcommand)]
         which: BenchCommand,
     },
+    /// Generate benchmark instances.
+    Gen {
+        #[command(subcommand)]
+        which: GenCommand,
+    },
     /// Re-derive a recording's figures from the file alone.
     Replay {
         recording: PathBuf,
@@ -211,6 +224,27 @@ enum BenchCommand {
         motion: Option<MotionModel>,
         #[arg(long)]
         json: bool,
+    },
+}
+
+#[derive(Subcommand)]
+enum GenCommand {
+    /// A galvo planning job of one of seed 003's pattern families, as SVG
+    /// (300 x 300 mm base, every geometry within a 70 x 70 mm field).
+    Galvo {
+        /// rnd (scattered rectangles), o (rings of squares), isw (the
+        /// letters I, S, W of squares) or mixed (rectangles, circles,
+        /// ellipses, polylines, polygons, paths).
+        #[arg(long)]
+        family: laserd::plan::galvo::instances::Family,
+        /// Number of geometries (1 to 5000).
+        #[arg(long)]
+        n: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output file (default: standard output).
+        #[arg(short = 'o', long = "output")]
+        output: Option<PathBuf>,
     },
 }
 
@@ -338,6 +372,23 @@ fn run_command(command: Command) -> Result<ExitCode> {
                 show("character counting", &report.character_counting);
                 show("send-response", &report.send_response);
                 println!("  character counting is {:.2}x faster", report.speedup);
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Gen { which: GenCommand::Galvo { family, n, seed, output } } => {
+            let svg = laserd::plan::galvo::instances::generate(family, n, seed).map_err(|e| Error::Io(format!("gen galvo: {e}")))?;
+            match &output {
+                Some(out) => std::fs::write(out, &svg).map_err(|e| Error::Io(format!("{}: cannot write: {e}", out.display())))?,
+                None => {
+                    use std::io::Write;
+                    let mut stdout = std::io::stdout().lock();
+                    if let Err(e) = stdout.write_all(svg.as_bytes()).and_then(|_| stdout.flush()) {
+                        // A reader that stops early (`| head`) is not an error.
+                        if e.kind() != std::io::ErrorKind::BrokenPipe {
+                            return Err(Error::Io(format!("standard output: {e}")));
+                        }
+                    }
+                }
             }
             Ok(ExitCode::SUCCESS)
         }

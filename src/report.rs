@@ -14,6 +14,9 @@ pub struct PlanReport {
     pub geometries: usize,
     /// Scan fields visited; `null` on a stage-only plan.
     pub scan_fields: Option<usize>,
+    /// Turns of more than 90° of the stage's field-to-field path (it going
+    /// back the way it came); `null` on a stage-only plan.
+    pub stage_reversals: Option<usize>,
     pub mark_length_mm: f64,
     pub idle_stroke_mm: f64,
     pub plan_time_s: f64,
@@ -37,7 +40,11 @@ impl PlanReport {
     /// A few lines for a person at a terminal.
     pub fn summary(&self) -> String {
         let mut s = String::new();
-        let fields = self.scan_fields.map(|n| format!(", {n} scan fields")).unwrap_or_default();
+        let fields = match (self.scan_fields, self.stage_reversals) {
+            (Some(n), Some(r)) => format!(", {n} scan fields ({r} stage reversals)"),
+            (Some(n), None) => format!(", {n} scan fields"),
+            _ => String::new(),
+        };
         s.push_str(&format!(
             "{}: {} geometries{}, planner {}, mode {}\n",
             self.job, self.geometries, fields, self.planner, self.mode

@@ -15,6 +15,7 @@ use crate::figures::{sim_figures, PlannedLine, RunLog, RunSetup};
 use crate::import::import_job;
 use crate::job::{Job, Point};
 use crate::motion::{self, Mode, Trajectory};
+use crate::plan::split::{check_fits, split_at_field_borders};
 use crate::plan::{planner, PlanContext, PlannerKind, Sequence};
 use crate::program::{self, Program};
 use crate::record::{Recorder, Recording, TOPIC_JOB, TOPIC_PLAN_LINES, TOPIC_REPORT, TOPIC_SETUP};
@@ -39,6 +40,17 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let mode = mode.unwrap_or_else(|| Mode::default_for(machine));
     mode.check(machine)?;
     let job = import_job(job_path, machine)?;
+    // In step-and-scan a geometry larger than the scanner's usable field is
+    // split at field borders into pieces, which are then the job's geometries
+    // from planning to the report; with splitting off, the job fails naming it.
+    let job = match machine.scanner.as_ref().filter(|_| mode != Mode::StageOnly) {
+        Some(s) if s.split_oversize => split_at_field_borders(&job, s.usable_half_field),
+        Some(s) => {
+            check_fits(&job, s.usable_half_field)?;
+            job
+        }
+        None => job,
+    };
     let planner = planner(kind);
     let started = WallInstant::now();
     let ctx = PlanContext { machine, mode, start: job_start() };
@@ -70,6 +82,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         mode: mode.as_str().to_string(),
         geometries: job.geometries.len(),
         scan_fields: sequence.scan_fields(),
+        stage_reversals: sequence.stage_reversals(),
         mark_length_mm: job.mark_length(),
         idle_stroke_mm: sequence.idle_stroke(),
         plan_time_s,

@@ -69,50 +69,85 @@ const FIT: f64 = 1e-9;
 /// Greedy set cover: the geometries of each field, in the order taken.
 fn greedy_cover(bounds: &[(Point, Point)], size: f64) -> Vec<Vec<usize>> {
     let n = bounds.len();
-    // Geometries by left bound, to find those within a square's columns fast.
-    let mut by_x: Vec<usize> = (0..n).collect();
-    by_x.sort_by(|&a, &b| bounds[a].0.x.total_cmp(&bounds[b].0.x));
+    // Geometries by left and by right bound: a column of squares (one left
+    // edge) holds those with lo.x ≥ x and hi.x ≤ x + S, a window that slides
+    // along both lists as x grows.
+    let mut by_lo: Vec<usize> = (0..n).collect();
+    by_lo.sort_by(|&a, &b| bounds[a].0.x.total_cmp(&bounds[b].0.x));
+    let mut by_hi: Vec<usize> = (0..n).collect();
+    by_hi.sort_by(|&a, &b| bounds[a].1.x.total_cmp(&bounds[b].1.x));
     let mut covered = vec![false; n];
     let mut fields = Vec::new();
-    let (mut lows, mut highs, mut column) = (Vec::new(), Vec::new(), Vec::new());
+    // Each column's best square (count, bottom) while none of the geometries
+    // in it gets covered: a field taken only changes the columns it touches.
+    let mut column_best: Vec<Option<(usize, f64)>> = vec![None; n];
+    let mut in_window = vec![false; n];
+    // The window's bottoms and tops, sorted.
+    let (mut lows, mut highs): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
+    let remove = |v: &mut Vec<f64>, y: f64| {
+        let at = v.partition_point(|&w| w < y);
+        v.remove(at);
+    };
+    let insert = |v: &mut Vec<f64>, y: f64| {
+        let at = v.partition_point(|&w| w < y);
+        v.insert(at, y);
+    };
     loop {
-        let open: Vec<usize> = by_x.iter().copied().filter(|&i| !covered[i]).collect();
+        let open: Vec<usize> = by_lo.iter().copied().filter(|&i| !covered[i]).collect();
         if open.is_empty() {
             break;
         }
+        let open_by_hi: Vec<usize> = by_hi.iter().copied().filter(|&i| !covered[i]).collect();
+        lows.clear();
+        highs.clear();
+        in_window.iter_mut().for_each(|w| *w = false);
+        let mut entering = 0;
         // The square holding most open geometries: (count, left, bottom).
         let mut best = (0usize, 0.0f64, 0.0f64);
-        let mut end = 0;
         for (k, &i) in open.iter().enumerate() {
             let x = bounds[i].0.x;
+            if k > 0 {
+                let gone = open[k - 1];
+                if in_window[gone] {
+                    in_window[gone] = false;
+                    remove(&mut lows, bounds[gone].0.y);
+                    remove(&mut highs, bounds[gone].1.y);
+                }
+            }
+            while entering < open_by_hi.len() && bounds[open_by_hi[entering]].1.x <= x + size + FIT {
+                let j = open_by_hi[entering];
+                entering += 1;
+                if bounds[j].0.x >= x {
+                    in_window[j] = true;
+                    insert(&mut lows, bounds[j].0.y);
+                    insert(&mut highs, bounds[j].1.y);
+                }
+            }
             if k > 0 && bounds[open[k - 1]].0.x == x {
                 continue;
             }
-            while end < open.len() && bounds[open[end]].0.x <= x + size + FIT {
-                end += 1;
-            }
-            column.clear();
-            column.extend(open[k..end].iter().copied().filter(|&j| bounds[j].1.x <= x + size + FIT));
-            if column.len() <= best.0 {
-                continue;
-            }
-            // In the square at height y lie those with lo.y ≥ y and hi.y ≤ y + S;
-            // one no taller than S with lo.y < y has hi.y < y + S, so the count
-            // is #(hi.y ≤ y + S) − #(lo.y < y): two binary searches.
-            lows.clear();
-            lows.extend(column.iter().map(|&j| bounds[j].0.y));
-            highs.clear();
-            highs.extend(column.iter().map(|&j| bounds[j].1.y));
-            lows.sort_by(f64::total_cmp);
-            highs.sort_by(f64::total_cmp);
-            for (m, &y) in lows.iter().enumerate() {
-                if m > 0 && lows[m - 1] == y {
-                    continue;
+            if column_best[i].is_none() {
+                // In the square at height y lie those with lo.y ≥ y and
+                // hi.y ≤ y + S; one no taller than S with lo.y < y has
+                // hi.y < y + S, so the count is #(hi.y ≤ y + S) − #(lo.y < y).
+                let mut here = (0usize, 0.0f64);
+                let mut top = 0;
+                for (m, &y) in lows.iter().enumerate() {
+                    if m > 0 && lows[m - 1] == y {
+                        continue;
+                    }
+                    while top < highs.len() && highs[top] <= y + size + FIT {
+                        top += 1;
+                    }
+                    if top - m > here.0 {
+                        here = (top - m, y);
+                    }
                 }
-                let count = highs.partition_point(|&h| h <= y + size + FIT) - m;
-                if count > best.0 {
-                    best = (count, x, y);
-                }
+                column_best[i] = Some(here);
+            }
+            let (count, y) = column_best[i].unwrap();
+            if count > best.0 {
+                best = (count, x, y);
             }
         }
         let (_, x, y) = best;
@@ -132,6 +167,13 @@ fn greedy_cover(bounds: &[(Point, Point)], size: f64) -> Vec<Vec<usize>> {
         }
         for &g in &inside {
             covered[g] = true;
+        }
+        // Columns whose squares could hold a covered geometry count again.
+        let (from, to) = inside.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &g| (a.min(bounds[g].1.x - size - FIT), b.max(bounds[g].0.x)));
+        for &i in &open {
+            if bounds[i].0.x >= from && bounds[i].0.x <= to {
+                column_best[i] = None;
+            }
         }
         fields.push(inside);
     }

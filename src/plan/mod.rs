@@ -7,6 +7,7 @@ pub mod ecp;
 pub mod fields;
 pub mod galvo;
 pub mod nearest;
+pub mod split;
 
 use std::str::FromStr;
 
@@ -62,6 +63,18 @@ impl Sequence {
         }
     }
 
+    /// Direction reversals of the stage's path from field to field: turns of
+    /// more than 90° between consecutive field-to-field moves (the stage
+    /// travelling back the way it came). `None` on a stage-only plan.
+    pub fn stage_reversals(&self) -> Option<usize> {
+        let centres: Vec<Point> = self.groups.iter().filter_map(|g| g.field_center).collect();
+        if centres.is_empty() {
+            return None;
+        }
+        let moves: Vec<_> = centres.windows(2).map(|w| w[1] - w[0]).filter(|v| v.norm() > 1e-9).collect();
+        Some(moves.windows(2).filter(|m| m[0].dot(&m[1]) < 0.0).count())
+    }
+
     /// Laser-off travel of the TCP between consecutive paths, from the first
     /// path's start to the last path's end (the seeds' idle stroke).
     pub fn idle_stroke(&self) -> f64 {
@@ -99,6 +112,8 @@ pub enum PlannerKind {
     Ecp,
     /// The galvo planner of seed 003, hierarchical.
     Hha,
+    /// The galvo planner of seed 003, genetic (from the HHA's route).
+    Hga,
 }
 
 impl FromStr for PlannerKind {
@@ -109,8 +124,8 @@ impl FromStr for PlannerKind {
             "nearest" => Ok(PlannerKind::Nearest),
             "ecp" => Ok(PlannerKind::Ecp),
             "hha" => Ok(PlannerKind::Hha),
-            "hga" => Err(format!("planner '{s}' is not available in this version (available: auto, nearest, ecp, hha)")),
-            _ => Err(format!("unknown planner '{s}' (available: auto, nearest, ecp, hha)")),
+            "hga" => Ok(PlannerKind::Hga),
+            _ => Err(format!("unknown planner '{s}' (available: auto, nearest, ecp, hha, hga)")),
         }
     }
 }
@@ -122,6 +137,7 @@ pub fn planner(kind: PlannerKind) -> Box<dyn Planner> {
         PlannerKind::Auto | PlannerKind::Nearest => Box::new(nearest::NearestNeighbour),
         PlannerKind::Ecp => Box::new(cutting::Ecp),
         PlannerKind::Hha => Box::new(galvo::Hha),
+        PlannerKind::Hga => Box::new(galvo::Hga),
     }
 }
 

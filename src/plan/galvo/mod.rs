@@ -1,28 +1,168 @@
-//! The galvo planner of seed 003, hierarchical (`--planner hha`): scan fields
-//! from the cover ([`super::fields`]), their order as an open path over the
-//! field centres, the geometries of each field in order from where the
-//! previous field ended towards the next field, then the entry vertex of every
-//! closed geometry and the direction of every open one (seed 003's vertex
-//! selection, on the true jump lengths), then each field ordered again on
-//! the chosen entries and the entries chosen again, a few rounds. Fields are
-//! processed contiguously.
+//! The galvo planners of seed 003: a scanner on a base stage marks the job
+//! field by field; the order of the fields and of the geometries in them, and
+//! where each geometry is entered, decide the idle stroke (laser-off jumps).
 //!
-//! Orders are open paths improved by 2-opt and Or-opt (runs of 1 to 3 moved,
-//! kept or reversed) until no move shortens them, from a nearest-neighbour
-//! start; on a machine without a scanner (stage-only) the whole job is one
-//! "field".
+//! * [`hha`]: the hierarchical heuristic (`--planner hha`), field order,
+//!   start and end per field, in-field order with the directionality penalty,
+//!   vertex enhancement, then our route search.
+//! * [`route`]: the route and its local search, shared by the planners.
+//! * [`instances`]: generated jobs of the paper's test-case families.
+//!
+//! On a machine without a scanner (stage-only) the whole job is one "field".
 
-use super::fields::cover;
+pub mod hga;
+pub mod hha;
+pub mod instances;
+pub mod route;
+
+use super::fields::{centre_within_travel, cover, Field};
 use super::nearest::path_points;
 use super::{check_reach, PathGroup, PlanContext, PlannedPath, Planner, Sequence};
 use crate::error::Result;
-use crate::job::{Geometry, Job, Point};
+use crate::job::{bounds_of, Job, Point};
 use crate::motion::Mode;
+use route::{Route, Stop};
+use std::time::{Duration, Instant};
 
+/// Settings of the galvo planners.
+#[derive(Debug, Clone)]
+pub struct GalvoSettings {
+    /// Weight of Eq. 7's directionality penalty with several fields.
+    pub direction_weight: f64,
+    /// The same with a single field (seed 003 uses a smaller one there).
+    pub direction_weight_single_field: f64,
+    /// Kicks of the route search per geometry.
+    pub kicks_per_geometry: usize,
+    /// Route search time per geometry (a bound next to the kicks).
+    pub time_per_geometry: Duration,
+    pub threads: usize,
+    pub seed: u64,
+}
+
+impl Default for GalvoSettings {
+    fn default() -> Self {
+        GalvoSettings {
+            direction_weight: 0.5,
+            direction_weight_single_field: 0.1,
+            kicks_per_geometry: 4,
+            time_per_geometry: Duration::from_micros(150),
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()).min(4),
+            seed: 1,
+        }
+    }
+}
+
+/// The fields of a job and its geometries as route stops.
+pub struct Layout {
+    pub fields: Vec<Field>,
+    pub stops: Vec<Stop>,
+    /// Half the side of a field's square.
+    pub half: f64,
+    /// Stage-only: one field without a stage position.
+    stage_only: bool,
+}
+
+impl Layout {
+    pub fn new(job: &Job, ctx: &PlanContext) -> Result<Layout> {
+        let scanner = ctx.machine.scanner.as_ref().filter(|_| ctx.mode != Mode::StageOnly);
+        let (fields, half, stage_only) = match scanner {
+            None => {
+                let (lo, hi) = job.bounds();
+                let centre = Point::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0);
+                let half = ((hi.x - lo.x).max(hi.y - lo.y) / 2.0).max(1e-9);
+                (vec![Field { center: centre, members: (0..job.geometries.len()).collect() }], half, true)
+            }
+            Some(s) => {
+                let travel = (ctx.machine.stage.travel_x, ctx.machine.stage.travel_y);
+                (cover(job, s.usable_half_field, travel)?, s.usable_half_field, false)
+            }
+        };
+        let slack = 1e-9 * (1.0 + half);
+        let stops = job
+            .geometries
+            .iter()
+            .map(|g| {
+                let (lo, hi) = g.bounds();
+                let fields = if stage_only {
+                    vec![0]
+                } else {
+                    (0..fields.len() as u32)
+                        .filter(|&f| {
+                            let c = fields[f as usize].center;
+                            lo.x >= c.x - half - slack && lo.y >= c.y - half - slack && hi.x <= c.x + half + slack && hi.y <= c.y + half + slack
+                        })
+                        .collect()
+                };
+                let vertices = if g.closed { g.points.clone() } else { vec![g.points[0], g.points[g.points.len() - 1]] };
+                Stop::new(vertices, g.closed, fields)
+            })
+            .collect();
+        Ok(Layout { fields, stops, half, stage_only })
+    }
+
+    /// The planned sequence of a route: its fields in order, each at the
+    /// centre of what it holds now (geometries may have changed fields).
+    pub fn sequence(&self, job: &Job, route: &Route, ctx: &PlanContext) -> Sequence {
+        let mut groups: Vec<PathGroup> = Vec::new();
+        let mut members: Vec<usize> = Vec::new();
+        let order = route.order();
+        for (p, &s) in order.iter().enumerate() {
+            let s = s as usize;
+            if p == 0 || route.fields()[s] != route.fields()[order[p - 1] as usize] {
+                groups.push(PathGroup { field_center: None, paths: Vec::new() });
+                members.clear();
+            }
+            members.push(s);
+            let geometry = &job.geometries[s];
+            let choice = route.choices()[s] as usize;
+            let points = if geometry.closed { path_points(geometry, choice, false) } else { path_points(geometry, 0, choice == 1) };
+            for _ in 0..job.processes[geometry.process].passes {
+                groups.last_mut().unwrap().paths.push(PlannedPath { geometry: s, points: points.clone(), process: geometry.process });
+            }
+            let field_ends = p + 1 == order.len() || route.fields()[order[p + 1] as usize] != route.fields()[s];
+            if field_ends && !self.stage_only {
+                let field = &self.fields[route.fields()[s] as usize];
+                let (lo, hi) = bounds_of(members.iter().flat_map(|&g| job.geometries[g].points.iter()));
+                let travel = (ctx.machine.stage.travel_x, ctx.machine.stage.travel_y);
+                groups.last_mut().unwrap().field_center = Some(centre_within_travel(lo, hi, self.half, travel).unwrap_or(field.center));
+            }
+        }
+        Sequence { groups }
+    }
+}
+
+/// `--planner hga`: the HGA from the HHA's route, within the time limit.
+pub struct Hga;
+
+impl Planner for Hga {
+    fn name(&self) -> &'static str {
+        "hga"
+    }
+
+    fn plan(&self, job: &Job, ctx: &PlanContext) -> Result<Sequence> {
+        check_reach(job, ctx.machine, ctx.mode)?;
+        if job.geometries.is_empty() {
+            return Ok(Sequence { groups: Vec::new() });
+        }
+        let began = Instant::now();
+        let settings = settings(ctx);
+        let layout = Layout::new(job, ctx)?;
+        let hha_deadline = began + settings.time_per_geometry * job.geometries.len() as u32;
+        let hha = hha::plan_route(job, &layout, ctx.start, &settings, hha_deadline);
+        let deadline = began + Duration::from_secs_f64(ctx.machine.galvo.time_limit);
+        let route = hga::plan_route(job, &layout, hha, &settings, deadline);
+        Ok(layout.sequence(job, &route, ctx))
+    }
+}
+
+/// The settings of the machine's `[galvo]` section.
+fn settings(ctx: &PlanContext) -> GalvoSettings {
+    let g = &ctx.machine.galvo;
+    GalvoSettings { direction_weight: g.direction_weight, direction_weight_single_field: g.direction_weight_single_field, seed: g.seed, ..GalvoSettings::default() }
+}
+
+/// `--planner hha`.
 pub struct Hha;
-
-/// Rounds of ordering on the chosen entries and choosing entries again.
-const REFINE_ROUNDS: usize = 3;
 
 impl Planner for Hha {
     fn name(&self) -> &'static str {
@@ -31,83 +171,16 @@ impl Planner for Hha {
 
     fn plan(&self, job: &Job, ctx: &PlanContext) -> Result<Sequence> {
         check_reach(job, ctx.machine, ctx.mode)?;
-        let scanner = ctx.machine.scanner.as_ref().filter(|_| ctx.mode != Mode::StageOnly);
-        let fields: Vec<(Option<Point>, Vec<usize>)> = match scanner {
-            None => vec![(None, (0..job.geometries.len()).collect())],
-            Some(s) => {
-                let travel = (ctx.machine.stage.travel_x, ctx.machine.stage.travel_y);
-                let fields = cover(job, s.usable_half_field, travel)?;
-                let centres: Vec<Point> = fields.iter().map(|f| f.center).collect();
-                let order = open_path(&centres, ctx.start, None);
-                order.into_iter().map(|k| (Some(fields[k].center), fields[k].members.clone())).collect()
-            }
-        };
-        // The geometries of each field, from the previous field's last
-        // geometry towards the next field's centre.
-        let centroid: Vec<Point> = job.geometries.iter().map(centre_of).collect();
-        let mut here = ctx.start;
-        let mut sequence: Vec<(usize, usize)> = Vec::with_capacity(job.geometries.len());
-        for (k, (_, members)) in fields.iter().enumerate() {
-            let points: Vec<Point> = members.iter().map(|&g| centroid[g]).collect();
-            let towards = fields.get(k + 1).map(|(c, m)| c.unwrap_or_else(|| centroid[m[0]]));
-            let order = open_path(&points, here, towards);
-            for &i in &order {
-                sequence.push((k, members[i]));
-            }
-            if let Some(&last) = order.last() {
-                here = centroid[members[last]];
-            }
+        if job.geometries.is_empty() {
+            return Ok(Sequence { groups: Vec::new() });
         }
-        let mut entries = select_entries(job, &sequence.iter().map(|&(_, g)| g).collect::<Vec<_>>());
-        // The orders were made on centroids; the jumps run between the chosen
-        // entries. Each field's order again on those points (a closed shape
-        // starts and ends at its entry), then the entries again.
-        for _ in 0..REFINE_ROUNDS {
-            let point_of = |i: usize, entries: &[(usize, bool)]| {
-                let g = &job.geometries[sequence[i].1];
-                if g.closed {
-                    g.points[entries[i].0]
-                } else {
-                    centroid[sequence[i].1]
-                }
-            };
-            let mut start = 0;
-            let mut refined: Vec<(usize, usize)> = Vec::with_capacity(sequence.len());
-            let mut refined_entries = Vec::with_capacity(sequence.len());
-            while start < sequence.len() {
-                let field = sequence[start].0;
-                let end = start + sequence[start..].iter().take_while(|&&(k, _)| k == field).count();
-                let from = if start == 0 { ctx.start } else { point_of(start - 1, &entries) };
-                let towards = (end < sequence.len()).then(|| point_of(end, &entries));
-                let points: Vec<Point> = (start..end).map(|i| point_of(i, &entries)).collect();
-                let mut order: Vec<usize> = (0..points.len()).collect();
-                improve_open_path(&points, &mut order, from, towards);
-                for i in order {
-                    refined.push(sequence[start + i]);
-                    refined_entries.push(entries[start + i]);
-                }
-                start = end;
-            }
-            sequence = refined;
-            entries = select_entries_from(job, &sequence.iter().map(|&(_, g)| g).collect::<Vec<_>>(), refined_entries);
-        }
-        let mut groups: Vec<PathGroup> = fields.iter().map(|(c, _)| PathGroup { field_center: *c, paths: Vec::new() }).collect();
-        for (&(k, g), &(entry, reversed)) in sequence.iter().zip(&entries) {
-            let geometry = &job.geometries[g];
-            let points = path_points(geometry, entry, reversed);
-            for _ in 0..job.processes[geometry.process].passes {
-                groups[k].paths.push(PlannedPath { geometry: g, points: points.clone(), process: geometry.process });
-            }
-        }
-        Ok(Sequence { groups })
+        let began = Instant::now();
+        let settings = settings(ctx);
+        let layout = Layout::new(job, ctx)?;
+        let deadline = began + settings.time_per_geometry * job.geometries.len() as u32;
+        let route = hha::plan_route(job, &layout, ctx.start, &settings, deadline);
+        Ok(layout.sequence(job, &route, ctx))
     }
-}
-
-/// The point a geometry stands for while orders are made: its vertices' mean.
-fn centre_of(g: &Geometry) -> Point {
-    let n = g.points.len().max(1) as f64;
-    let sum = g.points.iter().fold(nalgebra::Vector2::zeros(), |s, p| s + p.coords);
-    Point::from(sum / n)
 }
 
 /// An order of `points` as an open path from `from`, ending near `towards`
@@ -130,7 +203,7 @@ pub fn open_path(points: &[Point], from: Point, towards: Option<Point>) -> Vec<u
 
 /// 2-opt and Or-opt on an open path with a fixed start point and an optional
 /// end point.
-fn improve_open_path(points: &[Point], order: &mut [usize], from: Point, towards: Option<Point>) {
+pub fn improve_open_path(points: &[Point], order: &mut [usize], from: Point, towards: Option<Point>) {
     let n = order.len();
     if n < 2 {
         return;
@@ -253,7 +326,7 @@ fn select_entries_from(job: &Job, sequence: &[usize], mut choice: Vec<(usize, bo
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::job::Process;
+    use crate::job::{Geometry, Process};
 
     #[test]
     fn an_open_path_over_points_on_a_line_runs_along_it() {
