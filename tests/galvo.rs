@@ -1,8 +1,9 @@
-//! The galvo planner on the 12 test cases of seed 003's families
-//! (`tests/data/galvo/`, from `../shared/bench/galvo/`): every geometry marked
-//! once, inside its field, fields processed one after the other, no more
-//! fields than the reference reimplementation's mean, and less idle stroke
-//! than the nearest-neighbour baseline.
+//! The galvo planners on the 12 test cases of seed 003's families
+//! (`tests/data/galvo/`, from `../shared/bench/galvo/`) and on new instances
+//! of each family from the generator: every geometry marked once, inside its
+//! field, each field visited once, no more fields than the reference
+//! reimplementation's mean, and less idle stroke than the nearest-neighbour
+//! baseline.
 
 use std::path::{Path, PathBuf};
 
@@ -31,19 +32,7 @@ fn every_case_is_covered_once_inside_its_fields_with_no_more_fields_than_the_ref
         let job = data().join(format!("{case}.svg"));
         let hha = run::plan(&job, &machine, PlannerKind::Hha, None).unwrap();
         let nearest = run::plan(&job, &machine, PlannerKind::Nearest, None).unwrap();
-        let mut times = vec![0u32; hha.job.geometries.len()];
-        for group in &hha.sequence.groups {
-            let c = group.field_center.expect("step-and-scan");
-            for path in &group.paths {
-                times[path.geometry] += 1;
-                for p in &path.points {
-                    assert!((p.x - c.x).abs() <= half + 1e-6 && (p.y - c.y).abs() <= half + 1e-6, "{case}: geometry {} outside its field", path.geometry);
-                }
-            }
-        }
-        for (g, &t) in times.iter().enumerate() {
-            assert_eq!(t, hha.job.processes[hha.job.geometries[g].process].passes, "{case}: geometry {g} marked {t} times");
-        }
+        check_plan(case, &hha, half);
         let fields = hha.report.scan_fields.unwrap();
         let mean = figures["fields"].as_f64().unwrap();
         assert!(fields as f64 <= mean, "{case}: {fields} fields, reference mean {mean}");
@@ -52,4 +41,64 @@ fn every_case_is_covered_once_inside_its_fields_with_no_more_fields_than_the_ref
         theirs += mean;
     }
     assert!((ours as f64) <= 0.9 * theirs, "{ours} fields in all against the reference's {theirs}");
+}
+
+/// Every geometry marked as often as its layer says, every point inside the
+/// field it is marked in, and each field visited once (its paths together).
+fn check_plan(name: &str, planned: &run::Planned, half: f64) {
+    let mut times = vec![0u32; planned.job.geometries.len()];
+    let mut centres: Vec<(f64, f64)> = Vec::new();
+    for group in &planned.sequence.groups {
+        let c = group.field_center.expect("step-and-scan");
+        assert!(!centres.contains(&(c.x, c.y)), "{name}: field at {c:?} visited twice");
+        centres.push((c.x, c.y));
+        for path in &group.paths {
+            times[path.geometry] += 1;
+            for p in &path.points {
+                assert!((p.x - c.x).abs() <= half + 1e-6 && (p.y - c.y).abs() <= half + 1e-6, "{name}: geometry {} outside its field", path.geometry);
+            }
+        }
+    }
+    for (g, &t) in times.iter().enumerate() {
+        assert_eq!(t, planned.job.processes[planned.job.geometries[g].process].passes, "{name}: geometry {g} marked {t} times");
+    }
+}
+
+#[test]
+fn generated_instances_of_every_family_are_planned_validly_and_beat_nearest_neighbour() {
+    use laserd::plan::galvo::instances::{generate, Family};
+    let machine = machine();
+    let half = machine.scanner.as_ref().unwrap().usable_half_field;
+    let dir = tempfile::tempdir().unwrap();
+    for family in Family::ALL {
+        for (n, seed) in [(60, 11), (400, 12)] {
+            let name = format!("{family:?}-{n}-{seed}");
+            let path = dir.path().join(format!("{name}.svg"));
+            std::fs::write(&path, generate(family, n, seed).unwrap()).unwrap();
+            let hha = run::plan(&path, &machine, PlannerKind::Hha, None).unwrap();
+            let nearest = run::plan(&path, &machine, PlannerKind::Nearest, None).unwrap();
+            assert_eq!(hha.job.geometries.len(), n, "{name}");
+            check_plan(&name, &hha, half);
+            assert!(hha.report.scan_fields.unwrap() <= nearest.report.scan_fields.unwrap(), "{name}: more fields than the nearest-neighbour cover");
+            assert!(hha.report.idle_stroke_mm < nearest.report.idle_stroke_mm, "{name}: hha {} vs nearest {}", hha.report.idle_stroke_mm, nearest.report.idle_stroke_mm);
+            assert!(hha.report.stage_reversals.is_some());
+        }
+    }
+}
+
+#[test]
+fn hga_is_never_worse_than_hha_and_keeps_to_its_time_limit() {
+    use laserd::plan::galvo::instances::{generate, Family};
+    let mut machine = machine();
+    machine.galvo.time_limit = 2.0;
+    let half = machine.scanner.as_ref().unwrap().usable_half_field;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("rnd40.svg");
+    std::fs::write(&path, generate(Family::Rnd, 40, 5).unwrap()).unwrap();
+    let once = run::plan(&path, &machine, PlannerKind::Hha, None).unwrap();
+    check_plan("hha", &once, half);
+    let hga = run::plan(&path, &machine, PlannerKind::Hga, None).unwrap();
+    check_plan("hga", &hga, half);
+    assert!(hga.report.idle_stroke_mm <= once.report.idle_stroke_mm + 1e-9, "hga {} vs hha {}", hga.report.idle_stroke_mm, once.report.idle_stroke_mm);
+    assert!(hga.report.plan_time_s <= 2.0 + 1.0, "hga ran {} s with a 2 s limit", hga.report.plan_time_s);
 }

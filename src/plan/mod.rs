@@ -160,3 +160,18 @@ pub fn check_reach(job: &Job, machine: &MachineConfig, mode: Mode) -> Result<()>
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stage_reversals_count_turns_back() {
+        let group = |x: f64, y: f64| PathGroup { field_center: Some(Point::new(x, y)), paths: Vec::new() };
+        // Right, right, up (90°: not back), left and down (back), right (back).
+        let seq = Sequence { groups: vec![group(0.0, 0.0), group(1.0, 0.0), group(2.0, 0.0), group(2.0, 1.0), group(0.5, 0.5), group(3.0, 1.0)] };
+        assert_eq!(seq.stage_reversals(), Some(2));
+        let stage_only = Sequence { groups: vec![PathGroup { field_center: None, paths: Vec::new() }] };
+        assert_eq!(stage_only.stage_reversals(), None);
+    }
+}

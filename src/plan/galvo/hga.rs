@@ -197,3 +197,31 @@ pub fn plan_route<'a>(job: &Job, layout: &'a Layout, hha: Route<'a>, settings: &
         hha
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn chromosome(order: Vec<u32>) -> Chromosome {
+        let n = order.len();
+        let tag = order[0] * 100;
+        Chromosome { choice: (0..n as u32).map(|s| tag + s).collect(), field: vec![tag; n], order, length: 0.0 }
+    }
+
+    #[test]
+    fn the_order_crossover_keeps_one_parents_run_and_the_others_order() {
+        let a = chromosome(vec![1, 0, 2, 3, 5, 6, 4]);
+        let b = chromosome(vec![0, 1, 6, 4, 5, 2, 3]);
+        let (order, choice, field) = crossover(&a, &b, 2, 4);
+        // a's genes at 2..=4 stay; the rest in b's order around them.
+        assert_eq!(order, vec![0, 1, 2, 3, 5, 6, 4]);
+        for s in 0..7u32 {
+            let from_a = [2, 3, 5].contains(&s);
+            let parent = if from_a { &a } else { &b };
+            assert_eq!(choice[s as usize], parent.choice[s as usize]);
+            assert_eq!(field[s as usize], parent.field[s as usize]);
+        }
+        let (order, ..) = crossover(&b, &a, 0, 6);
+        assert_eq!(order, b.order);
+    }
+}

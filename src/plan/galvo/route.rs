@@ -893,6 +893,16 @@ mod tests {
     }
 
     #[test]
+    fn the_same_seed_gives_the_same_route() {
+        let stops = random_stops(150, 9);
+        let near = neighbours(&stops, 8);
+        let one = start(&stops).search(&near, 800, None, 42);
+        let two = start(&stops).search(&near, 800, None, 42);
+        assert_eq!((one.order(), one.choices(), one.fields()), (two.order(), two.choices(), two.fields()));
+        assert!(one.contiguous());
+    }
+
+    #[test]
     fn squares_in_a_row_are_entered_at_their_near_corners() {
         // Unit squares at x = 0, 4 and 8: a closed square is left where it is
         // entered, so the middle one costs its side once: 3 + 4.
