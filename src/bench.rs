@@ -296,3 +296,91 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
         svg: svg_out.map(|p| p.display().to_string()),
     })
 }
+
+/// One case of `bench galvo`: our figures over the seeds against the
+/// reference reimplementation's.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct GalvoCase {
+    pub case: String,
+    pub geometries: usize,
+    pub scan_fields: Vec<usize>,
+    pub reference_fields: f64,
+    pub idle_stroke_mm: Vec<f64>,
+    pub reference_idle_stroke_mm: f64,
+    /// Median and worst of idle stroke / the reference's.
+    pub idle_ratio_median: f64,
+    pub idle_ratio_worst: f64,
+    pub plan_time_s: Vec<f64>,
+    pub reference_plan_time_s: f64,
+    /// Median and worst of plan time / the reference's.
+    pub time_ratio_median: f64,
+    pub time_ratio_worst: f64,
+    pub stage_reversals: Vec<usize>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct GalvoBench {
+    pub planner: String,
+    pub seeds: Vec<u64>,
+    pub cases: Vec<GalvoCase>,
+    /// Fields over all cases (worst seed each) against the reference's means.
+    pub fields_total: usize,
+    pub reference_fields_total: f64,
+}
+
+/// `laserd bench galvo`: every case of `reference.json` in `dir` planned with
+/// each seed on the machine's scanner with its whole field usable (the
+/// benchmark's 70 × 70 mm), the planning step timed alone.
+pub fn galvo_bench(machine: &MachineConfig, dir: &std::path::Path, kind: crate::plan::PlannerKind, seeds: &[u64]) -> Result<GalvoBench> {
+    use crate::plan::{planner, PlanContext};
+    let reference_path = dir.join("reference.json");
+    let text = std::fs::read_to_string(&reference_path).map_err(|e| Error::Config(format!("{}: {e}", reference_path.display())))?;
+    let reference: std::collections::BTreeMap<String, serde_json::Value> =
+        serde_json::from_str(&text).map_err(|e| Error::Config(format!("{}: {e}", reference_path.display())))?;
+    let mut machine = machine.clone();
+    let scanner = machine.scanner.as_mut().ok_or_else(|| Error::Config("bench galvo: the config has no [scanner] section".into()))?;
+    scanner.usable_half_field = scanner.field_x.min(scanner.field_y) / 2.0;
+    let figure = |case: &str, v: &serde_json::Value, key: &str| {
+        v[key].as_f64().ok_or_else(|| Error::Config(format!("{}: {case}.{key} is missing or not a number", reference_path.display())))
+    };
+    let ratios = |ours: &[f64], theirs: f64| {
+        let mut r: Vec<f64> = ours.iter().map(|x| x / theirs).collect();
+        r.sort_by(f64::total_cmp);
+        (r[r.len() / 2], r[r.len() - 1])
+    };
+    let mut cases = Vec::new();
+    for (case, figures) in &reference {
+        let job = crate::import::import_job(&dir.join(format!("{case}.svg")), &machine)?;
+        let mut out = GalvoCase {
+            case: case.clone(),
+            geometries: job.geometries.len(),
+            scan_fields: Vec::new(),
+            reference_fields: figure(case, figures, "fields")?,
+            idle_stroke_mm: Vec::new(),
+            reference_idle_stroke_mm: figure(case, figures, "idle_stroke_mm")?,
+            idle_ratio_median: 0.0,
+            idle_ratio_worst: 0.0,
+            plan_time_s: Vec::new(),
+            reference_plan_time_s: figure(case, figures, "plan_time_s")?,
+            time_ratio_median: 0.0,
+            time_ratio_worst: 0.0,
+            stage_reversals: Vec::new(),
+        };
+        for &seed in seeds {
+            machine.galvo.seed = seed;
+            let ctx = PlanContext { machine: &machine, mode: crate::motion::Mode::StepAndScan, start: crate::run::job_start() };
+            let started = std::time::Instant::now();
+            let sequence = planner(kind).plan(&job, &ctx)?;
+            out.plan_time_s.push(started.elapsed().as_secs_f64());
+            out.idle_stroke_mm.push(sequence.idle_stroke());
+            out.scan_fields.push(sequence.scan_fields().unwrap_or(0));
+            out.stage_reversals.push(sequence.stage_reversals().unwrap_or(0));
+        }
+        (out.idle_ratio_median, out.idle_ratio_worst) = ratios(&out.idle_stroke_mm, out.reference_idle_stroke_mm);
+        (out.time_ratio_median, out.time_ratio_worst) = ratios(&out.plan_time_s, out.reference_plan_time_s);
+        cases.push(out);
+    }
+    let fields_total = cases.iter().map(|c| c.scan_fields.iter().copied().max().unwrap_or(0)).sum();
+    let reference_fields_total = cases.iter().map(|c| c.reference_fields).sum();
+    Ok(GalvoBench { planner: format!("{kind:?}").to_lowercase(), seeds: seeds.to_vec(), cases, fields_total, reference_fields_total })
+}

@@ -209,6 +209,26 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The galvo planners on the 12 cases of seed 003's families against the
+    /// reference reimplementation's figures (`reference.json` in the folder).
+    Galvo {
+        /// Machine config; its scanner's whole field is used (the benchmark's 70 x 70 mm).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Folder with the cases' SVGs and reference.json.
+        #[arg(long, default_value = "tests/data/galvo")]
+        dir: PathBuf,
+        #[arg(long, default_value = "hha")]
+        planner: PlannerKind,
+        /// Planner seeds 1 to this.
+        #[arg(long, default_value_t = 5)]
+        seeds: u64,
+        /// HGA's time limit per run (default: the config's [galvo] time_limit).
+        #[arg(long)]
+        time_limit: Option<f64>,
+        #[arg(long)]
+        json: bool,
+    },
     /// How well the sender uses the serial link: character counting against
     /// send-response streaming, on a synthetic program of short 4-axis blocks.
     Link {
@@ -345,6 +365,41 @@ fn run_command(command: Command) -> Result<ExitCode> {
                 println!("  ecp air / nearest {:.3}, / IB + dir-opt {:.3}", r.air_vs_nearest, r.air_vs_construction);
             }
             Ok(if r.ecp.precedence_violations == 0 { ExitCode::SUCCESS } else { ExitCode::from(2) })
+        }
+        Command::Bench { which: BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } } => {
+            let mut machine = MachineConfig::load(config.as_deref())?;
+            if let Some(t) = time_limit {
+                if !(t.is_finite() && t > 0.0) {
+                    return Err(Error::Config(format!("--time-limit: must be a positive number of seconds, got {t}")));
+                }
+                machine.galvo.time_limit = t;
+            }
+            if seeds == 0 {
+                return Err(Error::Config("--seeds: must be at least 1".into()));
+            }
+            let seeds: Vec<u64> = (1..=seeds).collect();
+            let r = laserd::bench::galvo_bench(&machine, &dir, planner, &seeds)?;
+            if json {
+                print_json(&r)?;
+            } else {
+                println!("{} on {} cases, seeds 1-{}: idle stroke and plan time against the reference (median / worst)", r.planner, r.cases.len(), seeds.len());
+                for c in &r.cases {
+                    println!(
+                        "  {:<10} {:>5} geometries  fields {:>3} (ref {:>5.1})  idle {:.3} / {:.3}  time {:.3} / {:.3}  stage reversals {}",
+                        c.case,
+                        c.geometries,
+                        c.scan_fields.iter().max().unwrap_or(&0),
+                        c.reference_fields,
+                        c.idle_ratio_median,
+                        c.idle_ratio_worst,
+                        c.time_ratio_median,
+                        c.time_ratio_worst,
+                        c.stage_reversals.iter().max().unwrap_or(&0)
+                    );
+                }
+                println!("  fields in all {} against the reference's {:.1} ({:.3})", r.fields_total, r.reference_fields_total, r.fields_total as f64 / r.reference_fields_total);
+            }
+            Ok(ExitCode::SUCCESS)
         }
         Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, motion, json } } => {
             let mut machine = MachineConfig::load(config.as_deref())?;
