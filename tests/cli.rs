@@ -36,7 +36,7 @@ fn dry_run_json_and_replay_reproduce_the_same_sim_figures() {
     let rec = dir.path().join("run.mcap");
     let out = laserd(&["dry-run", &sample("one-field.svg"), "--json", "--record", rec.to_str().unwrap()], dir.path());
     let report = json(&out);
-    assert_eq!(report["planner"], "nearest");
+    assert_eq!(report["planner"], "hha", "auto is the galvo planner");
     assert_eq!(report["mode"], "step-and-scan");
     assert_eq!(report["scan_fields"], 1);
     // A marking job: nothing falls out, so nothing can be cut too late.

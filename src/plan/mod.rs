@@ -130,13 +130,14 @@ impl FromStr for PlannerKind {
     }
 }
 
-/// The planner `kind` stands for. `auto` is the nearest-neighbour baseline
-/// until the galvo planners exist (cutting jobs ask for `ecp`).
+/// The planner `kind` stands for. `auto` is the HHA: fast, and on a machine
+/// without a scanner the same route search over the whole job (cutting jobs
+/// ask for `ecp`, which keeps parts from falling out early).
 pub fn planner(kind: PlannerKind) -> Box<dyn Planner> {
     match kind {
-        PlannerKind::Auto | PlannerKind::Nearest => Box::new(nearest::NearestNeighbour),
+        PlannerKind::Nearest => Box::new(nearest::NearestNeighbour),
         PlannerKind::Ecp => Box::new(cutting::Ecp),
-        PlannerKind::Hha => Box::new(galvo::Hha),
+        PlannerKind::Auto | PlannerKind::Hha => Box::new(galvo::Hha),
         PlannerKind::Hga => Box::new(galvo::Hga),
     }
 }
