@@ -34,6 +34,10 @@ struct Chromosome {
     length: f64,
 }
 
+/// A chromosome before its enhancement: order, entry choices, fields, and
+/// the seed of its search.
+type Raw = (Vec<u32>, Vec<u32>, Vec<u32>, u64);
+
 const START_POPULATION: usize = 32;
 const MIN_POPULATION: usize = 16;
 const MAX_POPULATION: usize = 48;
@@ -73,7 +77,7 @@ impl Search<'_> {
     }
 
     /// Enhances a batch on every core.
-    fn enhance_all(&self, raw: Vec<(Vec<u32>, Vec<u32>, Vec<u32>, u64)>, threads: usize) -> Vec<Chromosome> {
+    fn enhance_all(&self, raw: Vec<Raw>, threads: usize) -> Vec<Chromosome> {
         if threads <= 1 || raw.len() < 2 {
             return raw.into_iter().map(|(o, c, f, s)| self.enhance(o, c, f, s)).collect();
         }

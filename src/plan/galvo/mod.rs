@@ -131,38 +131,11 @@ impl Layout {
     }
 }
 
-/// `--planner hga`: the HGA from the HHA's route, within the time limit.
-pub struct Hga;
-
-impl Planner for Hga {
-    fn name(&self) -> &'static str {
-        "hga"
-    }
-
-    fn plan(&self, job: &Job, ctx: &PlanContext) -> Result<Sequence> {
-        check_reach(job, ctx.machine, ctx.mode)?;
-        if job.geometries.is_empty() {
-            return Ok(Sequence { groups: Vec::new() });
-        }
-        let began = Instant::now();
-        let settings = settings(ctx);
-        let layout = Layout::new(job, ctx)?;
-        let hha_deadline = began + settings.time_per_geometry * job.geometries.len() as u32;
-        let hha = hha::plan_route(job, &layout, ctx.start, &settings, hha_deadline);
-        let deadline = began + Duration::from_secs_f64(ctx.machine.galvo.time_limit);
-        let route = hga::plan_route(job, &layout, hha, &settings, deadline);
-        Ok(layout.sequence(job, &route, ctx))
-    }
-}
-
-/// The settings of the machine's `[galvo]` section.
-fn settings(ctx: &PlanContext) -> GalvoSettings {
-    let g = &ctx.machine.galvo;
-    GalvoSettings { direction_weight: g.direction_weight, direction_weight_single_field: g.direction_weight_single_field, seed: g.seed, ..GalvoSettings::default() }
-}
-
 /// `--planner hha`.
 pub struct Hha;
+
+/// `--planner hga`: the HGA from the HHA's route, within the time limit.
+pub struct Hga;
 
 impl Planner for Hha {
     fn name(&self) -> &'static str {
@@ -170,17 +143,38 @@ impl Planner for Hha {
     }
 
     fn plan(&self, job: &Job, ctx: &PlanContext) -> Result<Sequence> {
-        check_reach(job, ctx.machine, ctx.mode)?;
-        if job.geometries.is_empty() {
-            return Ok(Sequence { groups: Vec::new() });
-        }
-        let began = Instant::now();
-        let settings = settings(ctx);
-        let layout = Layout::new(job, ctx)?;
-        let deadline = began + settings.time_per_geometry * job.geometries.len() as u32;
-        let route = hha::plan_route(job, &layout, ctx.start, &settings, deadline);
-        Ok(layout.sequence(job, &route, ctx))
+        plan(job, ctx, false)
     }
+}
+
+impl Planner for Hga {
+    fn name(&self) -> &'static str {
+        "hga"
+    }
+
+    fn plan(&self, job: &Job, ctx: &PlanContext) -> Result<Sequence> {
+        plan(job, ctx, true)
+    }
+}
+
+/// The HHA's route (its search capped at a time per geometry), and with
+/// `genetic` the HGA on from there within the `[galvo]` time limit.
+fn plan(job: &Job, ctx: &PlanContext, genetic: bool) -> Result<Sequence> {
+    check_reach(job, ctx.machine, ctx.mode)?;
+    if job.geometries.is_empty() {
+        return Ok(Sequence { groups: Vec::new() });
+    }
+    let began = Instant::now();
+    let g = &ctx.machine.galvo;
+    let settings = GalvoSettings { direction_weight: g.direction_weight, direction_weight_single_field: g.direction_weight_single_field, seed: g.seed, ..GalvoSettings::default() };
+    let layout = Layout::new(job, ctx)?;
+    let hha_deadline = began + settings.time_per_geometry * job.geometries.len() as u32;
+    let mut route = hha::plan_route(job, &layout, ctx.start, &settings, hha_deadline);
+    if genetic {
+        let deadline = began + Duration::from_secs_f64(g.time_limit);
+        route = hga::plan_route(job, &layout, route, &settings, deadline);
+    }
+    Ok(layout.sequence(job, &route, ctx))
 }
 
 /// An order of `points` as an open path from `from`, ending near `towards`

@@ -381,6 +381,18 @@ impl<'a> Route<'a> {
         ps.map(|p| self.order[p])
     }
 
+    /// Reorders the stops at positions a..c with `f`; returns the change in
+    /// length (only the jumps from a - 1 to c can change).
+    fn rearrange(&mut self, a: usize, c: usize, f: impl FnOnce(&mut [u32])) -> f64 {
+        let links = |r: &Route| (a as isize - 1..c as isize).map(|p| r.link(p)).sum::<f64>();
+        let before = links(self);
+        f(&mut self.order[a..c]);
+        for p in a..c {
+            self.pos[self.order[p] as usize] = p as u32;
+        }
+        links(self) - before
+    }
+
     fn mark(&mut self, lo: usize, hi: usize) {
         self.dirty = Some(self.dirty.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))));
     }
@@ -691,13 +703,7 @@ impl<'a> Route<'a> {
                 let last = (first + 3 + rng.random_range(0..3usize)).min(blocks.len());
                 let middle = rng.random_range(first + 1..last);
                 let (a, b, c) = (blocks[first].0, blocks[middle].0, blocks[last - 1].1);
-                let links = |r: &Route| (a as isize - 1..c as isize).map(|p| r.link(p)).sum::<f64>();
-                let before = links(&self);
-                self.order[a..c].rotate_left(b - a);
-                for p in a..c {
-                    self.pos[self.order[p] as usize] = p as u32;
-                }
-                length += links(&self) - before;
+                length += self.rearrange(a, c, |run| run.rotate_left(b - a));
                 (a, c, Some(a + c - b))
             } else if k % REBUILD_EVERY == REBUILD_EVERY - 1 {
                 // Now and then a whole field again, nearest neighbour first,
@@ -726,13 +732,7 @@ impl<'a> Route<'a> {
                 if backwards {
                     path.reverse();
                 }
-                let links = |r: &Route| (a as isize - 1..c as isize).map(|p| r.link(p)).sum::<f64>();
-                let before = links(&self);
-                self.order[a..c].copy_from_slice(&path);
-                for p in a..c {
-                    self.pos[self.order[p] as usize] = p as u32;
-                }
-                length += links(&self) - before;
+                length += self.rearrange(a, c, |run| run.copy_from_slice(&path));
                 (a, c, None)
             } else {
                 // Three cut points within a short window of one field; the
@@ -749,13 +749,7 @@ impl<'a> Route<'a> {
                 if a == b || b == c {
                     continue;
                 }
-                let links = |r: &Route| (a as isize - 1..c as isize).map(|p| r.link(p)).sum::<f64>();
-                let before = links(&self);
-                self.order[a..c].rotate_left(b - a);
-                for p in a..c {
-                    self.pos[self.order[p] as usize] = p as u32;
-                }
-                length += links(&self) - before;
+                length += self.rearrange(a, c, |run| run.rotate_left(b - a));
                 (a, c, Some(b))
             };
             self.mark(a, c - 1);
@@ -849,7 +843,7 @@ mod tests {
             let p = route.pos[a] as usize;
             let q = route.pos[near[a][round % 8] as usize] as usize;
             let (lo, hi) = (p.min(q), p.max(q));
-            let m = if round % 2 == 0 && route.two_opt_allowed(lo + 1, hi) && lo + 1 <= hi {
+            let m = if round % 2 == 0 && lo < hi && route.two_opt_allowed(lo + 1, hi) {
                 let d = route.two_opt_delta(lo + 1, hi);
                 (d, Move::TwoOpt { i: lo + 1, j: hi })
             } else if q != p + 1 && q != p {
