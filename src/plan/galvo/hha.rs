@@ -23,8 +23,8 @@ use std::time::Instant;
 
 /// Kicks on top of those per geometry: small jobs are cheap to search, and
 /// with many small fields the order of the fields needs its own kicks.
-const MIN_KICKS: usize = 200;
-const KICKS_PER_FIELD: usize = 60;
+const MIN_KICKS: usize = 400;
+const KICKS_PER_FIELD: usize = 120;
 
 /// The route of step 1–4 (before the search): order, entry choice and field
 /// per stop.
@@ -129,7 +129,9 @@ pub fn plan_route<'a>(job: &Job, layout: &'a Layout, start: Point, settings: &Ga
     if settings.threads <= 1 {
         return route.search(&near, kicks, Some(deadline), settings.seed);
     }
-    // Independent searches from the same start, one per thread; the shortest wins.
+    // Independent searches from the same start, one per thread, sharing the
+    // kicks; the shortest wins.
+    let kicks = kicks.div_ceil(settings.threads);
     std::thread::scope(|scope| {
         let handles: Vec<_> = (0..settings.threads as u64)
             .map(|t| {

@@ -44,7 +44,7 @@ impl Default for GalvoSettings {
         GalvoSettings {
             direction_weight: 0.5,
             direction_weight_single_field: 0.1,
-            kicks_per_geometry: 4,
+            kicks_per_geometry: 6,
             time_per_geometry: Duration::from_micros(150),
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()).min(4),
             seed: 1,
