@@ -13,6 +13,7 @@ pub mod motion;
 pub mod plan;
 pub mod program;
 pub mod figures;
+pub mod plot;
 pub mod record;
 pub mod report;
 pub mod run;

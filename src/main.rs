@@ -89,6 +89,10 @@ enum Command {
         job: JobArgs,
         #[arg(short = 'o', long = "output")]
         output: Option<PathBuf>,
+        /// Draw the plan as SVG: geometries, scan fields, TCP path (marking and
+        /// jumps), stage path, and the scanner's field use over time.
+        #[arg(long)]
+        plot: Option<PathBuf>,
         #[arg(long)]
         json: bool,
     },
@@ -309,11 +313,15 @@ fn run_command(command: Command) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Plan { job, output, json } => {
-            let (_, planned) = job.plan()?;
+        Command::Plan { job, output, plot, json } => {
+            let (machine, planned) = job.plan()?;
             if let Some(out) = &output {
                 std::fs::write(out, planned.program.to_gcode())
                     .map_err(|e| Error::Io(format!("{}: cannot write: {e}", out.display())))?;
+            }
+            if let Some(out) = &plot {
+                let svg = laserd::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, &machine);
+                std::fs::write(out, svg).map_err(|e| Error::Io(format!("{}: cannot write: {e}", out.display())))?;
             }
             if json {
                 print_json(&planned.report)?;

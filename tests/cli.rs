@@ -75,8 +75,14 @@ fn dry_run_prints_a_human_summary_and_records_by_default() {
 fn plan_writes_gcode_and_reports_without_sim() {
     let dir = tempfile::tempdir().unwrap();
     let nc = dir.path().join("job.nc");
-    let report = json(&laserd(&["plan", &sample("nested-sheet.svg"), "--json", "-o", nc.to_str().unwrap()], dir.path()));
+    let picture = dir.path().join("job.svg");
+    let report = json(&laserd(&["plan", &sample("nested-sheet.svg"), "--json", "-o", nc.to_str().unwrap(), "--plot", picture.to_str().unwrap()], dir.path()));
     assert!(report["sim"].is_null());
+    // The picture: an SVG with the fields the report counts and the TCP path.
+    let svg = std::fs::read_to_string(&picture).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains(r#"class="mark""#));
+    let fields = svg.split(r#"<g id="fields">"#).nth(1).unwrap().split("</g>").next().unwrap().matches("<rect").count();
+    assert_eq!(fields as u64, report["scan_fields"].as_u64().unwrap());
     assert!(report["recording"].is_null());
     assert_eq!(report["geometries"], 81);
     let gcode = std::fs::read_to_string(&nc).unwrap();

@@ -1,0 +1,212 @@
+//! `laserd plan --plot OUT.svg`: a picture of a plan, to see the order and the
+//! split between scanner and stage at a glance.
+//!
+//! Top: the machine's travel with the geometries (grey), the scan fields
+//! (usable squares, blue), the TCP path (marking solid black, laser-off jumps
+//! dashed red) and the stage path (green, a dot per stage position). Bottom:
+//! the scanner's field use over time (largest |scanner axis| / half the
+//! usable field; 1 is the field's edge). Machine y points up; the picture is
+//! drawn that way.
+
+use std::fmt::Write;
+
+use crate::config::MachineConfig;
+use crate::job::{Job, Point};
+use crate::motion::{SegmentKind, Trajectory};
+use crate::plan::Sequence;
+
+/// Height of the time plot, as a share of the picture's width.
+const TIME_PLOT_SHARE: f64 = 0.25;
+/// Samples of the time plot.
+const TIME_SAMPLES: usize = 600;
+
+/// The picture as SVG text (mm units).
+pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &MachineConfig) -> String {
+    let half = machine.scanner.as_ref().map(|s| s.usable_half_field);
+    // The drawing spans the travel and everything drawn (fields may reach past it).
+    let (mut lo, mut hi) = (Point::new(0.0, 0.0), Point::new(machine.stage.travel_x, machine.stage.travel_y));
+    let mut grow = |p: Point| {
+        lo = Point::new(lo.x.min(p.x), lo.y.min(p.y));
+        hi = Point::new(hi.x.max(p.x), hi.y.max(p.y));
+    };
+    for g in &job.geometries {
+        g.points.iter().for_each(|&p| grow(p));
+    }
+    for group in &sequence.groups {
+        if let (Some(c), Some(h)) = (group.field_center, half) {
+            grow(Point::new(c.x - h, c.y - h));
+            grow(Point::new(c.x + h, c.y + h));
+        }
+    }
+    let width = hi.x - lo.x;
+    let margin = 0.03 * width.max(hi.y - lo.y);
+    let plot_h = TIME_PLOT_SHARE * width;
+    let (w, h) = (width + 2.0 * margin, hi.y - lo.y + 3.0 * margin + plot_h);
+    let stroke = 0.002 * w.max(h);
+    // Machine (x, y) to picture coordinates.
+    let at = |p: Point| (p.x - lo.x + margin, hi.y - p.y + margin);
+    let mut svg = String::new();
+    let _ = writeln!(svg, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w:.1}mm" height="{h:.1}mm" viewBox="0 0 {w:.3} {h:.3}">"#);
+    let _ = writeln!(svg, r#"<rect width="100%" height="100%" fill="white"/>"#);
+    let (tx, ty) = at(Point::new(0.0, machine.stage.travel_y));
+    let _ = writeln!(
+        svg,
+        r##"<rect id="travel" x="{tx:.3}" y="{ty:.3}" width="{:.3}" height="{:.3}" fill="none" stroke="#999" stroke-width="{stroke:.3}"/>"##,
+        machine.stage.travel_x, machine.stage.travel_y
+    );
+    let polyline = |svg: &mut String, id: &str, points: &[Point], style: &str| {
+        let mut d = String::new();
+        for p in points {
+            let (x, y) = at(*p);
+            let _ = write!(d, "{x:.3},{y:.3} ");
+        }
+        let _ = writeln!(svg, r#"<polyline {id}points="{}" fill="none" {style}/>"#, d.trim_end());
+    };
+    let _ = writeln!(svg, r#"<g id="geometries">"#);
+    for g in &job.geometries {
+        let mut points = g.points.clone();
+        if g.closed && !points.is_empty() {
+            points.push(points[0]);
+        }
+        polyline(&mut svg, "", &points, &format!(r##"stroke="#bbb" stroke-width="{:.3}""##, 2.0 * stroke));
+    }
+    let _ = writeln!(svg, "</g>");
+    if let Some(h) = half {
+        let _ = writeln!(svg, r#"<g id="fields">"#);
+        for group in &sequence.groups {
+            if let Some(c) = group.field_center {
+                let (x, y) = at(Point::new(c.x - h, c.y + h));
+                let _ = writeln!(
+                    svg,
+                    r##"<rect x="{x:.3}" y="{y:.3}" width="{:.3}" height="{:.3}" fill="#36c" fill-opacity="0.05" stroke="#36c" stroke-width="{stroke:.3}"/>"##,
+                    2.0 * h,
+                    2.0 * h
+                );
+            }
+        }
+        let _ = writeln!(svg, "</g>");
+    }
+    // The TCP path, one polyline per run of marking or of laser-off motion.
+    let _ = writeln!(svg, r#"<g id="tcp">"#);
+    let mut run: Vec<Point> = Vec::new();
+    let mut marking = None;
+    let flush = |svg: &mut String, run: &mut Vec<Point>, marking: Option<bool>| {
+        if run.len() >= 2 {
+            let style = if marking == Some(true) {
+                format!(r#"class="mark" stroke="black" stroke-width="{stroke:.3}""#)
+            } else {
+                format!(r#"class="jump" stroke="red" stroke-width="{:.3}" stroke-dasharray="{:.3}""#, 0.6 * stroke, 4.0 * stroke)
+            };
+            polyline(svg, "", run, &style);
+        }
+        run.clear();
+    };
+    for s in &trajectory.segments {
+        if s.is_pierce() {
+            continue;
+        }
+        let mark = s.is_marking();
+        if marking != Some(mark) {
+            let last = run.last().copied();
+            flush(&mut svg, &mut run, marking);
+            run.extend(last);
+            marking = Some(mark);
+        }
+        let (a, b) = (s.state_at(0.0).tcp(), s.state_at(s.duration()).tcp());
+        if run.is_empty() {
+            run.push(a);
+        }
+        run.push(b);
+    }
+    flush(&mut svg, &mut run, marking);
+    let _ = writeln!(svg, "</g>");
+    // The stage path: where the stage is at the end of each of its moves.
+    let mut stage = vec![trajectory.start.stage];
+    for s in &trajectory.segments {
+        if matches!(s.kind, SegmentKind::StageMove) || s.stage.0 != s.stage.1 {
+            stage.push(s.stage.1);
+        }
+    }
+    stage.dedup();
+    let _ = writeln!(svg, r#"<g id="stage">"#);
+    polyline(&mut svg, "", &stage, &format!(r#"stroke="green" stroke-width="{:.3}""#, 1.5 * stroke));
+    for p in &stage {
+        let (x, y) = at(*p);
+        let _ = writeln!(svg, r#"<circle cx="{x:.3}" cy="{y:.3}" r="{:.3}" fill="green"/>"#, 3.0 * stroke);
+    }
+    let _ = writeln!(svg, "</g>");
+    // Field use over time.
+    let top = hi.y - lo.y + 2.0 * margin;
+    let duration = trajectory.duration();
+    let _ = writeln!(svg, r#"<g id="field-use">"#);
+    let _ = writeln!(
+        svg,
+        r##"<rect x="{margin:.3}" y="{top:.3}" width="{width:.3}" height="{plot_h:.3}" fill="none" stroke="#999" stroke-width="{stroke:.3}"/>"##
+    );
+    if let (Some(h), true) = (half, duration > 0.0) {
+        let mut points = String::new();
+        let mut segment = 0;
+        for k in 0..=TIME_SAMPLES {
+            let t = duration * k as f64 / TIME_SAMPLES as f64;
+            while segment + 1 < trajectory.segments.len() && trajectory.segments[segment + 1].start_time <= t {
+                segment += 1;
+            }
+            let use_ = trajectory.segments.get(segment).map_or(0.0, |s| {
+                let state = s.state_at((t - s.start_time).clamp(0.0, s.duration()));
+                state.scanner.x.abs().max(state.scanner.y.abs()) / h
+            });
+            let x = margin + width * k as f64 / TIME_SAMPLES as f64;
+            let y = top + plot_h * (1.0 - use_.min(1.2) / 1.2);
+            let _ = write!(points, "{x:.3},{y:.3} ");
+        }
+        let edge = top + plot_h * (1.0 - 1.0 / 1.2);
+        let _ = writeln!(
+            svg,
+            r##"<line x1="{margin:.3}" y1="{edge:.3}" x2="{:.3}" y2="{edge:.3}" stroke="#36c" stroke-width="{stroke:.3}" stroke-dasharray="{:.3}"/>"##,
+            margin + width,
+            3.0 * stroke
+        );
+        let _ = writeln!(svg, r##"<polyline class="use" points="{}" fill="none" stroke="#36c" stroke-width="{stroke:.3}"/>"##, points.trim_end());
+    }
+    let font = 0.03 * plot_h.max(1.0) + 1.0;
+    let _ = writeln!(
+        svg,
+        r#"<text x="{:.3}" y="{:.3}" font-size="{font:.2}" font-family="sans-serif">scanner field use over {duration:.2} s (dashed: field edge)</text>"#,
+        margin + stroke * 4.0,
+        top + font * 1.2
+    );
+    let _ = writeln!(svg, "</g>");
+    svg.push_str("</svg>\n");
+    svg
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::motion::Mode;
+    use crate::plan::{planner, PlanContext, PlannerKind};
+
+    #[test]
+    fn the_picture_is_svg_with_every_field_and_both_path_kinds() {
+        let machine = MachineConfig::load(None).unwrap();
+        let text = r#"<svg xmlns="http://www.w3.org/2000/svg" width="300mm" height="300mm" viewBox="0 0 300 300">
+            <rect x="10" y="10" width="5" height="5" stroke="black" fill="none"/>
+            <rect x="200" y="20" width="5" height="5" stroke="black" fill="none"/>
+            <rect x="120" y="250" width="5" height="5" stroke="black" fill="none"/>
+            <line x1="20" y1="12" x2="30" y2="12" stroke="black"/></svg>"#;
+        let job = crate::import::svg::import_svg(text, "t.svg", &machine).unwrap();
+        let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin() };
+        let sequence = planner(PlannerKind::Hha).plan(&job, &ctx).unwrap();
+        let trajectory = crate::motion::build(&job, &sequence, &machine, Mode::StepAndScan, Point::origin()).unwrap();
+        let svg = plot(&job, &sequence, &trajectory, &machine);
+        // It parses as SVG.
+        usvg::Tree::from_str(&svg, &usvg::Options::default()).unwrap();
+        let fields = svg.split(r#"<g id="fields">"#).nth(1).unwrap().split("</g>").next().unwrap().matches("<rect").count();
+        assert_eq!(fields, sequence.scan_fields().unwrap());
+        assert!(fields >= 2);
+        assert!(svg.contains(r#"class="mark""#) && svg.contains(r#"class="jump""#) && svg.contains(r#"class="use""#));
+        // One stage dot per field visited, plus where the stage starts.
+        let dots = svg.split(r#"<g id="stage">"#).nth(1).unwrap().split("</g>").next().unwrap().matches("<circle").count();
+        assert_eq!(dots, fields + 1);
+    }
+}
