@@ -8,7 +8,10 @@
 //!   left edge is some geometry's left bound and whose bottom edge is some
 //!   geometry's bottom bound are enough.
 //! * **Greedy.** The square holding the most geometries not yet covered is
-//!   taken, again and again; a square's count takes two binary searches.
+//!   taken, again and again. The squares of one left edge (a column) are
+//!   counted in one sweep over the sorted bottoms and tops of the geometries
+//!   in that column, which a window sliding along x keeps up to date; a
+//!   column's best square is kept until a field takes one of its geometries.
 //! * **Improvement.** A field whose geometries all fit into other fields
 //!   (their content's bounds still within one field) is dissolved, smallest
 //!   first.

@@ -116,6 +116,16 @@ pub fn neighbours(stops: &[Stop], k: usize) -> Vec<Vec<u32>> {
         .collect()
 }
 
+/// Puts the stops not yet waiting into the local search's queue.
+fn enqueue(queue: &mut VecDeque<u32>, queued: &mut [bool], stops: impl IntoIterator<Item = u32>) {
+    for s in stops {
+        if !queued[s as usize] {
+            queued[s as usize] = true;
+            queue.push_back(s);
+        }
+    }
+}
+
 /// A route over `stops`: the order, each stop's entry choice and field.
 #[derive(Debug, Clone)]
 pub struct Route<'a> {
@@ -307,8 +317,9 @@ impl<'a> Route<'a> {
     }
 
     /// What putting the run s..s+len between t - 1 and t costs (t outside
-    /// the run); for a single closed stop at its best vertex there, returned.
-    fn insertion_cost(&self, s: usize, len: usize, t: usize, reverse: bool) -> (f64, Option<u32>) {
+    /// the run); with `choose_vertex`, a single closed stop goes in at its
+    /// best vertex there, which is returned.
+    fn insertion_cost(&self, s: usize, len: usize, t: usize, reverse: bool, choose_vertex: bool) -> (f64, Option<u32>) {
         let e = s + len - 1;
         let left = (t > 0).then(|| self.exit_at(t - 1));
         let right = (t < self.order.len()).then(|| self.entry_at(t));
@@ -317,7 +328,7 @@ impl<'a> Route<'a> {
             _ => 0.0,
         };
         let stop = self.stop_at(s);
-        if len == 1 && stop.closed {
+        if choose_vertex && len == 1 && stop.closed {
             // The vertex that makes the two new jumps shortest.
             let mut best = (f64::INFINITY, 0);
             for (v, &p) in stop.vertices.iter().enumerate() {
@@ -336,7 +347,7 @@ impl<'a> Route<'a> {
     /// Change in length of moving the run s..s+len between t - 1 and t.
     #[cfg(test)]
     fn or_opt_delta(&self, s: usize, len: usize, t: usize, reverse: bool) -> (f64, Option<u32>) {
-        let (cost, entry) = self.insertion_cost(s, len, t, reverse);
+        let (cost, entry) = self.insertion_cost(s, len, t, reverse, true);
         (cost - self.removal_gain(s, len), entry)
     }
 
@@ -514,7 +525,7 @@ impl<'a> Route<'a> {
                     }
                     let Some(field) = self.field_for_run(s, len, t) else { continue };
                     for reverse in [false, true] {
-                        let (cost, entry) = self.insertion_cost(s, len, t, reverse);
+                        let (cost, entry) = self.insertion_cost(s, len, t, reverse, true);
                         consider(cost - gain, Move::OrOpt { s, len, t, reverse, field, entry });
                         if entry.is_some() {
                             break;
@@ -536,12 +547,7 @@ impl<'a> Route<'a> {
                 change += delta;
                 let touched = self.touched(m);
                 self.apply(m);
-                for s in touched.into_iter().chain([a]) {
-                    if !queued[s as usize] {
-                        queued[s as usize] = true;
-                        queue.push_back(s);
-                    }
-                }
+                enqueue(queue, queued, touched.into_iter().chain([a]));
             }
         }
         change
@@ -555,12 +561,7 @@ impl<'a> Route<'a> {
         loop {
             self.improve_from(near, &mut queue, &mut queued);
             let Some(touched) = self.move_a_field() else { break };
-            for s in touched {
-                if !queued[s as usize] {
-                    queued[s as usize] = true;
-                    queue.push_back(s);
-                }
-            }
+            enqueue(&mut queue, &mut queued, touched);
         }
     }
 
@@ -593,7 +594,9 @@ impl<'a> Route<'a> {
                     if len == 1 && reverse && self.stop_at(s).closed {
                         continue;
                     }
-                    let delta = if len == 1 { self.or_opt_delta_plain(s, t, reverse) } else { self.insertion_cost(s, len, t, reverse).0 - self.removal_gain(s, len) };
+                    // The field keeps its entries (a field of one closed
+                    // stop finds a better vertex by the entry move).
+                    let delta = self.insertion_cost(s, len, t, reverse, false).0 - self.removal_gain(s, len);
                     if delta < -EPS && best.is_none_or(|(d, _)| delta < d) {
                         best = Some((delta, Move::OrOpt { s, len, t, reverse, field: self.field_at(s), entry: None }));
                     }
@@ -603,34 +606,8 @@ impl<'a> Route<'a> {
         let (_, m) = best?;
         let touched = self.touched(m);
         // A whole field moves with its stops in it reversed; open stops turn.
-        if let Move::OrOpt { s, len, t, reverse, field, .. } = m {
-            self.apply(Move::OrOpt { s, len, t, reverse, field, entry: None });
-        }
+        self.apply(m);
         Some(touched)
-    }
-
-    /// Or-opt change of one stop keeping its entry.
-    fn or_opt_delta_plain(&self, s: usize, t: usize, reverse: bool) -> f64 {
-        let closed = self.stop_at(s).closed;
-        if !closed {
-            return self.insertion_cost(s, 1, t, reverse).0 - self.removal_gain(s, 1);
-        }
-        let n = self.order.len();
-        let p = self.entry_at(s);
-        let mut delta = 0.0;
-        let before = (s > 0).then(|| self.exit_at(s - 1));
-        let after = (s + 1 < n).then(|| self.entry_at(s + 1));
-        delta -= before.map_or(0.0, |b| dist(b, p)) + after.map_or(0.0, |a| dist(p, a));
-        if let (Some(b), Some(a)) = (before, after) {
-            delta += dist(b, a);
-        }
-        let left = (t > 0).then(|| self.exit_at(t - 1));
-        let right = (t < n).then(|| self.entry_at(t));
-        if let (Some(l), Some(r)) = (left, right) {
-            delta -= dist(l, r);
-        }
-        delta += left.map_or(0.0, |l| dist(l, p)) + right.map_or(0.0, |r| dist(p, r));
-        delta
     }
 
     /// The best entries for the order as it is: a shortest path through the
@@ -754,16 +731,10 @@ impl<'a> Route<'a> {
             };
             self.mark(a, c - 1);
             // The stops at the changed jumps (after a rebuild, all of it).
-            let ends = match b {
-                Some(b) => vec![a.saturating_sub(1), a, b - 1, b, c - 1, c.min(n - 1)],
-                None => (a.saturating_sub(1)..=c.min(n - 1)).collect(),
-            };
-            for p in ends {
-                let s = self.order[p];
-                if !queued[s as usize] {
-                    queued[s as usize] = true;
-                    queue.push_back(s);
-                }
+            let stop = |p: usize| self.order[p];
+            match b {
+                Some(b) => enqueue(&mut queue, &mut queued, [a.saturating_sub(1), a, b - 1, b, c - 1, c.min(n - 1)].map(stop)),
+                None => enqueue(&mut queue, &mut queued, (a.saturating_sub(1)..=c.min(n - 1)).map(stop)),
             }
             length += self.improve_from(near, &mut queue, &mut queued);
             let (lo, hi) = self.dirty.unwrap();
