@@ -91,6 +91,13 @@ pub struct LaserConfig {
     /// S value of the pierce; a layer may set its own. None: each layer's `power`.
     #[serde(default)]
     pub pierce_power: Option<f64>,
+    /// The laser source's response times (s): it is switched on this long
+    /// before a mark begins and off this long before it ends, so that it
+    /// emits exactly along the mark.
+    #[serde(default)]
+    pub on_delay: f64,
+    #[serde(default)]
+    pub off_delay: f64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -229,11 +236,39 @@ mod search_kind {
 #[serde(deny_unknown_fields)]
 pub struct MotionConfig {
     pub limit_margin: f64,
+    /// How far a blended corner may cut inside the programmed corner (mm).
+    #[serde(default = "default_corner_tolerance")]
+    pub corner_tolerance: f64,
+    /// Vertices closer than this to the line through their neighbours are
+    /// dropped before planning (mm).
+    #[serde(default = "default_line_tolerance")]
+    pub line_tolerance: f64,
+    /// Share of the stage's limits its on-the-fly moves use; the rest is
+    /// headroom for the rounding of coordinates in the program.
+    #[serde(default = "default_stage_share")]
+    pub stage_share: f64,
+}
+
+fn default_corner_tolerance() -> f64 {
+    0.01
+}
+
+fn default_line_tolerance() -> f64 {
+    0.001
+}
+
+fn default_stage_share() -> f64 {
+    0.8
 }
 
 impl Default for MotionConfig {
     fn default() -> Self {
-        MotionConfig { limit_margin: 0.98 }
+        MotionConfig {
+            limit_margin: 0.98,
+            corner_tolerance: default_corner_tolerance(),
+            line_tolerance: default_line_tolerance(),
+            stage_share: default_stage_share(),
+        }
     }
 }
 
@@ -241,12 +276,27 @@ impl Default for MotionConfig {
 #[serde(deny_unknown_fields)]
 pub struct ProgramConfig {
     pub tolerance: f64,
+    /// The same for laser-off moves, where only the machine's own limits matter.
+    #[serde(default = "default_jump_tolerance")]
+    pub jump_tolerance: f64,
     pub decimals: usize,
+    /// Decimal places of the scanner's coordinates (its moves are short and
+    /// its limits high: micrometres are finer than a galvo resolves).
+    #[serde(default = "default_scanner_decimals")]
+    pub scanner_decimals: usize,
+}
+
+fn default_scanner_decimals() -> usize {
+    4
+}
+
+fn default_jump_tolerance() -> f64 {
+    0.5
 }
 
 impl Default for ProgramConfig {
     fn default() -> Self {
-        ProgramConfig { tolerance: 0.02, decimals: 5 }
+        ProgramConfig { tolerance: 0.01, jump_tolerance: default_jump_tolerance(), decimals: 6, scanner_decimals: default_scanner_decimals() }
     }
 }
 
@@ -423,8 +473,25 @@ impl MachineConfig {
             return Err(format!("motion.limit_margin: must be in (0, 1], got {m}"));
         }
         positive("program.tolerance", self.program.tolerance)?;
-        if !(2..=6).contains(&self.program.decimals) {
-            return Err(format!("program.decimals: must be 2 to 6, got {}", self.program.decimals));
+        positive("program.jump_tolerance", self.program.jump_tolerance)?;
+        positive("motion.corner_tolerance", self.motion.corner_tolerance)?;
+        if !(self.motion.line_tolerance.is_finite() && self.motion.line_tolerance >= 0.0) {
+            return Err(format!("motion.line_tolerance: must be 0 or more mm, got {}", self.motion.line_tolerance));
+        }
+        let share = self.motion.stage_share;
+        if !(share.is_finite() && share > 0.0 && share <= 1.0) {
+            return Err(format!("motion.stage_share: must be in (0, 1], got {share}"));
+        }
+        for (name, v) in [("laser.on_delay", self.laser.on_delay), ("laser.off_delay", self.laser.off_delay)] {
+            if !(v.is_finite() && (0.0..=0.01).contains(&v)) {
+                return Err(format!("{name}: must be between 0 and 0.01 s, got {v}"));
+            }
+        }
+        if !(2..=7).contains(&self.program.decimals) {
+            return Err(format!("program.decimals: must be 2 to 7, got {}", self.program.decimals));
+        }
+        if !(2..=7).contains(&self.program.scanner_decimals) {
+            return Err(format!("program.scanner_decimals: must be 2 to 7, got {}", self.program.scanner_decimals));
         }
         let c = &self.cutting;
         if !(c.pierce_cost.is_finite() && c.pierce_cost >= 0.0) {

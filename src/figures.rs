@@ -119,8 +119,18 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
     }
     let limits: LimitReport = checker.finish();
 
+    // The job's clock starts where the approach (from where the machine
+    // rested to the job's first point) ends, as the plan's does.
+    let lines = program_lines(&log.link);
+    let kind_of: std::collections::HashMap<usize, LineKind> = log.planned.iter().map(|p| (p.line, p.kind)).collect();
+    let approach_end = log
+        .knots
+        .iter()
+        .filter(|k| kind_of.get(&program_line_of(&lines, k)) == Some(&LineKind::Approach))
+        .map(|k| k.t)
+        .fold(None, |m: Option<f64>, t| Some(m.map_or(t, |m| m.max(t))));
     let job_time_s = match (log.knots.first(), log.knots.last()) {
-        (Some(a), Some(b)) => b.t - a.t,
+        (Some(a), Some(b)) => b.t - approach_end.unwrap_or(a.t),
         _ => 0.0,
     };
 
@@ -170,7 +180,6 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
     let planned: std::collections::HashMap<usize, &PlannedLine> = log.planned.iter().map(|p| (p.line, p)).collect();
     let mut max_dev: f64 = 0.0;
     let mut laser_state_errors = 0;
-    let lines = program_lines(&log.link);
     for (line, a, b) in executed_blocks(&log.knots, &lines) {
         let Some(p) = planned.get(&line) else { continue };
         let marking = p.kind == LineKind::Mark;

@@ -246,6 +246,9 @@ enum BenchCommand {
         /// How the simulated controller executes blocks (default: the config's).
         #[arg(long)]
         motion: Option<MotionModel>,
+        /// Link speed (default: 115200, the classic GRBL serial link).
+        #[arg(long, default_value_t = 115_200)]
+        baud: u32,
         #[arg(long)]
         json: bool,
     },
@@ -409,8 +412,9 @@ fn run_command(command: Command) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, motion, json } } => {
+        Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, motion, baud, json } } => {
             let mut machine = MachineConfig::load(config.as_deref())?;
+            machine.serial.baud = baud;
             machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
             let report = laserd::bench::link_bench(&machine, blocks, block_ms / 1000.0)?;
             if json {

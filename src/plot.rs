@@ -12,7 +12,9 @@ use std::fmt::Write;
 
 use crate::config::MachineConfig;
 use crate::job::{Job, Point};
-use crate::motion::{SegmentKind, Trajectory};
+use crate::motion::stage::StagePath;
+use crate::motion::tcp::{Motion, PieceKind};
+use crate::motion::Trajectory;
 use crate::plan::Sequence;
 
 /// Height of the time plot, as a share of the picture's width.
@@ -101,43 +103,60 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
         }
         run.clear();
     };
-    for s in &trajectory.segments {
-        if s.is_pierce() {
+    for piece in &trajectory.tcp.pieces {
+        if piece.duration <= 0.0 || matches!(piece.kind, PieceKind::Pierce { .. }) {
             continue;
         }
-        let mark = s.is_marking();
+        let mark = piece.is_marking();
         if marking != Some(mark) {
             let last = run.last().copied();
             flush(&mut svg, &mut run, marking);
             run.extend(last);
             marking = Some(mark);
         }
-        let (a, b) = (s.state_at(0.0).tcp(), s.state_at(s.duration()).tcp());
-        if run.is_empty() {
-            run.push(a);
+        // Straight legs need their ends; blended corners and free moves bow.
+        let samples = match piece.motion {
+            Motion::Leg { .. } if !mark => 1,
+            _ => 4,
+        };
+        for i in 0..=samples {
+            let t = piece.start + piece.duration * i as f64 / samples as f64;
+            let p = trajectory.tcp.position(t);
+            if run.last().is_none_or(|q| (p - q).norm() > 1e-9) {
+                run.push(p);
+            }
         }
-        run.push(b);
     }
     flush(&mut svg, &mut run, marking);
     let _ = writeln!(svg, "</g>");
-    // The stage path: where the stage is at the end of each of its moves.
-    let mut stage = vec![trajectory.start.stage];
-    for s in &trajectory.segments {
-        if matches!(s.kind, SegmentKind::StageMove) || s.stage.0 != s.stage.1 {
-            stage.push(s.stage.1);
+    // The stage path, with a dot where it rests (the start and the end of
+    // each of its moves).
+    let duration = trajectory.duration();
+    let mut stage = Vec::new();
+    let mut rests = vec![trajectory.start.stage];
+    if let StagePath::Moves { axes, .. } = &trajectory.stage {
+        for k in 0..=TIME_SAMPLES * 4 {
+            stage.push(trajectory.state_at(duration * k as f64 / (TIME_SAMPLES * 4) as f64).stage);
+        }
+        let mut ends: Vec<f64> = axes.iter().flatten().map(|m| m.end_time()).collect();
+        ends.sort_by(f64::total_cmp);
+        for t in ends {
+            if !trajectory.stage.moving(t + 1e-12) {
+                rests.push(trajectory.state_at(t).stage);
+            }
         }
     }
     stage.dedup();
+    rests.dedup_by(|a, b| (*a - *b).norm() < 1e-6);
     let _ = writeln!(svg, r#"<g id="stage">"#);
     polyline(&mut svg, "", &stage, &format!(r#"stroke="green" stroke-width="{:.3}""#, 1.5 * stroke));
-    for p in &stage {
+    for p in &rests {
         let (x, y) = at(*p);
         let _ = writeln!(svg, r#"<circle cx="{x:.3}" cy="{y:.3}" r="{:.3}" fill="green"/>"#, 3.0 * stroke);
     }
     let _ = writeln!(svg, "</g>");
     // Field use over time.
     let top = hi.y - lo.y + 2.0 * margin;
-    let duration = trajectory.duration();
     let _ = writeln!(svg, r#"<g id="field-use">"#);
     let _ = writeln!(
         svg,
@@ -145,16 +164,10 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
     );
     if let (Some(h), true) = (half, duration > 0.0) {
         let mut points = String::new();
-        let mut segment = 0;
         for k in 0..=TIME_SAMPLES {
             let t = duration * k as f64 / TIME_SAMPLES as f64;
-            while segment + 1 < trajectory.segments.len() && trajectory.segments[segment + 1].start_time <= t {
-                segment += 1;
-            }
-            let use_ = trajectory.segments.get(segment).map_or(0.0, |s| {
-                let state = s.state_at((t - s.start_time).clamp(0.0, s.duration()));
-                state.scanner.x.abs().max(state.scanner.y.abs()) / h
-            });
+            let state = trajectory.state_at(t);
+            let use_ = state.scanner.x.abs().max(state.scanner.y.abs()) / h;
             let x = margin + width * k as f64 / TIME_SAMPLES as f64;
             let y = top + plot_h * (1.0 - use_.min(1.2) / 1.2);
             let _ = write!(points, "{x:.3},{y:.3} ");

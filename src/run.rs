@@ -43,7 +43,10 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     // In step-and-scan a geometry larger than the scanner's usable field is
     // split at field borders into pieces, which are then the job's geometries
     // from planning to the report; with splitting off, the job fails naming it.
-    let job = match machine.scanner.as_ref().filter(|_| mode != Mode::StageOnly) {
+    // On the fly the planner leaves a margin at the field's edge for marks
+    // that begin and end at speed (see `Mode::planning_half_field`).
+    let planning_machine = mode.planning_machine(machine);
+    let job = match planning_machine.scanner.as_ref().filter(|_| mode != Mode::StageOnly) {
         Some(s) if s.split_oversize => split_at_field_borders(&job, s.usable_half_field),
         Some(s) => {
             check_fits(&job, s.usable_half_field)?;
@@ -53,7 +56,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     };
     let planner = planner(kind);
     let started = WallInstant::now();
-    let ctx = PlanContext { machine, mode, start: job_start() };
+    let ctx = PlanContext { machine: &planning_machine, mode, start: job_start() };
     // The cutting planner counts broken rules on its route with the
     // independent checker; any other order is judged by whole geometries.
     let (sequence, precedence_violations) = if kind == PlannerKind::Ecp {
@@ -87,7 +90,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         idle_stroke_mm: sequence.idle_stroke(),
         plan_time_s,
         precedence_violations,
-        trajectory_time_s: trajectory.duration(),
+        trajectory_time_s: trajectory.job_time(),
         lower_bound_s,
         program_lines: program.lines.len(),
         program_bytes: program.lines.iter().map(|l| l.text.len() + 1).sum(),

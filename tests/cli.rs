@@ -37,7 +37,7 @@ fn dry_run_json_and_replay_reproduce_the_same_sim_figures() {
     let out = laserd(&["dry-run", &sample("one-field.svg"), "--json", "--record", rec.to_str().unwrap()], dir.path());
     let report = json(&out);
     assert_eq!(report["planner"], "hha", "auto is the galvo planner");
-    assert_eq!(report["mode"], "step-and-scan");
+    assert_eq!(report["mode"], "on-the-fly", "the default with a scanner");
     assert_eq!(report["scan_fields"], 1);
     // A marking job: nothing falls out, so nothing can be cut too late.
     assert_eq!(report["precedence_violations"], 0);
@@ -47,7 +47,9 @@ fn dry_run_json_and_replay_reproduce_the_same_sim_figures() {
     assert_eq!(sim["alarms"], serde_json::json!([]));
     assert!(sim["max_tcp_deviation_mm"].as_f64().unwrap() <= 0.05, "{sim}");
     assert!(sim["job_time_s"].as_f64().unwrap() >= report["trajectory_time_s"].as_f64().unwrap() * 0.999);
-    assert!(report["trajectory_time_s"].as_f64().unwrap() >= report["lower_bound_s"].as_f64().unwrap());
+    // The contract's bound takes every jump from rest to rest; marks that
+    // begin and end at speed may beat it a little, not by much.
+    assert!(report["trajectory_time_s"].as_f64().unwrap() >= 0.95 * report["lower_bound_s"].as_f64().unwrap());
     assert!(sim["peak_field_use"].as_f64().unwrap() <= 1.0);
     assert!(rec.exists());
 

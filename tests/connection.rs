@@ -91,7 +91,7 @@ fn jog_unlock_hold_resume_override_abort_and_resume_from_a_line() {
             assert!(outcome.completed, "{:?}", outcome.stop_reason);
             assert_eq!(outcome.last_acked_line, lines.len(), "numbered as in the program");
             let end = c.status().await.unwrap().mpos;
-            let planned_end = planned.trajectory.segments.last().map(|s| s.state_at(s.duration())).unwrap();
+            let planned_end = planned.trajectory.state_at(planned.trajectory.duration());
             assert!((end[0] - planned_end.stage.x).abs() < 1e-3 && (end[2] - planned_end.scanner.x).abs() < 1e-3, "{end:?}");
             // The move back into place ran with the laser off.
             let resumed = &knots.borrow()[knots_before..];

@@ -63,7 +63,7 @@ fn a_cut_sheet_dry_runs_within_the_limits_with_a_pierce_at_every_entry() {
     let recording = dir.path().join("sheet.mcap");
     let dry = run::dry_run(&planned, &machine, &recording, Faults::default()).unwrap();
     let sim = dry.report.sim.as_ref().unwrap();
-    assert_eq!(sim.limit_violations, 0);
+    assert_eq!(sim.limit_violations, 0, "{sim:?}");
     assert!(sim.alarms.is_empty(), "{:?}", sim.alarms);
     assert_eq!(dry.report.precedence_violations, Some(0));
     // The pierces are machine time: at least paths × pierce_time.

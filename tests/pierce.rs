@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use laserd::motion::Mode;
 use laserd::config::{MachineConfig, DEFAULT_CONFIG_PATH};
 use laserd::figures::{program_line_of, program_lines};
 use laserd::plan::PlannerKind;
@@ -61,8 +62,11 @@ fn burning_rests(knots: &[Knot]) -> Vec<(f64, f64, f64, &Knot)> {
 fn a_dry_run_pierces_every_entry_standing_still_at_the_pierce_power() {
     let _turn = take_turn();
     let (plain_machine, pierce_machine) = (machine(0.0), machine(PIERCE_TIME));
-    let plain = run::plan(&sample("one-field.svg"), &plain_machine, PlannerKind::Nearest, None).unwrap();
-    let planned = run::plan(&sample("one-field.svg"), &pierce_machine, PlannerKind::Nearest, None).unwrap();
+    // Step-and-scan: every mark from rest with or without a pierce, so the
+    // pierces add exactly their time.
+    let mode = Some(Mode::StepAndScan);
+    let plain = run::plan(&sample("one-field.svg"), &plain_machine, PlannerKind::Nearest, mode).unwrap();
+    let planned = run::plan(&sample("one-field.svg"), &pierce_machine, PlannerKind::Nearest, mode).unwrap();
     let paths: Vec<_> = planned.sequence.paths().collect();
     assert_eq!(paths.len(), plain.sequence.paths().count());
     assert!(paths.len() >= 20, "the sample has many paths: {}", paths.len());

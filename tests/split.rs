@@ -93,7 +93,7 @@ fn plan_on_the_command_line_succeeds_with_splitting_on() {
     let (dir, job, _) = setup();
     let report = json(&laserd(&["plan", job.to_str().unwrap(), "--planner", "hha", "--json"], dir.path()));
     assert_eq!(report["planner"], "hha");
-    assert_eq!(report["mode"], "step-and-scan");
+    assert_eq!(report["mode"], "on-the-fly");
     assert_eq!(report["geometries"], SMALL_PARTS + 4);
     assert!(report["scan_fields"].as_u64().unwrap() >= 4, "{report}");
 }

@@ -6,10 +6,12 @@
 //! used (intermediate waypoints go through Ruckig's cloud service), and position
 //! limits are ours to enforce (the binding ignores them without waypoints).
 
+use nalgebra::Vector2;
 use ruckig::{InputParameter, Ruckig, Trajectory};
 
 use crate::config::Limits;
 use crate::error::{Error, Result};
+use crate::job::Point;
 
 /// s(t) from 0 to `length`, starting and ending at rest.
 pub struct Profile {
@@ -92,6 +94,71 @@ impl Profile {
                 (p[0] * l, v[0] * l / u, a[0] * l / (u * u))
             }
         }
+    }
+}
+
+/// A laser-off move of the two TCP axes from one state (position, velocity,
+/// no acceleration) to another, time-optimal within per-axis limits: Ruckig's
+/// state-to-state `calculate`, the axes synchronised in time. The path between
+/// is free (it may bow or overshoot); callers bound it by sampling.
+pub struct FreeMove {
+    trajectory: Trajectory,
+    pub from: Point,
+    pub to: Point,
+    pub duration: f64,
+    time_unit: f64,
+    length_unit: f64,
+}
+
+impl std::fmt::Debug for FreeMove {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "FreeMove {{ from: {:?}, to: {:?}, duration: {} }}", self.from, self.to, self.duration)
+    }
+}
+
+impl FreeMove {
+    pub fn new(from: Point, v_from: Vector2<f64>, to: Point, v_to: Vector2<f64>, axis: Limits) -> Result<FreeMove> {
+        let finite = [from.x, from.y, to.x, to.y, v_from.x, v_from.y, v_to.x, v_to.y].iter().all(|x| x.is_finite());
+        if !finite {
+            return Err(Error::Motion(format!("invalid move from {from:?} to {to:?}")));
+        }
+        // Units where velocity and acceleration limits are 1, as in
+        // `Profile::rest_to_rest`, positions relative to the start.
+        let time_unit = axis.velocity / axis.acceleration;
+        let length_unit = axis.velocity * time_unit;
+        let speed_unit = length_unit / time_unit;
+        let d = (to - from) / length_unit;
+        let mut input = InputParameter::new(2);
+        input.current_position = vec![0.0, 0.0];
+        input.current_velocity = vec![v_from.x / speed_unit, v_from.y / speed_unit];
+        input.target_position = vec![d.x, d.y];
+        input.target_velocity = vec![v_to.x / speed_unit, v_to.y / speed_unit];
+        input.max_velocity = vec![1.0, 1.0];
+        input.max_acceleration = vec![1.0, 1.0];
+        let jerk = axis.jerk * time_unit * time_unit * time_unit / length_unit;
+        input.max_jerk = vec![jerk, jerk];
+        let mut ruckig = Ruckig::new_direct_and_offline(2);
+        let mut trajectory = Trajectory::new_direct(2);
+        let result = ruckig.calculate(&mut input, &mut trajectory);
+        if !matches!(result, ruckig::Result::Working | ruckig::Result::Finished) {
+            return Err(Error::Motion(format!(
+                "Ruckig could not plan the move from {from:?} (v {v_from:?}) to {to:?} (v {v_to:?}) within {axis:?}: {result:?}"
+            )));
+        }
+        let duration = trajectory.get_duration() * time_unit;
+        Ok(FreeMove { trajectory, from, to, duration, time_unit, length_unit })
+    }
+
+    /// (position, velocity, acceleration) `t` seconds into the move (clamped).
+    pub fn at(&self, t: f64) -> (Point, Vector2<f64>, Vector2<f64>) {
+        let x = (t.clamp(0.0, self.duration)) / self.time_unit;
+        let (p, v, a) = self.trajectory.at_time(x);
+        let (l, u) = (self.length_unit, self.time_unit);
+        (
+            Point::new(self.from.x + p[0] * l, self.from.y + p[1] * l),
+            Vector2::new(v[0], v[1]) * (l / u),
+            Vector2::new(a[0], a[1]) * (l / (u * u)),
+        )
     }
 }
 

@@ -114,6 +114,9 @@ struct Link<R, W, F> {
     book: Book,
 }
 
+/// Why a stream ends when the other end has gone (a read at its end, a write refused).
+const LINK_CLOSED: &str = "the controller closed the link";
+
 impl<R, W, F> Link<R, W, F>
 where
     R: AsyncRead + Unpin,
@@ -122,7 +125,10 @@ where
 {
     /// Puts bytes on the wire now (flushed: the link must not sit on them).
     async fn write(&mut self, bytes: &[u8]) -> Result<()> {
-        let failed = |e: std::io::Error| Error::Stream(format!("write failed: {e}"));
+        let failed = |e: std::io::Error| match e.kind() {
+            std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset => Error::Stream(LINK_CLOSED.into()),
+            _ => Error::Stream(format!("write failed: {e}")),
+        };
         self.writer.write_all(bytes).await.map_err(failed)?;
         self.writer.flush().await.map_err(failed)
     }
@@ -729,7 +735,13 @@ where
                         if link.book.in_flight + text.len() < rx_buffer
                             && (!options.send_response || link.book.fifo.is_empty()) =>
                     {
-                        link.send_line(next_number, &text).await?;
+                        match link.send_line(next_number, &text).await {
+                            Err(Error::Stream(m)) if m == LINK_CLOSED => {
+                                fault = Some(LINK_CLOSED.into());
+                                break;
+                            }
+                            r => r?,
+                        }
                         link.book.sent(next_number, &text);
                         out.lines_sent += 1;
                     }
@@ -745,7 +757,7 @@ where
             tokio::select! {
                 line = link.next_line() => {
                     let Some((text, response, answered)) = line? else {
-                        fault = Some("the controller closed the link".into());
+                        fault = Some(LINK_CLOSED.into());
                         break;
                     };
                     out.last_acked_line = link.book.last_acked;

@@ -1,0 +1,574 @@
+//! The tool centre point (TCP) in time: the marks at their layer's speed, the
+//! laser-off moves between them, pierces and waits, as a list of pieces.
+//!
+//! A mark is a run of straight legs (see `leg`). With blending on, each inner
+//! corner is turned by overlapping the ramp down of one leg with the ramp up of
+//! the next: the TCP cuts the corner by at most `corner_tolerance`, never
+//! exceeds the mark speed, and stays inside every axis limit (both checked on
+//! the overlap; the overlap is the largest that passes). Collinear joints and
+//! the gentle turns of flattened curves overlap fully and keep the speed.
+//!
+//! With skywriting on, a mark starts and ends at its speed: the laser-off move
+//! before it accelerates onto its line and the one after it brakes, each a
+//! time-optimal state-to-state Ruckig move (`FreeMove`). Without it (and
+//! before a pierce) marks start and end at rest.
+
+use nalgebra::Vector2;
+
+use super::leg::Leg;
+use super::profile::FreeMove;
+use crate::config::Limits;
+use crate::error::{Error, Result};
+use crate::job::Point;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PieceKind {
+    /// From where the machine rests to the job's first point, before the job's clock starts.
+    Approach,
+    /// Laser on at `power` along a geometry.
+    Mark { geometry: usize, power: f64 },
+    /// Laser off, moving to the next geometry.
+    Jump,
+    /// Laser on at `power`, standing still at a geometry's entry.
+    Pierce { geometry: usize, power: f64 },
+    /// The stage carries the TCP while the scanner holds (a field change of
+    /// step-and-scan, or on-the-fly where the stage cannot move in time).
+    Carried,
+}
+
+#[derive(Debug)]
+pub enum Motion {
+    /// Along `dir` (a unit vector) from `from`.
+    Leg { from: Point, dir: Vector2<f64>, leg: Leg },
+    Free(FreeMove),
+    Still(Point),
+}
+
+#[derive(Debug)]
+pub struct Piece {
+    pub kind: PieceKind,
+    /// Index of the sequence group (scan field) the piece belongs to; a
+    /// laser-off move belongs to the group it goes to.
+    pub group: usize,
+    pub start: f64,
+    pub duration: f64,
+    pub motion: Motion,
+}
+
+impl Piece {
+    pub fn end_time(&self) -> f64 {
+        self.start + self.duration
+    }
+
+    /// Position `t` seconds after the piece's start (clamped to the piece).
+    pub fn position(&self, t: f64) -> Point {
+        match &self.motion {
+            Motion::Leg { from, dir, leg } => from + dir * leg.position(t),
+            Motion::Free(m) => m.at(t).0,
+            Motion::Still(p) => *p,
+        }
+    }
+
+    pub fn start_point(&self) -> Point {
+        self.position(0.0)
+    }
+
+    pub fn end_point(&self) -> Point {
+        match &self.motion {
+            Motion::Leg { from, dir, leg } => from + dir * leg.length,
+            Motion::Free(m) => m.to,
+            Motion::Still(p) => *p,
+        }
+    }
+
+    pub fn is_marking(&self) -> bool {
+        matches!(self.kind, PieceKind::Mark { .. })
+    }
+
+    /// Laser power during the piece (0 = off).
+    pub fn power(&self) -> f64 {
+        match self.kind {
+            PieceKind::Mark { power, .. } | PieceKind::Pierce { power, .. } => power,
+            _ => 0.0,
+        }
+    }
+
+    pub fn geometry(&self) -> Option<usize> {
+        match self.kind {
+            PieceKind::Mark { geometry, .. } | PieceKind::Pierce { geometry, .. } => Some(geometry),
+            _ => None,
+        }
+    }
+
+    /// Times inside the piece (from its start) where the motion changes character.
+    pub fn breakpoints(&self, out: &mut Vec<f64>) {
+        if let Motion::Leg { leg, .. } = &self.motion {
+            leg.breakpoints(out);
+        }
+    }
+
+    /// Bounding box of the piece's path: exact for legs and standing still,
+    /// sampled for free moves.
+    pub fn bounds(&self) -> (Point, Point) {
+        let mut lo = self.start_point();
+        let mut hi = lo;
+        let mut grow = |p: Point| {
+            lo = Point::new(lo.x.min(p.x), lo.y.min(p.y));
+            hi = Point::new(hi.x.max(p.x), hi.y.max(p.y));
+        };
+        grow(self.end_point());
+        if let Motion::Free(m) = &self.motion {
+            for k in 1..FREE_SAMPLES {
+                grow(m.at(m.duration * k as f64 / FREE_SAMPLES as f64).0);
+            }
+        }
+        (lo, hi)
+    }
+}
+
+/// Samples over a free move where its path is bounded (its bow or overshoot
+/// is a fraction of its length, so this many samples find it closely).
+pub const FREE_SAMPLES: usize = 24;
+
+/// The TCP's pieces in time order. Two consecutive legs overlap at a blended
+/// corner; nothing else overlaps.
+#[derive(Debug, Default)]
+pub struct TcpPath {
+    pub pieces: Vec<Piece>,
+}
+
+impl TcpPath {
+    pub fn duration(&self) -> f64 {
+        self.pieces.iter().map(Piece::end_time).fold(0.0, f64::max)
+    }
+
+    /// Index of the last piece starting at or before `t` (0 before the first).
+    pub fn index_at(&self, t: f64) -> usize {
+        self.pieces.partition_point(|p| p.start <= t).saturating_sub(1)
+    }
+
+    /// Position at time `t`.
+    pub fn position(&self, t: f64) -> Point {
+        let Some(last) = self.pieces.last() else { return Point::origin() };
+        if t >= last.end_time() {
+            return last.end_point();
+        }
+        let k = self.index_at(t);
+        self.position_from(k, t)
+    }
+
+    /// Position at `t` given the index of the piece running then.
+    pub fn position_from(&self, k: usize, t: f64) -> Point {
+        let piece = &self.pieces[k];
+        let mut p = piece.position(t - piece.start);
+        // The leg before, still ramping down at a blended corner, adds what it
+        // has not yet covered (negative: it ends at this leg's start).
+        if k > 0 {
+            let prev = &self.pieces[k - 1];
+            if prev.end_time() > t {
+                p += prev.position(t - prev.start) - prev.end_point();
+            }
+        }
+        p
+    }
+
+    pub fn shift(&mut self, dt: f64) {
+        for p in &mut self.pieces {
+            p.start += dt;
+        }
+    }
+}
+
+/// How the TCP is planned in a mode.
+#[derive(Debug, Clone, Copy)]
+pub struct TcpSettings {
+    /// Per-axis limits of the TCP.
+    pub axis: Limits,
+    /// Highest marking speed (the layer's speed is capped by it).
+    pub mark_speed: f64,
+    /// Blend corners within `corner_tolerance` (else stop at every vertex).
+    pub blend: bool,
+    /// Marks start and end at speed; laser-off moves are state-to-state.
+    pub skywrite: bool,
+    pub corner_tolerance: f64,
+    /// Vertices this close to the line through their neighbours are dropped.
+    pub line_tolerance: f64,
+}
+
+/// A planned mark: its legs with their start times relative to the run's start.
+struct Run {
+    legs: Vec<(Point, Vector2<f64>, Leg, f64)>,
+    duration: f64,
+}
+
+impl Run {
+    fn entry_velocity(&self) -> Vector2<f64> {
+        let (_, dir, leg, _) = &self.legs[0];
+        dir * leg.at(0.0)[1]
+    }
+
+    fn exit_velocity(&self) -> Vector2<f64> {
+        let (_, dir, leg, _) = self.legs.last().expect("a run has legs");
+        dir * leg.at(leg.duration)[1]
+    }
+}
+
+/// Drops vertices within `tol` of the straight line between the last kept
+/// vertex and the next one (and between them along it): they add legs
+/// without changing the mark.
+fn simplify(points: &[Point], tol: f64) -> Vec<Point> {
+    let mut kept: Vec<Point> = Vec::with_capacity(points.len());
+    for (i, &p) in points.iter().enumerate() {
+        if let (Some(&a), Some(&b)) = (kept.last(), points.get(i + 1)) {
+            let d = b - a;
+            let len = d.norm();
+            if len > 1e-12 {
+                let along = (p - a).dot(&d) / len;
+                let off = ((p - a).x * d.y - (p - a).y * d.x).abs() / len;
+                if off <= tol && along > 0.0 && along < len {
+                    continue;
+                }
+            }
+        }
+        if kept.last().is_none_or(|q| (p - q).norm() > 1e-9) {
+            kept.push(p);
+        }
+    }
+    kept
+}
+
+fn point_segment_distance(p: Point, a: Point, b: Point) -> f64 {
+    let d = b - a;
+    let l2 = d.norm_squared();
+    let f = if l2 > 0.0 { ((p - a).dot(&d) / l2).clamp(0.0, 1.0) } else { 0.0 };
+    (p - (a + d * f)).norm()
+}
+
+/// The largest overlap of leg `a` (ending at `vertex`) with leg `b` (starting
+/// there) that keeps the turn within the corner tolerance, the mark speed and
+/// every axis limit; checked at the legs' phase changes and between them.
+fn corner_overlap(a: (&Leg, Vector2<f64>), b: (&Leg, Vector2<f64>), vertex: Point, s: &TcpSettings, speed: f64) -> f64 {
+    let ((la, ua), (lb, ub)) = (a, b);
+    if !(la.ramp_out && lb.ramp_in) {
+        return 0.0;
+    }
+    let max = la.ramp.duration.min(lb.ramp.duration);
+    let a_start = vertex - ua * la.length;
+    let b_end = vertex + ub * lb.length;
+    let slack = 1.0 + 1e-9;
+    let mut times = Vec::with_capacity(48);
+    let mut feasible = |tau: f64| -> bool {
+        let t0 = la.duration - tau;
+        times.clear();
+        times.extend((0..=16).map(|k| tau * k as f64 / 16.0));
+        let mut bp = Vec::new();
+        la.breakpoints(&mut bp);
+        times.extend(bp.iter().map(|x| x - t0).filter(|x| *x > 0.0 && *x < tau));
+        bp.clear();
+        lb.breakpoints(&mut bp);
+        times.extend(bp.iter().copied().filter(|x| *x > 0.0 && *x < tau));
+        times.sort_by(f64::total_cmp);
+        let n = times.len();
+        for i in 0..n {
+            if i + 1 < n {
+                times.push(0.5 * (times[i] + times[i + 1]));
+            }
+        }
+        times.iter().all(|&x| {
+            let sa = la.at(t0 + x);
+            let sb = lb.at(x);
+            let pos = vertex + ua * (sa[0] - la.length) + ub * sb[0];
+            let vel = ua * sa[1] + ub * sb[1];
+            let acc = ua * sa[2] + ub * sb[2];
+            let jerk = ua * sa[3] + ub * sb[3];
+            let axis_ok = |v: Vector2<f64>, limit: f64| v.x.abs() <= limit * slack && v.y.abs() <= limit * slack;
+            axis_ok(vel, s.axis.velocity)
+                && axis_ok(acc, s.axis.acceleration)
+                && axis_ok(jerk, s.axis.jerk)
+                && vel.norm() <= speed * slack
+                && point_segment_distance(pos, a_start, vertex).min(point_segment_distance(pos, vertex, b_end)) <= s.corner_tolerance
+        })
+    };
+    if feasible(max) {
+        return max;
+    }
+    let (mut good, mut bad) = (0.0, max);
+    for _ in 0..24 {
+        let mid = 0.5 * (good + bad);
+        if feasible(mid) {
+            good = mid;
+        } else {
+            bad = mid;
+        }
+    }
+    good
+}
+
+/// Per-path limits along a straight line in direction `d` from per-axis
+/// limits: the axis with the largest share of the motion reaches its limit first.
+pub fn path_limits(axis: Limits, d: Vector2<f64>) -> Limits {
+    let share = d.x.abs().max(d.y.abs()) / d.norm();
+    axis.scaled(1.0 / share)
+}
+
+/// Builds the TCP's pieces one path at a time.
+pub struct TcpBuilder {
+    pub settings: TcpSettings,
+    pub path: TcpPath,
+    pub time: f64,
+    pub position: Point,
+    pub velocity: Vector2<f64>,
+}
+
+impl TcpBuilder {
+    /// Starting at rest at `position` at time `time`.
+    pub fn new(settings: TcpSettings, position: Point, time: f64) -> TcpBuilder {
+        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros() }
+    }
+
+    fn push(&mut self, kind: PieceKind, group: usize, motion: Motion, duration: f64) {
+        if duration <= 0.0 {
+            return;
+        }
+        self.path.pieces.push(Piece { kind, group, start: self.time, duration, motion });
+    }
+
+    /// The run of legs marking `points` at `speed`.
+    fn run(&self, points: &[Point], speed: f64, ramp_in: bool) -> Result<Option<Run>> {
+        let s = &self.settings;
+        let points = simplify(points, s.line_tolerance);
+        if points.len() < 2 {
+            return Ok(None);
+        }
+        let n = points.len() - 1;
+        let mut legs = Vec::with_capacity(n);
+        for i in 0..n {
+            let d = points[i + 1] - points[i];
+            let length = d.norm();
+            let dir = d / length;
+            let limits = if s.blend {
+                // The same ramps in every direction, so that collinear legs
+                // overlap into exactly constant speed.
+                Limits { velocity: speed, ..s.axis }
+            } else {
+                let l = path_limits(s.axis, dir);
+                Limits { velocity: l.velocity.min(speed), ..l }
+            };
+            let first_in = if i == 0 { ramp_in } else { true };
+            let last_out = if i == n - 1 { !s.skywrite } else { true };
+            let leg = if !first_in && !last_out {
+                Leg::constant(length, speed)
+            } else {
+                Leg::new(length, limits, first_in, last_out)?
+            };
+            legs.push((points[i], dir, leg, 0.0));
+        }
+        let mut t = 0.0;
+        for i in 0..n {
+            legs[i].3 = t;
+            let overlap = if s.blend && i + 1 < n {
+                corner_overlap((&legs[i].2, legs[i].1), (&legs[i + 1].2, legs[i + 1].1), points[i + 1], s, speed)
+            } else {
+                0.0
+            };
+            t += legs[i].2.duration - overlap;
+        }
+        let duration = legs.last().map(|(_, _, l, t0)| t0 + l.duration).unwrap_or(0.0);
+        Ok(Some(Run { legs, duration }))
+    }
+
+    /// A laser-off move from where the TCP is to `to`, arriving with `velocity`.
+    pub fn jump(&mut self, kind: PieceKind, group: usize, to: Point, velocity: Vector2<f64>) -> Result<()> {
+        if (to - self.position).norm() < 1e-9 && (velocity - self.velocity).norm() < 1e-9 {
+            return Ok(());
+        }
+        let m = FreeMove::new(self.position, self.velocity, to, velocity, self.settings.axis)?;
+        let d = m.duration;
+        self.push(kind, group, Motion::Free(m), d);
+        self.time += d;
+        self.position = to;
+        self.velocity = velocity;
+        Ok(())
+    }
+
+    /// A straight rest-to-rest move to `to` at `limits` (per axis).
+    pub fn straight(&mut self, kind: PieceKind, group: usize, to: Point, axis: Limits) -> Result<()> {
+        self.stop(group)?;
+        let d = to - self.position;
+        let length = d.norm();
+        if length < 1e-9 {
+            return Ok(());
+        }
+        let dir = d / length;
+        let leg = Leg::new(length, path_limits(axis, dir), true, true)?;
+        self.push(kind, group, Motion::Leg { from: self.position, dir, leg }, leg.duration);
+        self.time += leg.duration;
+        self.position = to;
+        Ok(())
+    }
+
+    /// Comes to rest straight ahead if moving.
+    pub fn stop(&mut self, group: usize) -> Result<()> {
+        let v = self.velocity.norm();
+        if v < 1e-12 {
+            return Ok(());
+        }
+        let dir = self.velocity / v;
+        let ramp = super::leg::Ramp::new(v, self.settings.axis.acceleration, self.settings.axis.jerk);
+        let leg = Leg { length: ramp.distance, ramp, ramp_in: false, ramp_out: true, cruise: 0.0, duration: ramp.duration };
+        self.push(PieceKind::Jump, group, Motion::Leg { from: self.position, dir, leg }, leg.duration);
+        self.time += leg.duration;
+        self.position += dir * ramp.distance;
+        self.velocity = Vector2::zeros();
+        Ok(())
+    }
+
+    /// Standing still for `duration` (a pierce).
+    pub fn still(&mut self, kind: PieceKind, group: usize, duration: f64) {
+        let p = self.position;
+        self.push(kind, group, Motion::Still(p), duration);
+        self.time += duration;
+    }
+
+    /// Marks `points` at `speed` with `power` (a pierce of `pierce` seconds at
+    /// `pierce_power` first when `pierce` > 0), jumping there first.
+    #[allow(clippy::too_many_arguments)]
+    pub fn mark(&mut self, geometry: usize, group: usize, points: &[Point], speed: f64, power: f64, pierce: f64, pierce_power: f64) -> Result<()> {
+        if !(speed.is_finite() && speed > 0.0) {
+            return Err(Error::Motion(format!("invalid marking speed {speed}")));
+        }
+        let pierces = pierce > 0.0;
+        let Some(run) = self.run(points, speed, pierces || !self.settings.skywrite)? else { return Ok(()) };
+        let entry = run.legs[0].0;
+        self.jump(PieceKind::Jump, group, entry, run.entry_velocity())?;
+        if pierces {
+            self.still(PieceKind::Pierce { geometry, power: pierce_power }, group, pierce);
+        }
+        let kind = PieceKind::Mark { geometry, power };
+        let t0 = self.time;
+        for (from, dir, leg, start) in &run.legs {
+            if leg.duration > 0.0 {
+                self.path.pieces.push(Piece { kind, group, start: t0 + start, duration: leg.duration, motion: Motion::Leg { from: *from, dir: *dir, leg: *leg } });
+            }
+        }
+        self.time = t0 + run.duration;
+        let (from, dir, leg, _) = run.legs.last().expect("a run has legs");
+        self.position = from + dir * leg.length;
+        self.velocity = run.exit_velocity();
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn settings(blend: bool, skywrite: bool) -> TcpSettings {
+        TcpSettings {
+            axis: Limits { velocity: 4500.0, acceleration: 9.8e6, jerk: 3.9e11 },
+            mark_speed: 1000.0,
+            blend,
+            skywrite,
+            corner_tolerance: 0.01,
+            line_tolerance: 0.001,
+        }
+    }
+
+    fn square(x: f64, y: f64, a: f64) -> Vec<Point> {
+        vec![Point::new(x, y), Point::new(x + a, y), Point::new(x + a, y + a), Point::new(x, y + a), Point::new(x, y)]
+    }
+
+    /// Samples the path finely and checks continuity, limits and corners.
+    fn check(path: &TcpPath, s: &TcpSettings, marks: &[Vec<Point>]) {
+        let n = 40_000;
+        let d = path.duration();
+        let dt = d / n as f64;
+        let mut prev: Option<Point> = None;
+        let mut prev_v: Option<Vector2<f64>> = None;
+        let mut max_dev: f64 = 0.0;
+        for k in 0..=n {
+            let t = k as f64 * dt;
+            let p = path.position(t);
+            if let Some(q) = prev {
+                let v = (p - q) / dt;
+                assert!(v.x.abs() <= s.axis.velocity * 1.001 && v.y.abs() <= s.axis.velocity * 1.001, "t={t}: {v:?}");
+                if let Some(pv) = prev_v {
+                    let a = (v - pv) / dt;
+                    assert!(a.x.abs() <= s.axis.acceleration * 1.02 && a.y.abs() <= s.axis.acceleration * 1.02, "t={t}: {a:?}");
+                }
+                prev_v = Some(v);
+            }
+            prev = Some(p);
+            let k = path.index_at(t);
+            if path.pieces[k].is_marking() {
+                let dev = marks
+                    .iter()
+                    .flat_map(|m| m.windows(2).map(|w| point_segment_distance(p, w[0], w[1])))
+                    .fold(f64::INFINITY, f64::min);
+                max_dev = max_dev.max(dev);
+            }
+        }
+        assert!(max_dev <= s.corner_tolerance + 1e-9, "marked {max_dev} off the geometry");
+    }
+
+    #[test]
+    fn blended_squares_stay_within_tolerance_and_limits() {
+        for (blend, skywrite) in [(true, true), (true, false), (false, false)] {
+            let s = settings(blend, skywrite);
+            let mut b = TcpBuilder::new(s, Point::origin(), 0.0);
+            let marks = vec![square(1.0, 1.0, 3.0), square(6.0, 2.0, 2.0)];
+            for (i, m) in marks.iter().enumerate() {
+                b.mark(i, 0, m, 1000.0, 300.0, 0.0, 0.0).unwrap();
+            }
+            b.stop(0).unwrap();
+            check(&b.path, &s, &marks);
+            // Marking time: at least length / speed, and blending saves time.
+            let marked: f64 = b.path.pieces.iter().filter(|p| p.is_marking()).map(|p| p.duration).sum();
+            assert!(marked > 0.0);
+        }
+    }
+
+    #[test]
+    fn blending_and_skywriting_are_faster_than_stopping() {
+        let marks = [square(1.0, 1.0, 3.0), square(6.0, 2.0, 2.0)];
+        let time = |blend, skywrite| {
+            let mut b = TcpBuilder::new(settings(blend, skywrite), Point::origin(), 0.0);
+            for (i, m) in marks.iter().enumerate() {
+                b.mark(i, 0, m, 1000.0, 300.0, 0.0, 0.0).unwrap();
+            }
+            b.stop(0).unwrap();
+            b.path.duration()
+        };
+        let (stop, blend, sky) = (time(false, false), time(true, false), time(true, true));
+        assert!(blend < stop && sky < blend, "{stop} {blend} {sky}");
+        // 20 mm at 1000 mm/s is 20 ms; the laser-off moves are short.
+        assert!(sky < 0.023, "{sky}");
+    }
+
+    #[test]
+    fn a_flattened_circle_is_marked_at_constant_speed() {
+        let s = settings(true, true);
+        let n = 72;
+        let circle: Vec<Point> = (0..=n)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / n as f64;
+                Point::new(10.0 + 5.0 * a.cos(), 10.0 + 5.0 * a.sin())
+            })
+            .collect();
+        let mut b = TcpBuilder::new(s, Point::origin(), 0.0);
+        b.mark(0, 0, &circle, 1000.0, 300.0, 0.0, 0.0).unwrap();
+        let marks: Vec<&Piece> = b.path.pieces.iter().filter(|p| p.is_marking()).collect();
+        let (t0, t1) = (marks[0].start, marks.last().unwrap().end_time());
+        let length: f64 = circle.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+        // Within 1 % of length / speed: the corners of 5 degrees cost nearly nothing.
+        assert!((t1 - t0) < 1.01 * length / 1000.0, "{} vs {}", t1 - t0, length / 1000.0);
+        check(&b.path, &s, &[circle]);
+    }
+
+    #[test]
+    fn simplify_drops_only_collinear_points() {
+        let pts = vec![Point::new(0.0, 0.0), Point::new(1.0, 0.0005), Point::new(2.0, 0.0), Point::new(2.0, 1.0)];
+        assert_eq!(simplify(&pts, 0.001).len(), 3);
+        assert_eq!(simplify(&pts, 0.0001).len(), 4);
+    }
+}
