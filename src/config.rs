@@ -487,8 +487,8 @@ impl MachineConfig {
                 return Err(format!("{name}: must be between 0 and 0.01 s, got {v}"));
             }
         }
-        if !(2..=7).contains(&self.program.decimals) {
-            return Err(format!("program.decimals: must be 2 to 7, got {}", self.program.decimals));
+        if !(2..=9).contains(&self.program.decimals) {
+            return Err(format!("program.decimals: must be 2 to 9, got {}", self.program.decimals));
         }
         if !(2..=7).contains(&self.program.scanner_decimals) {
             return Err(format!("program.scanner_decimals: must be 2 to 7, got {}", self.program.scanner_decimals));

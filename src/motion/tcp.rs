@@ -348,8 +348,10 @@ impl TcpBuilder {
             let dir = d / length;
             let limits = if s.blend {
                 // The same ramps in every direction, so that collinear legs
-                // overlap into exactly constant speed.
-                Limits { velocity: speed, ..s.axis }
+                // overlap into exactly constant speed; 1/√2 of the axis
+                // limits, so that two legs at right angles on the diagonals
+                // may overlap with both ramps at full acceleration and jerk.
+                Limits { velocity: speed, acceleration: s.axis.acceleration * std::f64::consts::FRAC_1_SQRT_2, jerk: s.axis.jerk * std::f64::consts::FRAC_1_SQRT_2 }
             } else {
                 let l = path_limits(s.axis, dir);
                 Limits { velocity: l.velocity.min(speed), ..l }

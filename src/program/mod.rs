@@ -185,10 +185,12 @@ impl Writer {
             self.last_power = Some(power);
         }
         // G93: F is the inverse of the block time in minutes. Six significant
-        // digits keep each block's timing within 1e-6 of the plan (1 µm at
-        // 1 m/s over a second-long block).
+        // digits keep a block's timing within 1e-6 of the plan; short blocks
+        // get eight, since a timing error is a velocity error, which the
+        // controller sees as acceleration and jerk over the block's duration.
         let f = 60.0 / duration;
-        let digits = (6 - (f.log10().floor() as i64 + 1)).clamp(0, 6) as usize;
+        let significant = if duration < 2e-3 { 8 } else { 6 };
+        let digits = (significant - (f.log10().floor() as i64 + 1)).clamp(0, 8) as usize;
         text.push('F');
         text.push_str(&format_number(f, digits));
         if text.len() > 79 {
