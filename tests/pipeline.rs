@@ -36,7 +36,11 @@ fn sample(name: &str) -> std::path::PathBuf {
 #[test]
 fn error_20_on_a_chosen_line_stops_the_job_there_with_the_laser_off() {
     let _turn = take_turn();
-    let machine = MachineConfig::load(None).unwrap();
+    // A GRBL 1.1-sized controller (128-byte buffer, 15 planner blocks): the
+    // error comes back while the machine is a few lines behind it.
+    let mut machine = MachineConfig::load(None).unwrap();
+    machine.serial.rx_buffer = 128;
+    machine.simulator.planner_blocks = 15;
     let planned = run::plan(&sample("one-field.svg"), &machine, PlannerKind::Nearest, None).unwrap();
     // A marking line in the middle of the job: the laser is on when it fails.
     let marks: Vec<usize> = planned.program.lines.iter().enumerate().filter(|(_, l)| l.kind == LineKind::Mark).map(|(i, _)| i + 1).collect();

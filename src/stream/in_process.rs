@@ -31,7 +31,13 @@ pub async fn run(
     loop {
         let t = now();
         // Bytes that reached the controller by now, each at its own arrival time.
+        let cut = |c: &Controller| c.config().faults.close_link_at_line.is_some_and(|n| c.stats().lines_received >= n);
         for (at, byte) in inbound.pop_due(t) {
+            // A device gone after its n-th line receives nothing after it,
+            // however many bytes a fast link had on the way.
+            if cut(&controller) {
+                break;
+            }
             controller.advance(at);
             controller.receive(at, byte);
         }
@@ -48,7 +54,7 @@ pub async fn run(
         if !due.is_empty() && sender_open && io.write_all(&due).await.is_err() {
             sender_open = false;
         }
-        let link_cut = controller.config().faults.close_link_at_line.is_some_and(|n| controller.stats().lines_received >= n);
+        let link_cut = cut(&controller);
         if *stop.borrow() || !sender_open || link_cut {
             break;
         }

@@ -125,8 +125,12 @@ where
 {
     /// Puts bytes on the wire now (flushed: the link must not sit on them).
     async fn write(&mut self, bytes: &[u8]) -> Result<()> {
+        // A pipe or socket whose reader has gone, or a pseudo-terminal whose
+        // other side closed (EIO on Linux): the controller has left the link.
+        const EIO: i32 = 5;
         let failed = |e: std::io::Error| match e.kind() {
             std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset => Error::Stream(LINK_CLOSED.into()),
+            _ if e.raw_os_error() == Some(EIO) => Error::Stream(LINK_CLOSED.into()),
             _ => Error::Stream(format!("write failed: {e}")),
         };
         self.writer.write_all(bytes).await.map_err(failed)?;
