@@ -384,3 +384,63 @@ pub fn galvo_bench(machine: &MachineConfig, dir: &std::path::Path, kind: crate::
     let reference_fields_total = cases.iter().map(|c| c.reference_fields).sum();
     Ok(GalvoBench { planner: format!("{kind:?}").to_lowercase(), seeds: seeds.to_vec(), cases, fields_total, reference_fields_total })
 }
+
+/// `bench motion`: how long the trajectory, the split and the program take
+/// against the machine time they produce.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct MotionBench {
+    pub mode: String,
+    pub repeats: usize,
+    pub jobs: Vec<MotionCase>,
+    /// Largest compute time per second of machine time over the jobs.
+    pub worst_share: f64,
+    /// Compute time of all jobs over their machine time.
+    pub total_share: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct MotionCase {
+    pub job: String,
+    pub geometries: usize,
+    pub machine_time_s: f64,
+    /// Median wall-clock time of trajectory + split + program over the repeats.
+    pub motion_time_s: f64,
+    pub share: f64,
+    pub program_lines: usize,
+}
+
+/// Plans each job once (the planner is not timed here), then builds the
+/// trajectory and the program `repeats` times and keeps the median time.
+pub fn motion_bench(machine: &MachineConfig, jobs: &[std::path::PathBuf], mode: Option<crate::motion::Mode>, repeats: usize) -> Result<MotionBench> {
+    if jobs.is_empty() || repeats == 0 {
+        return Err(Error::Config("bench motion: give at least one job and one repeat".into()));
+    }
+    let mode = mode.unwrap_or_else(|| crate::motion::Mode::default_for(machine));
+    let mut cases = Vec::new();
+    for path in jobs {
+        let planned = crate::run::plan(path, machine, crate::plan::PlannerKind::Auto, Some(mode))?;
+        let mut times = Vec::with_capacity(repeats);
+        let mut lines = 0;
+        for _ in 0..repeats {
+            let started = std::time::Instant::now();
+            let trajectory = crate::motion::build(&planned.job, &planned.sequence, machine, mode, crate::run::job_start())?;
+            let program = crate::program::generate(&planned.job, &trajectory, machine)?;
+            times.push(started.elapsed().as_secs_f64());
+            lines = program.lines.len();
+        }
+        times.sort_by(f64::total_cmp);
+        let motion_time_s = times[times.len() / 2];
+        let machine_time_s = planned.trajectory.job_time();
+        cases.push(MotionCase {
+            job: path.display().to_string(),
+            geometries: planned.job.geometries.len(),
+            machine_time_s,
+            motion_time_s,
+            share: motion_time_s / machine_time_s.max(1e-9),
+            program_lines: lines,
+        });
+    }
+    let worst_share = cases.iter().map(|c| c.share).fold(0.0, f64::max);
+    let total_share = cases.iter().map(|c| c.motion_time_s).sum::<f64>() / cases.iter().map(|c| c.machine_time_s).sum::<f64>().max(1e-9);
+    Ok(MotionBench { mode: mode.as_str().to_string(), repeats, jobs: cases, worst_share, total_share })
+}

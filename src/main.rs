@@ -233,6 +233,21 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Compute time of the trajectory, the split and the program against the
+    /// machine time they produce (planning excluded).
+    Motion {
+        /// Job files (SVG).
+        jobs: Vec<PathBuf>,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long)]
+        mode: Option<Mode>,
+        /// Runs per job; the median counts.
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+        #[arg(long)]
+        json: bool,
+    },
     /// How well the sender uses the serial link: character counting against
     /// send-response streaming, on a synthetic program of short 4-axis blocks.
     Link {
@@ -376,6 +391,27 @@ fn run_command(command: Command) -> Result<ExitCode> {
                 println!("  ecp air / nearest {:.3}, / IB + dir-opt {:.3}", r.air_vs_nearest, r.air_vs_construction);
             }
             Ok(if r.ecp.precedence_violations == 0 { ExitCode::SUCCESS } else { ExitCode::from(2) })
+        }
+        Command::Bench { which: BenchCommand::Motion { jobs, config, mode, repeats, json } } => {
+            let machine = MachineConfig::load(config.as_deref())?;
+            let r = laserd::bench::motion_bench(&machine, &jobs, mode, repeats)?;
+            if json {
+                print_json(&r)?;
+            } else {
+                println!("trajectory + split + program, {} mode, median of {} runs", r.mode, r.repeats);
+                for c in &r.jobs {
+                    println!(
+                        "  {:<40} {:>5} geometries  machine {:>8.3} s  computed in {:>7.4} s  ({:.3} %)",
+                        c.job,
+                        c.geometries,
+                        c.machine_time_s,
+                        c.motion_time_s,
+                        c.share * 100.0
+                    );
+                }
+                println!("  worst {:.3} %, all jobs {:.3} % of their machine time", r.worst_share * 100.0, r.total_share * 100.0);
+            }
+            Ok(ExitCode::SUCCESS)
         }
         Command::Bench { which: BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } } => {
             let mut machine = MachineConfig::load(config.as_deref())?;

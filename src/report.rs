@@ -31,6 +31,16 @@ pub struct PlanReport {
     /// G-code lines of the program.
     pub program_lines: usize,
     pub program_bytes: usize,
+    /// Motion blocks of the program per second of machine time (the job's
+    /// clock), against what the configured link carries of this program's
+    /// lines per second (baud / 10 / mean bytes per line) and what a
+    /// 115200-baud link would: a program denser than its link starves the
+    /// controller.
+    pub blocks_per_s: f64,
+    pub link_lines_per_s: f64,
+    pub link_115200_lines_per_s: f64,
+    /// Wall-clock time of the trajectory, the split and the program.
+    pub motion_time_s: f64,
     /// Only in `dry-run`.
     pub sim: Option<SimFigures>,
     pub recording: Option<String>,
@@ -54,8 +64,12 @@ impl PlanReport {
             self.mark_length_mm, self.idle_stroke_mm, self.plan_time_s
         ));
         s.push_str(&format!(
-            "  trajectory {:.3} s (lower bound {:.3} s), program {} lines / {} bytes\n",
-            self.trajectory_time_s, self.lower_bound_s, self.program_lines, self.program_bytes
+            "  trajectory {:.3} s (lower bound {:.3} s), program {} lines / {} bytes, computed in {:.3} s\n",
+            self.trajectory_time_s, self.lower_bound_s, self.program_lines, self.program_bytes, self.motion_time_s
+        ));
+        s.push_str(&format!(
+            "  {:.0} blocks per second of machine time; the link carries {:.0} lines/s (115200 baud: {:.0})\n",
+            self.blocks_per_s, self.link_lines_per_s, self.link_115200_lines_per_s
         ));
         if let Some(sim) = &self.sim {
             s.push_str(&format!(

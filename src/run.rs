@@ -76,9 +76,15 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         let model = crate::plan::cutting::cutting_model(&job, ctx.start, &machine.cutting).ok()?;
         Some(crate::plan::cutting::sequence_precedence_violations(&model, &sequence) as u64)
     });
+    let started = WallInstant::now();
     let trajectory = motion::build(&job, &sequence, machine, mode, job_start())?;
-    let lower_bound_s = motion::lower_bound(&job, &sequence, machine, mode)?;
     let program = program::generate(&job, &trajectory, machine)?;
+    let motion_time_s = started.elapsed().as_secs_f64();
+    let lower_bound_s = motion::lower_bound(&job, &sequence, machine, mode)?;
+    let program_bytes: usize = program.lines.iter().map(|l| l.text.len() + 1).sum();
+    let blocks = program.lines.iter().filter(|l| l.plan_time.is_some() && l.kind != program::LineKind::Approach).count();
+    let mean_line = program_bytes as f64 / program.lines.len().max(1) as f64;
+    let lines_per_s = |baud: f64| baud / 10.0 / mean_line;
     let report = PlanReport {
         job: job_path.display().to_string(),
         planner: planner.name().to_string(),
@@ -93,7 +99,11 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         trajectory_time_s: trajectory.job_time(),
         lower_bound_s,
         program_lines: program.lines.len(),
-        program_bytes: program.lines.iter().map(|l| l.text.len() + 1).sum(),
+        program_bytes,
+        blocks_per_s: blocks as f64 / trajectory.job_time().max(1e-9),
+        link_lines_per_s: lines_per_s(f64::from(machine.serial.baud)),
+        link_115200_lines_per_s: lines_per_s(115_200.0),
+        motion_time_s,
         sim: None,
         recording: None,
     };

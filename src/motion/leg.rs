@@ -187,15 +187,26 @@ impl Leg {
     /// and acceleration phases, ramps), for sampling.
     pub fn breakpoints(&self, out: &mut Vec<f64>) {
         let r = &self.ramp;
-        let phases = [r.tj, r.tj + r.ta, r.duration];
+        // Phase ends within a ramp, long phases (a stage's take tens of
+        // milliseconds) cut every 5 ms.
+        let ramp = |out: &mut Vec<f64>, from: f64| {
+            let mut at = 0.0;
+            for end in [r.tj, r.tj + r.ta, r.duration] {
+                let n = ((end - at) / 5e-3).ceil().max(1.0) as usize;
+                out.extend((1..=n).map(|k| from + at + (end - at) * k as f64 / n as f64));
+                at = end;
+            }
+        };
+        let mut times = Vec::new();
         if self.ramp_in {
-            out.extend(phases.iter().copied().filter(|&x| x > 0.0 && x < self.duration));
+            ramp(&mut times, 0.0);
         }
         if self.ramp_out {
             let s = self.ramp_out_start();
-            out.push(s);
-            out.extend([r.tj, r.tj + r.ta].iter().map(|x| s + x).filter(|&x| x > s && x < self.duration));
+            times.push(s);
+            ramp(&mut times, s);
         }
+        out.extend(times.into_iter().filter(|&x| x > 0.0 && x < self.duration));
     }
 }
 

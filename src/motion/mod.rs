@@ -323,8 +323,9 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     // Field changes where the stage carries the TCP (no burst fits there).
     let mut carried: Vec<bool> = vec![false; groups];
     let mut at: Option<Vec<Point>> = None;
+    let mut corners = tcp::CornerCache::new();
     loop {
-        let mut b = TcpBuilder::new(settings, first, 0.0);
+        let mut b = TcpBuilder::new(settings, first, 0.0).with_corners(std::mem::take(&mut corners));
         let positions = at.clone();
         mark_all(&mut b, job, sequence, machine, |b, g| {
             if let (true, Some(at)) = (carried[g], positions.as_ref()) {
@@ -335,6 +336,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
             }
             Ok(())
         })?;
+        corners = b.take_corners();
         let tcp = b.path;
         let positions = match &at {
             Some(p) => p.clone(),
@@ -346,13 +348,14 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
         };
         match stage::split(&tcp, &positions, &split)? {
             Ok(stage_path) => return with_approach(tcp, stage_path, positions[0], start, first, stage_limits, settings),
-            Err(stage::NoSplit(k)) => {
-                let next = (k + 1..groups).find(|&g| !sequence.groups[g].paths.is_empty()).expect("a field change has a field after");
-                if carried[next] {
-                    return Err(Error::Motion(format!("internal: field change {} failed although carried", k + 1)));
+            Err(stage::NoSplit(into)) => {
+                for g in into {
+                    if carried[g] {
+                        return Err(Error::Motion(format!("internal: the change into field {} failed although carried", g + 1)));
+                    }
+                    tracing::debug!(field = g + 1, "no on-the-fly split at this field change: the stage carries the TCP");
+                    carried[g] = true;
                 }
-                tracing::debug!(field = next + 1, "no on-the-fly split at this field change: the stage carries the TCP");
-                carried[next] = true;
             }
         }
     }
@@ -380,7 +383,7 @@ fn with_approach(mut tcp: TcpPath, mut stage_path: StagePath, stage0: Point, sta
         }
     }
     let start_state = AxisState { stage: start, scanner: Point::origin() };
-    Ok(Trajectory { tcp: TcpPath { pieces }, stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true })
+    Ok(Trajectory { tcp: TcpPath::new(pieces), stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true })
 }
 
 /// The contract's `lower_bound_s` for this sequence: max(T_proc, T_stage).

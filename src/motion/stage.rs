@@ -147,8 +147,8 @@ fn windows(tcp: &TcpPath) -> Vec<Window> {
             let t0 = a + (b - a) * i as f64 / parts as f64;
             let t1 = a + (b - a) * (i + 1) as f64 / parts as f64;
             let mut w = Window { t0, t1, lo: [f64::INFINITY; 2], hi: [f64::NEG_INFINITY; 2] };
-            for j in 0..=4 {
-                let p = tcp.position(t0 + (t1 - t0) * j as f64 / 4.0);
+            for j in 0..=2 {
+                let p = tcp.position(t0 + (t1 - t0) * j as f64 / 2.0);
                 for a in 0..2 {
                     w.lo[a] = w.lo[a].min(p[a]);
                     w.hi[a] = w.hi[a].max(p[a]);
@@ -239,14 +239,14 @@ pub fn stage_positions(tcp: &TcpPath, groups: usize, start: Point, s: &SplitSett
         .collect())
 }
 
-/// The field change from group `k` to `k + 1` that needs the TCP carried.
+/// The field changes (into these groups) that need the TCP carried.
 #[derive(Debug)]
-pub struct NoSplit(pub usize);
+pub struct NoSplit(pub Vec<usize>);
 
 /// The stage's moves for a TCP planned with stage positions `at` (one per
 /// group): a burst per axis at each field change where possible; the carried
-/// pieces of the TCP move the stage with them. `Err(NoSplit(k))` names the
-/// first field change without a timing for a burst.
+/// pieces of the TCP move the stage with them. `Err(NoSplit(groups))` names
+/// the field changes (by the group they lead into) without a timing for a burst.
 pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::result::Result<StagePath, NoSplit>> {
     let spans = group_spans(tcp, at.len());
     let wins = windows(tcp);
@@ -256,6 +256,7 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
     // Time range of each group's own pieces.
     let span_time = |g: usize| spans[g].map(|(a, b)| (tcp.pieces[a].start, tcp.pieces[b].end_time()));
     let mut prev_group: Option<usize> = None;
+    let mut failed = Vec::new();
     for (g, &target) in at.iter().enumerate() {
         let Some((g_start, g_end)) = span_time(g) else { continue };
         if let Some(k) = prev_group {
@@ -273,6 +274,7 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
                 continue;
             }
             let next_end = spans.iter().skip(g + 1).flatten().next().map(|&(a, _)| tcp.pieces[a].start).unwrap_or(f64::INFINITY);
+            let mut bursts = Vec::new();
             for i in 0..2 {
                 let d = target[i] - stage[i];
                 if d.abs() < 1e-9 {
@@ -283,13 +285,24 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
                 // The burst ends before the next field begins.
                 let latest = g_end.min(next_end) - leg.duration;
                 match burst_start(&wins, i, stage[i], target[i], &leg, earliest, latest, k_end, g_start, s.half) {
-                    Some(t0) => axes[i].push(AxisMove { start: t0, from: stage[i], to: target[i], leg }),
-                    None => return Ok(Err(NoSplit(k))),
+                    Some(t0) => bursts.push((i, AxisMove { start: t0, from: stage[i], to: target[i], leg })),
+                    None => {
+                        // Carried in the next plan; go on to find all such changes at once.
+                        failed.push(g);
+                        bursts.clear();
+                        break;
+                    }
                 }
+            }
+            for (i, m) in bursts {
+                axes[i].push(m);
             }
             stage = target;
         }
         prev_group = Some(g);
+    }
+    if !failed.is_empty() {
+        return Ok(Err(NoSplit(failed)));
     }
     Ok(Ok(StagePath::Moves { start, axes }))
 }

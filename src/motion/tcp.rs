@@ -102,8 +102,15 @@ impl Piece {
 
     /// Times inside the piece (from its start) where the motion changes character.
     pub fn breakpoints(&self, out: &mut Vec<f64>) {
-        if let Motion::Leg { leg, .. } = &self.motion {
-            leg.breakpoints(out);
+        match &self.motion {
+            Motion::Leg { leg, .. } => leg.breakpoints(out),
+            // A Ruckig move's phases are not exposed: eighths of it, or
+            // every 5 ms of a long one (an approach across the table).
+            Motion::Free(m) => {
+                let n = ((m.duration / 5e-3).ceil() as usize).clamp(8, 256);
+                out.extend((1..n).map(|k| m.duration * k as f64 / n as f64));
+            }
+            Motion::Still(_) => {}
         }
     }
 
@@ -128,13 +135,16 @@ impl Piece {
 
 /// Samples over a free move where its path is bounded (its bow or overshoot
 /// is a fraction of its length, so this many samples find it closely).
-pub const FREE_SAMPLES: usize = 24;
+pub const FREE_SAMPLES: usize = 12;
 
 /// The TCP's pieces in time order. Two consecutive legs overlap at a blended
 /// corner; nothing else overlaps.
 #[derive(Debug, Default)]
 pub struct TcpPath {
     pub pieces: Vec<Piece>,
+    /// Start times of the pieces, for finding the piece at a time (built on
+    /// first use: a path is sampled after it is built).
+    starts: std::cell::OnceCell<Vec<f64>>,
 }
 
 impl TcpPath {
@@ -142,9 +152,17 @@ impl TcpPath {
         self.pieces.iter().map(Piece::end_time).fold(0.0, f64::max)
     }
 
+    pub fn new(pieces: Vec<Piece>) -> TcpPath {
+        TcpPath { pieces, starts: Default::default() }
+    }
+
     /// Index of the last piece starting at or before `t` (0 before the first).
     pub fn index_at(&self, t: f64) -> usize {
-        self.pieces.partition_point(|p| p.start <= t).saturating_sub(1)
+        let starts = self.starts.get_or_init(|| self.pieces.iter().map(|p| p.start).collect());
+        if starts.len() != self.pieces.len() {
+            return self.pieces.partition_point(|p| p.start <= t).saturating_sub(1);
+        }
+        starts.partition_point(|&s| s <= t).saturating_sub(1)
     }
 
     /// Position at time `t`.
@@ -154,6 +172,20 @@ impl TcpPath {
             return last.end_point();
         }
         let k = self.index_at(t);
+        self.position_from(k, t)
+    }
+
+    /// Position at `t`, knowing that the piece running then is one of
+    /// `lo..=hi` (a faster search where many nearby times are asked for).
+    pub fn position_among(&self, t: f64, lo: usize, hi: usize) -> Point {
+        let hi = hi.min(self.pieces.len().saturating_sub(1));
+        if lo > hi || t < self.pieces[lo].start || (hi + 1 < self.pieces.len() && t >= self.pieces[hi + 1].start) {
+            return self.position(t);
+        }
+        let k = lo + self.pieces[lo..=hi].partition_point(|p| p.start <= t).saturating_sub(1);
+        if k == self.pieces.len() - 1 && t >= self.pieces[k].end_time() {
+            return self.pieces[k].end_point();
+        }
         self.position_from(k, t)
     }
 
@@ -176,6 +208,7 @@ impl TcpPath {
         for p in &mut self.pieces {
             p.start += dt;
         }
+        self.starts = Default::default();
     }
 }
 
@@ -293,7 +326,7 @@ fn corner_overlap(a: (&Leg, Vector2<f64>), b: (&Leg, Vector2<f64>), vertex: Poin
         return max;
     }
     let (mut good, mut bad) = (0.0, max);
-    for _ in 0..24 {
+    for _ in 0..14 {
         let mid = 0.5 * (good + bad);
         if feasible(mid) {
             good = mid;
@@ -318,12 +351,20 @@ pub struct TcpBuilder {
     pub time: f64,
     pub position: Point,
     pub velocity: Vector2<f64>,
+    /// Overlaps of corners already planned, by directions and speeds (kept
+    /// from one plan of a job to the next with `take_corners`).
+    corners: std::cell::RefCell<std::collections::HashMap<CornerKey, f64>>,
 }
+
+/// Corner overlaps by the directions and speeds of their legs.
+pub type CornerCache = std::collections::HashMap<CornerKey, f64>;
+
+pub type CornerKey = (i64, i64, i64, i64, i64, i64, bool, bool);
 
 impl TcpBuilder {
     /// Starting at rest at `position` at time `time`.
     pub fn new(settings: TcpSettings, position: Point, time: f64) -> TcpBuilder {
-        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros() }
+        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros(), corners: Default::default() }
     }
 
     fn push(&mut self, kind: PieceKind, group: usize, motion: Motion, duration: f64) {
@@ -369,7 +410,23 @@ impl TcpBuilder {
         for i in 0..n {
             legs[i].3 = t;
             let overlap = if s.blend && i + 1 < n {
-                corner_overlap((&legs[i].2, legs[i].1), (&legs[i + 1].2, legs[i + 1].1), points[i + 1], s, speed)
+                let (a, b) = (&legs[i].2, &legs[i + 1].2);
+                // Corners of legs at full speed on both sides depend only on
+                // the two directions and the ramps: jobs repeat them a lot.
+                let key = (a.cruise > 0.0 && b.cruise > 0.0).then(|| {
+                    let q = |x: f64| (x * 1e9).round() as i64;
+                    (q(legs[i].1.x), q(legs[i].1.y), q(legs[i + 1].1.x), q(legs[i + 1].1.y), q(a.speed()), q(b.speed()), a.ramp_in, b.ramp_out)
+                });
+                match key.and_then(|k| self.corners.borrow().get(&k).copied()) {
+                    Some(o) => o,
+                    None => {
+                        let o = corner_overlap((a, legs[i].1), (b, legs[i + 1].1), points[i + 1], s, speed);
+                        if let Some(k) = key {
+                            self.corners.borrow_mut().insert(k, o);
+                        }
+                        o
+                    }
+                }
             } else {
                 0.0
             };
@@ -407,6 +464,16 @@ impl TcpBuilder {
         self.time += leg.duration;
         self.position = to;
         Ok(())
+    }
+
+    /// Starts from the corners another builder with the same settings planned.
+    pub fn with_corners(mut self, corners: CornerCache) -> TcpBuilder {
+        self.corners = std::cell::RefCell::new(corners);
+        self
+    }
+
+    pub fn take_corners(&self) -> CornerCache {
+        self.corners.take()
     }
 
     /// Comes to rest straight ahead if moving.

@@ -204,6 +204,30 @@ impl Writer {
 
 /// `v` with at most `decimals` decimals, trailing zeros trimmed (`-0` as `0`).
 pub fn format_number(v: f64, decimals: usize) -> String {
+    let scale = 10f64.powi(decimals as i32);
+    let scaled = (v * scale).round();
+    // Integer arithmetic where the value fits (always, for machine
+    // coordinates): formatting floats is a large share of writing a program.
+    if scaled.abs() < 9.0e15 {
+        let n = scaled as i64;
+        let unit = 10i64.pow(decimals as u32);
+        let (int, mut frac) = (n.unsigned_abs() / unit as u64, n.unsigned_abs() % unit as u64);
+        let mut s = String::with_capacity(24);
+        if n < 0 {
+            s.push('-');
+        }
+        s.push_str(&int.to_string());
+        if frac > 0 {
+            let mut digits = decimals;
+            while frac % 10 == 0 {
+                frac /= 10;
+                digits -= 1;
+            }
+            s.push('.');
+            s.push_str(&format!("{frac:0digits$}"));
+        }
+        return s;
+    }
     let mut s = format!("{:.*}", decimals, v);
     if s.contains('.') {
         while s.ends_with('0') {
@@ -301,6 +325,7 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
     let lo = span.first.saturating_sub(1);
     let hi = (span.last + 1).min(tcp.pieces.len().saturating_sub(1));
     let mut bp = Vec::new();
+    let at = |t: f64| tcp.position_among(t, lo, hi);
     for p in &tcp.pieces[lo..=hi] {
         marks.push(p.start);
         marks.push(p.end_time());
@@ -311,55 +336,88 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
     marks.retain(|&t| t >= span.start && t <= span.end);
     marks.sort_by(f64::total_cmp);
     marks.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
-    // Legs change character only at their phase changes; free moves (Ruckig)
-    // are sampled more finely.
-    let parts = if span.kind == LineKind::Mark { 4 } else { 12 };
-    let error = |a: f64, b: f64| -> f64 {
-        let (pa, pb) = (tcp.position(a), tcp.position(b));
-        let lo = marks.partition_point(|&t| t <= a);
-        let hi = marks.partition_point(|&t| t < b);
-        let mut prev = a;
-        let mut worst: f64 = 0.0;
-        let mut at = |t: f64| {
-            let f = (t - a) / (b - a);
-            worst = worst.max((tcp.position(t) - (pa + (pb - pa) * f)).norm());
-        };
-        for &t in marks[lo..hi].iter().chain(std::iter::once(&b)) {
-            for q in 1..parts {
-                at(prev + (q as f64 / parts as f64) * (t - prev));
-            }
-            if t < b {
-                at(t);
-            }
-            prev = t;
+    // Legs change character only at their phase changes (free moves give
+    // eighths of themselves): quarters between them.
+    let parts = 4;
+    let marking = span.kind == LineKind::Mark;
+    // Positions at the phase changes and between them, computed once; a
+    // block's error is then read off these samples (and stops at the first
+    // one out of tolerance).
+    let mut sample_t = Vec::with_capacity(marks.len() * parts);
+    for w in marks.windows(2) {
+        for q in 0..parts {
+            sample_t.push(w[0] + (q as f64 / parts as f64) * (w[1] - w[0]));
         }
-        worst
+    }
+    sample_t.push(span.end);
+    let sample_p: Vec<Point> = sample_t.iter().map(|&t| at(t)).collect();
+    let limit = 0.9 * tolerance;
+    // Within the tolerance: a block from `a` to `b`. Where either end is not
+    // a sample, the samples between and a few points of the partial
+    // stretches next to the ends count.
+    // A position, read off the samples where `t` is one.
+    let position = |t: f64| -> (Point, bool) {
+        let k = sample_t.partition_point(|&s| s < t);
+        match sample_t.get(k) {
+            Some(&s) if s == t => (sample_p[k], true),
+            _ => (at(t), false),
+        }
     };
-    // Aim a little inside the tolerance: the samples find nearly, not exactly, the worst.
-    let tolerance = 0.95 * tolerance;
+    let within = |a: f64, b: f64| -> bool {
+        let ((pa, a_sampled), (pb, b_sampled)) = (position(a), position(b));
+        let off = |t: f64, p: Point| (p - (pa + (pb - pa) * ((t - a) / (b - a)))).norm() <= limit;
+        let lo = sample_t.partition_point(|&t| t <= a);
+        let hi = sample_t.partition_point(|&t| t < b);
+        if !(lo..hi).all(|k| off(sample_t[k], sample_p[k])) {
+            return false;
+        }
+        // An end that is not a sample: the stretch from it to the nearest
+        // sample counts too.
+        let first = sample_t.get(lo).copied().unwrap_or(b).min(b);
+        let last = if hi > lo { sample_t[hi - 1] } else { a };
+        let stretch = |x: f64, y: f64| {
+            (1..4).all(|q| {
+                let t = x + (q as f64 / 4.0) * (y - x);
+                off(t, at(t))
+            })
+        };
+        // And, off the marks, the block's own eighths: laser-off moves have
+        // long phases (an approach across the table).
+        (a_sampled || stretch(a, first))
+            && (b_sampled || stretch(last, b))
+            && (marking || (1..8).all(|q| {
+                let t = a + (q as f64 / 8.0) * (b - a);
+                off(t, at(t))
+            }))
+    };
+    // (The limit is a little inside the tolerance: the samples find nearly,
+    // not exactly, the worst.)
     let mut times = vec![span.start];
     let mut a = span.start;
     let mut i = 0;
     while span.end - a > 1e-12 {
-        // Farthest phase change the block reaches within the tolerance.
-        let mut j = i + 1;
-        let mut reached = None;
-        while j < marks.len() {
-            if error(a, marks[j]) <= tolerance {
-                reached = Some(j);
-                j += 1;
+        // Farthest phase change the block reaches within the tolerance:
+        // galloping, then bisecting over the phase changes.
+        let n = marks.len();
+        let (mut good_j, mut bad_j) = (i, n);
+        for (j, &t) in marks.iter().enumerate().skip(i + 1) {
+            if within(a, t) {
+                good_j = j;
             } else {
+                bad_j = j;
                 break;
             }
         }
+        let reached = (good_j > i).then_some(good_j);
+        let j = bad_j;
         let b = match reached {
             Some(r) if r + 1 == marks.len() => marks[r],
             _ => {
                 // Bisect between the last good end and the first bad one.
                 let (mut good, mut bad) = (reached.map_or(a, |r| marks[r]), marks[j.min(marks.len() - 1)]);
-                for _ in 0..30 {
+                for _ in 0..14 {
                     let mid = 0.5 * (good + bad);
-                    if error(a, mid) <= tolerance {
+                    if within(a, mid) {
                         good = mid;
                     } else {
                         bad = mid;
@@ -481,6 +539,11 @@ mod tests {
         assert_eq!(format_number(12.30000, 4), "12.3");
         assert_eq!(format_number(-0.00001, 4), "0");
         assert_eq!(format_number(300.0, 4), "300");
+        assert_eq!(format_number(-0.5, 4), "-0.5");
+        assert_eq!(format_number(-12.000049, 4), "-12");
+        assert_eq!(format_number(0.00123456, 8), "0.00123456");
+        assert_eq!(format_number(1234567.891, 1), "1234567.9");
+        assert_eq!(format_number(60.0 / 0.0042, 6), "14285.714286");
     }
 
     /// Re-executes `prog` as a controller would (constant velocity per block, a
