@@ -51,6 +51,12 @@ fn dry_run_json_and_replay_reproduce_the_same_sim_figures() {
     // begin and end at speed may beat it a little, not by much.
     assert!(report["trajectory_time_s"].as_f64().unwrap() >= 0.95 * report["lower_bound_s"].as_f64().unwrap());
     assert!(sim["peak_field_use"].as_f64().unwrap() <= 1.0);
+    // Blocks per second of machine time against what the links carry: the
+    // default 921600-baud link carries eight times what 115200 does.
+    let (blocks, link, slow) = (report["blocks_per_s"].as_f64().unwrap(), report["link_lines_per_s"].as_f64().unwrap(), report["link_115200_lines_per_s"].as_f64().unwrap());
+    assert!(blocks > 0.0 && blocks < link, "{report}");
+    assert!((link / slow - 8.0).abs() < 1e-9, "{report}");
+    assert!(report["motion_time_s"].as_f64().unwrap() > 0.0);
     assert!(rec.exists());
 
     let replayed = json(&laserd(&["replay", rec.to_str().unwrap(), "--json"], dir.path()));
@@ -254,6 +260,27 @@ fn bench_link_reports_character_counting_against_send_response() {
     let long = json(&laserd(&["bench", "link", "--blocks", "600", "--block-ms", "5", "--json"], dir.path()));
     assert!(long["block_s"].as_f64().unwrap() > long["line_time_s"].as_f64().unwrap());
     assert_eq!(long["character_counting"]["planner_starved_s"].as_f64().unwrap(), 0.0, "{long}");
+}
+
+/// `bench motion`: the compute time of trajectory, split and program against
+/// the machine time they produce, per job and in all.
+#[test]
+fn bench_motion_reports_compute_time_against_machine_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = json(&laserd(&["bench", "motion", &sample("one-field.svg"), &sample("marking-300.svg"), "--repeats", "1", "--json"], dir.path()));
+    assert_eq!(r["mode"], "on-the-fly");
+    let jobs = r["jobs"].as_array().unwrap();
+    assert_eq!(jobs.len(), 2);
+    let mut worst: f64 = 0.0;
+    for job in jobs {
+        let (machine, motion, share) = (job["machine_time_s"].as_f64().unwrap(), job["motion_time_s"].as_f64().unwrap(), job["share"].as_f64().unwrap());
+        assert!(machine > 0.1 && motion > 0.0, "{job}");
+        assert!((share - motion / machine).abs() < 1e-12, "{job}");
+        worst = worst.max(share);
+    }
+    assert_eq!(r["worst_share"].as_f64().unwrap(), worst);
+    let out = laserd(&["bench", "motion", "--json"], dir.path());
+    assert_clean_error(&out, "at least one job");
 }
 
 /// The pseudo-terminal closing in the middle of a job (`--fault
