@@ -290,13 +290,16 @@ fn spans(trajectory: &Trajectory, machine: &MachineConfig) -> Vec<Span> {
         if out[i].kind != LineKind::Mark {
             continue;
         }
+        // At most the whole laser-off stretch before (a jump shorter than the
+        // delay lights the laser at its start, the mark's first bit late).
+        const MIN_SPAN: f64 = 1e-6;
         if on > 0.0 && i > 0 && out[i - 1].power == 0.0 {
-            let t = (out[i].start - on).max(out[i - 1].start + 0.5 * (out[i - 1].end - out[i - 1].start));
+            let t = (out[i].start - on).max(out[i - 1].start + MIN_SPAN).min(out[i].start);
             out[i - 1].end = t;
             out[i].start = t;
         }
         if off > 0.0 && i + 1 < out.len() && out[i + 1].power == 0.0 {
-            let t = (out[i].end - off).max(out[i].start + 0.5 * (out[i].end - out[i].start));
+            let t = (out[i].end - off).max(out[i].start + MIN_SPAN).min(out[i].end);
             out[i].end = t;
             out[i + 1].start = t;
         }
@@ -627,6 +630,38 @@ mod tests {
             }
         }
         assert!(counts[0] > 2 * counts[1], "step-and-scan {} vs on-the-fly {}", counts[0], counts[1]);
+    }
+
+    #[test]
+    fn laser_delays_move_the_switching_points_ahead_of_the_mark() {
+        let (on, off) = (2e-4, 1e-4);
+        let mut machine = MachineConfig::load(None).unwrap();
+        let job = circle_job();
+        let planning = Mode::OnTheFly.planning_machine(&machine);
+        let ctx = PlanContext { machine: &planning, mode: Mode::OnTheFly, start: Point::origin() };
+        let seq = NearestNeighbour.plan(&job, &ctx).unwrap();
+        let tr = build(&job, &seq, &machine, Mode::OnTheFly, Point::origin()).unwrap();
+        let marks: Vec<_> = tr.tcp.pieces.iter().filter(|p| p.is_marking()).collect();
+        let (start, end) = (marks[0].start, marks.last().unwrap().end_time());
+        let switch_times = |prog: &Program| {
+            let on_at = prog.lines.iter().find(|l| l.kind == LineKind::Mark).and_then(|l| l.plan_time).unwrap().0;
+            let off_at = prog.lines.iter().rev().find(|l| l.kind == LineKind::Mark).and_then(|l| l.plan_time).unwrap().1;
+            (on_at, off_at)
+        };
+        let (a, b) = switch_times(&generate(&job, &tr, &machine).unwrap());
+        assert!((a - start).abs() < 1e-12 && (b - end).abs() < 1e-12, "no delays: the laser switches with the mark");
+        machine.laser.on_delay = on;
+        machine.laser.off_delay = off;
+        let prog = generate(&job, &tr, &machine).unwrap();
+        let (on_at, off_at) = switch_times(&prog);
+        assert!((on_at - (start - on)).abs() < 1e-12, "laser on {on_at} for a mark at {start}");
+        assert!((off_at - (end - off)).abs() < 1e-12, "laser off {off_at} for a mark ending at {end}");
+        // The block that switches it on carries the power; the one after the
+        // mark switches it off.
+        let first = prog.lines.iter().position(|l| l.kind == LineKind::Mark).unwrap();
+        assert!(prog.lines[first].text.contains("S250"), "{}", prog.lines[first].text);
+        let after = prog.lines.iter().rposition(|l| l.kind == LineKind::Mark).unwrap() + 1;
+        assert!(prog.lines[after].text.contains("S0"), "{}", prog.lines[after].text);
     }
 
     #[test]
