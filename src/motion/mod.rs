@@ -323,9 +323,9 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     // Field changes where the stage carries the TCP (no burst fits there).
     let mut carried: Vec<bool> = vec![false; groups];
     let mut at: Option<Vec<Point>> = None;
-    let mut corners = tcp::CornerCache::new();
+    let mut cache = tcp::PlanCache::default();
     loop {
-        let mut b = TcpBuilder::new(settings, first, 0.0).with_corners(std::mem::take(&mut corners));
+        let mut b = TcpBuilder::new(settings, first, 0.0).with_cache(std::mem::take(&mut cache));
         let positions = at.clone();
         mark_all(&mut b, job, sequence, machine, |b, g| {
             if let (true, Some(at)) = (carried[g], positions.as_ref()) {
@@ -336,7 +336,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
             }
             Ok(())
         })?;
-        corners = b.take_corners();
+        cache = b.take_cache();
         let tcp = b.path;
         let positions = match &at {
             Some(p) => p.clone(),

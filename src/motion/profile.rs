@@ -101,6 +101,7 @@ impl Profile {
 /// no acceleration) to another, time-optimal within per-axis limits: Ruckig's
 /// state-to-state `calculate`, the axes synchronised in time. The path between
 /// is free (it may bow or overshoot); callers bound it by sampling.
+#[derive(Clone)]
 pub struct FreeMove {
     pub from: Point,
     pub to: Point,

@@ -351,20 +351,26 @@ pub struct TcpBuilder {
     pub time: f64,
     pub position: Point,
     pub velocity: Vector2<f64>,
-    /// Overlaps of corners already planned, by directions and speeds (kept
-    /// from one plan of a job to the next with `take_corners`).
-    corners: std::cell::RefCell<std::collections::HashMap<CornerKey, f64>>,
+    /// Corners and laser-off moves already planned (kept from one plan of a
+    /// job to the next with `take_cache`: a replan after a field change the
+    /// stage cannot make on the fly changes only that change).
+    cache: std::cell::RefCell<PlanCache>,
 }
 
-/// Corner overlaps by the directions and speeds of their legs.
-pub type CornerCache = std::collections::HashMap<CornerKey, f64>;
+/// Corner overlaps by the directions and speeds of their legs, and free
+/// moves by their end states.
+#[derive(Default)]
+pub struct PlanCache {
+    corners: std::collections::HashMap<CornerKey, f64>,
+    moves: std::collections::HashMap<[i64; 8], FreeMove>,
+}
 
 pub type CornerKey = (i64, i64, i64, i64, i64, i64, bool, bool);
 
 impl TcpBuilder {
     /// Starting at rest at `position` at time `time`.
     pub fn new(settings: TcpSettings, position: Point, time: f64) -> TcpBuilder {
-        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros(), corners: Default::default() }
+        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros(), cache: Default::default() }
     }
 
     fn push(&mut self, kind: PieceKind, group: usize, motion: Motion, duration: f64) {
@@ -417,12 +423,12 @@ impl TcpBuilder {
                     let q = |x: f64| (x * 1e9).round() as i64;
                     (q(legs[i].1.x), q(legs[i].1.y), q(legs[i + 1].1.x), q(legs[i + 1].1.y), q(a.speed()), q(b.speed()), a.ramp_in, b.ramp_out)
                 });
-                match key.and_then(|k| self.corners.borrow().get(&k).copied()) {
+                match key.and_then(|k| self.cache.borrow().corners.get(&k).copied()) {
                     Some(o) => o,
                     None => {
                         let o = corner_overlap((a, legs[i].1), (b, legs[i + 1].1), points[i + 1], s, speed);
                         if let Some(k) = key {
-                            self.corners.borrow_mut().insert(k, o);
+                            self.cache.borrow_mut().corners.insert(k, o);
                         }
                         o
                     }
@@ -441,7 +447,17 @@ impl TcpBuilder {
         if (to - self.position).norm() < 1e-9 && (velocity - self.velocity).norm() < 1e-9 {
             return Ok(());
         }
-        let m = FreeMove::new(self.position, self.velocity, to, velocity, self.settings.axis)?;
+        let q = |x: f64| (x * 1e9).round() as i64;
+        let key = [self.position.x, self.position.y, self.velocity.x, self.velocity.y, to.x, to.y, velocity.x, velocity.y].map(q);
+        let cached = self.cache.borrow().moves.get(&key).cloned();
+        let m = match cached {
+            Some(m) => m,
+            None => {
+                let m = FreeMove::new(self.position, self.velocity, to, velocity, self.settings.axis)?;
+                self.cache.borrow_mut().moves.insert(key, m.clone());
+                m
+            }
+        };
         let d = m.duration;
         self.push(kind, group, Motion::Free(m), d);
         self.time += d;
@@ -466,14 +482,14 @@ impl TcpBuilder {
         Ok(())
     }
 
-    /// Starts from the corners another builder with the same settings planned.
-    pub fn with_corners(mut self, corners: CornerCache) -> TcpBuilder {
-        self.corners = std::cell::RefCell::new(corners);
+    /// Starts from what another builder with the same settings planned.
+    pub fn with_cache(mut self, cache: PlanCache) -> TcpBuilder {
+        self.cache = std::cell::RefCell::new(cache);
         self
     }
 
-    pub fn take_corners(&self) -> CornerCache {
-        self.corners.take()
+    pub fn take_cache(&self) -> PlanCache {
+        self.cache.take()
     }
 
     /// Comes to rest straight ahead if moving.

@@ -402,13 +402,26 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
         // Farthest phase change the block reaches within the tolerance:
         // galloping, then bisecting over the phase changes.
         let n = marks.len();
-        let (mut good_j, mut bad_j) = (i, n);
-        for (j, &t) in marks.iter().enumerate().skip(i + 1) {
-            if within(a, t) {
+        let (mut good_j, mut bad_j, mut step) = (i, n, 1);
+        loop {
+            let j = (good_j + step).min(n - 1);
+            if j <= good_j {
+                break;
+            }
+            if within(a, marks[j]) {
                 good_j = j;
+                step *= 2;
             } else {
                 bad_j = j;
                 break;
+            }
+        }
+        while bad_j < n && bad_j - good_j > 1 {
+            let mid = (good_j + bad_j) / 2;
+            if within(a, marks[mid]) {
+                good_j = mid;
+            } else {
+                bad_j = mid;
             }
         }
         let reached = (good_j > i).then_some(good_j);
