@@ -147,15 +147,6 @@ impl Leg {
         }
     }
 
-    /// End of the ramp up.
-    pub fn ramp_in_end(&self) -> f64 {
-        if self.ramp_in {
-            self.ramp.duration
-        } else {
-            0.0
-        }
-    }
-
     /// (distance, speed, acceleration, jerk) along the leg `t` seconds in
     /// (clamped to the leg: before it at its start, after it at its end).
     pub fn at(&self, t: f64) -> [f64; 4] {

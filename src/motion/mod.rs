@@ -33,7 +33,7 @@ use crate::config::{Limits, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{Job, Point};
 use crate::plan::Sequence;
-pub use profile::{rest_to_rest_time, Profile};
+pub use profile::rest_to_rest_time;
 use stage::{SplitSettings, StagePath};
 use tcp::{PieceKind, TcpBuilder, TcpPath, TcpSettings};
 

@@ -262,7 +262,9 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
         if let Some(k) = prev_group {
             // Pieces the stage carries into this group.
             let (k_start, k_end) = span_time(k).expect("a previous group has pieces");
-            let carried: Vec<&Piece> = tcp.pieces.iter().filter(|p| p.group == g && p.kind == PieceKind::Carried && p.start >= k_end - 1e-12).collect();
+            // The laser-off pieces between the two groups' own ones.
+            let (after_k, g_first) = (spans[k].expect("a previous group has pieces").1 + 1, spans[g].expect("this group has pieces").0);
+            let carried: Vec<&Piece> = tcp.pieces[after_k..g_first].iter().filter(|p| p.kind == PieceKind::Carried).collect();
             if !carried.is_empty() {
                 for p in carried {
                     stage = carried_moves(p, &mut axes, stage);

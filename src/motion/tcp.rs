@@ -159,9 +159,7 @@ impl TcpPath {
     /// Index of the last piece starting at or before `t` (0 before the first).
     pub fn index_at(&self, t: f64) -> usize {
         let starts = self.starts.get_or_init(|| self.pieces.iter().map(|p| p.start).collect());
-        if starts.len() != self.pieces.len() {
-            return self.pieces.partition_point(|p| p.start <= t).saturating_sub(1);
-        }
+        debug_assert_eq!(starts.len(), self.pieces.len(), "pieces changed after the path was sampled");
         starts.partition_point(|&s| s <= t).saturating_sub(1)
     }
 
