@@ -10,6 +10,7 @@ pub mod error;
 pub mod job;
 pub mod import;
 pub mod motion;
+pub mod parallel;
 pub mod plan;
 pub mod program;
 pub mod figures;

@@ -36,7 +36,7 @@ struct JobArgs {
     config: Option<PathBuf>,
     #[arg(long, default_value = "auto")]
     planner: PlannerKind,
-    /// on-the-fly, step-and-scan or stage-only (default: step-and-scan with a scanner, else stage-only).
+    /// on-the-fly, step-and-scan or stage-only (default: on-the-fly with a scanner, else stage-only).
     #[arg(long)]
     mode: Option<Mode>,
     /// Planning time limit in seconds for the search planners ecp and hga

@@ -35,7 +35,7 @@ use crate::job::{Job, Point};
 use crate::plan::Sequence;
 pub use profile::rest_to_rest_time;
 use stage::{SplitSettings, StagePath};
-use tcp::{PieceKind, TcpBuilder, TcpPath, TcpSettings};
+use tcp::{MarkRequest, PieceKind, Run, TcpBuilder, TcpPath, TcpSettings};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Mode {
@@ -224,23 +224,37 @@ pub fn build(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode
 }
 
 /// Marks every path of `sequence` with `b`; `before_group` runs before each
-/// group's first path (a field change).
+/// group's first path (a field change). The marks' runs are planned ahead
+/// into `runs` unless it holds them from an earlier plan of this sequence.
 fn mark_all(
     b: &mut TcpBuilder,
     job: &Job,
     sequence: &Sequence,
     machine: &MachineConfig,
+    runs: &mut Option<Vec<Option<Run>>>,
     mut before_group: impl FnMut(&mut TcpBuilder, usize) -> Result<()>,
 ) -> Result<()> {
     let cap = b.settings.mark_speed;
+    let processes: Vec<_> = sequence.paths().map(|path| process_of(job, machine, path.process, cap)).collect();
+    if runs.is_none() {
+        let requests: Vec<_> = sequence
+            .paths()
+            .zip(&processes)
+            .map(|(path, (speed, _, pierce))| MarkRequest { points: &path.points, speed: *speed, pierce: pierce.time > 0.0 })
+            .collect();
+        *runs = Some(b.prepare(&requests)?);
+    }
+    let planned = runs.as_ref().expect("planned above");
+    let mut k = 0;
     for (g, group) in sequence.groups.iter().enumerate() {
         if group.paths.is_empty() {
             continue;
         }
         before_group(b, g)?;
         for path in &group.paths {
-            let (speed, power, pierce) = process_of(job, machine, path.process, cap);
-            b.mark(path.geometry, g, &path.points, speed, power, pierce.time, pierce.power)?;
+            let (_, power, pierce) = processes[k];
+            b.mark_run(path.geometry, g, planned[k].as_ref(), power, pierce.time, pierce.power)?;
+            k += 1;
         }
     }
     b.stop(sequence.groups.len().saturating_sub(1))
@@ -258,7 +272,7 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
         b.jump(PieceKind::Approach, 0, f, nalgebra::Vector2::zeros())?;
     }
     let job_start = b.time;
-    mark_all(&mut b, job, sequence, machine, |_, _| Ok(()))?;
+    mark_all(&mut b, job, sequence, machine, &mut None, |_, _| Ok(()))?;
     let start_state = AxisState { stage: start, scanner: Point::origin() };
     Ok(Trajectory { tcp: b.path, stage: StagePath::FollowsTcp, start: start_state, job_start, has_scanner: machine.scanner.is_some() })
 }
@@ -283,7 +297,7 @@ fn step_and_scan(job: &Job, sequence: &Sequence, machine: &MachineConfig, start:
     let mut stage_at = start;
     let mut job_start = 0.0;
     let mut first_group = true;
-    mark_all(&mut b, job, sequence, machine, |b, g| {
+    mark_all(&mut b, job, sequence, machine, &mut None, |b, g| {
         // The stage carries the scanner (holding still) to the field's centre.
         let kind = if first_group { PieceKind::Approach } else { PieceKind::Carried };
         b.stop(g)?;
@@ -324,10 +338,11 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     let mut carried: Vec<bool> = vec![false; groups];
     let mut at: Option<Vec<Point>> = None;
     let mut cache = tcp::PlanCache::default();
+    let mut runs: Option<Vec<Option<Run>>> = None;
     loop {
         let mut b = TcpBuilder::new(settings, first, 0.0).with_cache(std::mem::take(&mut cache));
         let positions = at.clone();
-        mark_all(&mut b, job, sequence, machine, |b, g| {
+        mark_all(&mut b, job, sequence, machine, &mut runs, |b, g| {
             if let (true, Some(at)) = (carried[g], positions.as_ref()) {
                 let prev = (0..g).rev().find(|&k| !sequence.groups[k].paths.is_empty()).expect("a field change has a field before");
                 b.stop(g)?;

@@ -144,7 +144,7 @@ pub struct TcpPath {
     pub pieces: Vec<Piece>,
     /// Start times of the pieces, for finding the piece at a time (built on
     /// first use: a path is sampled after it is built).
-    starts: std::cell::OnceCell<Vec<f64>>,
+    starts: std::sync::OnceLock<Vec<f64>>,
 }
 
 impl TcpPath {
@@ -227,7 +227,7 @@ pub struct TcpSettings {
 }
 
 /// A planned mark: its legs with their start times relative to the run's start.
-struct Run {
+pub struct Run {
     legs: Vec<(Point, Vector2<f64>, Leg, f64)>,
     duration: f64,
 }
@@ -236,6 +236,11 @@ impl Run {
     fn entry_velocity(&self) -> Vector2<f64> {
         let (_, dir, leg, _) = &self.legs[0];
         dir * leg.at(0.0)[1]
+    }
+
+    fn exit_point(&self) -> Point {
+        let (from, dir, leg, _) = self.legs.last().expect("a run has legs");
+        from + dir * leg.length
     }
 
     fn exit_velocity(&self) -> Vector2<f64> {
@@ -323,8 +328,12 @@ fn corner_overlap(a: (&Leg, Vector2<f64>), b: (&Leg, Vector2<f64>), vertex: Poin
     if feasible(max) {
         return max;
     }
+    // To a thousandth of the overlap: a finer one gains nothing measurable.
     let (mut good, mut bad) = (0.0, max);
     for _ in 0..14 {
+        if bad - good <= 1e-3 * good {
+            break;
+        }
         let mid = 0.5 * (good + bad);
         if feasible(mid) {
             good = mid;
@@ -340,6 +349,71 @@ fn corner_overlap(a: (&Leg, Vector2<f64>), b: (&Leg, Vector2<f64>), vertex: Poin
 pub fn path_limits(axis: Limits, d: Vector2<f64>) -> Limits {
     let share = d.x.abs().max(d.y.abs()) / d.norm();
     axis.scaled(1.0 / share)
+}
+
+/// The run of legs marking `points` at `speed` (none for fewer than two
+/// distinct points); corners already in `corners` are taken from there.
+fn plan_run(s: &TcpSettings, corners: &mut Corners, points: &[Point], speed: f64, ramp_in: bool) -> Result<Option<Run>> {
+    if !(speed.is_finite() && speed > 0.0) {
+        return Err(Error::Motion(format!("invalid marking speed {speed}")));
+    }
+    let points = simplify(points, s.line_tolerance);
+    if points.len() < 2 {
+        return Ok(None);
+    }
+    let n = points.len() - 1;
+    let mut legs = Vec::with_capacity(n);
+    for i in 0..n {
+        let d = points[i + 1] - points[i];
+        let length = d.norm();
+        let dir = d / length;
+        let limits = if s.blend {
+            // The same ramps in every direction, so that collinear legs
+            // overlap into exactly constant speed; 1/√2 of the axis
+            // limits, so that two legs at right angles on the diagonals
+            // may overlap with both ramps at full acceleration and jerk.
+            Limits { velocity: speed, acceleration: s.axis.acceleration * std::f64::consts::FRAC_1_SQRT_2, jerk: s.axis.jerk * std::f64::consts::FRAC_1_SQRT_2 }
+        } else {
+            let l = path_limits(s.axis, dir);
+            Limits { velocity: l.velocity.min(speed), ..l }
+        };
+        let first_in = if i == 0 { ramp_in } else { true };
+        let last_out = if i == n - 1 { !s.skywrite } else { true };
+        let leg = if !first_in && !last_out {
+            Leg::constant(length, speed)
+        } else {
+            Leg::new(length, limits, first_in, last_out)?
+        };
+        legs.push((points[i], dir, leg, 0.0));
+    }
+    let mut t = 0.0;
+    for i in 0..n {
+        legs[i].3 = t;
+        let overlap = if s.blend && i + 1 < n {
+            let (a, b) = (&legs[i].2, &legs[i + 1].2);
+            // Corners of legs at full speed on both sides depend only on
+            // the two directions and the ramps: jobs repeat them a lot.
+            let key = (a.cruise > 0.0 && b.cruise > 0.0).then(|| {
+                let q = |x: f64| (x * 1e9).round() as i64;
+                (q(legs[i].1.x), q(legs[i].1.y), q(legs[i + 1].1.x), q(legs[i + 1].1.y), q(a.speed()), q(b.speed()), a.ramp_in, b.ramp_out)
+            });
+            match key.and_then(|k| corners.get(&k).copied()) {
+                Some(o) => o,
+                None => {
+                    let o = corner_overlap((a, legs[i].1), (b, legs[i + 1].1), points[i + 1], s, speed);
+                    if let Some(k) = key {
+                        corners.insert(k, o);
+                    }
+                    o
+                }
+            }
+        } else {
+            0.0
+        };
+        t += legs[i].2.duration - overlap;
+    }
+    let duration = legs.last().map(|(_, _, l, t0)| t0 + l.duration).unwrap_or(0.0);
+    Ok(Some(Run { legs, duration }))
 }
 
 /// Builds the TCP's pieces one path at a time.
@@ -359,11 +433,12 @@ pub struct TcpBuilder {
 /// moves by their end states.
 #[derive(Default)]
 pub struct PlanCache {
-    corners: std::collections::HashMap<CornerKey, f64>,
+    corners: Corners,
     moves: std::collections::HashMap<[i64; 8], FreeMove>,
 }
 
 pub type CornerKey = (i64, i64, i64, i64, i64, i64, bool, bool);
+type Corners = std::collections::HashMap<CornerKey, f64>;
 
 impl TcpBuilder {
     /// Starting at rest at `position` at time `time`.
@@ -378,75 +453,12 @@ impl TcpBuilder {
         self.path.pieces.push(Piece { kind, group, start: self.time, duration, motion });
     }
 
-    /// The run of legs marking `points` at `speed`.
-    fn run(&self, points: &[Point], speed: f64, ramp_in: bool) -> Result<Option<Run>> {
-        let s = &self.settings;
-        let points = simplify(points, s.line_tolerance);
-        if points.len() < 2 {
-            return Ok(None);
-        }
-        let n = points.len() - 1;
-        let mut legs = Vec::with_capacity(n);
-        for i in 0..n {
-            let d = points[i + 1] - points[i];
-            let length = d.norm();
-            let dir = d / length;
-            let limits = if s.blend {
-                // The same ramps in every direction, so that collinear legs
-                // overlap into exactly constant speed; 1/√2 of the axis
-                // limits, so that two legs at right angles on the diagonals
-                // may overlap with both ramps at full acceleration and jerk.
-                Limits { velocity: speed, acceleration: s.axis.acceleration * std::f64::consts::FRAC_1_SQRT_2, jerk: s.axis.jerk * std::f64::consts::FRAC_1_SQRT_2 }
-            } else {
-                let l = path_limits(s.axis, dir);
-                Limits { velocity: l.velocity.min(speed), ..l }
-            };
-            let first_in = if i == 0 { ramp_in } else { true };
-            let last_out = if i == n - 1 { !s.skywrite } else { true };
-            let leg = if !first_in && !last_out {
-                Leg::constant(length, speed)
-            } else {
-                Leg::new(length, limits, first_in, last_out)?
-            };
-            legs.push((points[i], dir, leg, 0.0));
-        }
-        let mut t = 0.0;
-        for i in 0..n {
-            legs[i].3 = t;
-            let overlap = if s.blend && i + 1 < n {
-                let (a, b) = (&legs[i].2, &legs[i + 1].2);
-                // Corners of legs at full speed on both sides depend only on
-                // the two directions and the ramps: jobs repeat them a lot.
-                let key = (a.cruise > 0.0 && b.cruise > 0.0).then(|| {
-                    let q = |x: f64| (x * 1e9).round() as i64;
-                    (q(legs[i].1.x), q(legs[i].1.y), q(legs[i + 1].1.x), q(legs[i + 1].1.y), q(a.speed()), q(b.speed()), a.ramp_in, b.ramp_out)
-                });
-                match key.and_then(|k| self.cache.borrow().corners.get(&k).copied()) {
-                    Some(o) => o,
-                    None => {
-                        let o = corner_overlap((a, legs[i].1), (b, legs[i + 1].1), points[i + 1], s, speed);
-                        if let Some(k) = key {
-                            self.cache.borrow_mut().corners.insert(k, o);
-                        }
-                        o
-                    }
-                }
-            } else {
-                0.0
-            };
-            t += legs[i].2.duration - overlap;
-        }
-        let duration = legs.last().map(|(_, _, l, t0)| t0 + l.duration).unwrap_or(0.0);
-        Ok(Some(Run { legs, duration }))
-    }
-
     /// A laser-off move from where the TCP is to `to`, arriving with `velocity`.
     pub fn jump(&mut self, kind: PieceKind, group: usize, to: Point, velocity: Vector2<f64>) -> Result<()> {
         if (to - self.position).norm() < 1e-9 && (velocity - self.velocity).norm() < 1e-9 {
             return Ok(());
         }
-        let q = |x: f64| (x * 1e9).round() as i64;
-        let key = [self.position.x, self.position.y, self.velocity.x, self.velocity.y, to.x, to.y, velocity.x, velocity.y].map(q);
+        let key = move_key(self.position, self.velocity, to, velocity);
         let cached = self.cache.borrow().moves.get(&key).cloned();
         let m = match cached {
             Some(m) => m,
@@ -517,14 +529,55 @@ impl TcpBuilder {
     /// `pierce_power` first when `pierce` > 0), jumping there first.
     #[allow(clippy::too_many_arguments)]
     pub fn mark(&mut self, geometry: usize, group: usize, points: &[Point], speed: f64, power: f64, pierce: f64, pierce_power: f64) -> Result<()> {
-        if !(speed.is_finite() && speed > 0.0) {
-            return Err(Error::Motion(format!("invalid marking speed {speed}")));
+        let request = MarkRequest { points, speed, pierce: pierce > 0.0 };
+        let run = self.prepare(std::slice::from_ref(&request))?.pop().flatten();
+        self.mark_run(geometry, group, run.as_ref(), power, pierce, pierce_power)
+    }
+
+    /// Plans the runs of `marks` ahead, on all cores (a run does not depend
+    /// on where the TCP is), and puts the laser-off moves from each to the
+    /// next into the cache: `mark_run` then only places them in time.
+    pub fn prepare(&self, marks: &[MarkRequest]) -> Result<Vec<Option<Run>>> {
+        let settings = self.settings;
+        let known = self.cache.borrow().corners.clone();
+        let parts = crate::parallel::chunks(marks, 8, |part| {
+            let mut corners = known.clone();
+            let runs = part
+                .iter()
+                .map(|m| plan_run(&settings, &mut corners, m.points, m.speed, m.pierce || !settings.skywrite))
+                .collect::<Result<Vec<_>>>();
+            (runs, corners)
+        });
+        let mut runs = Vec::with_capacity(marks.len());
+        for (part, corners) in parts {
+            runs.extend(part?);
+            self.cache.borrow_mut().corners.extend(corners);
         }
-        let pierces = pierce > 0.0;
-        let Some(run) = self.run(points, speed, pierces || !self.settings.skywrite)? else { return Ok(()) };
+        // The laser-off moves between consecutive marks, as `mark_run` will
+        // ask for them (unless something else moves the TCP in between).
+        let ends: Vec<_> = runs.iter().flatten().map(|r| (r.legs[0].0, r.entry_velocity(), r.exit_point(), r.exit_velocity())).collect();
+        let axis = settings.axis;
+        let wanted: Vec<_> = ends
+            .windows(2)
+            .map(|w| (w[0].2, w[0].3, w[1].0, w[1].1))
+            .filter(|(from, v_from, to, v_to)| (to - from).norm() >= 1e-9 || (v_to - v_from).norm() >= 1e-9)
+            .filter(|&(from, v_from, to, v_to)| !self.cache.borrow().moves.contains_key(&move_key(from, v_from, to, v_to)))
+            .collect();
+        let moves = crate::parallel::map(&wanted, 8, |&(from, v_from, to, v_to)| FreeMove::new(from, v_from, to, v_to, axis));
+        for (&(from, v_from, to, v_to), m) in wanted.iter().zip(moves) {
+            self.cache.borrow_mut().moves.insert(move_key(from, v_from, to, v_to), m?);
+        }
+        Ok(runs)
+    }
+
+    /// Marks a run planned by `prepare` (nothing for none), jumping to its
+    /// start first, with a pierce of `pierce` seconds at `pierce_power` when
+    /// `pierce` > 0 (the run must have been planned with its pierce).
+    pub fn mark_run(&mut self, geometry: usize, group: usize, run: Option<&Run>, power: f64, pierce: f64, pierce_power: f64) -> Result<()> {
+        let Some(run) = run else { return Ok(()) };
         let entry = run.legs[0].0;
         self.jump(PieceKind::Jump, group, entry, run.entry_velocity())?;
-        if pierces {
+        if pierce > 0.0 {
             self.still(PieceKind::Pierce { geometry, power: pierce_power }, group, pierce);
         }
         let kind = PieceKind::Mark { geometry, power };
@@ -535,11 +588,24 @@ impl TcpBuilder {
             }
         }
         self.time = t0 + run.duration;
-        let (from, dir, leg, _) = run.legs.last().expect("a run has legs");
-        self.position = from + dir * leg.length;
+        self.position = run.exit_point();
         self.velocity = run.exit_velocity();
         Ok(())
     }
+}
+
+/// A mark to plan ahead: its points, its speed, and whether it starts with a
+/// pierce (from rest).
+pub struct MarkRequest<'a> {
+    pub points: &'a [Point],
+    pub speed: f64,
+    pub pierce: bool,
+}
+
+/// The cache key of a laser-off move: its end states, to the nanometre.
+fn move_key(from: Point, v_from: Vector2<f64>, to: Point, v_to: Vector2<f64>) -> [i64; 8] {
+    let q = |x: f64| (x * 1e9).round() as i64;
+    [from.x, from.y, v_from.x, v_from.y, to.x, to.y, v_to.x, v_to.y].map(q)
 }
 
 #[cfg(test)]
@@ -613,6 +679,42 @@ mod tests {
             let marked: f64 = b.path.pieces.iter().filter(|p| p.is_marking()).map(|p| p.duration).sum();
             assert!(marked > 0.0);
         }
+    }
+
+    #[test]
+    fn marks_planned_ahead_on_all_cores_match_marks_planned_one_by_one() {
+        // Enough marks to be shared out over threads, with repeated corners
+        // (cached) and circles (not), some pierced.
+        let marks: Vec<Vec<Point>> = (0..40)
+            .map(|k| {
+                let (x, y) = (2.0 + 7.0 * (k % 8) as f64, 2.0 + 7.0 * (k / 8) as f64);
+                if k % 3 == 0 {
+                    (0..=24).map(|i| Point::new(x + 2.0 * (i as f64 * 0.2618).cos(), y + 2.0 * (i as f64 * 0.2618).sin())).collect()
+                } else {
+                    square(x, y, 1.0 + 0.1 * k as f64)
+                }
+            })
+            .collect();
+        let pierce = |k: usize| if k % 5 == 0 { 0.01 } else { 0.0 };
+        let s = settings(true, true);
+        let mut one_by_one = TcpBuilder::new(s, Point::origin(), 0.0);
+        for (k, m) in marks.iter().enumerate() {
+            one_by_one.mark(k, 0, m, 900.0, 300.0, pierce(k), 500.0).unwrap();
+        }
+        let mut ahead = TcpBuilder::new(s, Point::origin(), 0.0);
+        let requests: Vec<_> = marks.iter().enumerate().map(|(k, m)| MarkRequest { points: m, speed: 900.0, pierce: pierce(k) > 0.0 }).collect();
+        let runs = ahead.prepare(&requests).unwrap();
+        for (k, run) in runs.iter().enumerate() {
+            ahead.mark_run(k, 0, run.as_ref(), 300.0, pierce(k), 500.0).unwrap();
+        }
+        assert_eq!(one_by_one.path.pieces.len(), ahead.path.pieces.len());
+        assert!((one_by_one.time - ahead.time).abs() < 1e-12, "{} vs {}", one_by_one.time, ahead.time);
+        for k in 0..=1000 {
+            let t = one_by_one.time * k as f64 / 1000.0;
+            assert!((one_by_one.path.position(t) - ahead.path.position(t)).norm() < 1e-9, "t={t}");
+        }
+        let bad = MarkRequest { points: &marks[1], speed: f64::NAN, pierce: false };
+        assert!(ahead.prepare(&[bad]).is_err(), "a NaN speed is refused");
     }
 
     #[test]

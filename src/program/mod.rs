@@ -366,19 +366,25 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
             _ => (at(t), false),
         }
     };
-    let within = |a: f64, b: f64| -> bool {
+    // The largest distance of the block from `a` to `b` from the plan, or
+    // some distance over `cap` as soon as one is found.
+    let error = |a: f64, b: f64, cap: f64| -> f64 {
         let ((pa, a_sampled), (pb, b_sampled)) = (position(a), position(b));
-        let off = |t: f64, p: Point| (p - (pa + (pb - pa) * ((t - a) / (b - a)))).norm() <= limit;
+        let mut worst = 0.0f64;
+        let mut off = |t: f64, p: Point| {
+            worst = worst.max((p - (pa + (pb - pa) * ((t - a) / (b - a)))).norm());
+            worst <= cap
+        };
         let lo = sample_t.partition_point(|&t| t <= a);
         let hi = sample_t.partition_point(|&t| t < b);
         if !(lo..hi).all(|k| off(sample_t[k], sample_p[k])) {
-            return false;
+            return worst;
         }
         // An end that is not a sample: the stretch from it to the nearest
         // sample counts too.
         let first = sample_t.get(lo).copied().unwrap_or(b).min(b);
         let last = if hi > lo { sample_t[hi - 1] } else { a };
-        let stretch = |x: f64, y: f64| {
+        let mut stretch = |x: f64, y: f64| {
             (1..4).all(|q| {
                 let t = x + (q as f64 / 4.0) * (y - x);
                 off(t, at(t))
@@ -386,12 +392,13 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
         };
         // And, off the marks, the block's own eighths: laser-off moves have
         // long phases (an approach across the table).
-        (a_sampled || stretch(a, first))
+        let _ = (a_sampled || stretch(a, first))
             && (b_sampled || stretch(last, b))
             && (marking || (1..8).all(|q| {
                 let t = a + (q as f64 / 8.0) * (b - a);
                 off(t, at(t))
-            }))
+            }));
+        worst
     };
     // (The limit is a little inside the tolerance: the samples find nearly,
     // not exactly, the worst.)
@@ -403,25 +410,29 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
         // galloping, then bisecting over the phase changes.
         let n = marks.len();
         let (mut good_j, mut bad_j, mut step) = (i, n, 1);
+        // Errors at the good and the bad end (the bad one: at least it).
+        let (mut e_good, mut e_bad) = (0.0, f64::INFINITY);
         loop {
             let j = (good_j + step).min(n - 1);
             if j <= good_j {
                 break;
             }
-            if within(a, marks[j]) {
-                good_j = j;
+            let e = error(a, marks[j], limit);
+            if e <= limit {
+                (good_j, e_good) = (j, e);
                 step *= 2;
             } else {
-                bad_j = j;
+                (bad_j, e_bad) = (j, e);
                 break;
             }
         }
         while bad_j < n && bad_j - good_j > 1 {
             let mid = (good_j + bad_j) / 2;
-            if within(a, marks[mid]) {
-                good_j = mid;
+            let e = error(a, marks[mid], limit);
+            if e <= limit {
+                (good_j, e_good) = (mid, e);
             } else {
-                bad_j = mid;
+                (bad_j, e_bad) = (mid, e);
             }
         }
         let reached = (good_j > i).then_some(good_j);
@@ -429,14 +440,25 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
         let b = match reached {
             Some(r) if r + 1 == marks.len() => marks[r],
             _ => {
-                // Bisect between the last good end and the first bad one.
+                // Between the last good end and the first bad one: the error
+                // grows about with the square of the block's length, so
+                // secant steps on its square root (kept off the bracket's
+                // ends), to a thousandth of the block.
                 let (mut good, mut bad) = (reached.map_or(a, |r| marks[r]), marks[j.min(marks.len() - 1)]);
+                let excess = |e: f64| e.sqrt() - limit.sqrt();
+                let (mut f_good, mut f_bad) = (excess(e_good), excess(e_bad.min(1e3 * limit)));
                 for _ in 0..14 {
-                    let mid = 0.5 * (good + bad);
-                    if within(a, mid) {
-                        good = mid;
+                    if bad - good <= 1e-3 * (good - a) {
+                        break;
+                    }
+                    let w = bad - good;
+                    let secant = if f_bad > f_good { good - f_good * w / (f_bad - f_good) } else { good + 0.5 * w };
+                    let mid = secant.clamp(good + 0.1 * w, bad - 0.1 * w);
+                    let f = excess(error(a, mid, 1e3 * limit));
+                    if f <= 0.0 {
+                        (good, f_good) = (mid, f);
                     } else {
-                        bad = mid;
+                        (bad, f_bad) = (mid, f);
                     }
                 }
                 // Never so short that rounding looks like motion, nor leaving
@@ -453,6 +475,57 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
         i = marks.partition_point(|&t| t <= a + 1e-12).saturating_sub(1);
     }
     times
+}
+
+/// One straight block of a span: its planned times, the axes' positions at
+/// its end, and the planned TCP at points along it (for the simulator's
+/// deviation check while marking).
+struct PlannedBlock {
+    start: f64,
+    end: f64,
+    axes: Vec<f64>,
+    checks: Vec<CheckPoint>,
+}
+
+/// The blocks of one span (none for a pierce, which is a dwell).
+fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, min_block: f64) -> Vec<PlannedBlock> {
+    if span.kind == LineKind::Pierce {
+        return Vec::new();
+    }
+    let tolerance = if span.kind == LineKind::Mark { machine.program.tolerance } else { machine.program.jump_tolerance };
+    // A block ends wherever one piece ends before the next begins (a
+    // vertex taken from rest, a jump's end): the machine can stop there.
+    let mut times = vec![span.start];
+    let mut from = span.start;
+    for k in span.first..span.last {
+        let (p, q) = (&trajectory.tcp.pieces[k], &trajectory.tcp.pieces[k + 1]);
+        let end = p.end_time();
+        if q.start >= end - 1e-12 && end > from + 1e-12 && end < span.end - 1e-12 {
+            let part = Span { start: from, end, ..*span };
+            times.extend(block_times(trajectory, &part, tolerance, min_block).into_iter().skip(1));
+            from = end;
+        }
+    }
+    times.extend(block_times(trajectory, &Span { start: from, ..*span }, tolerance, min_block).into_iter().skip(1));
+    let has_scanner = trajectory.has_scanner;
+    times
+        .windows(2)
+        .map(|pair| {
+            let (a, b) = (pair[0], pair[1]);
+            let checks = if span.kind == LineKind::Mark {
+                [0.25, 0.5, 0.75, 1.0]
+                    .iter()
+                    .map(|&f| {
+                        let p = trajectory.tcp.position(a + f * (b - a));
+                        CheckPoint { fraction: f, tcp: [p.x, p.y] }
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            };
+            PlannedBlock { start: a, end: b, axes: axis_values(&trajectory.state_at(b), has_scanner), checks }
+        })
+        .collect()
 }
 
 /// The G-code program of a trajectory.
@@ -480,41 +553,18 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
         LaserMode::M4 => "M4S0",
     };
     w.setup(laser_on);
-    for span in spans(trajectory, machine) {
+    // Finding the blocks is most of the work and each span's are its own:
+    // spans are shared out over threads, then written in order.
+    let spans = spans(trajectory, machine);
+    let planned = crate::parallel::map(&spans, 8, |span| plan_blocks(trajectory, span, machine, min_block));
+    for (span, blocks) in spans.iter().zip(planned) {
         if span.kind == LineKind::Pierce {
             w.pierce(span.geometry.unwrap_or(0), span.power, span.start, span.end - span.start, machine.laser.mode);
             continue;
         }
-        let tolerance = if span.kind == LineKind::Mark { machine.program.tolerance } else { machine.program.jump_tolerance };
-        // A block ends wherever one piece ends before the next begins (a
-        // vertex taken from rest, a jump's end): the machine can stop there.
-        let mut times = vec![span.start];
-        let mut from = span.start;
-        for k in span.first..span.last {
-            let (p, q) = (&trajectory.tcp.pieces[k], &trajectory.tcp.pieces[k + 1]);
-            let end = p.end_time();
-            if q.start >= end - 1e-12 && end > from + 1e-12 && end < span.end - 1e-12 {
-                let part = Span { start: from, end, ..span };
-                times.extend(block_times(trajectory, &part, tolerance, min_block).into_iter().skip(1));
-                from = end;
-            }
-        }
-        times.extend(block_times(trajectory, &Span { start: from, ..span }, tolerance, min_block).into_iter().skip(1));
-        for pair in times.windows(2) {
-            let (a, b) = (pair[0], pair[1]);
-            let checks = if span.kind == LineKind::Mark {
-                [0.25, 0.5, 0.75, 1.0]
-                    .iter()
-                    .map(|&f| {
-                        let p = trajectory.tcp.position(a + f * (b - a));
-                        CheckPoint { fraction: f, tcp: [p.x, p.y] }
-                    })
-                    .collect()
-            } else {
-                Vec::new()
-            };
-            let line = ProgramLine { text: String::new(), kind: span.kind, geometry: span.geometry, plan_time: Some((a, b)), checks };
-            w.block(&axis_values(&trajectory.state_at(b), has_scanner), span.power, b - a, line)?;
+        for block in blocks {
+            let line = ProgramLine { text: String::new(), kind: span.kind, geometry: span.geometry, plan_time: Some((block.start, block.end)), checks: block.checks };
+            w.block(&block.axes, span.power, block.end - block.start, line)?;
         }
     }
     for text in ["M5S0", "G94", "M2"] {
