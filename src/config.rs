@@ -37,6 +37,8 @@ pub struct MachineConfig {
     pub cutting: CuttingConfig,
     #[serde(default)]
     pub galvo: GalvoConfig,
+    #[serde(default)]
+    pub service: ServiceConfig,
     pub default_layer: String,
     #[serde(rename = "layer")]
     pub layers: Vec<LayerConfig>,
@@ -112,6 +114,53 @@ pub struct SerialConfig {
 
 fn default_status_hz() -> f64 {
     5.0
+}
+
+/// `laserd serve`: where the control API listens, and what the service keeps.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ServiceConfig {
+    /// The API's Unix socket (mode 0660, the service's group); a relative
+    /// path is under the runtime directory (`/run/laserd`).
+    #[serde(default = "default_socket")]
+    pub socket: String,
+    /// Also listen on TCP at this address (e.g. "127.0.0.1:7125"); every
+    /// request must then carry `Authorization: Bearer <token>`.
+    #[serde(default)]
+    pub tcp: Option<String>,
+    /// File holding the bearer token (required with `tcp`).
+    #[serde(default)]
+    pub token_file: Option<String>,
+    /// Finished jobs kept with their programs and recordings; older ones are deleted.
+    #[serde(default = "default_keep_jobs")]
+    pub keep_jobs: usize,
+}
+
+fn default_socket() -> String {
+    "laserd.sock".into()
+}
+
+fn default_keep_jobs() -> usize {
+    100
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        ServiceConfig { socket: default_socket(), tcp: None, token_file: None, keep_jobs: default_keep_jobs() }
+    }
+}
+
+impl ServiceConfig {
+    /// The bearer token for TCP clients, from `token_file`.
+    pub fn token(&self) -> Result<String> {
+        let file = self.token_file.as_deref().ok_or_else(|| Error::Config("[service] tcp needs token_file: a TCP API without a token is refused".into()))?;
+        let token = std::fs::read_to_string(file).map_err(|e| Error::Config(format!("[service] token_file = {file:?}: cannot read: {e}")))?;
+        let token = token.trim().to_string();
+        if token.len() < 16 {
+            return Err(Error::Config(format!("[service] token_file = {file:?}: the token must be at least 16 characters")));
+        }
+        Ok(token)
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]

@@ -21,6 +21,12 @@ pub enum Error {
     Record(String),
     #[error("{0}")]
     Io(String),
+    /// The service: no such job (or other object).
+    #[error("not found: {0}")]
+    NotFound(String),
+    /// The service: the request does not fit the machine's or the job's state.
+    #[error("conflict: {0}")]
+    Conflict(String),
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

@@ -157,6 +157,27 @@ enum Command {
         #[command(subcommand)]
         which: GenCommand,
     },
+    /// The service: control API on a Unix socket, persistent job queue, the
+    /// controller link (run it under systemd: systemd/laserd.service).
+    Serve {
+        /// Machine config (default: /etc/laserd/laserd.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Queue and recordings (default: $STATE_DIRECTORY, else /var/lib/laserd).
+        #[arg(long)]
+        state_dir: Option<PathBuf>,
+        /// The API's socket (default: [service] socket under $RUNTIME_DIRECTORY, else /run/laserd).
+        #[arg(long)]
+        socket: Option<PathBuf>,
+    },
+    /// Talk to a running `laserd serve` (docs/api.md lists the calls).
+    Ctl {
+        /// The service's socket (default: /run/laserd/laserd.sock).
+        #[arg(long, default_value = "/run/laserd/laserd.sock")]
+        socket: PathBuf,
+        #[command(subcommand)]
+        which: laserd::daemon::ctl::CtlCommand,
+    },
     /// Re-derive a recording's figures from the file alone.
     Replay {
         recording: PathBuf,
@@ -493,6 +514,17 @@ fn run_command(command: Command) -> Result<ExitCode> {
                     }
                 }
             }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Serve { config, state_dir, socket } => {
+            let config = config.unwrap_or_else(|| PathBuf::from("/etc/laserd/laserd.toml"));
+            let machine = MachineConfig::load(Some(&config))?;
+            let options = laserd::daemon::ServeOptions::from_env(Some(config), state_dir, socket, &machine);
+            laserd::daemon::serve(options)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Ctl { socket, which } => {
+            laserd::daemon::ctl::run(&socket, which)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Replay { recording, to_sim, config, json } => {

@@ -695,7 +695,7 @@ mod tests {
                 }
             })
             .collect();
-        let pierce = |k: usize| if k % 5 == 0 { 0.01 } else { 0.0 };
+        let pierce = |k: usize| if k.is_multiple_of(5) { 0.01 } else { 0.0 };
         let s = settings(true, true);
         let mut one_by_one = TcpBuilder::new(s, Point::origin(), 0.0);
         for (k, m) in marks.iter().enumerate() {

@@ -1,0 +1,262 @@
+//! The control API: HTTP/JSON, on a Unix socket (mode 0660: the service's
+//! user and group) and, when configured, on TCP with a bearer token. The calls
+//! are listed in docs/api.md.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use axum::body::Bytes;
+use axum::extract::{Path as UrlPath, Query, Request, State};
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::middleware::Next;
+use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use serde::Deserialize;
+use tokio::sync::oneshot;
+
+use super::machine::Command;
+use super::{Daemon, Event};
+use crate::error::{Error, Result};
+
+/// An error as the API answers it: a status code and `{"error": "..."}`.
+pub struct ApiError(Error);
+
+impl From<Error> for ApiError {
+    fn from(e: Error) -> Self {
+        ApiError(e)
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let code = match &self.0 {
+            Error::NotFound(_) => StatusCode::NOT_FOUND,
+            Error::Conflict(_) => StatusCode::CONFLICT,
+            Error::Config(_) | Error::Import(_) | Error::Plan(_) => StatusCode::BAD_REQUEST,
+            _ => StatusCode::INTERNAL_SERVER_ERROR,
+        };
+        (code, Json(serde_json::json!({ "error": self.0.to_string() }))).into_response()
+    }
+}
+
+type ApiResult<T> = std::result::Result<T, ApiError>;
+
+pub fn router(daemon: Arc<Daemon>) -> Router {
+    Router::new()
+        .route("/status", get(status))
+        .route("/jobs", get(list_jobs).post(submit))
+        .route("/jobs/{id}", get(get_job).delete(remove_job))
+        .route("/jobs/{id}/move", post(move_job))
+        .route("/jobs/{id}/program", get(program))
+        .route("/jobs/{id}/recording", get(recording))
+        .route("/start", post(start))
+        .route("/pause", post(|s| machine_call(s, Command::Pause)))
+        .route("/resume", post(|s| machine_call(s, Command::Resume)))
+        .route("/abort", post(|s| machine_call(s, Command::Abort)))
+        .route("/home", post(|s| machine_call(s, Command::Home)))
+        .route("/unlock", post(|s| machine_call(s, Command::Unlock)))
+        .route("/jog", post(jog))
+        .route("/events", get(events))
+        .with_state(daemon)
+}
+
+async fn status(State(d): State<Arc<Daemon>>) -> impl IntoResponse {
+    Json(d.status.borrow().clone())
+}
+
+async fn list_jobs(State(d): State<Arc<Daemon>>) -> impl IntoResponse {
+    Json(d.store().list())
+}
+
+async fn get_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> ApiResult<impl IntoResponse> {
+    let job = d.store().get(&id).cloned().ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
+    Ok(Json(job))
+}
+
+#[derive(Deserialize)]
+struct SubmitQuery {
+    /// The file's name, for an upload (its extension says how to read it).
+    name: Option<String>,
+}
+
+#[derive(Deserialize)]
+struct SubmitPath {
+    /// A file on the machine PC that the service may read.
+    path: String,
+}
+
+/// `POST /jobs?name=part.svg` with the file as the body, or `POST /jobs` with
+/// `{"path": "/srv/jobs/part.svg"}`.
+async fn submit(State(d): State<Arc<Daemon>>, Query(q): Query<SubmitQuery>, headers: HeaderMap, body: Bytes) -> ApiResult<impl IntoResponse> {
+    let is_json = headers.get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).is_some_and(|v| v.starts_with("application/json"));
+    let job = if is_json {
+        let SubmitPath { path } = serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"path\": \"...\"}}: {e}")))?;
+        let source = tokio::fs::read(&path).await.map_err(|e| Error::Config(format!("{path}: cannot read: {e}")))?;
+        let name = Path::new(&path).file_name().and_then(|n| n.to_str()).unwrap_or("job.nc").to_string();
+        d.submit(&name, &source)?
+    } else {
+        let name = q.name.ok_or_else(|| Error::Config("an upload needs ?name=<file name> (its extension says how to read it)".into()))?;
+        if body.is_empty() {
+            return Err(Error::Config(format!("{name}: empty upload")).into());
+        }
+        d.submit(&name, &body)?
+    };
+    Ok((StatusCode::ACCEPTED, Json(job)))
+}
+
+async fn remove_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> ApiResult<impl IntoResponse> {
+    d.store().remove(&id)?;
+    let queued = d.store().order().len();
+    d.status.send_modify(|s| s.queued = queued);
+    Ok(Json(serde_json::json!({ "removed": id })))
+}
+
+#[derive(Deserialize)]
+struct MoveTo {
+    /// 0 = next to run.
+    position: usize,
+}
+
+async fn move_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>, Json(to): Json<MoveTo>) -> ApiResult<impl IntoResponse> {
+    let mut store = d.store();
+    store.reorder(&id, to.position)?;
+    Ok(Json(store.order().to_vec()))
+}
+
+async fn file_of(d: &Daemon, id: &str, which: &str) -> ApiResult<Response> {
+    let path = {
+        let store = d.store();
+        store.get(id).ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
+        if which == "program" { store.program_path(id) } else { store.recording_path(id) }
+    };
+    let bytes = tokio::fs::read(&path).await.map_err(|_| Error::NotFound(format!("job {id} has no {which} yet")))?;
+    let kind = if which == "program" { "text/plain; charset=utf-8" } else { "application/octet-stream" };
+    let name = format!("attachment; filename=\"{id}.{}\"", if which == "program" { "nc" } else { "mcap" });
+    Ok(([(header::CONTENT_TYPE, kind.to_string()), (header::CONTENT_DISPOSITION, name)], bytes).into_response())
+}
+
+async fn program(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> ApiResult<Response> {
+    file_of(&d, &id, "program").await
+}
+
+async fn recording(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> ApiResult<Response> {
+    file_of(&d, &id, "recording").await
+}
+
+/// Sends a command to the machine loop and waits for its answer.
+async fn ask(d: &Daemon, command: impl FnOnce(oneshot::Sender<Result<String>>) -> Command) -> ApiResult<Json<serde_json::Value>> {
+    let (tx, rx) = oneshot::channel();
+    d.commands.send(command(tx)).map_err(|_| Error::Io("the machine loop has stopped".into()))?;
+    let done = rx.await.map_err(|_| Error::Io("the machine loop dropped the request".into()))??;
+    Ok(Json(serde_json::json!({ "done": done })))
+}
+
+async fn machine_call(State(d): State<Arc<Daemon>>, command: fn(oneshot::Sender<Result<String>>) -> Command) -> ApiResult<Json<serde_json::Value>> {
+    ask(&d, command).await
+}
+
+#[derive(Deserialize, Default)]
+struct StartBody {
+    id: Option<String>,
+}
+
+async fn start(State(d): State<Arc<Daemon>>, body: Bytes) -> ApiResult<Json<serde_json::Value>> {
+    let StartBody { id } = if body.is_empty() { StartBody::default() } else { serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"id\": \"...\"}} or nothing: {e}")))? };
+    ask(&d, |reply| Command::Start { id, reply }).await
+}
+
+#[derive(Deserialize)]
+struct JogBody {
+    /// A jog block, e.g. `G91 X10 F600` (sent as `$J=G91 X10 F600`).
+    block: String,
+}
+
+async fn jog(State(d): State<Arc<Daemon>>, Json(body): Json<JogBody>) -> ApiResult<Json<serde_json::Value>> {
+    let block = body.block.trim().to_string();
+    if block.is_empty() || block.len() > 70 || !block.chars().all(|c| c.is_ascii_alphanumeric() || " .-".contains(c)) {
+        return Err(Error::Config(format!("jog block {block:?}: letters, numbers, '.', '-' and spaces only, at most 70")).into());
+    }
+    ask(&d, |reply| Command::Jog { block, reply }).await
+}
+
+/// Server-sent events: the status now, then every status and job change.
+async fn events(State(d): State<Arc<Daemon>>) -> impl IntoResponse {
+    let first = Event::Status(d.status.borrow().clone());
+    let events = d.events.subscribe();
+    let mut status = d.status.subscribe();
+    status.mark_unchanged();
+    let stream = futures_util::stream::unfold((Some(first), events, status), |(first, mut events, mut status)| async move {
+        if let Some(first) = first {
+            return Some((first, (None, events, status)));
+        }
+        loop {
+            tokio::select! {
+                e = events.recv() => match e {
+                    Ok(e) => return Some((e, (None, events, status))),
+                    // A slow reader missed some: it gets the next ones.
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+                    Err(_) => return None,
+                },
+                changed = status.changed() => {
+                    if changed.is_err() {
+                        return None;
+                    }
+                    let now = Event::Status(status.borrow_and_update().clone());
+                    return Some((now, (None, events, status)));
+                }
+            }
+        }
+    });
+    let stream = futures_util::StreamExt::map(stream, |e| {
+        let kind = match &e {
+            Event::Status(_) => "status",
+            Event::Job(_) => "job",
+        };
+        SseEvent::default().event(kind).json_data(&e).map_err(|e| std::io::Error::other(e.to_string()))
+    });
+    Sse::new(stream).keep_alive(KeepAlive::default())
+}
+
+/// Binds the Unix socket (replacing a stale one) with mode 0660.
+pub fn bind_unix(path: &Path) -> Result<tokio::net::UnixListener> {
+    use std::os::unix::fs::PermissionsExt;
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::Io(format!("{}: cannot create: {e}", dir.display())))?;
+    }
+    if path.exists() {
+        if std::os::unix::net::UnixStream::connect(path).is_ok() {
+            return Err(Error::Io(format!("{}: another laserd is serving there", path.display())));
+        }
+        std::fs::remove_file(path).map_err(|e| Error::Io(format!("{}: cannot remove the stale socket: {e}", path.display())))?;
+    }
+    let listener = tokio::net::UnixListener::bind(path).map_err(|e| Error::Io(format!("{}: cannot listen: {e}", path.display())))?;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660)).map_err(|e| Error::Io(format!("{}: cannot set its mode: {e}", path.display())))?;
+    Ok(listener)
+}
+
+pub async fn serve_unix(listener: tokio::net::UnixListener, daemon: Arc<Daemon>) -> Result<()> {
+    axum::serve(listener, router(daemon)).await.map_err(|e| Error::Io(format!("API on the Unix socket: {e}")))
+}
+
+/// TCP: every request must carry `Authorization: Bearer <token>`.
+pub async fn serve_tcp(listener: tokio::net::TcpListener, daemon: Arc<Daemon>, token: String) -> Result<()> {
+    let token = Arc::new(token);
+    let app = router(daemon).layer(axum::middleware::from_fn(move |request: Request, next: Next| {
+        let token = token.clone();
+        async move {
+            let given = request.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()).and_then(|v| v.strip_prefix("Bearer ")).unwrap_or("");
+            if !same(given.as_bytes(), token.as_bytes()) {
+                return (StatusCode::UNAUTHORIZED, [(header::WWW_AUTHENTICATE, "Bearer")], Json(serde_json::json!({ "error": "a bearer token is required" }))).into_response();
+            }
+            next.run(request).await
+        }
+    }));
+    axum::serve(listener, app).await.map_err(|e| Error::Io(format!("API on TCP: {e}")))
+}
+
+/// Compares without stopping at the first difference (no timing hint).
+fn same(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}

@@ -1,0 +1,432 @@
+//! The controller link of the service: one task owns it. It connects (and
+//! reconnects when the device vanishes and returns), polls the status while
+//! idle, runs jobs from the queue on the operator's word, and passes hold,
+//! resume and abort to a running stream. It never starts or resumes motion
+//! on its own: after a reconnect the machine waits for the operator.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use laserd_sim::wire::{MachineState, StatusReport};
+use tokio::sync::{mpsc, oneshot};
+
+use super::queue::{JobRecord, JobState};
+use super::{Daemon, MachineStatus, Progress};
+use crate::error::{Error, Result};
+use crate::record::Recording;
+use crate::stream::{Connection, Control, LinkEvent, SenderOptions, StreamOutcome};
+
+/// The answer to an operator's command: a line saying what was done.
+pub type Reply = oneshot::Sender<Result<String>>;
+
+/// What the API asks of the machine.
+#[derive(Debug)]
+pub enum Command {
+    /// Run the next queued job (or this one).
+    Start { id: Option<String>, reply: Reply },
+    /// Feed hold (laser off, the job stays loaded).
+    Pause(Reply),
+    /// Cycle start after a hold.
+    Resume(Reply),
+    /// Stop the running job for good.
+    Abort(Reply),
+    /// `$J=` + block.
+    Jog { block: String, reply: Reply },
+    Home(Reply),
+    Unlock(Reply),
+    /// The service is stopping: a safe stop, then acknowledge.
+    Shutdown(oneshot::Sender<()>),
+}
+
+impl Command {
+    fn refuse(self, why: &str) {
+        let reply = match self {
+            Command::Start { reply, .. } | Command::Pause(reply) | Command::Resume(reply) | Command::Abort(reply) | Command::Jog { reply, .. } | Command::Home(reply) | Command::Unlock(reply) => reply,
+            Command::Shutdown(done) => {
+                let _ = done.send(());
+                return;
+            }
+        };
+        let _ = reply.send(Err(Error::Conflict(why.to_string())));
+    }
+}
+
+pub fn disconnected(why: &str) -> MachineStatus {
+    MachineStatus { connected: false, state: "Disconnected".into(), message: Some(why.to_string()), ..Default::default() }
+}
+
+fn machine_status(report: &StatusReport) -> MachineStatus {
+    MachineStatus {
+        connected: true,
+        state: report.state.as_field(),
+        position: report.mpos.clone(),
+        laser: report.spindle.unwrap_or(0.0),
+        feed: report.feed.unwrap_or(0.0),
+        message: None,
+    }
+}
+
+/// What the link's event callback shares with the loop: the running job's
+/// progress and recording.
+#[derive(Default)]
+struct Running {
+    job: Option<String>,
+    lines_total: usize,
+    planned_time_s: Option<f64>,
+    last_sent: usize,
+    /// Program lines answered (ok or error) so far.
+    answered: usize,
+    /// The controller's planner size (its free blocks when idle) and its
+    /// free blocks now: what is answered but not yet executed.
+    planner_blocks: Option<u32>,
+    free_blocks: Option<u32>,
+    recorder: Option<crate::record::Recorder>,
+}
+
+impl Running {
+    /// The last line surely executed: answered lines less those that may
+    /// still wait in the planner (a lower bound: lines without motion take
+    /// no block). Where an interrupted job resumes.
+    fn executed(&self) -> usize {
+        match (self.planner_blocks, self.free_blocks) {
+            (Some(size), Some(free)) => self.answered.saturating_sub(size.saturating_sub(free) as usize),
+            _ => 0,
+        }
+    }
+}
+
+/// The machine loop: runs until the service stops.
+pub async fn run(daemon: Arc<Daemon>, mut commands: mpsc::UnboundedReceiver<Command>, heartbeat: Arc<AtomicU64>) {
+    let running = Arc::new(Mutex::new(Running::default()));
+    let mut retry = Duration::from_millis(250);
+    loop {
+        heartbeat.fetch_add(1, Ordering::Relaxed);
+        let port = daemon.machine.serial.port.clone();
+        match open(&daemon, &port, running.clone()).await {
+            Ok(mut connection) => {
+                retry = Duration::from_millis(250);
+                tracing::info!("connected to the controller on {port}");
+                let reason = connected(&daemon, &mut connection, &mut commands, &running, &heartbeat).await;
+                match reason {
+                    Ok(()) => return,
+                    Err(e) => {
+                        tracing::warn!("controller link lost: {e}");
+                        daemon.status.send_modify(|s| s.machine = disconnected(&e.to_string()));
+                    }
+                }
+            }
+            Err(e) => {
+                tracing::debug!("{port}: {e}");
+                daemon.status.send_if_modified(|s| {
+                    let new = disconnected(&e.to_string());
+                    let changed = s.machine != new;
+                    s.machine = new;
+                    changed
+                });
+            }
+        }
+        // Wait before the next attempt, answering the operator meanwhile.
+        let wait = tokio::time::sleep(retry);
+        tokio::pin!(wait);
+        loop {
+            tokio::select! {
+                _ = &mut wait => break,
+                command = commands.recv() => match command {
+                    None => return,
+                    Some(Command::Shutdown(done)) => {
+                        let _ = done.send(());
+                        return;
+                    }
+                    Some(c) => c.refuse("the controller is not connected"),
+                },
+            }
+        }
+        heartbeat.fetch_add(1, Ordering::Relaxed);
+        retry = (retry * 2).min(Duration::from_secs(2));
+    }
+}
+
+type Link = Connection<tokio_serial::SerialStream, Box<dyn FnMut(f64, LinkEvent) + Send>>;
+
+async fn open(daemon: &Arc<Daemon>, port: &str, running: Arc<Mutex<Running>>) -> Result<Link> {
+    use tokio_serial::SerialPortBuilderExt;
+    let io = tokio_serial::new(port, daemon.machine.serial.baud).open_native_async().map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
+    let options = SenderOptions::new(daemon.machine.serial.rx_buffer, daemon.machine.serial.status_hz);
+    let on_event: Box<dyn FnMut(f64, LinkEvent) + Send> = {
+        let daemon = daemon.clone();
+        Box::new(move |t, event| on_link_event(&daemon, &running, t, &event))
+    };
+    let mut connection = Connection::open(io, &options, on_event).await?;
+    let status = connection.status().await?;
+    daemon.status.send_modify(|s| s.machine = machine_status(&status));
+    Ok(connection)
+}
+
+/// Every line crossing the link: into the job's recording, and the status
+/// and progress the API shows.
+fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &LinkEvent) {
+    let mut running = running.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(r) = &running.recorder {
+        r.link_event(t, event);
+    }
+    match event {
+        LinkEvent::Sent { line, .. } if *line > 0 => {
+            running.last_sent = *line;
+            if let Some(id) = running.job.clone() {
+                let (line, total, planned) = (*line, running.lines_total, running.planned_time_s);
+                daemon.status.send_modify(|s| {
+                    let state = s.job.as_ref().map_or(JobState::Running, |p| p.state);
+                    let percent = if total > 0 { 100.0 * line as f64 / total as f64 } else { 0.0 };
+                    let eta_s = planned.map(|p| p * (1.0 - percent / 100.0));
+                    s.job = Some(Progress { id, state, line, lines_total: total, percent, eta_s });
+                });
+            }
+        }
+        LinkEvent::Received { text } if running.job.is_some() && (text == "ok" || text.starts_with("error:")) => {
+            running.answered += 1;
+        }
+        LinkEvent::Received { text } if text.starts_with('<') => {
+            if let Ok(report) = StatusReport::parse(text) {
+                if let Some((free, _)) = report.buffer {
+                    if report.state == MachineState::Idle && running.job.is_none() {
+                        running.planner_blocks = Some(free);
+                    }
+                    running.free_blocks = Some(free);
+                }
+                let status = machine_status(&report);
+                daemon.status.send_if_modified(|s| {
+                    let changed = s.machine != status;
+                    s.machine = status;
+                    changed
+                });
+            }
+        }
+        _ => {}
+    }
+}
+
+/// Connected: status polls while idle, the operator's commands, jobs.
+async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, heartbeat: &AtomicU64) -> Result<()> {
+    let period = Duration::from_secs_f64(1.0 / daemon.machine.serial.status_hz.max(0.5));
+    let mut poll = tokio::time::interval(period);
+    poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        heartbeat.fetch_add(1, Ordering::Relaxed);
+        tokio::select! {
+            _ = poll.tick() => {
+                let status = connection.status().await?;
+                let shown = machine_status(&status);
+                daemon.status.send_if_modified(|s| {
+                    let changed = s.machine != shown;
+                    s.machine = shown;
+                    changed
+                });
+            }
+            command = commands.recv() => {
+                let Some(command) = command else { return Ok(()) };
+                match command {
+                    Command::Start { id, reply } => {
+                        let state = connection.status().await?.state;
+                        if !may_start(&state) {
+                            let _ = reply.send(Err(Error::Conflict(format!("the machine is {}: a job starts only from Idle", state.as_field()))));
+                            continue;
+                        }
+                        let job = match take_job(daemon, id.as_deref()) {
+                            Ok(job) => job,
+                            Err(e) => {
+                                let _ = reply.send(Err(e));
+                                continue;
+                            }
+                        };
+                        let _ = reply.send(Ok(format!("job {} started", job.id)));
+                        if run_job(daemon, connection, commands, running, heartbeat, job).await? {
+                            return Ok(());
+                        }
+                    }
+                    Command::Jog { block, reply } => {
+                        let _ = reply.send(connection.jog(&block).await.map(|_| format!("jogging: {block}")));
+                    }
+                    Command::Home(reply) => {
+                        let _ = reply.send(connection.home().await.map(|_| "homed".to_string()));
+                    }
+                    Command::Unlock(reply) => {
+                        let _ = reply.send(connection.unlock().await.map(|_| "alarm cleared".to_string()));
+                    }
+                    Command::Shutdown(done) => {
+                        let _ = done.send(());
+                        return Ok(());
+                    }
+                    other => other.refuse("no job is running"),
+                }
+            }
+        }
+    }
+}
+
+/// The job to run: `id` if given (it must be waiting), else the queue's first.
+fn take_job(daemon: &Daemon, id: Option<&str>) -> Result<JobRecord> {
+    let mut store = daemon.store();
+    let id = match id {
+        Some(id) => id.to_string(),
+        None => store.order().iter().find(|id| store.get(id).is_some_and(|j| j.state == JobState::Queued)).cloned().ok_or_else(|| Error::Conflict("no job is queued".into()))?,
+    };
+    let job = store.get(&id).ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
+    if job.state != JobState::Queued {
+        return Err(Error::Conflict(format!("job {id} is {:?}, not queued", job.state).to_lowercase()));
+    }
+    let job = store.update(&id, |j| {
+        j.state = JobState::Running;
+        j.started_at = Some(super::queue::now());
+        j.message = None;
+    })?;
+    drop(store);
+    daemon.job_changed(&job);
+    Ok(job)
+}
+
+/// Streams a job, passing the operator's hold, resume and abort on; returns
+/// whether the service is stopping.
+async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, heartbeat: &AtomicU64, job: JobRecord) -> Result<bool> {
+    let (program, recording_path) = {
+        let store = daemon.store();
+        (store.program_path(&job.id), store.recording_path(&job.id))
+    };
+    let recording = Recording::create(&recording_path)?;
+    // The machine's axes and link, as every laserd recording starts.
+    let sim = crate::run::sim_config(&daemon.machine, laserd_sim::controller::Faults::default());
+    recording.recorder().write(crate::record::TOPIC_SETUP, 0.0, &crate::run::run_setup(&daemon.machine, &sim));
+    {
+        let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
+        let planner_blocks = r.planner_blocks;
+        *r = Running {
+            job: Some(job.id.clone()),
+            lines_total: job.lines_total,
+            planned_time_s: job.planned_time_s,
+            planner_blocks,
+            recorder: Some(recording.recorder()),
+            ..Default::default()
+        };
+    }
+    let text = std::fs::read_to_string(&program).map_err(|e| Error::Io(format!("{}: cannot read: {e}", program.display())));
+    let lines: Vec<Result<String>> = match text {
+        Ok(t) => t.lines().map(|l| Ok(l.to_string())).collect(),
+        Err(e) => vec![Err(e)],
+    };
+    let name = job.name.clone();
+    let describe = move |n: usize, text: &str| format!("{name}:{n} `{text}`");
+    let (control, mut control_rx) = mpsc::unbounded_channel();
+    let mut stopping = false;
+    let mut aborted = false;
+    let mut save = tokio::time::interval(Duration::from_millis(500));
+    let set_state = |state: JobState| {
+        daemon.status.send_modify(|s| {
+            if let Some(p) = &mut s.job {
+                p.state = state;
+            }
+        });
+        let job = daemon.store().update(&job.id, |j| j.state = state)?;
+        daemon.job_changed(&job);
+        Ok::<_, Error>(())
+    };
+    let outcome = {
+        let stream = connection.stream(lines, &describe, Some(&mut control_rx));
+        tokio::pin!(stream);
+        loop {
+            heartbeat.fetch_add(1, Ordering::Relaxed);
+            tokio::select! {
+                outcome = &mut stream => break outcome,
+                _ = save.tick() => {
+                    // Progress on disk twice a second: what a restart after a
+                    // crash or power loss resumes from.
+                    let (sent, executed) = {
+                        let r = running.lock().unwrap_or_else(|e| e.into_inner());
+                        (r.last_sent, r.executed())
+                    };
+                    let _ = daemon.store().update(&job.id, |j| {
+                        j.last_acked_line = sent;
+                        j.last_executed_line = executed;
+                    });
+                }
+                command = commands.recv() => match command {
+                    Some(Command::Pause(reply)) => {
+                        let _ = control.send(Control::FeedHold);
+                        set_state(JobState::Paused)?;
+                        let _ = reply.send(Ok(format!("job {} held", job.id)));
+                    }
+                    Some(Command::Resume(reply)) => {
+                        let _ = control.send(Control::Resume);
+                        set_state(JobState::Running)?;
+                        let _ = reply.send(Ok(format!("job {} resumed", job.id)));
+                    }
+                    Some(Command::Abort(reply)) => {
+                        let _ = control.send(Control::Abort);
+                        aborted = true;
+                        let _ = reply.send(Ok(format!("job {} aborted", job.id)));
+                    }
+                    Some(Command::Shutdown(done)) => {
+                        // A safe stop: hold and laser off, then the soft reset
+                        // of an abort; the job is kept as interrupted.
+                        let _ = control.send(Control::Abort);
+                        stopping = true;
+                        let _ = done.send(());
+                    }
+                    None => {
+                        let _ = control.send(Control::Abort);
+                        stopping = true;
+                    }
+                    Some(other) => other.refuse("a job is running"),
+                },
+            }
+        }
+    };
+    let (last_sent, executed_estimate) = {
+        let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
+        r.recorder = None;
+        r.job = None;
+        (r.last_sent, r.executed())
+    };
+    if let Err(e) = recording.finish() {
+        tracing::warn!("job {}: recording: {e}", job.id);
+    }
+    let ended = super::queue::now();
+    let record = match &outcome {
+        Ok(outcome) => finish_record(outcome, aborted, stopping),
+        Err(e) => (JobState::Interrupted, Some(e.to_string()), None),
+    };
+    let (state, message, executed) = record;
+    let job = daemon.store().update(&job.id, |j| {
+        j.state = state;
+        j.message = message;
+        j.ended_at = Some(ended);
+        j.last_acked_line = outcome.as_ref().map_or(last_sent, |o| o.last_acked_line);
+        j.last_executed_line = executed.unwrap_or(executed_estimate);
+    })?;
+    daemon.status.send_modify(|s| s.job = None);
+    daemon.job_changed(&job);
+    let _ = daemon.store().prune(daemon.machine.service.keep_jobs);
+    // A lost link ends the job as interrupted; the loop reconnects.
+    outcome?;
+    Ok(stopping)
+}
+
+/// The job's end state from how its stream ended.
+fn finish_record(outcome: &StreamOutcome, aborted: bool, stopping: bool) -> (JobState, Option<String>, Option<usize>) {
+    let executed = outcome.last_executed_line;
+    if outcome.completed {
+        (JobState::Completed, None, Some(outcome.lines_sent))
+    } else if stopping {
+        (JobState::Interrupted, Some("the service stopped while the job ran".into()), executed)
+    } else if aborted {
+        (JobState::Aborted, Some("aborted by the operator".into()), executed)
+    } else {
+        let why = outcome.stop_reason.clone().unwrap_or_else(|| "the stream stopped".into());
+        let state = if outcome.alarms.is_empty() && outcome.errors.is_empty() { JobState::Interrupted } else { JobState::Failed };
+        (state, Some(why), executed)
+    }
+}
+
+/// The controller's state is one where a job may start.
+pub fn may_start(state: &MachineState) -> bool {
+    matches!(state, MachineState::Idle)
+}

@@ -1,0 +1,281 @@
+//! `laserd serve`: the service on the machine PC. It keeps the job queue on
+//! disk (`queue.rs`), plans submitted jobs on a thread of their own (never on
+//! the streaming path), holds the controller link (`machine.rs`), and answers
+//! the control API (`api.rs`, HTTP/JSON on a Unix socket; TCP only with a
+//! bearer token). Under systemd it reports readiness and pings the watchdog.
+
+pub mod api;
+pub mod client;
+pub mod ctl;
+pub mod machine;
+pub mod queue;
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+use tokio::sync::{broadcast, mpsc, watch};
+
+use crate::config::MachineConfig;
+use crate::error::{Error, Result};
+use queue::{JobRecord, JobState, Store};
+
+/// Where the service keeps its state and listens.
+#[derive(Debug, Clone)]
+pub struct ServeOptions {
+    pub config: Option<PathBuf>,
+    /// Queue and recordings: systemd's `$STATE_DIRECTORY`, else `/var/lib/laserd`.
+    pub state_dir: PathBuf,
+    /// The API's Unix socket: `[service] socket`, relative to systemd's
+    /// `$RUNTIME_DIRECTORY` (else `/run/laserd`).
+    pub socket: PathBuf,
+}
+
+impl ServeOptions {
+    /// The defaults, from systemd's environment where it sets one.
+    pub fn from_env(config: Option<PathBuf>, state_dir: Option<PathBuf>, socket: Option<PathBuf>, machine: &MachineConfig) -> ServeOptions {
+        let first_dir = |var: &str, fallback: &str| {
+            // systemd may list several directories, separated by colons.
+            std::env::var(var).ok().and_then(|v| v.split(':').next().map(PathBuf::from)).unwrap_or_else(|| PathBuf::from(fallback))
+        };
+        let state_dir = state_dir.unwrap_or_else(|| first_dir("STATE_DIRECTORY", "/var/lib/laserd"));
+        let socket = socket.unwrap_or_else(|| first_dir("RUNTIME_DIRECTORY", "/run/laserd").join(&machine.service.socket));
+        ServeOptions { config, state_dir, socket }
+    }
+}
+
+/// The machine as the API shows it.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct MachineStatus {
+    /// The controller link is open and in sync with the config.
+    pub connected: bool,
+    /// GRBL's state (`Idle`, `Run`, `Hold:0`, `Alarm`, …), or `Disconnected`.
+    pub state: String,
+    /// Machine position of each axis, in the controller's axis order.
+    pub position: Vec<f64>,
+    /// Laser power (S) and feed (units/min) as the controller reports them.
+    pub laser: f64,
+    pub feed: f64,
+    /// Why the machine cannot run jobs, when it cannot.
+    pub message: Option<String>,
+}
+
+/// The running job's progress.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct Progress {
+    pub id: String,
+    pub state: JobState,
+    /// The last line the controller accepted, and the program's length.
+    pub line: usize,
+    pub lines_total: usize,
+    pub percent: f64,
+    /// Seconds left, from the planned machine time.
+    pub eta_s: Option<f64>,
+}
+
+/// `GET /status`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct Status {
+    pub machine: MachineStatus,
+    pub job: Option<Progress>,
+    pub queued: usize,
+}
+
+/// What the live event stream carries.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum Event {
+    /// The machine's or the running job's state changed.
+    Status(Status),
+    /// A job's record changed (accepted, planned, started, ended, …).
+    Job(JobRecord),
+}
+
+/// The service's shared state.
+pub struct Daemon {
+    pub machine: MachineConfig,
+    pub store: Mutex<Store>,
+    pub events: broadcast::Sender<Event>,
+    pub status: watch::Sender<Status>,
+    pub commands: mpsc::UnboundedSender<machine::Command>,
+    planning: crossbeam_channel::Sender<String>,
+}
+
+impl Daemon {
+    /// The store, even if a thread panicked while holding it (the store's
+    /// files are written atomically, so what it holds is consistent).
+    pub fn store(&self) -> std::sync::MutexGuard<'_, Store> {
+        self.store.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Tells event subscribers about a job's new record.
+    pub fn job_changed(&self, job: &JobRecord) {
+        let _ = self.events.send(Event::Job(job.clone()));
+        let queued = self.store().order().len();
+        self.status.send_if_modified(|s| {
+            let changed = s.queued != queued;
+            s.queued = queued;
+            changed
+        });
+    }
+
+    /// Accepts a job file: stores it and hands it to the planning thread.
+    pub fn submit(&self, name: &str, source: &[u8]) -> Result<JobRecord> {
+        if name.is_empty() || name.contains('/') || name.contains('\0') {
+            return Err(Error::Config(format!("job name {name:?}: give a plain file name such as part.svg")));
+        }
+        let job = self.store().add(name, source)?;
+        self.job_changed(&job);
+        self.planning.send(job.id.clone()).map_err(|_| Error::Io("the planning thread has stopped".into()))?;
+        Ok(job)
+    }
+}
+
+/// Plans (or, for G-code, checks and counts) a submitted job into its
+/// `program.nc`, then queues it; a job that cannot be planned fails with the
+/// planner's message.
+fn plan_job(daemon: &Daemon, id: &str) {
+    let (source, program_path, name) = {
+        let store = daemon.store();
+        match (store.source_path(id), store.get(id)) {
+            (Some(source), Some(job)) if job.state == JobState::Planning => (source, store.program_path(id), job.name.clone()),
+            _ => return,
+        }
+    };
+    let planned = (|| -> Result<(usize, Option<f64>)> {
+        let ext = source.extension().and_then(|e| e.to_str()).unwrap_or("");
+        if matches!(ext, "nc" | "gcode" | "ngc" | "gc" | "g" | "tap") {
+            let text = std::fs::read_to_string(&source).map_err(|e| Error::Io(format!("{name}: cannot read: {e}")))?;
+            queue::write_atomic(&program_path, text.as_bytes())?;
+            return Ok((text.lines().count(), None));
+        }
+        let planned = crate::run::plan(&source, &daemon.machine, crate::plan::PlannerKind::Auto, None)
+            .map_err(|e| Error::Plan(format!("{name}: {}", e.to_string().replace(&source.display().to_string(), &name))))?;
+        queue::write_atomic(&program_path, planned.program.to_gcode().as_bytes())?;
+        Ok((planned.program.lines.len(), Some(planned.report.trajectory_time_s)))
+    })();
+    let result = daemon.store().update(id, |j| match &planned {
+        Ok((lines, time)) => {
+            j.state = JobState::Queued;
+            j.lines_total = *lines;
+            j.planned_time_s = *time;
+        }
+        Err(e) => {
+            j.state = JobState::Failed;
+            j.message = Some(e.to_string());
+        }
+    });
+    match result {
+        Ok(job) => daemon.job_changed(&job),
+        // Removed while it was planned: nothing to tell.
+        Err(e) => tracing::debug!("job {id} after planning: {e}"),
+    }
+}
+
+/// Runs the service until SIGTERM or SIGINT: a safe stop (feed hold, laser
+/// off, the job marked interrupted) before exiting.
+pub fn serve(options: ServeOptions) -> Result<()> {
+    let machine = MachineConfig::load(options.config.as_deref())?;
+    let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().map_err(|e| Error::Io(e.to_string()))?;
+    runtime.block_on(serve_async(options, machine))
+}
+
+async fn serve_async(options: ServeOptions, machine: MachineConfig) -> Result<()> {
+    // A TCP API without its token is refused before anything starts.
+    let tcp = match machine.service.tcp.clone() {
+        Some(addr) => Some((addr, machine.service.token()?)),
+        None => None,
+    };
+    let store = Store::open(&options.state_dir)?;
+    let (events, _) = broadcast::channel(1024);
+    let (status, _) = watch::channel(Status { queued: store.order().len(), machine: machine::disconnected("not connected yet"), job: None });
+    let (commands, command_rx) = mpsc::unbounded_channel();
+    let (planning, planning_rx) = crossbeam_channel::unbounded::<String>();
+    let replan: Vec<String> = store.list().into_iter().filter(|j| j.state == JobState::Planning).map(|j| j.id).collect();
+    let daemon = Arc::new(Daemon { machine, store: Mutex::new(store), events, status, commands, planning });
+    let pruned = daemon.store().prune(daemon.machine.service.keep_jobs)?;
+    if !pruned.is_empty() {
+        tracing::info!("removed {} old finished job(s)", pruned.len());
+    }
+    // Planning on its own thread: a long plan never delays streaming or the API.
+    {
+        let daemon = daemon.clone();
+        std::thread::Builder::new()
+            .name("laserd-planner".into())
+            .spawn(move || {
+                for id in planning_rx {
+                    plan_job(&daemon, &id);
+                }
+            })
+            .map_err(|e| Error::Io(format!("cannot start the planning thread: {e}")))?;
+    }
+    for id in replan {
+        let _ = daemon.planning.send(id);
+    }
+    let heartbeat = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    // The controller link on a thread and runtime of its own: neither API
+    // load nor planning delays streaming or the status loop.
+    {
+        let (daemon, heartbeat) = (daemon.clone(), heartbeat.clone());
+        std::thread::Builder::new()
+            .name("laserd-machine".into())
+            .spawn(move || match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+                Ok(runtime) => runtime.block_on(machine::run(daemon, command_rx, heartbeat)),
+                Err(e) => tracing::error!("cannot start the machine loop: {e}"),
+            })
+            .map_err(|e| Error::Io(format!("cannot start the machine thread: {e}")))?;
+    }
+    let listener = api::bind_unix(&options.socket)?;
+    let mut servers = tokio::task::JoinSet::new();
+    servers.spawn(api::serve_unix(listener, daemon.clone()));
+    if let Some((addr, token)) = tcp {
+        let tcp = tokio::net::TcpListener::bind(&addr).await.map_err(|e| Error::Io(format!("[service] tcp = {addr:?}: cannot listen: {e}")))?;
+        servers.spawn(api::serve_tcp(tcp, daemon.clone(), token));
+    }
+    tracing::info!("laserd serving on {} (state in {})", options.socket.display(), options.state_dir.display());
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+    watchdog(heartbeat);
+    let stop = async {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).map_err(|e| Error::Io(e.to_string()))?;
+        tokio::select! {
+            _ = term.recv() => {},
+            _ = tokio::signal::ctrl_c() => {},
+        }
+        Ok::<_, Error>(())
+    };
+    tokio::select! {
+        r = stop => r?,
+        Some(r) = servers.join_next() => {
+            r.map_err(|e| Error::Io(format!("the API server stopped: {e}")))??;
+        }
+    }
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    // A safe stop of whatever runs, then out.
+    let (done_tx, done_rx) = tokio::sync::oneshot::channel();
+    if daemon.commands.send(machine::Command::Shutdown(done_tx)).is_ok() {
+        let _ = tokio::time::timeout(std::time::Duration::from_secs(5), done_rx).await;
+    }
+    let _ = std::fs::remove_file(&options.socket);
+    Ok(())
+}
+
+/// Pings systemd's watchdog while the machine loop is alive (its heartbeat
+/// moves); a stuck loop stops the pings and systemd restarts the service.
+fn watchdog(heartbeat: Arc<std::sync::atomic::AtomicU64>) {
+    let Some(interval) = sd_notify::watchdog_enabled() else { return };
+    let every = interval / 2;
+    tokio::spawn(async move {
+        let mut last = u64::MAX;
+        loop {
+            tokio::time::sleep(every).await;
+            let now = heartbeat.load(std::sync::atomic::Ordering::Relaxed);
+            if now != last {
+                let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+                last = now;
+            } else {
+                tracing::error!("the machine loop has not moved for {every:?}: no watchdog ping");
+            }
+        }
+    });
+}

@@ -1,0 +1,360 @@
+//! The job queue, kept on disk so that a restart or a power loss loses no
+//! accepted job: one folder per job under `<state>/jobs/<id>/` with its
+//! record (`job.json`), its source file, its program (`program.nc`) and its
+//! recording (`recording.mcap`), and the queue's order in `<state>/queue.json`.
+//! Every file is written whole to a temporary name, flushed to the disk and
+//! renamed over the old one, so a file is always either the old or the new.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// Where a job is in its life.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum JobState {
+    /// Accepted, being planned into a program.
+    Planning,
+    /// Planned, waiting in the queue.
+    Queued,
+    /// Streaming to the controller.
+    Running,
+    /// Streaming, in feed hold.
+    Paused,
+    Completed,
+    /// Stopped by the operator.
+    Aborted,
+    /// Could not be planned, or the controller refused it.
+    Failed,
+    /// Cut short by a lost link or a daemon that stopped (restart, power
+    /// loss): may be resumed from its last executed line, on the operator's word.
+    Interrupted,
+}
+
+impl JobState {
+    /// Over: nothing more will happen to the job unless the operator resumes it.
+    pub fn is_final(self) -> bool {
+        matches!(self, JobState::Completed | JobState::Aborted | JobState::Failed)
+    }
+}
+
+/// What the daemon knows of a job, as stored in `job.json` and shown by the API.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct JobRecord {
+    pub id: String,
+    /// The submitted file's name.
+    pub name: String,
+    pub state: JobState,
+    /// Unix times (s).
+    pub submitted_at: f64,
+    pub started_at: Option<f64>,
+    pub ended_at: Option<f64>,
+    /// Program lines (0 until planned).
+    pub lines_total: usize,
+    /// The last line the controller accepted into its buffer.
+    pub last_acked_line: usize,
+    /// The last line whose motion the controller finished, as its status
+    /// reports tell: where an interrupted job resumes.
+    pub last_executed_line: usize,
+    /// Planned machine time of the program (s), for the ETA.
+    pub planned_time_s: Option<f64>,
+    /// Why the job failed or was interrupted.
+    pub message: Option<String>,
+}
+
+/// The jobs and the queue's order, with their folder.
+pub struct Store {
+    dir: PathBuf,
+    jobs: BTreeMap<String, JobRecord>,
+    /// Ids of the jobs waiting to run, in order.
+    order: Vec<String>,
+    next_id: u64,
+}
+
+/// Writes `bytes` to `path` so that the file is either wholly old or wholly new,
+/// even across a power loss.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let io = |e: std::io::Error| Error::Io(format!("{}: cannot write: {e}", path.display()));
+    let tmp = path.with_extension("tmp");
+    let mut file = std::fs::File::create(&tmp).map_err(io)?;
+    file.write_all(bytes).map_err(io)?;
+    file.sync_all().map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(io)?;
+    if let Some(parent) = path.parent() {
+        // The rename is durable once the folder is.
+        std::fs::File::open(parent).and_then(|d| d.sync_all()).map_err(io)?;
+    }
+    Ok(())
+}
+
+/// Unix time now (s).
+pub fn now() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
+}
+
+impl Store {
+    /// Opens (or creates) the store in `dir`. Jobs that were running or paused
+    /// when the daemon last stopped are marked interrupted, and jobs caught
+    /// while planning are planned again (they stay `Planning` for the caller).
+    pub fn open(dir: &Path) -> Result<Store> {
+        let jobs_dir = dir.join("jobs");
+        std::fs::create_dir_all(&jobs_dir).map_err(|e| Error::Io(format!("{}: cannot create: {e}", jobs_dir.display())))?;
+        let mut jobs = BTreeMap::new();
+        let mut next_id = 1;
+        let entries = std::fs::read_dir(&jobs_dir).map_err(|e| Error::Io(format!("{}: cannot read: {e}", jobs_dir.display())))?;
+        for entry in entries.flatten() {
+            let file = entry.path().join("job.json");
+            let Ok(text) = std::fs::read_to_string(&file) else { continue };
+            let record: JobRecord = match serde_json::from_str(&text) {
+                Ok(r) => r,
+                Err(e) => {
+                    tracing::warn!("{}: unreadable job record, skipped: {e}", file.display());
+                    continue;
+                }
+            };
+            if let Ok(n) = record.id.trim_start_matches('j').parse::<u64>() {
+                next_id = next_id.max(n + 1);
+            }
+            jobs.insert(record.id.clone(), record);
+        }
+        let order_file = dir.join("queue.json");
+        let mut order: Vec<String> = match std::fs::read_to_string(&order_file) {
+            Ok(text) => serde_json::from_str(&text).map_err(|e| Error::Config(format!("{}: {e}", order_file.display())))?,
+            Err(_) => Vec::new(),
+        };
+        order.retain(|id| jobs.contains_key(id));
+        let mut store = Store { dir: dir.to_path_buf(), jobs, order, next_id };
+        let cut_short: Vec<String> = store.jobs.values().filter(|j| matches!(j.state, JobState::Running | JobState::Paused)).map(|j| j.id.clone()).collect();
+        for id in cut_short {
+            store.update(&id, |j| {
+                j.state = JobState::Interrupted;
+                j.message = Some(format!("the daemon stopped while the job ran; last executed line {}", j.last_executed_line));
+            })?;
+        }
+        // A job accepted but not yet queued (the daemon stopped while planning)
+        // keeps its place: queued jobs first, in their order, then these.
+        let waiting: Vec<String> = store.jobs.values().filter(|j| matches!(j.state, JobState::Queued | JobState::Planning)).map(|j| j.id.clone()).collect();
+        for id in waiting {
+            if !store.order.contains(&id) {
+                store.order.push(id);
+            }
+        }
+        store.order.retain(|id| matches!(store.jobs[id].state, JobState::Queued | JobState::Planning));
+        store.save_order()?;
+        Ok(store)
+    }
+
+    pub fn job_dir(&self, id: &str) -> PathBuf {
+        self.dir.join("jobs").join(id)
+    }
+
+    pub fn program_path(&self, id: &str) -> PathBuf {
+        self.job_dir(id).join("program.nc")
+    }
+
+    pub fn recording_path(&self, id: &str) -> PathBuf {
+        self.job_dir(id).join("recording.mcap")
+    }
+
+    /// The submitted file, named as it was (its extension says how to read it).
+    pub fn source_path(&self, id: &str) -> Option<PathBuf> {
+        let name = &self.jobs.get(id)?.name;
+        Some(self.job_dir(id).join(format!("source.{}", extension_of(name))))
+    }
+
+    /// Accepts a job: stores its source and its record (state `Planning`), and
+    /// puts it at the end of the queue.
+    pub fn add(&mut self, name: &str, source: &[u8]) -> Result<JobRecord> {
+        let id = format!("j{:06}", self.next_id);
+        self.next_id += 1;
+        let dir = self.job_dir(&id);
+        std::fs::create_dir_all(&dir).map_err(|e| Error::Io(format!("{}: cannot create: {e}", dir.display())))?;
+        let record = JobRecord {
+            id: id.clone(),
+            name: name.to_string(),
+            state: JobState::Planning,
+            submitted_at: now(),
+            started_at: None,
+            ended_at: None,
+            lines_total: 0,
+            last_acked_line: 0,
+            last_executed_line: 0,
+            planned_time_s: None,
+            message: None,
+        };
+        write_atomic(&dir.join(format!("source.{}", extension_of(name))), source)?;
+        self.jobs.insert(id.clone(), record.clone());
+        self.save_job(&id)?;
+        self.order.push(id);
+        self.save_order()?;
+        Ok(record)
+    }
+
+    pub fn get(&self, id: &str) -> Option<&JobRecord> {
+        self.jobs.get(id)
+    }
+
+    /// Every job, the queue's first, in queue order, then the others newest first.
+    pub fn list(&self) -> Vec<JobRecord> {
+        let mut out: Vec<JobRecord> = self.order.iter().map(|id| self.jobs[id].clone()).collect();
+        let mut rest: Vec<&JobRecord> = self.jobs.values().filter(|j| !self.order.contains(&j.id)).collect();
+        rest.sort_by(|a, b| b.id.cmp(&a.id));
+        out.extend(rest.into_iter().cloned());
+        out
+    }
+
+    /// The queue's order (ids of the jobs waiting).
+    pub fn order(&self) -> &[String] {
+        &self.order
+    }
+
+    /// Changes a job's record and stores it.
+    pub fn update(&mut self, id: &str, change: impl FnOnce(&mut JobRecord)) -> Result<JobRecord> {
+        let job = self.jobs.get_mut(id).ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
+        change(job);
+        let job = job.clone();
+        self.save_job(id)?;
+        if !matches!(job.state, JobState::Queued | JobState::Planning) && self.order.contains(&job.id) {
+            self.order.retain(|o| o != id);
+            self.save_order()?;
+        }
+        Ok(job)
+    }
+
+    /// Puts a job back in the queue (an interrupted one, to resume), at the front.
+    pub fn requeue_front(&mut self, id: &str) -> Result<()> {
+        self.order.retain(|o| o != id);
+        self.order.insert(0, id.to_string());
+        self.save_order()
+    }
+
+    /// Moves a waiting job to `position` (0 = next) in the queue.
+    pub fn reorder(&mut self, id: &str, position: usize) -> Result<()> {
+        let Some(at) = self.order.iter().position(|o| o == id) else {
+            return Err(Error::Conflict(format!("job {id} is not waiting in the queue")));
+        };
+        let id = self.order.remove(at);
+        let position = position.min(self.order.len());
+        self.order.insert(position, id);
+        self.save_order()
+    }
+
+    /// Deletes a job that is not running: its record, files and place in the queue.
+    pub fn remove(&mut self, id: &str) -> Result<()> {
+        let job = self.jobs.get(id).ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
+        if matches!(job.state, JobState::Running | JobState::Paused) {
+            return Err(Error::Conflict(format!("job {id} is running: abort it first")));
+        }
+        self.order.retain(|o| o != id);
+        self.save_order()?;
+        self.jobs.remove(id);
+        let dir = self.job_dir(id);
+        std::fs::remove_dir_all(&dir).map_err(|e| Error::Io(format!("{}: cannot remove: {e}", dir.display())))
+    }
+
+    /// Deletes the oldest finished jobs (with their recordings) beyond `keep`.
+    pub fn prune(&mut self, keep: usize) -> Result<Vec<String>> {
+        let mut finished: Vec<&JobRecord> = self.jobs.values().filter(|j| j.state.is_final()).collect();
+        finished.sort_by(|a, b| b.id.cmp(&a.id));
+        let old: Vec<String> = finished.iter().skip(keep).map(|j| j.id.clone()).collect();
+        for id in &old {
+            self.remove(id)?;
+        }
+        Ok(old)
+    }
+
+    fn save_job(&self, id: &str) -> Result<()> {
+        let job = &self.jobs[id];
+        let text = serde_json::to_vec_pretty(job).map_err(|e| Error::Io(e.to_string()))?;
+        write_atomic(&self.job_dir(id).join("job.json"), &text)
+    }
+
+    fn save_order(&self) -> Result<()> {
+        let text = serde_json::to_vec(&self.order).map_err(|e| Error::Io(e.to_string()))?;
+        write_atomic(&self.dir.join("queue.json"), &text)
+    }
+}
+
+/// A submitted file's extension, lower case (`svg`, `dxf`, `nc`, …); `nc` when it has none.
+fn extension_of(name: &str) -> String {
+    Path::new(name)
+        .extension()
+        .and_then(|e| e.to_str())
+        .filter(|e| !e.is_empty() && e.len() <= 8 && e.chars().all(|c| c.is_ascii_alphanumeric()))
+        .map_or_else(|| "nc".to_string(), |e| e.to_ascii_lowercase())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_queue_survives_a_restart_in_order_and_a_running_job_comes_back_interrupted() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b, c) = {
+            let mut store = Store::open(dir.path()).unwrap();
+            let a = store.add("a.svg", b"<svg/>").unwrap().id;
+            let b = store.add("b.nc", b"G1X1\n").unwrap().id;
+            let c = store.add("c.dxf", b"0\nEOF\n").unwrap().id;
+            for id in [&a, &b, &c] {
+                store.update(id, |j| j.state = JobState::Queued).unwrap();
+            }
+            store.reorder(&c, 0).unwrap();
+            store
+                .update(&a, |j| {
+                    j.state = JobState::Running;
+                    j.last_executed_line = 120;
+                })
+                .unwrap();
+            (a, b, c)
+            // Dropped without any shutdown: as after a kill -9.
+        };
+        let store = Store::open(dir.path()).unwrap();
+        assert_eq!(store.order(), &[c.clone(), b.clone()], "the waiting jobs in their order");
+        let a = store.get(&a).unwrap();
+        assert_eq!(a.state, JobState::Interrupted);
+        assert_eq!(a.last_executed_line, 120);
+        assert!(a.message.as_deref().unwrap().contains("120"));
+        assert_eq!(std::fs::read(store.source_path(&b).unwrap()).unwrap(), b"G1X1\n");
+        assert!(store.source_path(&c).unwrap().ends_with("source.dxf"));
+        // New ids never reuse old ones.
+        let mut store = store;
+        let d = store.add("d.svg", b"<svg/>").unwrap();
+        assert!(d.id > c, "{} after {c}", d.id);
+    }
+
+    #[test]
+    fn running_jobs_cannot_be_removed_and_old_finished_jobs_are_pruned() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        let ids: Vec<String> = (0..5).map(|k| store.add(&format!("{k}.nc"), b"G0X0\n").unwrap().id).collect();
+        store.update(&ids[0], |j| j.state = JobState::Running).unwrap();
+        assert!(matches!(store.remove(&ids[0]), Err(Error::Conflict(_))));
+        assert!(matches!(store.remove("j999999"), Err(Error::NotFound(_))));
+        for id in &ids[1..] {
+            store.update(id, |j| j.state = JobState::Completed).unwrap();
+        }
+        let pruned = store.prune(2).unwrap();
+        assert_eq!(pruned, vec![ids[2].clone(), ids[1].clone()]);
+        assert!(!store.job_dir(&ids[1]).exists());
+        assert!(store.get(&ids[4]).is_some() && store.get(&ids[0]).is_some());
+        assert!(matches!(store.reorder(&ids[4], 0), Err(Error::Conflict(_))), "a finished job is not in the queue");
+    }
+
+    #[test]
+    fn a_torn_write_leaves_the_old_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.json");
+        write_atomic(&path, b"old").unwrap();
+        // A crash between writing the temporary file and the rename.
+        std::fs::write(path.with_extension("tmp"), b"ne").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"old");
+        write_atomic(&path, b"new").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"new");
+    }
+}

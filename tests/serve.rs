@@ -1,0 +1,350 @@
+//! `laserd serve` against `laserd sim --pty`, both as child processes, driven
+//! through the API on the service's Unix socket (the library's client).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use common::SimProcess;
+use hyper::Method;
+use laserd::daemon::client;
+use serde_json::Value;
+
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+/// Real-time tests: one at a time, so that a loaded machine does not starve them.
+fn take_turn() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn sample(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("samples").join(name)
+}
+
+fn galvo(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/galvo").join(name)
+}
+
+/// The shipped config with the serial port at `tty`.
+fn config(dir: &Path, tty: &Path) -> PathBuf {
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/laserd.toml")).unwrap();
+    let text: String = text
+        .lines()
+        .map(|l| if l.starts_with("port = ") { format!("port = {:?}", tty.to_str().unwrap()) } else { l.to_string() })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let path = dir.join("laserd.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// `laserd serve` as a child process; killed when dropped.
+struct Service {
+    child: Child,
+    socket: PathBuf,
+}
+
+impl Service {
+    fn start(config: &Path, state: &Path, socket: &Path) -> Service {
+        let child = Command::new(env!("CARGO_BIN_EXE_laserd"))
+            .args(["serve", "--config", config.to_str().unwrap(), "--state-dir", state.to_str().unwrap(), "--socket", socket.to_str().unwrap()])
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("laserd serve starts");
+        let started = Instant::now();
+        while std::os::unix::net::UnixStream::connect(socket).is_err() {
+            assert!(started.elapsed() < Duration::from_secs(10), "the API socket appears");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Service { child, socket: socket.to_path_buf() }
+    }
+
+    fn terminate(mut self) -> std::process::ExitStatus {
+        nix::sys::signal::kill(nix::unistd::Pid::from_raw(self.child.id() as i32), nix::sys::signal::Signal::SIGTERM).unwrap();
+        self.child.wait().unwrap()
+    }
+
+    fn kill(mut self) {
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+struct Api {
+    socket: PathBuf,
+    runtime: tokio::runtime::Runtime,
+}
+
+impl Api {
+    fn new(socket: &Path) -> Api {
+        Api { socket: socket.to_path_buf(), runtime: tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build().unwrap() }
+    }
+
+    fn call(&self, method: Method, path: &str, body: Option<Value>) -> (u16, Value) {
+        let body = body.map(|b| ("application/json", b.to_string().into_bytes()));
+        let answer = self.runtime.block_on(client::request(&self.socket, method, path, body)).unwrap();
+        (answer.status, serde_json::from_slice(&answer.body).unwrap_or(Value::Null))
+    }
+
+    fn ok(&self, method: Method, path: &str, body: Option<Value>) -> Value {
+        let (status, value) = self.call(method, path, body);
+        assert!((200..300).contains(&status), "{path}: {status} {value}");
+        value
+    }
+
+    fn submit(&self, file: &Path) -> String {
+        let bytes = std::fs::read(file).unwrap();
+        let name = file.file_name().unwrap().to_str().unwrap();
+        let answer = self.runtime.block_on(client::request(&self.socket, Method::POST, &format!("/jobs?name={name}"), Some(("application/octet-stream", bytes)))).unwrap();
+        assert_eq!(answer.status, 202, "{}", String::from_utf8_lossy(&answer.body));
+        let job: Value = serde_json::from_slice(&answer.body).unwrap();
+        job["id"].as_str().unwrap().to_string()
+    }
+
+    fn status(&self) -> Value {
+        self.ok(Method::GET, "/status", None)
+    }
+
+    fn job(&self, id: &str) -> Value {
+        self.ok(Method::GET, &format!("/jobs/{id}"), None)
+    }
+
+    /// Waits (up to `limit`) until `check` holds of the status.
+    fn wait_status(&self, limit: Duration, what: &str, check: impl Fn(&Value) -> bool) -> Value {
+        let started = Instant::now();
+        loop {
+            let s = self.status();
+            if check(&s) {
+                return s;
+            }
+            assert!(started.elapsed() < limit, "waited {limit:?} for {what}; status {s}");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    fn wait_job(&self, id: &str, state: &str, limit: Duration) -> Value {
+        let started = Instant::now();
+        loop {
+            let j = self.job(id);
+            if j["state"] == state {
+                return j;
+            }
+            assert!(started.elapsed() < limit, "waited {limit:?} for job {id} to be {state}: {j}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Collects every event of the live stream in the background.
+    fn follow(&self) -> Arc<Mutex<Vec<(String, Value)>>> {
+        let events = Arc::new(Mutex::new(Vec::new()));
+        let (socket, sink) = (self.socket.clone(), events.clone());
+        self.runtime.spawn(async move {
+            let _ = client::follow_events(&socket, |kind, value| {
+                sink.lock().unwrap().push((kind.to_string(), value.clone()));
+                true
+            })
+            .await;
+        });
+        events
+    }
+}
+
+fn machine_state(s: &Value) -> &str {
+    s["machine"]["state"].as_str().unwrap_or("")
+}
+
+#[test]
+fn a_job_through_the_api_pauses_resumes_completes_and_a_second_is_aborted_half_way_laser_off() {
+    let _turn = take_turn();
+    let dir = tempfile::tempdir().unwrap();
+    let tty = dir.path().join("ttyLASER");
+    let sim_rec = dir.path().join("sim.mcap");
+    let sim = SimProcess::start(&tty, &["--pty", "--record", sim_rec.to_str().unwrap()]);
+    let config = config(dir.path(), &tty);
+    let service = Service::start(&config, &dir.path().join("state"), &dir.path().join("api.sock"));
+    let api = Api::new(&service.socket);
+    let events = api.follow();
+    api.wait_status(Duration::from_secs(10), "the controller link", |s| s["machine"]["connected"] == true && machine_state(s) == "Idle");
+    // The socket: rw for the service's user and group only.
+    use std::os::unix::fs::PermissionsExt;
+    assert_eq!(std::fs::metadata(&service.socket).unwrap().permissions().mode() & 0o777, 0o660);
+
+    // Job 1: planned by the service, started, held, resumed, completed.
+    let first = api.submit(&galvo("SC278C18.svg"));
+    let queued = api.wait_job(&first, "queued", Duration::from_secs(60));
+    let total = queued["lines_total"].as_u64().unwrap();
+    assert!(total > 1000, "{queued}");
+    api.ok(Method::POST, "/start", None);
+    api.wait_status(Duration::from_secs(10), "a third of job 1 sent", |s| s["job"]["line"].as_u64().unwrap_or(0) > total / 3);
+    let (status, conflict) = api.call(Method::POST, "/jog", Some(serde_json::json!({ "block": "G91 X10 F600" })));
+    assert_eq!(status, 409, "no jogging while a job runs: {conflict}");
+    api.ok(Method::POST, "/pause", None);
+    let held = api.wait_status(Duration::from_secs(3), "feed hold", |s| machine_state(s).starts_with("Hold"));
+    assert_eq!(held["job"]["state"], "paused");
+    // Held still, laser off: the position does not move over half a second.
+    api.wait_status(Duration::from_secs(3), "the hold complete", |s| machine_state(s) == "Hold:0");
+    std::thread::sleep(Duration::from_millis(300));
+    let a = api.status();
+    std::thread::sleep(Duration::from_millis(500));
+    let b = api.status();
+    assert_eq!(a["machine"]["position"], b["machine"]["position"], "standing still in the hold");
+    assert_eq!(b["machine"]["laser"].as_f64().unwrap(), 0.0, "laser off in the hold: {b}");
+    assert_eq!(api.job(&first)["state"], "paused");
+    api.ok(Method::POST, "/resume", None);
+    let done = api.wait_job(&first, "completed", Duration::from_secs(30));
+    assert_eq!(done["last_executed_line"].as_u64(), Some(total));
+
+    // Job 2: aborted half way.
+    let second = api.submit(&galvo("SC122C4.svg"));
+    let queued = api.wait_job(&second, "queued", Duration::from_secs(60));
+    let total = queued["lines_total"].as_u64().unwrap();
+    api.ok(Method::POST, "/start", Some(serde_json::json!({ "id": second })));
+    api.wait_status(Duration::from_secs(10), "half of job 2 sent", |s| s["job"]["line"].as_u64().unwrap_or(0) > total / 2);
+    api.ok(Method::POST, "/abort", None);
+    let aborted = api.wait_job(&second, "aborted", Duration::from_secs(10));
+    let last = aborted["last_executed_line"].as_u64().unwrap();
+    assert!(last > 0 && last < total, "stopped part way: {aborted}");
+    let idle = api.wait_status(Duration::from_secs(5), "idle after the abort", |s| machine_state(s) == "Idle" && s["job"].is_null());
+    assert_eq!(idle["machine"]["laser"].as_f64().unwrap(), 0.0);
+    // Both recordings download through the API and read back.
+    for id in [&first, &second] {
+        let answer = api.runtime.block_on(client::request(&service.socket, Method::GET, &format!("/jobs/{id}/recording"), None)).unwrap();
+        assert_eq!(answer.status, 200);
+        let path = dir.path().join(format!("{id}.mcap"));
+        std::fs::write(&path, &answer.body).unwrap();
+        let replay = laserd::record::read(&path).unwrap();
+        assert!(replay.truncated.is_none(), "{id}: a whole recording");
+        assert!(replay.log.link.len() > 100, "{id}: the link traffic is in it");
+    }
+
+    // The events told all of it, in order.
+    std::thread::sleep(Duration::from_millis(200));
+    let events = events.lock().unwrap().clone();
+    let job_states = |id: &str| -> Vec<String> {
+        let mut states: Vec<String> = events.iter().filter(|(k, v)| k == "job" && v["id"] == id).map(|(_, v)| v["state"].as_str().unwrap().to_string()).collect();
+        states.dedup();
+        states
+    };
+    assert_eq!(job_states(&first), ["planning", "queued", "running", "paused", "running", "completed"]);
+    assert_eq!(job_states(&second), ["planning", "queued", "running", "aborted"]);
+    let machine_states: Vec<&str> = events.iter().filter(|(k, _)| k == "status").map(|(_, v)| v["machine"]["state"].as_str().unwrap()).collect();
+    assert!(machine_states.contains(&"Hold:0") && machine_states.contains(&"Run"), "{machine_states:?}");
+    assert!(events.iter().any(|(k, v)| k == "status" && v["job"]["percent"].as_f64().unwrap_or(0.0) > 50.0));
+
+    assert!(service.terminate().success(), "a clean stop on SIGTERM");
+    sim.terminate();
+    // The simulator's own record of the motion: the laser was off whenever
+    // the machine stood still (the hold, between the jobs).
+    let knots = laserd::record::read(&sim_rec).unwrap().log.knots;
+    let rests: Vec<_> = knots.windows(2).filter(|w| w[1].t - w[0].t > 0.4 && w[0].pos == w[1].pos).collect();
+    assert!(!rests.is_empty(), "the hold is in the simulator's record");
+    assert!(rests.iter().all(|w| w[1].power == 0.0), "the laser is off while held");
+}
+
+#[test]
+fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_recording_reads() {
+    let _turn = take_turn();
+    let dir = tempfile::tempdir().unwrap();
+    let tty = dir.path().join("ttyKILL");
+    let _sim = SimProcess::start(&tty, &["--pty"]);
+    let config = config(dir.path(), &tty);
+    let (state, socket) = (dir.path().join("state"), dir.path().join("api.sock"));
+    let service = Service::start(&config, &state, &socket);
+    let api = Api::new(&socket);
+    api.wait_status(Duration::from_secs(10), "the controller link", |s| machine_state(s) == "Idle");
+    let id = api.submit(&sample("marking-300.svg"));
+    let queued = api.wait_job(&id, "queued", Duration::from_secs(60));
+    let total = queued["lines_total"].as_u64().unwrap();
+    let waiting = api.submit(&sample("one-field.svg"));
+    api.wait_job(&waiting, "queued", Duration::from_secs(60));
+    api.ok(Method::POST, "/start", Some(serde_json::json!({ "id": id })));
+    // Long enough for the progress and the recording to reach the disk.
+    api.wait_status(Duration::from_secs(20), "a fifth of the job sent", |s| s["job"]["line"].as_u64().unwrap_or(0) > total / 5);
+    std::thread::sleep(Duration::from_millis(1500));
+    let sent_before = api.status()["job"]["line"].as_u64().unwrap();
+    service.kill();
+
+    let service = Service::start(&config, &state, &socket);
+    let api = Api::new(&socket);
+    let job = api.job(&id);
+    assert_eq!(job["state"], "interrupted", "{job}");
+    let last = job["last_executed_line"].as_u64().unwrap();
+    assert!(last > 0 && last <= sent_before, "last executed line {last}, {sent_before} sent before the kill: {job}");
+    assert!(job["message"].as_str().unwrap().contains(&last.to_string()));
+    // The queue kept the waiting job, and the restart started nothing.
+    let jobs = api.ok(Method::GET, "/jobs", None);
+    assert_eq!(jobs[0]["id"], waiting.as_str());
+    assert_eq!(jobs[0]["state"], "queued");
+    std::thread::sleep(Duration::from_millis(500));
+    assert!(api.status()["job"].is_null(), "nothing runs on its own after a restart");
+    // The recording up to the kill reads back.
+    let answer = api.runtime.block_on(client::request(&socket, Method::GET, &format!("/jobs/{id}/recording"), None)).unwrap();
+    assert_eq!(answer.status, 200);
+    let path = dir.path().join("cut.mcap");
+    std::fs::write(&path, &answer.body).unwrap();
+    let replay = laserd::record::read(&path).expect("a recording cut by the kill reads");
+    assert!(replay.log.link.len() > 50, "link traffic up to the kill: {}", replay.log.link.len());
+    drop(service);
+}
+
+#[test]
+fn tcp_needs_the_bearer_token_and_is_refused_without_one() {
+    use std::io::{Read, Write};
+    let dir = tempfile::tempdir().unwrap();
+    let port = 20000 + std::process::id() % 20000;
+    let token_file = dir.path().join("token");
+    std::fs::write(&token_file, "0123456789abcdef-secret\n").unwrap();
+    let base = config(dir.path(), &dir.path().join("ttyNONE"));
+    let with_tcp = |token: Option<&Path>| {
+        // The shipped config's [service] section, with its TCP lines set.
+        let text = std::fs::read_to_string(&base).unwrap();
+        assert!(text.contains("# tcp = ") && text.contains("# token_file = "));
+        let text: String = text
+            .lines()
+            .map(|l| match (l.starts_with("# tcp = "), l.starts_with("# token_file = "), token) {
+                (true, _, _) => format!("tcp = \"127.0.0.1:{port}\""),
+                (_, true, Some(t)) => format!("token_file = {:?}", t.to_str().unwrap()),
+                _ => l.to_string(),
+            })
+            .collect::<Vec<_>>()
+            .join("\n");
+        let path = dir.path().join(if token.is_some() { "tcp.toml" } else { "tcp-open.toml" });
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    // No token: the service will not start.
+    let open = Command::new(env!("CARGO_BIN_EXE_laserd"))
+        .args(["serve", "--config", with_tcp(None).to_str().unwrap(), "--state-dir", dir.path().join("s0").to_str().unwrap(), "--socket", dir.path().join("a0.sock").to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!open.status.success());
+    assert!(String::from_utf8_lossy(&open.stderr).contains("token_file"), "{}", String::from_utf8_lossy(&open.stderr));
+
+    let service = Service::start(&with_tcp(Some(&token_file)), &dir.path().join("s1"), &dir.path().join("a1.sock"));
+    let ask = |auth: Option<&str>| -> String {
+        let mut stream = std::net::TcpStream::connect(("127.0.0.1", port as u16)).unwrap();
+        let auth = auth.map(|a| format!("Authorization: Bearer {a}\r\n")).unwrap_or_default();
+        write!(stream, "GET /status HTTP/1.1\r\nHost: laserd\r\n{auth}Connection: close\r\n\r\n").unwrap();
+        let mut answer = String::new();
+        stream.read_to_string(&mut answer).unwrap();
+        answer
+    };
+    assert!(ask(None).starts_with("HTTP/1.1 401"), "no token: refused");
+    assert!(ask(Some("0123456789abcdef-wrong!")).starts_with("HTTP/1.1 401"), "a wrong token: refused");
+    let ok = ask(Some("0123456789abcdef-secret"));
+    assert!(ok.starts_with("HTTP/1.1 200") && ok.contains("\"machine\""), "{ok}");
+    // The Unix socket needs no token (its mode guards it).
+    let api = Api::new(&service.socket);
+    assert_eq!(api.status()["machine"]["connected"], false);
+    drop(service);
+}
