@@ -348,3 +348,63 @@ fn tcp_needs_the_bearer_token_and_is_refused_without_one() {
     assert_eq!(api.status()["machine"]["connected"], false);
     drop(service);
 }
+
+#[test]
+fn the_link_comes_back_after_an_unplug_nothing_moves_until_the_operator_resumes_and_a_faster_controller_is_refused() {
+    let _turn = take_turn();
+    let dir = tempfile::tempdir().unwrap();
+    let tty = dir.path().join("ttyUSB");
+    let sim = SimProcess::start(&tty, &["--pty"]);
+    let config = config(dir.path(), &tty);
+    let service = Service::start(&config, &dir.path().join("state"), &dir.path().join("api.sock"));
+    let api = Api::new(&service.socket);
+    api.wait_status(Duration::from_secs(10), "the controller link", |s| machine_state(s) == "Idle");
+    let id = api.submit(&galvo("SC278C18.svg"));
+    let total = api.wait_job(&id, "queued", Duration::from_secs(60))["lines_total"].as_u64().unwrap();
+    api.ok(Method::POST, "/start", None);
+    api.wait_status(Duration::from_secs(10), "a third sent", |s| s["job"]["line"].as_u64().unwrap_or(0) > total / 3);
+    // The USB cable pulled: the device is gone mid-job.
+    sim.kill();
+    let job = api.wait_job(&id, "interrupted", Duration::from_secs(5));
+    let last = job["last_executed_line"].as_u64().unwrap();
+    assert!(last > 0 && last < total, "{job}");
+    api.wait_status(Duration::from_secs(5), "disconnected", |s| s["machine"]["connected"] == false);
+    let (status, _) = api.call(Method::POST, "/start", None);
+    assert_eq!(status, 409, "nothing starts without a controller");
+
+    // Plugged back in (a fresh controller at the same device path): the
+    // service reconnects and re-syncs, and nothing moves.
+    let sim = SimProcess::start(&tty, &["--pty"]);
+    api.wait_status(Duration::from_secs(10), "reconnected", |s| s["machine"]["connected"] == true && machine_state(s) == "Idle");
+    std::thread::sleep(Duration::from_millis(700));
+    let s = api.status();
+    assert!(s["job"].is_null() && machine_state(&s) == "Idle", "no motion on its own: {s}");
+    assert!(s["machine"]["position"].as_array().unwrap().iter().all(|p| p.as_f64() == Some(0.0)), "{s}");
+    assert_eq!(api.job(&id)["state"], "interrupted");
+
+    // Resuming needs the operator's explicit word.
+    let (status, refused) = api.call(Method::POST, &format!("/jobs/{id}/resume"), Some(serde_json::json!({}))); 
+    assert_eq!(status, 409);
+    assert!(refused["error"].as_str().unwrap().contains(&format!("line {}", last + 1)), "{refused}");
+    let answer = api.ok(Method::POST, &format!("/jobs/{id}/resume"), Some(serde_json::json!({ "confirm": true })));
+    assert!(answer["done"].as_str().unwrap().contains(&format!("resumed at line {}", last + 1)), "{answer}");
+    let done = api.wait_job(&id, "completed", Duration::from_secs(30));
+    assert_eq!(done["last_executed_line"].as_u64(), Some(total));
+    sim.terminate();
+    api.wait_status(Duration::from_secs(5), "disconnected", |s| s["machine"]["connected"] == false);
+
+    // A controller that allows more than the config (a faster X axis): connected,
+    // but jobs are refused, and the status says why.
+    let text = std::fs::read_to_string(&config).unwrap().replace("max_velocity = 500.0", "max_velocity = 600.0");
+    let faster = dir.path().join("faster.toml");
+    std::fs::write(&faster, text).unwrap();
+    let _sim = SimProcess::start(&tty, &["--pty", "--config", faster.to_str().unwrap()]);
+    let s = api.wait_status(Duration::from_secs(10), "reconnected to the faster controller", |s| s["machine"]["connected"] == true);
+    assert!(s["machine"]["message"].as_str().unwrap_or("").contains("$110=36000"), "{s}");
+    let again = api.submit(&sample("one-field.svg"));
+    api.wait_job(&again, "queued", Duration::from_secs(60));
+    let (status, refused) = api.call(Method::POST, "/start", None);
+    assert_eq!(status, 409);
+    assert!(refused["error"].as_str().unwrap().contains("exceeds the config"), "{refused}");
+    drop(service);
+}

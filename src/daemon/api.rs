@@ -49,6 +49,7 @@ pub fn router(daemon: Arc<Daemon>) -> Router {
         .route("/jobs", get(list_jobs).post(submit))
         .route("/jobs/{id}", get(get_job).delete(remove_job))
         .route("/jobs/{id}/move", post(move_job))
+        .route("/jobs/{id}/resume", post(resume_job))
         .route("/jobs/{id}/program", get(program))
         .route("/jobs/{id}/recording", get(recording))
         .route("/start", post(start))
@@ -165,6 +166,26 @@ struct StartBody {
 async fn start(State(d): State<Arc<Daemon>>, body: Bytes) -> ApiResult<Json<serde_json::Value>> {
     let StartBody { id } = if body.is_empty() { StartBody::default() } else { serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"id\": \"...\"}} or nothing: {e}")))? };
     ask(&d, |reply| Command::Start { id, reply }).await
+}
+
+#[derive(Deserialize)]
+struct ResumeBody {
+    /// The operator's explicit word: resuming starts motion.
+    #[serde(default)]
+    confirm: bool,
+    /// Line to resume at (default: after the last executed line).
+    from: Option<usize>,
+}
+
+/// Resumes an interrupted job: its modal state and position are restored,
+/// then it runs on from the line. Only with `"confirm": true`.
+async fn resume_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>, Json(body): Json<ResumeBody>) -> ApiResult<Json<serde_json::Value>> {
+    let job = d.store().get(&id).cloned().ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
+    let from = body.from.unwrap_or(job.last_executed_line + 1);
+    if !body.confirm {
+        return Err(Error::Conflict(format!("resuming job {id} moves the machine to line {from} of {} and runs on from there: repeat with {{\"confirm\": true}}", job.lines_total)).into());
+    }
+    ask(&d, |reply| Command::ResumeJob { id, from: Some(from), reply }).await
 }
 
 #[derive(Deserialize)]

@@ -31,6 +31,15 @@ pub enum CtlCommand {
     Move { id: String, position: usize },
     /// Start the next queued job, or this one.
     Start { id: Option<String> },
+    /// Resume an interrupted job at its last executed line (or --from), with
+    /// its modal state and position restored first. Moves the machine: needs --confirm.
+    ResumeJob {
+        id: String,
+        #[arg(long)]
+        from: Option<usize>,
+        #[arg(long)]
+        confirm: bool,
+    },
     /// Feed hold: the machine decelerates to a stop, laser off.
     Pause,
     /// Cycle start after a pause.
@@ -91,6 +100,7 @@ async fn run_async(socket: &Path, command: CtlCommand) -> Result<()> {
         CtlCommand::Remove { id } => call(socket, Method::DELETE, &format!("/jobs/{id}"), None).await?,
         CtlCommand::Move { id, position } => call(socket, Method::POST, &format!("/jobs/{id}/move"), json(serde_json::json!({ "position": position }))).await?,
         CtlCommand::Start { id } => call(socket, Method::POST, "/start", id.map(|id| serde_json::json!({ "id": id })).and_then(json)).await?,
+        CtlCommand::ResumeJob { id, from, confirm } => call(socket, Method::POST, &format!("/jobs/{id}/resume"), json(serde_json::json!({ "confirm": confirm, "from": from }))).await?,
         CtlCommand::Pause => call(socket, Method::POST, "/pause", None).await?,
         CtlCommand::Resume => call(socket, Method::POST, "/resume", None).await?,
         CtlCommand::Abort => call(socket, Method::POST, "/abort", None).await?,

@@ -25,6 +25,9 @@ pub type Reply = oneshot::Sender<Result<String>>;
 pub enum Command {
     /// Run the next queued job (or this one).
     Start { id: Option<String>, reply: Reply },
+    /// Resume an interrupted job at line `from` (default: after its last
+    /// executed line), its modal state and position restored first.
+    ResumeJob { id: String, from: Option<usize>, reply: Reply },
     /// Feed hold (laser off, the job stays loaded).
     Pause(Reply),
     /// Cycle start after a hold.
@@ -42,7 +45,7 @@ pub enum Command {
 impl Command {
     fn refuse(self, why: &str) {
         let reply = match self {
-            Command::Start { reply, .. } | Command::Pause(reply) | Command::Resume(reply) | Command::Abort(reply) | Command::Jog { reply, .. } | Command::Home(reply) | Command::Unlock(reply) => reply,
+            Command::Start { reply, .. } | Command::ResumeJob { reply, .. } | Command::Pause(reply) | Command::Resume(reply) | Command::Abort(reply) | Command::Jog { reply, .. } | Command::Home(reply) | Command::Unlock(reply) => reply,
             Command::Shutdown(done) => {
                 let _ = done.send(());
                 return;
@@ -104,10 +107,10 @@ pub async fn run(daemon: Arc<Daemon>, mut commands: mpsc::UnboundedReceiver<Comm
         heartbeat.fetch_add(1, Ordering::Relaxed);
         let port = daemon.machine.serial.port.clone();
         match open(&daemon, &port, running.clone()).await {
-            Ok(mut connection) => {
+            Ok((mut connection, refusal)) => {
                 retry = Duration::from_millis(250);
                 tracing::info!("connected to the controller on {port}");
-                let reason = connected(&daemon, &mut connection, &mut commands, &running, &heartbeat).await;
+                let reason = connected(&daemon, &mut connection, refusal, &mut commands, &running, &heartbeat).await;
                 match reason {
                     Ok(()) => return,
                     Err(e) => {
@@ -149,7 +152,9 @@ pub async fn run(daemon: Arc<Daemon>, mut commands: mpsc::UnboundedReceiver<Comm
 
 type Link = Connection<tokio_serial::SerialStream, Box<dyn FnMut(f64, LinkEvent) + Send>>;
 
-async fn open(daemon: &Arc<Daemon>, port: &str, running: Arc<Mutex<Running>>) -> Result<Link> {
+/// Opens the link and re-syncs: banner, status, `$I`, and `$$` compared with
+/// the config (the second value: why jobs must not run, if they must not).
+async fn open(daemon: &Arc<Daemon>, port: &str, running: Arc<Mutex<Running>>) -> Result<(Link, Option<String>)> {
     use tokio_serial::SerialPortBuilderExt;
     let io = tokio_serial::new(port, daemon.machine.serial.baud).open_native_async().map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
     let options = SenderOptions::new(daemon.machine.serial.rx_buffer, daemon.machine.serial.status_hz);
@@ -158,9 +163,37 @@ async fn open(daemon: &Arc<Daemon>, port: &str, running: Arc<Mutex<Running>>) ->
         Box::new(move |t, event| on_link_event(&daemon, &running, t, &event))
     };
     let mut connection = Connection::open(io, &options, on_event).await?;
+    let settings = connection.settings().await?;
+    let refusal = settings_refusal(&daemon.machine, &settings);
+    if let Some(why) = &refusal {
+        tracing::error!("{why}");
+    }
     let status = connection.status().await?;
-    daemon.status.send_modify(|s| s.machine = machine_status(&status));
-    Ok(connection)
+    daemon.status.send_modify(|s| {
+        s.machine = machine_status(&status);
+        s.machine.message = refusal.clone();
+    });
+    Ok((connection, refusal))
+}
+
+/// Why jobs must not run on a controller whose settings (`$$`) allow more
+/// than the config laserd plans for: a longer travel or a higher rate or
+/// acceleration on any axis (the config is what keeps the machine safe).
+pub fn settings_refusal(machine: &crate::config::MachineConfig, settings: &[(u32, f64)]) -> Option<String> {
+    let axes = crate::run::sim_config(machine, laserd_sim::controller::Faults::default()).axes;
+    let value = |n: u32| settings.iter().find(|(k, _)| *k == n).map(|(_, v)| *v);
+    let mut over = Vec::new();
+    for (i, axis) in axes.iter().enumerate() {
+        let i = i as u32;
+        for (setting, what, allowed) in [(110 + i, "max rate (mm/min)", axis.max_velocity * 60.0), (120 + i, "acceleration (mm/s²)", axis.max_acceleration), (130 + i, "max travel (mm)", axis.max - axis.min)] {
+            match value(setting) {
+                Some(v) if v > allowed * (1.0 + 1e-6) + 1e-9 => over.push(format!("${setting}={v} ({} {what}) exceeds the config's {allowed}", axis.letter)),
+                None => over.push(format!("${setting} ({} {what}) is missing from `$$`", axis.letter)),
+                _ => {}
+            }
+        }
+    }
+    (!over.is_empty()).then(|| format!("the controller's settings allow more than the config: {}; jobs will not run until they match", over.join(", ")))
 }
 
 /// Every line crossing the link: into the job's recording, and the status
@@ -194,8 +227,14 @@ fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &Link
                     }
                     running.free_blocks = Some(free);
                 }
-                let status = machine_status(&report);
+                let mut status = machine_status(&report);
                 daemon.status.send_if_modified(|s| {
+                    // Shown once the link is open and in sync (`open` says so);
+                    // a refusal found then stays shown.
+                    if !s.machine.connected {
+                        return false;
+                    }
+                    status.message = s.machine.message.clone();
                     let changed = s.machine != status;
                     s.machine = status;
                     changed
@@ -207,7 +246,7 @@ fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &Link
 }
 
 /// Connected: status polls while idle, the operator's commands, jobs.
-async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, heartbeat: &AtomicU64) -> Result<()> {
+async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<String>, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, heartbeat: &AtomicU64) -> Result<()> {
     let period = Duration::from_secs_f64(1.0 / daemon.machine.serial.status_hz.max(0.5));
     let mut poll = tokio::time::interval(period);
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -216,7 +255,8 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut m
         tokio::select! {
             _ = poll.tick() => {
                 let status = connection.status().await?;
-                let shown = machine_status(&status);
+                let mut shown = machine_status(&status);
+                shown.message = refusal.clone();
                 daemon.status.send_if_modified(|s| {
                     let changed = s.machine != shown;
                     s.machine = shown;
@@ -227,21 +267,28 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut m
                 let Some(command) = command else { return Ok(()) };
                 match command {
                     Command::Start { id, reply } => {
-                        let state = connection.status().await?.state;
-                        if !may_start(&state) {
-                            let _ = reply.send(Err(Error::Conflict(format!("the machine is {}: a job starts only from Idle", state.as_field()))));
-                            continue;
-                        }
-                        let job = match take_job(daemon, id.as_deref()) {
-                            Ok(job) => job,
-                            Err(e) => {
-                                let _ = reply.send(Err(e));
-                                continue;
+                        if let Some(job) = ready(connection, &refusal, reply, |reply| {
+                            answer(reply, take_job(daemon, id.as_deref()), |j| format!("job {} started", j.id))
+                        }).await? {
+                            if run_job(daemon, connection, commands, running, heartbeat, job, None).await? {
+                                return Ok(());
                             }
-                        };
-                        let _ = reply.send(Ok(format!("job {} started", job.id)));
-                        if run_job(daemon, connection, commands, running, heartbeat, job).await? {
-                            return Ok(());
+                        }
+                    }
+                    Command::ResumeJob { id, from, reply } => {
+                        if let Some((job, from)) = ready(connection, &refusal, reply, |reply| {
+                            let job = take(daemon, Some(&id), JobState::Interrupted).and_then(|job| {
+                                let from = from.unwrap_or(job.last_executed_line + 1);
+                                if from == 0 || from > job.lines_total {
+                                    return Err(Error::Conflict(format!("job {id} has {} lines: cannot resume at line {from}", job.lines_total)));
+                                }
+                                Ok((job, from))
+                            });
+                            answer(reply, job, |(j, from)| format!("job {} resumed at line {from}", j.id))
+                        }).await? {
+                            if run_job(daemon, connection, commands, running, heartbeat, job, Some(from)).await? {
+                                return Ok(());
+                            }
                         }
                     }
                     Command::Jog { block, reply } => {
@@ -264,16 +311,50 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut m
     }
 }
 
+/// Checks that a job may start (settings in line with the config, machine
+/// Idle), then lets `take` pick it and answer; `None` when it may not.
+async fn ready<T>(connection: &mut Link, refusal: &Option<String>, reply: Reply, take: impl FnOnce(Reply) -> Option<T>) -> Result<Option<T>> {
+    if let Some(why) = refusal {
+        let _ = reply.send(Err(Error::Conflict(why.clone())));
+        return Ok(None);
+    }
+    let state = connection.status().await?.state;
+    if !may_start(&state) {
+        let _ = reply.send(Err(Error::Conflict(format!("the machine is {}: a job starts only from Idle", state.as_field()))));
+        return Ok(None);
+    }
+    Ok(take(reply))
+}
+
+/// Answers the operator with what `taken` says, and passes on what was taken.
+fn answer<T>(reply: Reply, taken: Result<T>, done: impl FnOnce(&T) -> String) -> Option<T> {
+    match taken {
+        Ok(t) => {
+            let _ = reply.send(Ok(done(&t)));
+            Some(t)
+        }
+        Err(e) => {
+            let _ = reply.send(Err(e));
+            None
+        }
+    }
+}
+
 /// The job to run: `id` if given (it must be waiting), else the queue's first.
 fn take_job(daemon: &Daemon, id: Option<&str>) -> Result<JobRecord> {
+    take(daemon, id, JobState::Queued)
+}
+
+/// The job `id` (or the queue's first) if it is in state `from`, now running.
+fn take(daemon: &Daemon, id: Option<&str>, from: JobState) -> Result<JobRecord> {
     let mut store = daemon.store();
     let id = match id {
         Some(id) => id.to_string(),
         None => store.order().iter().find(|id| store.get(id).is_some_and(|j| j.state == JobState::Queued)).cloned().ok_or_else(|| Error::Conflict("no job is queued".into()))?,
     };
     let job = store.get(&id).ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
-    if job.state != JobState::Queued {
-        return Err(Error::Conflict(format!("job {id} is {:?}, not queued", job.state).to_lowercase()));
+    if job.state != from {
+        return Err(Error::Conflict(format!("job {id} is {:?}, not {from:?}", job.state).to_lowercase()));
     }
     let job = store.update(&id, |j| {
         j.state = JobState::Running;
@@ -287,7 +368,8 @@ fn take_job(daemon: &Daemon, id: Option<&str>) -> Result<JobRecord> {
 
 /// Streams a job, passing the operator's hold, resume and abort on; returns
 /// whether the service is stopping.
-async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, heartbeat: &AtomicU64, job: JobRecord) -> Result<bool> {
+#[allow(clippy::too_many_arguments)]
+async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, heartbeat: &AtomicU64, job: JobRecord, resume_from: Option<usize>) -> Result<bool> {
     let (program, recording_path) = {
         let store = daemon.store();
         (store.program_path(&job.id), store.recording_path(&job.id))
@@ -330,7 +412,13 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         Ok::<_, Error>(())
     };
     let outcome = {
-        let stream = connection.stream(lines, &describe, Some(&mut control_rx));
+        let letters = daemon.machine.axis_letters();
+        let stream = async {
+            match resume_from {
+                Some(from) => connection.resume(lines, from, &letters, &describe, Some(&mut control_rx)).await,
+                None => connection.stream(lines, &describe, Some(&mut control_rx)).await,
+            }
+        };
         tokio::pin!(stream);
         loop {
             heartbeat.fetch_add(1, Ordering::Relaxed);
@@ -401,6 +489,10 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         j.ended_at = Some(ended);
         j.last_acked_line = outcome.as_ref().map_or(last_sent, |o| o.last_acked_line);
         j.last_executed_line = executed.unwrap_or(executed_estimate);
+        if state == JobState::Completed {
+            // A resumed stream counts only its own lines.
+            (j.last_acked_line, j.last_executed_line) = (j.lines_total, j.lines_total);
+        }
     })?;
     daemon.status.send_modify(|s| s.job = None);
     daemon.job_changed(&job);
@@ -414,7 +506,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
 fn finish_record(outcome: &StreamOutcome, aborted: bool, stopping: bool) -> (JobState, Option<String>, Option<usize>) {
     let executed = outcome.last_executed_line;
     if outcome.completed {
-        (JobState::Completed, None, Some(outcome.lines_sent))
+        (JobState::Completed, None, None)
     } else if stopping {
         (JobState::Interrupted, Some("the service stopped while the job ran".into()), executed)
     } else if aborted {
@@ -429,4 +521,29 @@ fn finish_record(outcome: &StreamOutcome, aborted: bool, stopping: bool) -> (Job
 /// The controller's state is one where a job may start.
 pub fn may_start(state: &MachineState) -> bool {
     matches!(state, MachineState::Idle)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_beyond_the_config_are_refused_naming_them() {
+        let machine = crate::config::MachineConfig::load(None).unwrap();
+        let axes = crate::run::sim_config(&machine, laserd_sim::controller::Faults::default()).axes;
+        let mut settings: Vec<(u32, f64)> = Vec::new();
+        for (i, a) in axes.iter().enumerate() {
+            let i = i as u32;
+            settings.extend([(110 + i, a.max_velocity * 60.0), (120 + i, a.max_acceleration), (130 + i, a.max - a.min)]);
+        }
+        assert_eq!(settings_refusal(&machine, &settings), None, "the config's own values");
+        let slower: Vec<_> = settings.iter().map(|&(n, v)| (n, v * 0.5)).collect();
+        assert_eq!(settings_refusal(&machine, &slower), None, "a more cautious controller may run");
+        let mut longer = settings.clone();
+        longer.iter_mut().find(|(n, _)| *n == 131).unwrap().1 += 10.0;
+        let why = settings_refusal(&machine, &longer).unwrap();
+        assert!(why.contains("$131=310") && why.contains("Y max travel"), "{why}");
+        let missing: Vec<_> = settings.iter().copied().filter(|(n, _)| *n != 120).collect();
+        assert!(settings_refusal(&machine, &missing).unwrap().contains("$120"));
+    }
 }

@@ -577,6 +577,29 @@ where
         self.expect_ok_within(command, Duration::from_secs(3)).await
     }
 
+    /// The controller's settings (`$$`): number and value of each `$N=value` line.
+    pub async fn settings(&mut self) -> Result<Vec<(u32, f64)>> {
+        self.fresh_status = None;
+        let mut settings = Vec::new();
+        let answer = self
+            .link
+            .command_seeing("$$", Duration::from_secs(3), |r| {
+                if let Response::Other(text) = r {
+                    let parsed = text.strip_prefix('$').and_then(|t| t.split_once('=')).and_then(|(n, v)| {
+                        // grblHAL may add a comment after the value.
+                        let v = v.split([' ', '(']).next().unwrap_or(v);
+                        Some((n.trim().parse::<u32>().ok()?, v.trim().parse::<f64>().ok()?))
+                    });
+                    settings.extend(parsed);
+                }
+            })
+            .await?;
+        if let Response::Error(code) = answer {
+            return Err(Error::Stream(format!("`$$` refused: error:{code} ({})", wire::error_message(code))));
+        }
+        Ok(settings)
+    }
+
     /// Clears an alarm (`$X`).
     pub async fn unlock(&mut self) -> Result<()> {
         self.expect_ok("$X").await
