@@ -195,6 +195,23 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchCommand {
+    /// The service under load: `laserd sim --pty` and `laserd serve` as child
+    /// processes, one job streamed quiet, with polling clients, and while the
+    /// service plans a 1000-geometry galvo job and a 3000-element sheet.
+    Serve {
+        /// The job streamed (default: samples/marking-300.svg).
+        #[arg(long, default_value = "samples/marking-300.svg")]
+        job: PathBuf,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Clients polling the status during the second run, and how often each polls (Hz).
+        #[arg(long, default_value_t = 100)]
+        clients: usize,
+        #[arg(long, default_value_t = 10.0)]
+        hz: f64,
+        #[arg(long)]
+        json: bool,
+    },
     /// The cutting planner's search on a TSPLIB instance made
     /// precedence-constrained, against the instance's known optimum.
     Ecp {
@@ -412,6 +429,33 @@ fn run_command(command: Command) -> Result<ExitCode> {
                 println!("  ecp air / nearest {:.3}, / IB + dir-opt {:.3}", r.air_vs_nearest, r.air_vs_construction);
             }
             Ok(if r.ecp.precedence_violations == 0 { ExitCode::SUCCESS } else { ExitCode::from(2) })
+        }
+        Command::Bench { which: BenchCommand::Serve { job, config, clients, hz, json } } => {
+            let machine = MachineConfig::load(config.as_deref())?;
+            let r = laserd::daemon::bench::serve_bench(&machine, config.as_deref(), &job, clients, hz)?;
+            if json {
+                print_json(&r)?;
+            } else {
+                println!("laserd serve, job {}", r.job);
+                for run in &r.runs {
+                    println!(
+                        "  {:<9} link utilization {:.4}  streamed {:.2} s  status at 10 Hz: {} answers, interval jitter p50 {:.2} ms p99 {:.2} ms max {:.2} ms  controller `?`: {} (jitter p99 {:.2} ms)  load clients' answers {}",
+                        run.name,
+                        run.link_utilization,
+                        run.stream_time_s,
+                        run.api_polls,
+                        run.api_poll_jitter_p50_ms,
+                        run.api_poll_jitter_p99_ms,
+                        run.api_poll_jitter_max_ms,
+                        run.controller_polls,
+                        run.controller_poll_jitter_p99_ms,
+                        run.api_requests
+                    );
+                }
+                println!("  utilization with {} clients at {} Hz / quiet: {:.4}", r.clients, r.client_hz, r.utilization_ratio_polling);
+                println!("  utilization while planning (done in {:.1} s) / quiet: {:.4}", r.planning_s, r.utilization_ratio_planning);
+            }
+            Ok(ExitCode::SUCCESS)
         }
         Command::Bench { which: BenchCommand::Motion { jobs, config, mode, repeats, json } } => {
             let machine = MachineConfig::load(config.as_deref())?;

@@ -80,6 +80,8 @@ struct Running {
     last_sent: usize,
     /// Program lines answered (ok or error) so far.
     answered: usize,
+    /// Bytes sent for the job (lines with their newline, realtime bytes).
+    bytes: usize,
     /// The controller's planner size (its free blocks when idle) and its
     /// free blocks now: what is answered but not yet executed.
     planner_blocks: Option<u32>,
@@ -202,6 +204,13 @@ fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &Link
     let mut running = running.lock().unwrap_or_else(|e| e.into_inner());
     if let Some(r) = &running.recorder {
         r.link_event(t, event);
+    }
+    if running.job.is_some() {
+        running.bytes += match event {
+            LinkEvent::Sent { text, .. } => text.len() + 1,
+            LinkEvent::Realtime { .. } => 1,
+            LinkEvent::Received { .. } => 0,
+        };
     }
     match event {
         LinkEvent::Sent { line, .. } if *line > 0 => {
@@ -395,6 +404,15 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         Ok(t) => t.lines().map(|l| Ok(l.to_string())).collect(),
         Err(e) => vec![Err(e)],
     };
+    // A planned program starts where it was planned from: bring the machine
+    // there first, at the controller's own rates, laser off (a resume moves
+    // there itself).
+    if resume_from.is_none() {
+        if let Some(start) = &job.start {
+            go_to(connection, &daemon.machine, start).await?;
+        }
+    }
+    connection.expect_start(job.start.clone().filter(|_| resume_from.is_none()));
     let name = job.name.clone();
     let describe = move |n: usize, text: &str| format!("{name}:{n} `{text}`");
     let (control, mut control_rx) = mpsc::unbounded_channel();
@@ -468,16 +486,17 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
             }
         }
     };
-    let (last_sent, executed_estimate) = {
+    let (last_sent, executed_estimate, bytes) = {
         let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
         r.recorder = None;
         r.job = None;
-        (r.last_sent, r.executed())
+        (r.last_sent, r.executed(), r.bytes)
     };
     if let Err(e) = recording.finish() {
         tracing::warn!("job {}: recording: {e}", job.id);
     }
     let ended = super::queue::now();
+    let baud = daemon.machine.serial.baud as f64;
     let record = match &outcome {
         Ok(outcome) => finish_record(outcome, aborted, stopping),
         Err(e) => (JobState::Interrupted, Some(e.to_string()), None),
@@ -489,6 +508,11 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         j.ended_at = Some(ended);
         j.last_acked_line = outcome.as_ref().map_or(last_sent, |o| o.last_acked_line);
         j.last_executed_line = executed.unwrap_or(executed_estimate);
+        j.bytes_sent = bytes;
+        if let Ok(o) = &outcome {
+            j.stream_time_s = o.stream_time_s;
+            j.link_utilization = (o.stream_time_s > 0.0).then(|| bytes as f64 / (baud / 10.0 * o.stream_time_s));
+        }
         if state == JobState::Completed {
             // A resumed stream counts only its own lines.
             (j.last_acked_line, j.last_executed_line) = (j.lines_total, j.lines_total);
@@ -500,6 +524,34 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     // A lost link ends the job as interrupted; the loop reconnects.
     outcome?;
     Ok(stopping)
+}
+
+/// Moves the machine to `target` (axis positions) with a jog, laser off, and
+/// waits until it is there.
+async fn go_to(connection: &mut Link, machine: &crate::config::MachineConfig, target: &[f64]) -> Result<()> {
+    let status = connection.status().await?;
+    let here = status.position();
+    if here.len() >= target.len() && here.iter().zip(target).all(|(a, b)| (a - b).abs() <= 0.001) {
+        return Ok(());
+    }
+    let words: String = machine.axis_letters().iter().zip(target).map(|(l, v)| format!("{l}{}", crate::program::format_number(*v, 4))).collect();
+    // Each axis is held to the controller's own rate and acceleration limits.
+    connection.jog(&format!("G90G21{words}F{}", crate::program::format_number(machine.stage.max_velocity * 60.0, 1))).await?;
+    let started = std::time::Instant::now();
+    loop {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let status = connection.status().await?;
+        if status.state == MachineState::Idle {
+            let here = status.position();
+            if here.iter().zip(target).all(|(a, b)| (a - b).abs() <= 0.001) {
+                return Ok(());
+            }
+            return Err(Error::Stream(format!("the move to the program's start {target:?} ended at {here:?}")));
+        }
+        if started.elapsed() > Duration::from_secs(120) {
+            return Err(Error::Stream(format!("the machine did not reach the program's start {target:?} within 120 s")));
+        }
+    }
 }
 
 /// The job's end state from how its stream ended.

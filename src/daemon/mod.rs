@@ -5,6 +5,7 @@
 //! bearer token). Under systemd it reports readiness and pings the watchdog.
 
 pub mod api;
+pub mod bench;
 pub mod client;
 pub mod ctl;
 pub mod machine;
@@ -143,23 +144,24 @@ fn plan_job(daemon: &Daemon, id: &str) {
             _ => return,
         }
     };
-    let planned = (|| -> Result<(usize, Option<f64>)> {
+    let planned = (|| -> Result<(usize, Option<f64>, Option<Vec<f64>>)> {
         let ext = source.extension().and_then(|e| e.to_str()).unwrap_or("");
         if matches!(ext, "nc" | "gcode" | "ngc" | "gc" | "g" | "tap") {
             let text = std::fs::read_to_string(&source).map_err(|e| Error::Io(format!("{name}: cannot read: {e}")))?;
             queue::write_atomic(&program_path, text.as_bytes())?;
-            return Ok((text.lines().count(), None));
+            return Ok((text.lines().count(), None, None));
         }
         let planned = crate::run::plan(&source, &daemon.machine, crate::plan::PlannerKind::Auto, None)
             .map_err(|e| Error::Plan(format!("{name}: {}", e.to_string().replace(&source.display().to_string(), &name))))?;
         queue::write_atomic(&program_path, planned.program.to_gcode().as_bytes())?;
-        Ok((planned.program.lines.len(), Some(planned.report.trajectory_time_s)))
+        Ok((planned.program.lines.len(), Some(planned.report.trajectory_time_s), Some(planned.program.start.clone())))
     })();
     let result = daemon.store().update(id, |j| match &planned {
-        Ok((lines, time)) => {
+        Ok((lines, time, start)) => {
             j.state = JobState::Queued;
             j.lines_total = *lines;
             j.planned_time_s = *time;
+            j.start = start.clone();
         }
         Err(e) => {
             j.state = JobState::Failed;
@@ -204,6 +206,13 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig) -> Result<()
         std::thread::Builder::new()
             .name("laserd-planner".into())
             .spawn(move || {
+                // Below the machine loop and the API: a big plan takes the
+                // cores' spare time, not the streaming's (the planner's
+                // worker threads inherit this).
+                // SAFETY: setpriority on the calling thread, no pointers.
+                if unsafe { nix::libc::setpriority(nix::libc::PRIO_PROCESS, 0, 10) } != 0 {
+                    tracing::warn!("cannot lower the planning thread's priority: {}", std::io::Error::last_os_error());
+                }
                 for id in planning_rx {
                     plan_job(&daemon, &id);
                 }

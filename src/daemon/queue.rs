@@ -63,8 +63,20 @@ pub struct JobRecord {
     pub last_executed_line: usize,
     /// Planned machine time of the program (s), for the ETA.
     pub planned_time_s: Option<f64>,
+    /// Axis positions the planned program starts from (the machine is
+    /// brought there first); `None` for G-code submitted as it is.
+    #[serde(default)]
+    pub start: Option<Vec<f64>>,
     /// Why the job failed or was interrupted.
     pub message: Option<String>,
+    /// The link while it streamed: bytes sent, from the first byte to the last
+    /// answer (s), and the bytes' share of what the link could carry then.
+    #[serde(default)]
+    pub bytes_sent: usize,
+    #[serde(default)]
+    pub stream_time_s: f64,
+    #[serde(default)]
+    pub link_utilization: Option<f64>,
 }
 
 /// The jobs and the queue's order, with their folder.
@@ -185,7 +197,11 @@ impl Store {
             last_acked_line: 0,
             last_executed_line: 0,
             planned_time_s: None,
+            start: None,
             message: None,
+            bytes_sent: 0,
+            stream_time_s: 0.0,
+            link_utilization: None,
         };
         write_atomic(&dir.join(format!("source.{}", extension_of(name))), source)?;
         self.jobs.insert(id.clone(), record.clone());

@@ -611,6 +611,12 @@ where
         self.expect_ok_within("$H", Duration::from_secs(300)).await
     }
 
+    /// The axis positions the next program starts from (the sender refuses
+    /// to stream it from anywhere else); `None` for programs that start anywhere.
+    pub fn expect_start(&mut self, start: Option<Vec<f64>>) {
+        self.options.expect_start = start;
+    }
+
     /// Jogs (`$J=` + a block such as `G91 X10 F600`).
     pub async fn jog(&mut self, block: &str) -> Result<()> {
         self.expect_ok(&format!("$J={block}")).await
