@@ -320,3 +320,24 @@ fn an_unknown_fault_is_one_clear_error() {
     assert_clean_error(&laserd(&["sim", "--fault", "drop-byte=x"], dir.path()), "drop-byte");
     assert_clean_error(&laserd(&["sim", "--fault", "drop-byte"], dir.path()), "drop-byte");
 }
+
+/// `laserd ctl` without a running service, and `laserd serve` with a config it
+/// cannot use: one clear line each, non-zero, no panic.
+#[test]
+fn ctl_and_serve_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let socket = dir.path().join("none.sock");
+    let out = laserd(&["ctl", "--socket", socket.to_str().unwrap(), "status"], dir.path());
+    assert_clean_error(&out, "is `laserd serve` running?");
+    let out = laserd(&["serve", "--config", dir.path().join("missing.toml").to_str().unwrap()], dir.path());
+    assert_clean_error(&out, "missing.toml: cannot read");
+    // A state folder it cannot create.
+    let blocker = dir.path().join("file");
+    std::fs::write(&blocker, "").unwrap();
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/laserd.toml");
+    let out = laserd(
+        &["serve", "--config", config.to_str().unwrap(), "--state-dir", blocker.join("state").to_str().unwrap(), "--socket", socket.to_str().unwrap()],
+        dir.path(),
+    );
+    assert_clean_error(&out, "cannot create");
+}

@@ -408,3 +408,40 @@ fn the_link_comes_back_after_an_unplug_nothing_moves_until_the_operator_resumes_
     assert!(refused["error"].as_str().unwrap().contains("exceeds the config"), "{refused}");
     drop(service);
 }
+
+#[test]
+fn under_systemd_it_reports_ready_pings_the_watchdog_and_stops_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    // systemd's side of Type=notify: a datagram socket named by NOTIFY_SOCKET.
+    let notify = dir.path().join("notify.sock");
+    let listener = std::os::unix::net::UnixDatagram::bind(&notify).unwrap();
+    listener.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let config = config(dir.path(), &dir.path().join("ttyNONE"));
+    let socket = dir.path().join("api.sock");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_laserd"))
+        .args(["serve", "--config", config.to_str().unwrap(), "--state-dir", dir.path().join("state").to_str().unwrap(), "--socket", socket.to_str().unwrap()])
+        .env("NOTIFY_SOCKET", &notify)
+        .env("WATCHDOG_USEC", "400000")
+        .spawn()
+        .unwrap();
+    let mut seen = Vec::new();
+    let started = Instant::now();
+    let mut buf = [0u8; 512];
+    while seen.iter().filter(|m: &&String| m.contains("WATCHDOG=1")).count() < 3 {
+        assert!(started.elapsed() < Duration::from_secs(10), "messages so far: {seen:?}");
+        let n = listener.recv(&mut buf).expect("a notification");
+        seen.push(String::from_utf8_lossy(&buf[..n]).to_string());
+    }
+    assert!(seen[0].contains("READY=1"), "ready first: {seen:?}");
+    // Ready means the API answers.
+    assert!(std::os::unix::net::UnixStream::connect(&socket).is_ok());
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGTERM).unwrap();
+    assert!(child.wait().unwrap().success());
+    let n = listener.recv(&mut buf).unwrap();
+    let mut last = String::from_utf8_lossy(&buf[..n]).to_string();
+    while !last.contains("STOPPING=1") {
+        let n = listener.recv(&mut buf).expect("STOPPING=1 before exit");
+        last = String::from_utf8_lossy(&buf[..n]).to_string();
+    }
+    assert!(!socket.exists(), "the socket is removed on a clean stop");
+}

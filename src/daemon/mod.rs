@@ -210,7 +210,7 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig) -> Result<()
                 // cores' spare time, not the streaming's (the planner's
                 // worker threads inherit this).
                 // SAFETY: setpriority on the calling thread, no pointers.
-                if unsafe { nix::libc::setpriority(nix::libc::PRIO_PROCESS, 0, 10) } != 0 {
+                if unsafe { nix::libc::setpriority(nix::libc::PRIO_PROCESS, 0, 19) } != 0 {
                     tracing::warn!("cannot lower the planning thread's priority: {}", std::io::Error::last_os_error());
                 }
                 for id in planning_rx {
@@ -230,7 +230,19 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig) -> Result<()
         std::thread::Builder::new()
             .name("laserd-machine".into())
             .spawn(move || match tokio::runtime::Builder::new_current_thread().enable_all().build() {
-                Ok(runtime) => runtime.block_on(machine::run(daemon, command_rx, heartbeat)),
+                Ok(runtime) => runtime.block_on(async move {
+                    // The watchdog's proof of life: this runtime still runs its
+                    // tasks (a long homing cycle awaits; a stuck thread does not).
+                    let beat = heartbeat.clone();
+                    tokio::spawn(async move {
+                        let mut tick = tokio::time::interval(std::time::Duration::from_millis(100));
+                        loop {
+                            tick.tick().await;
+                            beat.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        }
+                    });
+                    machine::run(daemon, command_rx, heartbeat).await
+                }),
                 Err(e) => tracing::error!("cannot start the machine loop: {e}"),
             })
             .map_err(|e| Error::Io(format!("cannot start the machine thread: {e}")))?;
