@@ -445,3 +445,34 @@ fn under_systemd_it_reports_ready_pings_the_watchdog_and_stops_cleanly() {
     }
     assert!(!socket.exists(), "the socket is removed on a clean stop");
 }
+
+#[test]
+fn sigterm_mid_job_stops_the_machine_safely_and_keeps_the_job_as_interrupted() {
+    let _turn = take_turn();
+    let dir = tempfile::tempdir().unwrap();
+    let tty = dir.path().join("ttyTERM");
+    let _sim = SimProcess::start(&tty, &["--pty"]);
+    let config = config(dir.path(), &tty);
+    let (state, socket) = (dir.path().join("state"), dir.path().join("api.sock"));
+    let service = Service::start(&config, &state, &socket);
+    let api = Api::new(&socket);
+    api.wait_status(Duration::from_secs(10), "the controller link", |s| machine_state(s) == "Idle");
+    let id = api.submit(&galvo("SC278C18.svg"));
+    let total = api.wait_job(&id, "queued", Duration::from_secs(60))["lines_total"].as_u64().unwrap();
+    api.ok(Method::POST, "/start", None);
+    api.wait_status(Duration::from_secs(10), "a third sent", |s| s["job"]["line"].as_u64().unwrap_or(0) > total / 3);
+    // systemctl stop: SIGTERM, and the service waits for the safe stop.
+    let stopped = Instant::now();
+    assert!(service.terminate().success());
+    assert!(stopped.elapsed() < Duration::from_secs(6));
+    let service = Service::start(&config, &state, &socket);
+    let api = Api::new(&socket);
+    let job = api.job(&id);
+    assert_eq!(job["state"], "interrupted", "{job}");
+    assert!(job["message"].as_str().unwrap().contains("stopped"), "{job}");
+    // The controller was left standing, laser off, not in alarm.
+    let s = api.wait_status(Duration::from_secs(10), "reconnected", |s| s["machine"]["connected"] == true);
+    assert_eq!(machine_state(&s), "Idle", "{s}");
+    assert_eq!(s["machine"]["laser"].as_f64(), Some(0.0));
+    drop(service);
+}

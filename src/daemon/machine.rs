@@ -417,6 +417,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     let describe = move |n: usize, text: &str| format!("{name}:{n} `{text}`");
     let (control, mut control_rx) = mpsc::unbounded_channel();
     let mut stopping = false;
+    let mut shutdown_done: Option<oneshot::Sender<()>> = None;
     let mut aborted = false;
     let mut save = tokio::time::interval(Duration::from_millis(500));
     let set_state = |state: JobState| {
@@ -472,10 +473,11 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                     }
                     Some(Command::Shutdown(done)) => {
                         // A safe stop: hold and laser off, then the soft reset
-                        // of an abort; the job is kept as interrupted.
+                        // of an abort; the job is kept as interrupted. The
+                        // service exits once the stream has stopped.
                         let _ = control.send(Control::Abort);
                         stopping = true;
-                        let _ = done.send(());
+                        shutdown_done = Some(done);
                     }
                     None => {
                         let _ = control.send(Control::Abort);
@@ -521,6 +523,9 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     daemon.status.send_modify(|s| s.job = None);
     daemon.job_changed(&job);
     let _ = daemon.store().prune(daemon.machine.service.keep_jobs);
+    if let Some(done) = shutdown_done {
+        let _ = done.send(());
+    }
     // A lost link ends the job as interrupted; the loop reconnects.
     outcome?;
     Ok(stopping)
