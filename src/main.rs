@@ -439,7 +439,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
                 println!("laserd serve, job {}", r.job);
                 for run in &r.runs {
                     println!(
-                        "  {:<9} link utilization {:.4}  streamed {:.2} s  status at 10 Hz: {} answers, interval jitter p50 {:.2} ms p99 {:.2} ms max {:.2} ms  controller `?`: {} (jitter p99 {:.2} ms)  load clients' answers {}",
+                        "  {:<9} link utilization {:.4}  streamed {:.2} s  status at 10 Hz: {} answers, interval jitter p50 {:.2} ms p99 {:.2} ms max {:.2} ms  controller `?`: {} (jitter p99 {:.2} ms, {} found it starved)  load clients' answers {}",
                         run.name,
                         run.link_utilization,
                         run.stream_time_s,
@@ -449,6 +449,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
                         run.api_poll_jitter_max_ms,
                         run.controller_polls,
                         run.controller_poll_jitter_p99_ms,
+                        run.starved_reports,
                         run.api_requests
                     );
                 }

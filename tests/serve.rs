@@ -159,6 +159,32 @@ impl Api {
     }
 }
 
+/// A simulated controller at `dir/<tty>` and the service on it, connected.
+struct Rig {
+    _sim: SimProcess,
+    config: PathBuf,
+    state: PathBuf,
+    socket: PathBuf,
+}
+
+impl Rig {
+    fn start(dir: &Path, tty: &str) -> (Rig, Service, Api) {
+        let tty = dir.join(tty);
+        let sim = SimProcess::start(&tty, &["--pty"]);
+        let config = config(dir, &tty);
+        let (state, socket) = (dir.join("state"), dir.join("api.sock"));
+        let service = Service::start(&config, &state, &socket);
+        let api = Api::new(&socket);
+        api.wait_status(Duration::from_secs(10), "the controller link", |s| machine_state(s) == "Idle");
+        (Rig { _sim: sim, config, state, socket }, service, api)
+    }
+
+    /// The service again, on the same state and socket.
+    fn restart(&self) -> (Service, Api) {
+        (Service::start(&self.config, &self.state, &self.socket), Api::new(&self.socket))
+    }
+}
+
 fn machine_state(s: &Value) -> &str {
     s["machine"]["state"].as_str().unwrap_or("")
 }
@@ -255,13 +281,7 @@ fn a_job_through_the_api_pauses_resumes_completes_and_a_second_is_aborted_half_w
 fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_recording_reads() {
     let _turn = take_turn();
     let dir = tempfile::tempdir().unwrap();
-    let tty = dir.path().join("ttyKILL");
-    let _sim = SimProcess::start(&tty, &["--pty"]);
-    let config = config(dir.path(), &tty);
-    let (state, socket) = (dir.path().join("state"), dir.path().join("api.sock"));
-    let service = Service::start(&config, &state, &socket);
-    let api = Api::new(&socket);
-    api.wait_status(Duration::from_secs(10), "the controller link", |s| machine_state(s) == "Idle");
+    let (rig, service, api) = Rig::start(dir.path(), "ttyKILL");
     let id = api.submit(&sample("marking-300.svg"));
     let queued = api.wait_job(&id, "queued", Duration::from_secs(60));
     let total = queued["lines_total"].as_u64().unwrap();
@@ -274,8 +294,7 @@ fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_reco
     let sent_before = api.status()["job"]["line"].as_u64().unwrap();
     service.kill();
 
-    let service = Service::start(&config, &state, &socket);
-    let api = Api::new(&socket);
+    let (service, api) = rig.restart();
     let job = api.job(&id);
     assert_eq!(job["state"], "interrupted", "{job}");
     let last = job["last_executed_line"].as_u64().unwrap();
@@ -288,7 +307,7 @@ fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_reco
     std::thread::sleep(Duration::from_millis(500));
     assert!(api.status()["job"].is_null(), "nothing runs on its own after a restart");
     // The recording up to the kill reads back.
-    let answer = api.runtime.block_on(client::request(&socket, Method::GET, &format!("/jobs/{id}/recording"), None)).unwrap();
+    let answer = api.runtime.block_on(client::request(&rig.socket, Method::GET, &format!("/jobs/{id}/recording"), None)).unwrap();
     assert_eq!(answer.status, 200);
     let path = dir.path().join("cut.mcap");
     std::fs::write(&path, &answer.body).unwrap();
@@ -450,13 +469,7 @@ fn under_systemd_it_reports_ready_pings_the_watchdog_and_stops_cleanly() {
 fn sigterm_mid_job_stops_the_machine_safely_and_keeps_the_job_as_interrupted() {
     let _turn = take_turn();
     let dir = tempfile::tempdir().unwrap();
-    let tty = dir.path().join("ttyTERM");
-    let _sim = SimProcess::start(&tty, &["--pty"]);
-    let config = config(dir.path(), &tty);
-    let (state, socket) = (dir.path().join("state"), dir.path().join("api.sock"));
-    let service = Service::start(&config, &state, &socket);
-    let api = Api::new(&socket);
-    api.wait_status(Duration::from_secs(10), "the controller link", |s| machine_state(s) == "Idle");
+    let (rig, service, api) = Rig::start(dir.path(), "ttyTERM");
     let id = api.submit(&galvo("SC278C18.svg"));
     let total = api.wait_job(&id, "queued", Duration::from_secs(60))["lines_total"].as_u64().unwrap();
     api.ok(Method::POST, "/start", None);
@@ -465,8 +478,7 @@ fn sigterm_mid_job_stops_the_machine_safely_and_keeps_the_job_as_interrupted() {
     let stopped = Instant::now();
     assert!(service.terminate().success());
     assert!(stopped.elapsed() < Duration::from_secs(6));
-    let service = Service::start(&config, &state, &socket);
-    let api = Api::new(&socket);
+    let (service, api) = rig.restart();
     let job = api.job(&id);
     assert_eq!(job["state"], "interrupted", "{job}");
     assert!(job["message"].as_str().unwrap().contains("stopped"), "{job}");

@@ -36,6 +36,9 @@ pub struct ServeRun {
     pub controller_polls: usize,
     pub controller_poll_jitter_p99_ms: f64,
     pub controller_poll_jitter_max_ms: f64,
+    /// Status reports that found the controller Idle (its planner run dry)
+    /// between the job's first and last line: starvation.
+    pub starved_reports: usize,
     /// A client polling `GET /status` at 10 Hz through the run: how far the
     /// intervals between its answers strayed from 100 ms.
     pub api_polls: usize,
@@ -122,14 +125,15 @@ fn jitter(times: &[f64], nominal: f64) -> Vec<f64> {
 
 /// The sender's status requests in a job's recording, while program lines
 /// went out: count and sorted jitter (ms) against their median interval.
-fn controller_polls(recording: &Path) -> Result<(usize, Vec<f64>)> {
+fn controller_polls(recording: &Path) -> Result<(usize, Vec<f64>, usize)> {
     let link = crate::record::read(recording)?.log.link;
     let sent: Vec<f64> = link.iter().filter(|(_, e)| matches!(e, LinkEvent::Sent { line, .. } if *line > 0)).map(|(t, _)| *t).collect();
-    let (Some(&first), Some(&last)) = (sent.first(), sent.last()) else { return Ok((0, Vec::new())) };
+    let (Some(&first), Some(&last)) = (sent.first(), sent.last()) else { return Ok((0, Vec::new(), 0)) };
+    let starved = link.iter().filter(|(t, e)| *t > first && *t < last && matches!(e, LinkEvent::Received { text } if text.starts_with("<Idle"))).count();
     let times: Vec<f64> = link.iter().filter(|(t, e)| matches!(e, LinkEvent::Realtime { byte: b'?' }) && *t >= first && *t <= last).map(|(t, _)| *t).collect();
     let mut gaps: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
     gaps.sort_by(f64::total_cmp);
-    Ok((times.len(), jitter(&times, percentile(&gaps, 0.5))))
+    Ok((times.len(), jitter(&times, percentile(&gaps, 0.5)), starved))
 }
 
 pub fn serve_bench(machine: &MachineConfig, config_path: Option<&Path>, job: &Path, clients: usize, client_hz: f64) -> Result<ServeBench> {
@@ -254,7 +258,7 @@ pub fn serve_bench(machine: &MachineConfig, config_path: Option<&Path>, job: &Pa
             let recording = dir.join(format!("{name}.mcap"));
             let answer = client::request(&socket, Method::GET, &format!("/jobs/{id}/recording"), None).await?;
             std::fs::write(&recording, &answer.body).map_err(|e| Error::Io(e.to_string()))?;
-            let (polls, controller) = controller_polls(&recording)?;
+            let (polls, controller, starved_reports) = controller_polls(&recording)?;
             runs.push(ServeRun {
                 name: name.to_string(),
                 link_utilization: done["link_utilization"].as_f64().unwrap_or(0.0),
@@ -262,6 +266,7 @@ pub fn serve_bench(machine: &MachineConfig, config_path: Option<&Path>, job: &Pa
                 controller_polls: polls,
                 controller_poll_jitter_p99_ms: percentile(&controller, 0.99),
                 controller_poll_jitter_max_ms: controller.last().copied().unwrap_or(0.0),
+                starved_reports,
                 api_polls: answers.len(),
                 api_poll_jitter_p50_ms: percentile(&api, 0.5),
                 api_poll_jitter_p99_ms: percentile(&api, 0.99),
