@@ -109,8 +109,7 @@ async fn submit(State(d): State<Arc<Daemon>>, Query(q): Query<SubmitQuery>, head
 
 async fn remove_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> ApiResult<impl IntoResponse> {
     d.store().remove(&id)?;
-    let queued = d.store().order().len();
-    d.status.send_modify(|s| s.queued = queued);
+    d.queue_changed();
     Ok(Json(serde_json::json!({ "removed": id })))
 }
 

@@ -4,7 +4,6 @@
 //! resume and abort to a running stream. It never starts or resumes motion
 //! on its own: after a reconnect the machine waits for the operator.
 
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -102,17 +101,16 @@ impl Running {
 }
 
 /// The machine loop: runs until the service stops.
-pub async fn run(daemon: Arc<Daemon>, mut commands: mpsc::UnboundedReceiver<Command>, heartbeat: Arc<AtomicU64>) {
+pub async fn run(daemon: Arc<Daemon>, mut commands: mpsc::UnboundedReceiver<Command>) {
     let running = Arc::new(Mutex::new(Running::default()));
     let mut retry = Duration::from_millis(250);
     loop {
-        heartbeat.fetch_add(1, Ordering::Relaxed);
         let port = daemon.machine.serial.port.clone();
         match open(&daemon, &port, running.clone()).await {
             Ok((mut connection, refusal)) => {
                 retry = Duration::from_millis(250);
                 tracing::info!("connected to the controller on {port}");
-                let reason = connected(&daemon, &mut connection, refusal, &mut commands, &running, &heartbeat).await;
+                let reason = connected(&daemon, &mut connection, refusal, &mut commands, &running).await;
                 match reason {
                     Ok(()) => return,
                     Err(e) => {
@@ -147,7 +145,6 @@ pub async fn run(daemon: Arc<Daemon>, mut commands: mpsc::UnboundedReceiver<Comm
                 },
             }
         }
-        heartbeat.fetch_add(1, Ordering::Relaxed);
         retry = (retry * 2).min(Duration::from_secs(2));
     }
 }
@@ -255,22 +252,15 @@ fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &Link
 }
 
 /// Connected: status polls while idle, the operator's commands, jobs.
-async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<String>, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, heartbeat: &AtomicU64) -> Result<()> {
+async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<String>, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>) -> Result<()> {
     let period = Duration::from_secs_f64(1.0 / daemon.machine.serial.status_hz.max(0.5));
     let mut poll = tokio::time::interval(period);
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
-        heartbeat.fetch_add(1, Ordering::Relaxed);
         tokio::select! {
             _ = poll.tick() => {
-                let status = connection.status().await?;
-                let mut shown = machine_status(&status);
-                shown.message = refusal.clone();
-                daemon.status.send_if_modified(|s| {
-                    let changed = s.machine != shown;
-                    s.machine = shown;
-                    changed
-                });
+                // The report is shown by `on_link_event`, as every one is.
+                connection.status().await?;
             }
             command = commands.recv() => {
                 let Some(command) = command else { return Ok(()) };
@@ -279,7 +269,7 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                         if let Some(job) = ready(connection, &refusal, reply, |reply| {
                             answer(reply, take_job(daemon, id.as_deref()), |j| format!("job {} started", j.id))
                         }).await? {
-                            if run_job(daemon, connection, commands, running, heartbeat, job, None).await? {
+                            if run_job(daemon, connection, commands, running, job, None).await? {
                                 return Ok(());
                             }
                         }
@@ -295,7 +285,7 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                             });
                             answer(reply, job, |(j, from)| format!("job {} resumed at line {from}", j.id))
                         }).await? {
-                            if run_job(daemon, connection, commands, running, heartbeat, job, Some(from)).await? {
+                            if run_job(daemon, connection, commands, running, job, Some(from)).await? {
                                 return Ok(());
                             }
                         }
@@ -328,7 +318,7 @@ async fn ready<T>(connection: &mut Link, refusal: &Option<String>, reply: Reply,
         return Ok(None);
     }
     let state = connection.status().await?.state;
-    if !may_start(&state) {
+    if state != MachineState::Idle {
         let _ = reply.send(Err(Error::Conflict(format!("the machine is {}: a job starts only from Idle", state.as_field()))));
         return Ok(None);
     }
@@ -377,8 +367,7 @@ fn take(daemon: &Daemon, id: Option<&str>, from: JobState) -> Result<JobRecord> 
 
 /// Streams a job, passing the operator's hold, resume and abort on; returns
 /// whether the service is stopping.
-#[allow(clippy::too_many_arguments)]
-async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, heartbeat: &AtomicU64, job: JobRecord, resume_from: Option<usize>) -> Result<bool> {
+async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, job: JobRecord, resume_from: Option<usize>) -> Result<bool> {
     let (program, recording_path) = {
         let store = daemon.store();
         (store.program_path(&job.id), store.recording_path(&job.id))
@@ -399,11 +388,10 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
             ..Default::default()
         };
     }
-    let text = std::fs::read_to_string(&program).map_err(|e| Error::Io(format!("{}: cannot read: {e}", program.display())));
-    let lines: Vec<Result<String>> = match text {
-        Ok(t) => t.lines().map(|l| Ok(l.to_string())).collect(),
-        Err(e) => vec![Err(e)],
-    };
+    // Read as the controller takes lines: constant memory for any size.
+    let file = std::fs::File::open(&program).map_err(|e| Error::Io(format!("{}: cannot read: {e}", program.display())))?;
+    let shown = program.display().to_string();
+    let lines = std::io::BufRead::lines(std::io::BufReader::new(file)).map(move |l| l.map_err(|e| Error::Io(format!("{shown}: {e}"))));
     // A planned program starts where it was planned from: bring the machine
     // there first, at the controller's own rates, laser off (a resume moves
     // there itself).
@@ -440,8 +428,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         };
         tokio::pin!(stream);
         loop {
-            heartbeat.fetch_add(1, Ordering::Relaxed);
-            tokio::select! {
+                tokio::select! {
                 outcome = &mut stream => break outcome,
                 _ = save.tick() => {
                     // Progress on disk twice a second: what a restart after a
@@ -573,11 +560,6 @@ fn finish_record(outcome: &StreamOutcome, aborted: bool, stopping: bool) -> (Job
         let state = if outcome.alarms.is_empty() && outcome.errors.is_empty() { JobState::Interrupted } else { JobState::Failed };
         (state, Some(why), executed)
     }
-}
-
-/// The controller's state is one where a job may start.
-pub fn may_start(state: &MachineState) -> bool {
-    matches!(state, MachineState::Idle)
 }
 
 #[cfg(test)]

@@ -113,6 +113,11 @@ impl Daemon {
     /// Tells event subscribers about a job's new record.
     pub fn job_changed(&self, job: &JobRecord) {
         let _ = self.events.send(Event::Job(job.clone()));
+        self.queue_changed();
+    }
+
+    /// The status's count of waiting jobs, after the queue changed.
+    pub fn queue_changed(&self) {
         let queued = self.store().order().len();
         self.status.send_if_modified(|s| {
             let changed = s.queued != queued;
@@ -233,15 +238,14 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig) -> Result<()
                 Ok(runtime) => runtime.block_on(async move {
                     // The watchdog's proof of life: this runtime still runs its
                     // tasks (a long homing cycle awaits; a stuck thread does not).
-                    let beat = heartbeat.clone();
                     tokio::spawn(async move {
                         let mut tick = tokio::time::interval(std::time::Duration::from_millis(100));
                         loop {
                             tick.tick().await;
-                            beat.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            heartbeat.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         }
                     });
-                    machine::run(daemon, command_rx, heartbeat).await
+                    machine::run(daemon, command_rx).await
                 }),
                 Err(e) => tracing::error!("cannot start the machine loop: {e}"),
             })
