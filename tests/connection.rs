@@ -101,3 +101,82 @@ fn jog_unlock_hold_resume_override_abort_and_resume_from_a_line() {
         tokio::join!(sim, operator);
     });
 }
+
+/// Runs `operator` on a connection to an in-process simulator with these
+/// faults, in virtual time.
+fn with_connection<F>(faults: Faults, operator: impl FnOnce(Connection<tokio::io::DuplexStream, Box<dyn FnMut(f64, laserd::stream::LinkEvent)>>) -> F)
+where
+    F: std::future::Future<Output = ()>,
+{
+    let machine = MachineConfig::load(None).unwrap();
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().start_paused(true).build().unwrap();
+    runtime.block_on(async {
+        let (sender_io, sim_io) = tokio::io::duplex(1 << 16);
+        let (stop_tx, stop_rx) = watch::channel(false);
+        let controller = Controller::new(run::sim_config(&machine, faults));
+        let sim = in_process::run(controller, sim_io, machine.serial.baud, tokio::time::Instant::now(), stop_rx, |_| {});
+        let operator = async {
+            let options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+            let c = Connection::open(sender_io, &options, Box::new(|_, _| {}) as Box<dyn FnMut(f64, laserd::stream::LinkEvent)>).await.unwrap();
+            operator(c).await;
+            let _ = stop_tx.send(true);
+        };
+        tokio::join!(sim, operator);
+    });
+}
+
+#[test]
+fn homing_answers_when_home_fails_at_once_on_an_alarm_and_stops_on_abort() {
+    let describe = |n: usize, _: &str| format!("line {n}");
+    // Homing on ($22), then out to X40 Y30 to have a way to go home.
+    let setup = || ["$22=1", "G90 G0 X40 Y30", "G4 P0"].map(|l| Ok(l.to_string()));
+
+    // A cycle that gets there: the answer comes when the machine is home.
+    with_connection(Faults::default(), |mut c| async move {
+        assert!(c.stream(setup(), &describe, None).await.unwrap().completed);
+        while c.status().await.unwrap().mpos[..2] != [40.0, 30.0] {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let started = tokio::time::Instant::now();
+        c.home(None).await.unwrap();
+        // X's 40 mm (the longest way) at the seek rate ($25 = 500 mm/min): 4.8 s.
+        assert!(started.elapsed() > Duration::from_millis(4700), "{:?}", started.elapsed());
+        let status = c.status().await.unwrap();
+        assert_eq!(status.state, MachineState::Idle);
+        assert!(status.mpos.iter().all(|p| *p == 0.0), "{:?}", status.mpos);
+    });
+
+    // No switch found: the alarm is the answer (Grbl never answers the `$H`).
+    let faults = Faults { homing_switch_missing: true, ..Faults::default() };
+    with_connection(faults, |mut c| async move {
+        assert!(c.stream(setup(), &describe, None).await.unwrap().completed);
+        while c.status().await.unwrap().mpos[..2] != [40.0, 30.0] {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let started = tokio::time::Instant::now();
+        let error = c.home(None).await.unwrap_err().to_string();
+        assert!(error.contains("ALARM:9"), "{error}");
+        assert!(started.elapsed() < Duration::from_secs(30), "not the 300 s time-out: {:?}", started.elapsed());
+        assert_eq!(c.status().await.unwrap().state, MachineState::Alarm);
+    });
+
+    // Aborted after a second: reset mid-cycle, the machine stops part way in alarm.
+    with_connection(Faults::default(), |mut c| async move {
+        assert!(c.stream(setup(), &describe, None).await.unwrap().completed);
+        while c.status().await.unwrap().mpos[..2] != [40.0, 30.0] {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let (tx, mut rx) = mpsc::unbounded_channel();
+        let abort = async {
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            tx.send(Control::FeedHold).unwrap(); // ignored while homing
+            tx.send(Control::Abort).unwrap();
+        };
+        let (homed, _) = tokio::join!(c.home(Some(&mut rx)), abort);
+        let error = homed.unwrap_err().to_string();
+        assert!(error.contains("homing aborted"), "{error}");
+        let status = c.status().await.unwrap();
+        assert_eq!(status.state, MachineState::Alarm);
+        assert!(status.mpos[0] > 0.0 && status.mpos[0] < 40.0, "stopped part way: {:?}", status.mpos);
+    });
+}

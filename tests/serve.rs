@@ -169,8 +169,15 @@ struct Rig {
 
 impl Rig {
     fn start(dir: &Path, tty: &str) -> (Rig, Service, Api) {
+        Rig::start_with(dir, tty, &[])
+    }
+
+    /// With these controller settings (`$N=value`) written first, straight
+    /// to the simulator, as a machine builder would have set the board up.
+    fn start_with(dir: &Path, tty: &str, settings: &[&str]) -> (Rig, Service, Api) {
         let tty = dir.join(tty);
         let sim = SimProcess::start(&tty, &["--pty"]);
+        write_settings(&tty, settings);
         let config = config(dir, &tty);
         let (state, socket) = (dir.join("state"), dir.join("api.sock"));
         let service = Service::start(&config, &state, &socket);
@@ -183,6 +190,28 @@ impl Rig {
     fn restart(&self) -> (Service, Api) {
         (Service::start(&self.config, &self.state, &self.socket), Api::new(&self.socket))
     }
+}
+
+fn write_settings(tty: &Path, settings: &[&str]) {
+    use std::io::{BufRead, Write};
+    if settings.is_empty() {
+        return;
+    }
+    let mut port = std::fs::OpenOptions::new().read(true).write(true).open(tty).unwrap();
+    let mut answers = std::io::BufReader::new(port.try_clone().unwrap());
+    for setting in settings {
+        port.write_all(format!("{setting}\n").as_bytes()).unwrap();
+        let mut line = String::new();
+        while line.trim() != "ok" {
+            line.clear();
+            answers.read_line(&mut line).unwrap();
+            assert!(!line.starts_with("error"), "{setting}: {line}");
+        }
+    }
+}
+
+fn position(s: &Value) -> Vec<f64> {
+    s["machine"]["position"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect()
 }
 
 fn machine_state(s: &Value) -> &str {
@@ -487,4 +516,93 @@ fn sigterm_mid_job_stops_the_machine_safely_and_keeps_the_job_as_interrupted() {
     assert_eq!(machine_state(&s), "Idle", "{s}");
     assert_eq!(s["machine"]["laser"].as_f64(), Some(0.0));
     drop(service);
+}
+
+#[test]
+fn jog_abort_home_unlock_and_a_job_held_or_aborted_on_its_way_to_its_start() {
+    let _turn = take_turn();
+    let dir = tempfile::tempdir().unwrap();
+    // Homing on: the simulator seeks home at $25 = 500 mm/min.
+    let (rig, service, api) = Rig::start_with(dir.path(), "ttyHOME", &["$22=1"]);
+    let events = api.follow();
+    let jog = |block: &str| api.ok(Method::POST, "/jog", Some(serde_json::json!({ "block": block })));
+    let idle_at = |x: f64, y: f64| {
+        api.wait_status(Duration::from_secs(10), &format!("Idle at X{x} Y{y}"), |s| {
+            machine_state(s) == "Idle" && (position(s)[0] - x).abs() < 1e-3 && (position(s)[1] - y).abs() < 1e-3
+        })
+    };
+
+    // A jog there, and a slow one cut short by an abort.
+    jog("G90 X20 Y10 F6000");
+    idle_at(20.0, 10.0);
+    jog("G91 X200 F600");
+    api.wait_status(Duration::from_secs(3), "jogging", |s| machine_state(s) == "Jog");
+    let answer = api.ok(Method::POST, "/abort", None);
+    assert!(answer["done"].as_str().unwrap().contains("jog cancelled"), "{answer}");
+    let stopped = api.wait_status(Duration::from_secs(3), "the jog stopped", |s| machine_state(s) == "Idle");
+    let x = position(&stopped)[0];
+    assert!(x > 20.0 && x < 60.0, "stopped part way: {stopped}");
+
+    // Homing, aborted part way: the answer says so, the controller is in
+    // alarm and runs no job until unlocked.
+    let socket = rig.socket.clone();
+    let homing = std::thread::spawn(move || Api::new(&socket).call(Method::POST, "/home", None));
+    api.wait_status(Duration::from_secs(3), "homing", |s| machine_state(s) == "Home");
+    let (status, refused) = api.call(Method::POST, "/pause", None);
+    assert_eq!(status, 409, "no hold while homing: {refused}");
+    api.ok(Method::POST, "/abort", None);
+    let (status, failed) = homing.join().unwrap();
+    assert_eq!(status, 502, "{failed}");
+    assert!(failed["error"].as_str().unwrap().contains("homing aborted"), "{failed}");
+    api.wait_status(Duration::from_secs(5), "alarm after the aborted homing", |s| machine_state(s) == "Alarm");
+    let job = api.submit(&sample("one-field.svg"));
+    api.wait_job(&job, "queued", Duration::from_secs(60));
+    let (status, refused) = api.call(Method::POST, "/start", None);
+    assert_eq!(status, 409, "no job from an alarm: {refused}");
+    api.ok(Method::POST, "/unlock", None);
+    api.wait_status(Duration::from_secs(3), "unlocked", |s| machine_state(s) == "Idle");
+    // Homing to the end: the call answers when the machine is home.
+    jog("G90 X4 Y3 F6000");
+    idle_at(4.0, 3.0);
+    assert_eq!(api.ok(Method::POST, "/home", None)["done"], "homed");
+    let home = idle_at(0.0, 0.0);
+    assert!(position(&home).iter().all(|p| p.abs() < 1e-3), "{home}");
+
+    // A job starts at the origin: from elsewhere it is jogged there first. A
+    // pause on the way cancels the jog; the resume goes on and runs the job.
+    jog("G90 X290 Y290 F30000");
+    idle_at(290.0, 290.0);
+    api.ok(Method::POST, "/start", Some(serde_json::json!({ "id": job })));
+    api.ok(Method::POST, "/pause", None);
+    let held = api.wait_status(Duration::from_secs(3), "held on the way", |s| s["job"]["state"] == "paused" && machine_state(s) == "Idle");
+    assert_eq!(held["job"]["line"], 0, "no program line sent yet: {held}");
+    let x = position(&held)[0];
+    assert!(x > 0.0 && x < 290.0, "stopped on the way: {held}");
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(position(&api.status()), position(&held), "standing still while paused");
+    assert_eq!(api.status()["machine"]["laser"].as_f64(), Some(0.0));
+    api.ok(Method::POST, "/resume", None);
+    let done = api.wait_job(&job, "completed", Duration::from_secs(30));
+    assert_eq!(done["last_executed_line"], done["lines_total"]);
+
+    // An abort on the way ends the job before its first line.
+    let second = api.submit(&sample("one-field.svg"));
+    api.wait_job(&second, "queued", Duration::from_secs(60));
+    jog("G90 X290 Y290 F30000");
+    idle_at(290.0, 290.0);
+    api.ok(Method::POST, "/start", None);
+    api.ok(Method::POST, "/abort", None);
+    let aborted = api.wait_job(&second, "aborted", Duration::from_secs(5));
+    assert_eq!(aborted["last_executed_line"], 0, "{aborted}");
+    let stopped = api.wait_status(Duration::from_secs(3), "Idle, no job", |s| machine_state(s) == "Idle" && s["job"].is_null());
+    assert!(position(&stopped)[0] > 0.0, "stopped on the way: {stopped}");
+    assert_eq!(stopped["machine"]["laser"].as_f64(), Some(0.0));
+
+    std::thread::sleep(Duration::from_millis(200));
+    let events = events.lock().unwrap().clone();
+    let mut states: Vec<&str> = events.iter().filter(|(k, v)| k == "job" && v["id"] == job).map(|(_, v)| v["state"].as_str().unwrap()).collect();
+    states.dedup();
+    assert_eq!(states, ["planning", "queued", "running", "paused", "running", "completed"]);
+    assert!(events.iter().any(|(k, v)| k == "status" && v["machine"]["state"] == "Home"), "the homing cycle was shown");
+    assert!(service.terminate().success());
 }

@@ -35,6 +35,8 @@ impl IntoResponse for ApiError {
             Error::NotFound(_) => StatusCode::NOT_FOUND,
             Error::Conflict(_) => StatusCode::CONFLICT,
             Error::Config(_) | Error::Import(_) | Error::Plan(_) => StatusCode::BAD_REQUEST,
+            // The controller refused or failed what was asked of it.
+            Error::Stream(_) => StatusCode::BAD_GATEWAY,
             _ => StatusCode::INTERNAL_SERVER_ERROR,
         };
         (code, Json(serde_json::json!({ "error": self.0.to_string() }))).into_response()

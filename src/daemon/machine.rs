@@ -216,9 +216,7 @@ fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &Link
                 let (line, total, planned) = (*line, running.lines_total, running.planned_time_s);
                 daemon.status.send_modify(|s| {
                     let state = s.job.as_ref().map_or(JobState::Running, |p| p.state);
-                    let percent = if total > 0 { 100.0 * line as f64 / total as f64 } else { 0.0 };
-                    let eta_s = planned.map(|p| p * (1.0 - percent / 100.0));
-                    s.job = Some(Progress { id, state, line, lines_total: total, percent, eta_s });
+                    s.job = Some(Progress::at(id, state, line, total, planned));
                 });
             }
         }
@@ -294,7 +292,18 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                         let _ = reply.send(connection.jog(&block).await.map(|_| format!("jogging: {block}")));
                     }
                     Command::Home(reply) => {
-                        let _ = reply.send(connection.home().await.map(|_| "homed".to_string()));
+                        if home(daemon, connection, commands, reply).await? {
+                            return Ok(());
+                        }
+                    }
+                    Command::Abort(reply) => {
+                        // With no job, an abort stops what may still move: a jog.
+                        let state = connection.status().await?.state;
+                        if state == MachineState::Jog {
+                            let _ = reply.send(connection.jog_cancel().await.map(|_| "jog cancelled".to_string()));
+                        } else {
+                            Command::Abort(reply).refuse("no job is running");
+                        }
                     }
                     Command::Unlock(reply) => {
                         let _ = reply.send(connection.unlock().await.map(|_| "alarm cleared".to_string()));
@@ -388,18 +397,15 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
             ..Default::default()
         };
     }
+    // Shown from the start, also while the machine moves to the job's start.
+    daemon.status.send_modify(|s| {
+        let line = resume_from.map_or(0, |from| from - 1);
+        s.job = Some(Progress::at(job.id.clone(), JobState::Running, line, job.lines_total, job.planned_time_s));
+    });
     // Read as the controller takes lines: constant memory for any size.
     let file = std::fs::File::open(&program).map_err(|e| Error::Io(format!("{}: cannot read: {e}", program.display())))?;
     let shown = program.display().to_string();
     let lines = std::io::BufRead::lines(std::io::BufReader::new(file)).map(move |l| l.map_err(|e| Error::Io(format!("{shown}: {e}"))));
-    // A planned program starts where it was planned from: bring the machine
-    // there first, at the controller's own rates, laser off (a resume moves
-    // there itself).
-    if resume_from.is_none() {
-        if let Some(start) = &job.start {
-            go_to(connection, &daemon.machine, start).await?;
-        }
-    }
     connection.expect_start(job.start.clone().filter(|_| resume_from.is_none()));
     let name = job.name.clone();
     let describe = move |n: usize, text: &str| format!("{name}:{n} `{text}`");
@@ -418,7 +424,14 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         daemon.job_changed(&job);
         Ok::<_, Error>(())
     };
-    let outcome = {
+    // A planned program starts where it was planned from: bring the machine
+    // there first, at the controller's own rates, laser off (a resume moves
+    // there itself).
+    let approach = match (&job.start, resume_from) {
+        (Some(start), None) => approach(daemon, connection, commands, start, &set_state).await,
+        _ => Ok(Approach::There),
+    };
+    let outcome = if let Ok(Approach::There) = approach {
         let letters = daemon.machine.axis_letters();
         let stream = async {
             match resume_from {
@@ -474,6 +487,17 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                 },
             }
         }
+    } else {
+        // Stopped before its first line: nothing of the program ran.
+        let nothing = StreamOutcome { last_executed_line: Some(0), ..Default::default() };
+        approach.map(|approach| {
+            match approach {
+                Approach::Aborted => aborted = true,
+                Approach::Stopping(done) => (stopping, shutdown_done) = (true, done),
+                Approach::There => {}
+            }
+            nothing
+        })
     };
     let (last_sent, executed_estimate, bytes) = {
         let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
@@ -518,32 +542,153 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     Ok(stopping)
 }
 
-/// Moves the machine to `target` (axis positions) with a jog, laser off, and
-/// waits until it is there.
-async fn go_to(connection: &mut Link, machine: &crate::config::MachineConfig, target: &[f64]) -> Result<()> {
-    let status = connection.status().await?;
-    let here = status.position();
-    if here.len() >= target.len() && here.iter().zip(target).all(|(a, b)| (a - b).abs() <= 0.001) {
-        return Ok(());
-    }
+/// How the move to a job's start ended.
+enum Approach {
+    There,
+    /// The operator aborted the job on the way.
+    Aborted,
+    /// The service is stopping (acknowledge once the job is put away).
+    Stopping(Option<oneshot::Sender<()>>),
+}
+
+/// Brings the machine to `target` (axis positions) with a jog, laser off,
+/// and waits until it is there. The operator's commands count meanwhile:
+/// pause cancels the jog and waits for resume (which jogs there again),
+/// abort and a service stop cancel it and end the approach.
+async fn approach(daemon: &Daemon, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, target: &[f64], set_state: &dyn Fn(JobState) -> Result<()>) -> Result<Approach> {
+    let machine = &daemon.machine;
     let words: String = machine.axis_letters().iter().zip(target).map(|(l, v)| format!("{l}{}", crate::program::format_number(*v, 4))).collect();
     // Each axis is held to the controller's own rate and acceleration limits.
-    connection.jog(&format!("G90G21{words}F{}", crate::program::format_number(machine.stage.max_velocity * 60.0, 1))).await?;
-    let started = std::time::Instant::now();
+    let jog = format!("G90G21{words}F{}", crate::program::format_number(machine.stage.max_velocity * 60.0, 1));
+    let there = |status: &StatusReport| {
+        let here = status.position();
+        here.len() >= target.len() && here.iter().zip(target).all(|(a, b)| (a - b).abs() <= 0.001)
+    };
     loop {
-        tokio::time::sleep(Duration::from_millis(50)).await;
-        let status = connection.status().await?;
-        if status.state == MachineState::Idle {
-            let here = status.position();
-            if here.iter().zip(target).all(|(a, b)| (a - b).abs() <= 0.001) {
-                return Ok(());
-            }
-            return Err(Error::Stream(format!("the move to the program's start {target:?} ended at {here:?}")));
+        if !there(&connection.status().await?) {
+            connection.jog(&jog).await?;
         }
-        if started.elapsed() > Duration::from_secs(120) {
-            return Err(Error::Stream(format!("the machine did not reach the program's start {target:?} within 120 s")));
+        let started = std::time::Instant::now();
+        let held = loop {
+            tokio::select! {
+                _ = tokio::time::sleep(Duration::from_millis(50)) => {
+                    let status = connection.status().await?;
+                    if status.state == MachineState::Idle {
+                        if there(&status) {
+                            return Ok(Approach::There);
+                        }
+                        return Err(Error::Stream(format!("the move to the program's start {target:?} ended at {:?}", status.position())));
+                    }
+                    if started.elapsed() > Duration::from_secs(120) {
+                        return Err(Error::Stream(format!("the machine did not reach the program's start {target:?} within 120 s")));
+                    }
+                }
+                command = commands.recv() => match command {
+                    Some(Command::Pause(reply)) => {
+                        stop_jog(connection).await?;
+                        set_state(JobState::Paused)?;
+                        let _ = reply.send(Ok("held on the way to the job's start".into()));
+                        break true;
+                    }
+                    Some(Command::Abort(reply)) => {
+                        stop_jog(connection).await?;
+                        let _ = reply.send(Ok("job aborted before its first line".into()));
+                        return Ok(Approach::Aborted);
+                    }
+                    Some(Command::Shutdown(done)) => {
+                        stop_jog(connection).await?;
+                        return Ok(Approach::Stopping(Some(done)));
+                    }
+                    None => {
+                        stop_jog(connection).await?;
+                        return Ok(Approach::Stopping(None));
+                    }
+                    Some(other) => other.refuse("a job is running (moving to its start)"),
+                },
+            }
+        };
+        if held {
+            // Paused: wait for the operator, the status still polled.
+            let mut poll = tokio::time::interval(Duration::from_secs_f64(1.0 / machine.serial.status_hz.max(0.5)));
+            loop {
+                tokio::select! {
+                    _ = poll.tick() => {
+                        connection.status().await?;
+                    }
+                    command = commands.recv() => match command {
+                        Some(Command::Resume(reply)) => {
+                            set_state(JobState::Running)?;
+                            let _ = reply.send(Ok("resumed: moving to the job's start".into()));
+                            break;
+                        }
+                        Some(Command::Abort(reply)) => {
+                            let _ = reply.send(Ok("job aborted before its first line".into()));
+                            return Ok(Approach::Aborted);
+                        }
+                        Some(Command::Shutdown(done)) => return Ok(Approach::Stopping(Some(done))),
+                        None => return Ok(Approach::Stopping(None)),
+                        Some(other) => other.refuse("the job is paused (on the way to its start)"),
+                    },
+                }
+            }
         }
     }
+}
+
+/// Cancels a jog and waits until the machine has stopped.
+async fn stop_jog(connection: &mut Link) -> Result<()> {
+    connection.jog_cancel().await?;
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while std::time::Instant::now() < deadline {
+        if connection.status().await?.state != MachineState::Jog {
+            return Ok(());
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    Err(Error::Stream("the jog did not stop within 10 s of its cancel".into()))
+}
+
+/// Runs the homing cycle; the operator's abort, or the service stopping,
+/// resets the controller mid-cycle. Returns whether the service is stopping.
+async fn home(daemon: &Daemon, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, reply: Reply) -> Result<bool> {
+    // The controller sends no reports while homing: say so here.
+    daemon.status.send_modify(|s| s.machine.state = "Home".into());
+    let (control, mut control_rx) = mpsc::unbounded_channel();
+    let mut stopping: Option<Option<oneshot::Sender<()>>> = None;
+    let homed = {
+        let homing = connection.home(Some(&mut control_rx));
+        tokio::pin!(homing);
+        loop {
+            tokio::select! {
+                homed = &mut homing => break homed,
+                command = commands.recv() => match command {
+                    Some(Command::Abort(reply)) => {
+                        let _ = control.send(Control::Abort);
+                        let _ = reply.send(Ok("homing aborted".into()));
+                    }
+                    Some(Command::Shutdown(done)) => {
+                        let _ = control.send(Control::Abort);
+                        stopping = Some(Some(done));
+                    }
+                    None => {
+                        let _ = control.send(Control::Abort);
+                        stopping = Some(None);
+                    }
+                    Some(other) => other.refuse("the machine is homing (abort stops it)"),
+                },
+            }
+        }
+    };
+    let _ = reply.send(homed.map(|_| "homed".to_string()));
+    // Show the state the cycle left, whatever it was.
+    connection.status().await?;
+    if let Some(done) = stopping {
+        if let Some(done) = done {
+            let _ = done.send(());
+        }
+        return Ok(true);
+    }
+    Ok(false)
 }
 
 /// The job's end state from how its stream ended.

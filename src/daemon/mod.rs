@@ -75,6 +75,15 @@ pub struct Progress {
     pub eta_s: Option<f64>,
 }
 
+impl Progress {
+    /// At `line` of `lines_total`; the time left prorated from the planned time.
+    pub fn at(id: String, state: JobState, line: usize, lines_total: usize, planned_time_s: Option<f64>) -> Progress {
+        let percent = if lines_total > 0 { 100.0 * line as f64 / lines_total as f64 } else { 0.0 };
+        let eta_s = planned_time_s.map(|p| p * (1.0 - percent / 100.0));
+        Progress { id, state, line, lines_total, percent, eta_s }
+    }
+}
+
 /// `GET /status`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Status {

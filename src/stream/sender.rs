@@ -606,9 +606,55 @@ where
     }
 
     /// Runs the homing cycle (`$H`); the answer comes when it is done, which
-    /// may take as long as crossing the whole travel at the seek rate.
-    pub async fn home(&mut self) -> Result<()> {
-        self.expect_ok_within("$H", Duration::from_secs(300)).await
+    /// may take as long as crossing the whole travel at the seek rate. The
+    /// controller answers no status requests meanwhile, so none are sent. An
+    /// `Abort` from `control` (or its sender gone) stops the cycle with a
+    /// soft reset (the controller then raises `ALARM:6`); holds are ignored,
+    /// as Grbl does while homing.
+    pub async fn home(&mut self, mut control: Option<&mut tokio::sync::mpsc::UnboundedReceiver<Control>>) -> Result<()> {
+        const LIMIT: Duration = Duration::from_secs(300);
+        self.fresh_status = None;
+        let before = self.link.bytes_sent;
+        self.link.send_line(0, "$H").await?;
+        self.link.book.sent(0, "$H");
+        self.link.bytes_sent = before;
+        let deadline = tokio::time::sleep(LIMIT);
+        tokio::pin!(deadline);
+        loop {
+            let next_control = async {
+                match control.as_deref_mut() {
+                    Some(rx) => rx.recv().await,
+                    None => std::future::pending().await,
+                }
+            };
+            tokio::select! {
+                line = self.link.next_line() => match line? {
+                    None => return Err(Error::Stream(LINK_CLOSED.into())),
+                    Some((_, Response::Ok, _)) => return Ok(()),
+                    Some((_, Response::Error(code), _)) => {
+                        return Err(Error::Stream(format!("`$H` refused: error:{code} ({})", wire::error_message(code))));
+                    }
+                    // A failed cycle: Grbl resets itself after the alarm and
+                    // never answers the `$H`.
+                    Some((_, Response::Alarm(code), _)) => {
+                        let _ = self.link.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_))).await;
+                        return Err(Error::Stream(format!("homing failed: ALARM:{code} ({}); unlock ($X) or home again", wire::alarm_message(code))));
+                    }
+                    Some(_) => {}
+                },
+                command = next_control => match command {
+                    Some(Control::Abort) | None => {
+                        self.link.send_realtime(realtime::SOFT_RESET).await?;
+                        let _ = self.link.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_))).await;
+                        return Err(Error::Stream("homing aborted: the controller was reset and is in alarm; home again or unlock ($X)".into()));
+                    }
+                    Some(_) => {}
+                },
+                _ = &mut deadline => {
+                    return Err(Error::Stream(format!("no answer to `$H` within {} s", LIMIT.as_secs())));
+                }
+            }
+        }
     }
 
     /// The axis positions the next program starts from (the sender refuses
