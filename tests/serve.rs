@@ -342,6 +342,21 @@ fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_reco
     std::fs::write(&path, &answer.body).unwrap();
     let replay = laserd::record::read(&path).expect("a recording cut by the kill reads");
     assert!(replay.log.link.len() > 50, "link traffic up to the kill: {}", replay.log.link.len());
+
+    // Resumed and killed again: the line saved is a line of the program
+    // (not one counted from the resume), past the first, near what was sent.
+    api.ok(Method::POST, &format!("/jobs/{id}/resume"), Some(serde_json::json!({ "confirm": true })));
+    api.wait_status(Duration::from_secs(20), "a good part of the rest sent", |s| s["job"]["line"].as_u64().unwrap_or(0) > last + (total - last) / 3);
+    std::thread::sleep(Duration::from_millis(1500));
+    let sent_before = api.status()["job"]["line"].as_u64().unwrap();
+    service.kill();
+    let (service, api) = rig.restart();
+    let job = api.job(&id);
+    assert_eq!(job["state"], "interrupted", "{job}");
+    let again = job["last_executed_line"].as_u64().unwrap();
+    // At ~500 lines/s, half a second between saves and a planner's worth of
+    // lines behind: well under 1000 lines short of what was sent.
+    assert!(again > last && again <= sent_before && sent_before - again < 1000, "resumed at {}, {sent_before} sent before the kill, saved {again}", last + 1);
     drop(service);
 }
 

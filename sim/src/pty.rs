@@ -1,6 +1,6 @@
 //! Real-time driver: the controller served on a pseudo-terminal.
 
-use std::os::fd::{AsFd, OwnedFd};
+use std::os::fd::{AsFd, AsRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use nix::errno::Errno;
 use nix::fcntl::{fcntl, FcntlArg, OFlag};
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+use nix::sys::inotify::{AddWatchFlags, InitFlags, Inotify};
 use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
 
 use crate::controller::{Controller, Knot};
@@ -19,9 +20,44 @@ use crate::SimError;
 /// never reads EIO between clients.
 pub struct PtyDevice {
     master: OwnedFd,
-    _idle_slave: OwnedFd,
+    idle_slave: OwnedFd,
     path: PathBuf,
     link: Option<PathBuf>,
+    clients: ClientWatch,
+}
+
+/// Watches the slave's closes (inotify).
+///
+/// A client that takes the port for itself (`TIOCEXCL`, as serial libraries
+/// do by default) leaves that mark on the slave after it closes, because
+/// the master keeps the pty alive: a new client without `CAP_SYS_ADMIN` (a
+/// service running as its own user) would get EBUSY until the simulator
+/// restarts. A real serial device forgets the mark on its last close; the
+/// simulator forgets it on a client's close (a killed client's too).
+/// Counting opens against closes is not possible: inotify merges two opens
+/// in a row into one event. While the mark is set only a privileged
+/// process can open the port beside its client, and its close clears the
+/// mark early; a simulator can live with that.
+struct ClientWatch {
+    inotify: Inotify,
+}
+
+impl ClientWatch {
+    fn new(path: &Path) -> Result<ClientWatch, SimError> {
+        let inotify = Inotify::init(InitFlags::IN_NONBLOCK | InitFlags::IN_CLOEXEC)?;
+        inotify.add_watch(path, AddWatchFlags::IN_OPEN | AddWatchFlags::IN_CLOSE)?;
+        Ok(ClientWatch { inotify })
+    }
+
+    /// Reads the events since the last call; when the newest is a close,
+    /// clears the exclusive mark through our own slave.
+    fn update(&mut self, idle_slave: &OwnedFd) {
+        let Ok(events) = self.inotify.read_events() else { return };
+        if events.last().is_some_and(|e| e.mask.intersects(AddWatchFlags::IN_CLOSE)) {
+            // SAFETY: TIOCNXCL takes no argument; the fd is open.
+            unsafe { nix::libc::ioctl(idle_slave.as_raw_fd(), nix::libc::TIOCNXCL) };
+        }
+    }
 }
 
 impl PtyDevice {
@@ -70,7 +106,8 @@ pub fn open_pty(link: Option<&Path>) -> Result<PtyDevice, SimError> {
         }
         None => None,
     };
-    Ok(PtyDevice { master: pty.master, _idle_slave: pty.slave, path, link })
+    let clients = ClientWatch::new(&path)?;
+    Ok(PtyDevice { master: pty.master, idle_slave: pty.slave, path, link, clients })
 }
 
 /// What the real-time driver reports as it runs (times in controller seconds).
@@ -89,7 +126,7 @@ pub enum Observed {
 /// they share the wire. Executed motion and link traffic go to `observe`.
 pub fn run_realtime(
     mut controller: Controller,
-    dev: PtyDevice,
+    mut dev: PtyDevice,
     baud: u32,
     stop: Arc<AtomicBool>,
     mut observe: impl FnMut(Observed),
@@ -134,11 +171,17 @@ pub fn run_realtime(
             .flatten()
             .fold(f64::INFINITY, f64::min);
         let ms = if busy { ((wake - clock(base)) * 1000.0).clamp(0.0, 1.0).ceil() as u16 } else { 10 };
-        let mut fds = [PollFd::new(dev.master.as_fd(), PollFlags::POLLIN)];
-        let readable = match poll(&mut fds, PollTimeout::from(ms)) {
-            Ok(n) if n > 0 => fds[0].revents().is_some_and(|r| r.intersects(PollFlags::POLLIN | PollFlags::POLLHUP)),
-            _ => false,
+        let mut fds = [PollFd::new(dev.master.as_fd(), PollFlags::POLLIN), PollFd::new(dev.clients.inotify.as_fd(), PollFlags::POLLIN)];
+        let (readable, clients_changed) = match poll(&mut fds, PollTimeout::from(ms)) {
+            Ok(n) if n > 0 => (
+                fds[0].revents().is_some_and(|r| r.intersects(PollFlags::POLLIN | PollFlags::POLLHUP)),
+                fds[1].revents().is_some_and(|r| r.contains(PollFlags::POLLIN)),
+            ),
+            _ => (false, false),
         };
+        if clients_changed {
+            dev.clients.update(&dev.idle_slave);
+        }
         if !readable {
             continue;
         }

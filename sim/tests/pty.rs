@@ -66,3 +66,46 @@ fn serve_on_pty() {
     server.join().unwrap();
     assert!(std::fs::symlink_metadata(&link).is_err(), "symlink removed when the device is dropped");
 }
+
+/// Whether the pty slave is marked exclusive (`TIOCGEXCL`).
+fn exclusive(port: &std::fs::File) -> bool {
+    use std::os::fd::AsRawFd;
+    let mut flag: nix::libc::c_int = 0;
+    // SAFETY: TIOCGEXCL writes one int; the fd is open.
+    assert_eq!(unsafe { nix::libc::ioctl(port.as_raw_fd(), nix::libc::TIOCGEXCL, &mut flag) }, 0);
+    flag != 0
+}
+
+fn take_for_itself(port: &std::fs::File) {
+    use std::os::fd::AsRawFd;
+    // SAFETY: TIOCEXCL takes no argument; the fd is open.
+    assert_eq!(unsafe { nix::libc::ioctl(port.as_raw_fd(), nix::libc::TIOCEXCL) }, 0);
+}
+
+#[test]
+fn a_client_that_took_the_port_for_itself_leaves_it_free_when_it_goes() {
+    let dev = open_pty(None).expect("open pty");
+    let path = dev.path().to_path_buf();
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop2 = stop.clone();
+    let server = std::thread::spawn(move || run_realtime(Controller::new(SimConfig::with_axes("XY")), dev, 115200, stop2, |_| {}));
+    let open = || std::fs::OpenOptions::new().read(true).write(true).open(&path).expect("open slave");
+    // Settles once the simulator has read the open and close events.
+    let settled = || std::thread::sleep(Duration::from_millis(100));
+
+    // The first client takes the port (as serial libraries do); the mark
+    // stays while it has the port open.
+    let first = open();
+    take_for_itself(&first);
+    settled();
+    assert!(exclusive(&first), "still exclusive while its client has it open");
+    // Gone (a kill closes its files the same way): the next client may open
+    // the port without privileges, as after a real serial device's close.
+    drop(first);
+    settled();
+    let next = open();
+    assert!(!exclusive(&next), "the exclusive mark went with its client");
+
+    stop.store(true, Ordering::SeqCst);
+    server.join().unwrap();
+}

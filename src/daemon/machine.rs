@@ -4,6 +4,7 @@
 //! resume and abort to a running stream. It never starts or resumes motion
 //! on its own: after a reconnect the machine waits for the operator.
 
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -77,27 +78,9 @@ struct Running {
     lines_total: usize,
     planned_time_s: Option<f64>,
     last_sent: usize,
-    /// Program lines answered (ok or error) so far.
-    answered: usize,
     /// Bytes sent for the job (lines with their newline, realtime bytes).
     bytes: usize,
-    /// The controller's planner size (its free blocks when idle) and its
-    /// free blocks now: what is answered but not yet executed.
-    planner_blocks: Option<u32>,
-    free_blocks: Option<u32>,
     recorder: Option<crate::record::Recorder>,
-}
-
-impl Running {
-    /// The last line surely executed: answered lines less those that may
-    /// still wait in the planner (a lower bound: lines without motion take
-    /// no block). Where an interrupted job resumes.
-    fn executed(&self) -> usize {
-        match (self.planner_blocks, self.free_blocks) {
-            (Some(size), Some(free)) => self.answered.saturating_sub(size.saturating_sub(free) as usize),
-            _ => 0,
-        }
-    }
 }
 
 /// The machine loop: runs until the service stops.
@@ -220,17 +203,8 @@ fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &Link
                 });
             }
         }
-        LinkEvent::Received { text } if running.job.is_some() && (text == "ok" || text.starts_with("error:")) => {
-            running.answered += 1;
-        }
         LinkEvent::Received { text } if text.starts_with('<') => {
             if let Ok(report) = StatusReport::parse(text) {
-                if let Some((free, _)) = report.buffer {
-                    if report.state == MachineState::Idle && running.job.is_none() {
-                        running.planner_blocks = Some(free);
-                    }
-                    running.free_blocks = Some(free);
-                }
                 let mut status = machine_status(&report);
                 daemon.status.send_if_modified(|s| {
                     // Shown once the link is open and in sync (`open` says so);
@@ -387,12 +361,10 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     recording.recorder().write(crate::record::TOPIC_SETUP, 0.0, &crate::run::run_setup(&daemon.machine, &sim));
     {
         let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
-        let planner_blocks = r.planner_blocks;
         *r = Running {
             job: Some(job.id.clone()),
             lines_total: job.lines_total,
             planned_time_s: job.planned_time_s,
-            planner_blocks,
             recorder: Some(recording.recorder()),
             ..Default::default()
         };
@@ -407,6 +379,10 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     let shown = program.display().to_string();
     let lines = std::io::BufRead::lines(std::io::BufReader::new(file)).map(move |l| l.map_err(|e| Error::Io(format!("{shown}: {e}"))));
     connection.expect_start(job.start.clone().filter(|_| resume_from.is_none()));
+    // The sender's own count of lines executed (from `Bf:` in the status
+    // reports; a lower bound): where an interrupted job resumes.
+    let executed_line = connection.executed_line();
+    executed_line.store(resume_from.map_or(0, |from| from - 1), Ordering::Relaxed);
     let name = job.name.clone();
     let describe = move |n: usize, text: &str| format!("{name}:{n} `{text}`");
     let (control, mut control_rx) = mpsc::unbounded_channel();
@@ -446,10 +422,8 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                 _ = save.tick() => {
                     // Progress on disk twice a second: what a restart after a
                     // crash or power loss resumes from.
-                    let (sent, executed) = {
-                        let r = running.lock().unwrap_or_else(|e| e.into_inner());
-                        (r.last_sent, r.executed())
-                    };
+                    let sent = running.lock().unwrap_or_else(|e| e.into_inner()).last_sent;
+                    let executed = executed_line.load(Ordering::Relaxed);
                     let _ = daemon.store().update(&job.id, |j| {
                         j.last_acked_line = sent;
                         j.last_executed_line = executed;
@@ -503,7 +477,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
         r.recorder = None;
         r.job = None;
-        (r.last_sent, r.executed(), r.bytes)
+        (r.last_sent, executed_line.load(Ordering::Relaxed), r.bytes)
     };
     if let Err(e) = recording.finish() {
         tracing::warn!("job {}: recording: {e}", job.id);

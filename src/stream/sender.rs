@@ -13,6 +13,8 @@
 //! had queued and switches the laser off.
 
 use std::collections::VecDeque;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 
 use laserd_sim::gcode::LineBuilder;
@@ -210,6 +212,7 @@ where
             );
             let response = Response::parse(&text);
             let answered = self.book.answer(&response);
+            self.book.publish();
             return Ok(Some((text, response, answered)));
         }
     }
@@ -317,6 +320,9 @@ struct Book {
     /// controller reporting an empty, idle queue has answered all of them.
     /// `None` for a report nobody asked for (an auto-report).
     report_covers: Option<u64>,
+    /// `last_executed` for whoever watches the stream from outside (kept
+    /// across streams: the handle is handed out once).
+    executed_line: Arc<AtomicUsize>,
 }
 
 impl Book {
@@ -377,6 +383,13 @@ impl Book {
                 None
             }
             _ => None,
+        }
+    }
+
+    /// Shows `last_executed` to the watchers.
+    fn publish(&self) {
+        if let Some(line) = self.last_executed {
+            self.executed_line.store(line, Ordering::Relaxed);
         }
     }
 
@@ -668,6 +681,14 @@ where
         self.expect_ok(&format!("$J={block}")).await
     }
 
+    /// The last program line whose motion the controller has finished, as
+    /// far as its answers and status reports tell (a lower bound), kept up
+    /// to date while a stream runs: for a watcher that saves progress. A
+    /// stream from line `n` starts it at `n - 1`.
+    pub fn executed_line(&self) -> Arc<AtomicUsize> {
+        self.link.book.executed_line.clone()
+    }
+
     /// Stops a jog at once and drops the queued jog moves.
     pub async fn jog_cancel(&mut self) -> Result<()> {
         self.fresh_status = None;
@@ -758,7 +779,9 @@ where
             }
         }
         // A new job: fresh books (the controller's sizes stay known).
-        self.link.book = Book { planner_blocks: self.link.book.planner_blocks, ..Book::default() };
+        let executed_line = self.link.book.executed_line.clone();
+        executed_line.store(first_line.saturating_sub(1), Ordering::Relaxed);
+        self.link.book = Book { planner_blocks: self.link.book.planner_blocks, executed_line, ..Book::default() };
         let options = self.options.clone();
         let rx_buffer = self.rx_buffer;
         let origin = self.link.origin;
