@@ -185,7 +185,9 @@ pub fn serve_bench(machine: &MachineConfig, config_path: Option<&Path>, job: &Pa
     }
     let _sim = Running(sim);
     let socket = dir.join("api.sock");
-    let serve = Command::new(&exe).arg("serve").arg("--config").arg(&config).arg("--state-dir").arg(dir.join("state")).arg("--socket").arg(&socket).spawn().map_err(|e| Error::Io(format!("laserd serve: {e}")))?;
+    // Its job log would bury the figures: warnings only, unless asked.
+    let log = std::env::var("LASERD_LOG").unwrap_or_else(|_| "warn".into());
+    let serve = Command::new(&exe).env("LASERD_LOG", log).arg("serve").arg("--config").arg(&config).arg("--state-dir").arg(dir.join("state")).arg("--socket").arg(&socket).spawn().map_err(|e| Error::Io(format!("laserd serve: {e}")))?;
     let _serve = Running(serve);
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().map_err(|e| Error::Io(e.to_string()))?;
     let result = runtime.block_on(async {
