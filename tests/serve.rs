@@ -317,15 +317,7 @@ fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_reco
     let waiting = api.submit(&sample("one-field.svg"));
     api.wait_job(&waiting, "queued", Duration::from_secs(60));
     api.ok(Method::POST, "/start", Some(serde_json::json!({ "id": id })));
-    // Long enough for the progress and the recording to reach the disk.
-    api.wait_status(Duration::from_secs(20), "a fifth of the job sent", |s| s["job"]["line"].as_u64().unwrap_or(0) > total / 5);
-    std::thread::sleep(Duration::from_millis(1500));
-    let sent_before = api.status()["job"]["line"].as_u64().unwrap();
-    service.kill();
-
-    let (service, api) = rig.restart();
-    let job = api.job(&id);
-    assert_eq!(job["state"], "interrupted", "{job}");
+    let (sent_before, job, service, api) = kill_9_past(&rig, service, api, &id, total / 5);
     let last = job["last_executed_line"].as_u64().unwrap();
     assert!(last > 0 && last <= sent_before, "last executed line {last}, {sent_before} sent before the kill: {job}");
     assert!(job["message"].as_str().unwrap().contains(&last.to_string()));
@@ -346,18 +338,28 @@ fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_reco
     // Resumed and killed again: the line saved is a line of the program
     // (not one counted from the resume), past the first, near what was sent.
     api.ok(Method::POST, &format!("/jobs/{id}/resume"), Some(serde_json::json!({ "confirm": true })));
-    api.wait_status(Duration::from_secs(20), "a good part of the rest sent", |s| s["job"]["line"].as_u64().unwrap_or(0) > last + (total - last) / 3);
-    std::thread::sleep(Duration::from_millis(1500));
-    let sent_before = api.status()["job"]["line"].as_u64().unwrap();
-    service.kill();
-    let (service, api) = rig.restart();
-    let job = api.job(&id);
-    assert_eq!(job["state"], "interrupted", "{job}");
+    let (sent_before, job, service, _api) = kill_9_past(&rig, service, api, &id, last + (total - last) / 3);
     let again = job["last_executed_line"].as_u64().unwrap();
     // At ~500 lines/s, half a second between saves and a planner's worth of
     // lines behind: well under 1000 lines short of what was sent.
     assert!(again > last && again <= sent_before && sent_before - again < 1000, "resumed at {}, {sent_before} sent before the kill, saved {again}", last + 1);
     drop(service);
+}
+
+/// Once more than `line` lines of job `id` are sent, and its progress and
+/// recording have had time to reach the disk, kills the service (SIGKILL)
+/// and starts it again: the lines sent before the kill, the job as the new
+/// service lists it (interrupted), and the new service.
+fn kill_9_past(rig: &Rig, service: Service, api: Api, id: &str, line: u64) -> (u64, Value, Service, Api) {
+    api.wait_status(Duration::from_secs(20), &format!("line {line} sent"), |s| s["job"]["line"].as_u64().unwrap_or(0) > line);
+    std::thread::sleep(Duration::from_millis(1500));
+    let sent_before = api.status()["job"]["line"].as_u64().unwrap();
+    service.kill();
+    drop(api);
+    let (service, api) = rig.restart();
+    let job = api.job(id);
+    assert_eq!(job["state"], "interrupted", "{job}");
+    (sent_before, job, service, api)
 }
 
 #[test]
