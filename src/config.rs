@@ -588,6 +588,26 @@ impl MachineConfig {
         Ok(())
     }
 
+    /// The same machine running `k` (≥ 1) times slower: every velocity
+    /// limit and speed divided by k, accelerations by k², jerks by k³, so a
+    /// trajectory planned with it is the time-stretched one. Times (laser
+    /// delays, pierces) stay as they are.
+    pub fn slowed(&self, k: f64) -> MachineConfig {
+        let mut m = self.clone();
+        let (v, a, j) = (1.0 / k, 1.0 / (k * k), 1.0 / (k * k * k));
+        m.stage.max_velocity *= v;
+        m.stage.max_acceleration *= a;
+        m.stage.max_jerk *= j;
+        if let Some(s) = &mut m.scanner {
+            s.mark_speed *= v;
+            s.jump_speed *= v;
+            s.max_acceleration *= a;
+            s.max_jerk *= j;
+        }
+        m.layers.iter_mut().for_each(|l| l.speed *= v);
+        m
+    }
+
     pub fn stage_limits(&self) -> Limits {
         Limits {
             velocity: self.stage.max_velocity,

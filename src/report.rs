@@ -39,6 +39,10 @@ pub struct PlanReport {
     pub blocks_per_s: f64,
     pub link_lines_per_s: f64,
     pub link_115200_lines_per_s: f64,
+    /// How much slower than the machine allows the job runs so that the
+    /// link keeps the controller fed (1: not at all); the trajectory and
+    /// program are the slowed ones.
+    pub link_slowdown: f64,
     /// Wall-clock time of the trajectory, the split and the program.
     pub motion_time_s: f64,
     /// Only in `dry-run`.
@@ -71,6 +75,9 @@ impl PlanReport {
             "  {:.0} blocks per second of machine time; the link carries {:.0} lines/s (115200 baud: {:.0})\n",
             self.blocks_per_s, self.link_lines_per_s, self.link_115200_lines_per_s
         ));
+        if self.link_slowdown > 1.0 {
+            s.push_str(&format!("  slowed {:.2} times so that the link keeps the controller fed\n", self.link_slowdown));
+        }
         if let Some(sim) = &self.sim {
             s.push_str(&format!(
                 "  simulated: job time {:.3} s, {} lines / {} bytes sent, link {:.0} % used, planner starved {:.3} s\n",

@@ -77,8 +77,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         Some(crate::plan::cutting::sequence_precedence_violations(&model, &sequence) as u64)
     });
     let started = WallInstant::now();
-    let trajectory = motion::build(&job, &sequence, machine, mode, job_start())?;
-    let program = program::generate(&job, &trajectory, machine)?;
+    let (trajectory, program, link_slowdown) = motion_for_link(&job, &sequence, machine, mode)?;
     let motion_time_s = started.elapsed().as_secs_f64();
     let lower_bound_s = motion::lower_bound(&job, &sequence, machine, mode)?;
     let program_bytes: usize = program.lines.iter().map(|l| l.text.len() + 1).sum();
@@ -103,11 +102,49 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         blocks_per_s: blocks as f64 / trajectory.job_time().max(1e-9),
         link_lines_per_s: lines_per_s(f64::from(machine.serial.baud)),
         link_115200_lines_per_s: lines_per_s(115_200.0),
+        link_slowdown,
         motion_time_s,
         sim: None,
         recording: None,
     };
     Ok(Planned { job, sequence, trajectory, program, report })
+}
+
+/// The trajectory and program of `sequence`, and the uniform slow-down (1:
+/// none) at which the controller link carries the program without the
+/// controller running dry (`program::link`). Where it cannot at full speed,
+/// the motion is planned again on the machine slowed by that much, with
+/// the marks' speeds; in M3 (constant power) their power too, so that each
+/// millimetre gets the energy it was meant to (M4 scales it by itself).
+fn motion_for_link(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode) -> Result<(Trajectory, Program, f64)> {
+    let trajectory = motion::build(job, sequence, machine, mode, job_start())?;
+    let program = program::generate(job, &trajectory, machine)?;
+    let link = program::link::LinkModel::of(machine);
+    let mut needed = link.slowdown(&program, || program::link::rests(&program, &trajectory))?;
+    if needed <= 1.0 {
+        return Ok((trajectory, program, 1.0));
+    }
+    let mut k = 1.0;
+    // The program planned slower differs a little in its lines: a small
+    // margin, and a check of the program that will run.
+    for _ in 0..4 {
+        k *= needed * 1.02;
+        let slow_machine = machine.slowed(k);
+        let mut slow_job = job.clone();
+        for p in &mut slow_job.processes {
+            p.speed /= k;
+            if machine.laser.mode == crate::config::LaserMode::M3 {
+                p.power /= k;
+            }
+        }
+        let trajectory = motion::build(&slow_job, sequence, &slow_machine, mode, job_start())?;
+        let program = program::generate(&slow_job, &trajectory, &slow_machine)?;
+        needed = link.slowdown(&program, || program::link::rests(&program, &trajectory))?;
+        if needed <= 1.0 {
+            return Ok((trajectory, program, k));
+        }
+    }
+    Err(Error::Program(format!("the link cannot carry the program even {k:.2} times slower")))
 }
 
 /// The simulated controller of a machine config: stage axes over their travel,

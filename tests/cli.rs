@@ -115,6 +115,33 @@ fn stage_only_machine_is_the_same_config_without_scanner() {
 }
 
 #[test]
+fn a_link_too_slow_for_the_program_slows_the_job_instead_of_starving_the_controller() {
+    // The shipped machine on a 115200-baud GRBL link (128-byte receive
+    // buffer, 15 planner blocks): one-field's program needs about 770
+    // blocks a second, the link carries about 490 lines.
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/laserd.toml")).unwrap();
+    let text = text.replace("baud = 921600", "baud = 115200").replace("rx_buffer = 1024", "rx_buffer = 128").replace("planner_blocks = 100", "planner_blocks = 15");
+    let cfg: PathBuf = dir.path().join("grbl.toml");
+    std::fs::write(&cfg, text).unwrap();
+    let fast = json(&laserd(&["dry-run", &sample("one-field.svg"), "--json"], dir.path()));
+    assert_eq!(fast["link_slowdown"], 1.0, "the fast link carries it at full speed");
+    for mode in ["on-the-fly", "step-and-scan"] {
+        let slow = json(&laserd(&["dry-run", &sample("one-field.svg"), "--json", "--mode", mode, "--config", cfg.to_str().unwrap()], dir.path()));
+        let k = slow["link_slowdown"].as_f64().unwrap();
+        assert!(k > 1.2, "{mode}: slowed ({k})");
+        let sim = &slow["sim"];
+        assert_eq!(sim["limit_violations"], 0, "{mode}: {sim}");
+        assert_eq!(sim["planner_starved_s"], 0.0, "{mode}: the controller never runs dry: {sim}");
+        assert!(sim["max_tcp_deviation_mm"].as_f64().unwrap() <= 0.01, "{mode}: {sim}");
+        // The same motion, stretched: about k times the time.
+        let full = json(&laserd(&["dry-run", &sample("one-field.svg"), "--json", "--mode", mode], dir.path()));
+        let ratio = slow["trajectory_time_s"].as_f64().unwrap() / full["trajectory_time_s"].as_f64().unwrap();
+        assert!((ratio / k - 1.0).abs() < 0.05, "{mode}: {ratio} against {k}");
+    }
+}
+
+#[test]
 fn malformed_svg_is_one_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.svg");

@@ -38,6 +38,8 @@
 //! trajectory at every instant, and at least as long as the rounding of
 //! coordinates allows without the controller seeing false acceleration or jerk.
 
+pub mod link;
+
 use crate::config::{LaserMode, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{Job, Point};
