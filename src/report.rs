@@ -39,9 +39,10 @@ pub struct PlanReport {
     pub blocks_per_s: f64,
     pub link_lines_per_s: f64,
     pub link_115200_lines_per_s: f64,
-    /// How much slower than the machine allows the job runs so that the
-    /// link keeps the controller fed (1: not at all); the trajectory and
-    /// program are the slowed ones.
+    /// How much longer the job takes than the machine allows, so that the
+    /// link keeps the controller fed: planned machine time over the time at
+    /// full speed (1: not slowed). The trajectory and program are the
+    /// slowed ones.
     pub link_slowdown: f64,
     /// Wall-clock time of the trajectory, the split and the program.
     pub motion_time_s: f64,
@@ -76,7 +77,7 @@ impl PlanReport {
             self.blocks_per_s, self.link_lines_per_s, self.link_115200_lines_per_s
         ));
         if self.link_slowdown > 1.0 {
-            s.push_str(&format!("  slowed {:.2} times so that the link keeps the controller fed\n", self.link_slowdown));
+            s.push_str(&format!("  {:.2} times the time at full speed, so that the link keeps the controller fed\n", self.link_slowdown));
         }
         if let Some(sim) = &self.sim {
             s.push_str(&format!(

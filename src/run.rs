@@ -110,20 +110,41 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     Ok(Planned { job, sequence, trajectory, program, report })
 }
 
-/// The trajectory and program of `sequence`, and the uniform slow-down (1:
-/// none) at which the controller link carries the program without the
-/// controller running dry (`program::link`). Where it cannot at full speed,
-/// the motion is planned again on the machine slowed by that much, with
-/// the marks' speeds; in M3 (constant power) their power too, so that each
-/// millimetre gets the energy it was meant to (M4 scales it by itself).
+/// The trajectory and program of `sequence`, planned so that the controller
+/// link carries the program without the controller running dry
+/// (`program::link`), and how much longer the job takes for it (1: not at
+/// all). Where the link cannot keep up at full speed, the marks denser than
+/// the link are slowed, each alone; where that is not enough, the whole
+/// motion is planned again on the machine uniformly slowed, with the marks'
+/// speeds. In M3 (constant power) slowed marks get as much less power, so
+/// that each millimetre gets the energy it was meant to (M4 scales it by
+/// itself).
 fn motion_for_link(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode) -> Result<(Trajectory, Program, f64)> {
     let trajectory = motion::build(job, sequence, machine, mode, job_start())?;
     let program = program::generate(job, &trajectory, machine)?;
     let link = program::link::LinkModel::of(machine);
-    let mut needed = link.slowdown(&program, || program::link::rests(&program, &trajectory))?;
+    let needed = link.slowdown(&program, || program::link::rests(&program, &trajectory))?;
     if needed <= 1.0 {
         return Ok((trajectory, program, 1.0));
     }
+    // How much longer the job takes than at full speed.
+    let full_time = trajectory.job_time().max(1e-9);
+    // First the marks denser than the link, each alone.
+    let factors = link.geometry_slowdowns(&program, job.geometries.len());
+    // A layer may ask for more than the machine marks at: slowed from what it gets.
+    let cap = match (mode, &machine.scanner) {
+        (Mode::StageOnly, _) | (_, None) => machine.stage.max_velocity,
+        (_, Some(s)) => s.mark_speed,
+    };
+    let (job, sequence) = marks_slowed(job, sequence, &factors, cap, machine.laser.mode);
+    let trajectory = motion::build(&job, &sequence, machine, mode, job_start())?;
+    let program = program::generate(&job, &trajectory, machine)?;
+    let mut needed = link.slowdown(&program, || program::link::rests(&program, &trajectory))?;
+    if needed <= 1.0 {
+        let slowdown = trajectory.job_time() / full_time;
+        return Ok((trajectory, program, slowdown));
+    }
+    // Then the whole job, uniformly.
     let mut k = 1.0;
     // The program planned slower differs a little in its lines: a small
     // margin, and a check of the program that will run.
@@ -137,14 +158,44 @@ fn motion_for_link(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode
                 p.power /= k;
             }
         }
-        let trajectory = motion::build(&slow_job, sequence, &slow_machine, mode, job_start())?;
+        let trajectory = motion::build(&slow_job, &sequence, &slow_machine, mode, job_start())?;
         let program = program::generate(&slow_job, &trajectory, &slow_machine)?;
         needed = link.slowdown(&program, || program::link::rests(&program, &trajectory))?;
         if needed <= 1.0 {
-            return Ok((trajectory, program, k));
+            let slowdown = trajectory.job_time() / full_time;
+            return Ok((trajectory, program, slowdown));
         }
     }
     Err(Error::Program(format!("the link cannot carry the program even {k:.2} times slower")))
+}
+
+/// `job` and `sequence` with the marks of geometry g `factors[g]` times
+/// slower than they run on a machine marking at most at `cap` (in M3 at as
+/// much less power: the same energy per millimetre).
+/// Factors are rounded up to steps of 5 %, each step of each process a
+/// process of its own.
+fn marks_slowed(job: &Job, sequence: &Sequence, factors: &[f64], cap: f64, laser: crate::config::LaserMode) -> (Job, Sequence) {
+    let mut job = job.clone();
+    let mut sequence = sequence.clone();
+    let mut made: std::collections::HashMap<(usize, i32), usize> = std::collections::HashMap::new();
+    for path in sequence.groups.iter_mut().flat_map(|g| g.paths.iter_mut()) {
+        let factor = factors.get(path.geometry).copied().unwrap_or(1.0);
+        if factor <= 1.0 {
+            continue;
+        }
+        let step = (factor.ln() / 1.05_f64.ln()).ceil() as i32;
+        path.process = *made.entry((path.process, step)).or_insert_with(|| {
+            let k = 1.05_f64.powi(step);
+            let mut p = job.processes[path.process].clone();
+            p.speed = p.speed.min(cap) / k;
+            if laser == crate::config::LaserMode::M3 {
+                p.power /= k;
+            }
+            job.processes.push(p);
+            job.processes.len() - 1
+        });
+    }
+    (job, sequence)
 }
 
 /// The simulated controller of a machine config: stage axes over their travel,

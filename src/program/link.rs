@@ -128,6 +128,35 @@ impl LinkModel {
         Ok(hi)
     }
 
+    /// For each of the job's `geometries`, how much slower its marks must
+    /// run for the link to carry their lines at the rate they are due: the
+    /// bytes of the geometry's lines, with those of the laser-off moves
+    /// leading to it, over their time, against the link's rate (1 where it
+    /// already keeps up). Marks denser than the link are slowed alone first;
+    /// what bursts remain is left to a uniform slow-down.
+    pub fn geometry_slowdowns(&self, program: &Program, geometries: usize) -> Vec<f64> {
+        let mut bytes = vec![0.0; geometries];
+        let mut time = vec![0.0; geometries];
+        // The laser-off lines waiting for the geometry they lead to.
+        let (mut lead_bytes, mut lead_time) = (0.0, 0.0);
+        for line in &program.lines {
+            let b = (line.text.len() + 1) as f64;
+            let dt = line.plan_time.map_or(0.0, |(s, e)| (e - s).max(0.0));
+            match line.geometry.filter(|&g| g < geometries) {
+                Some(g) => {
+                    bytes[g] += b + lead_bytes;
+                    time[g] += dt + lead_time;
+                    (lead_bytes, lead_time) = (0.0, 0.0);
+                }
+                None => {
+                    lead_bytes += b;
+                    lead_time += dt;
+                }
+            }
+        }
+        bytes.iter().zip(&time).map(|(b, t)| if *t > 0.0 { (b / t / self.bytes_per_s).max(1.0) } else { 1.0 }).collect()
+    }
+
     /// Whether every line arrives in time when the program's clock runs
     /// `scale` times slower.
     fn on_time(&self, lines: &[Line], scale: f64) -> bool {
@@ -231,6 +260,27 @@ mod tests {
         };
         assert!(model(8000.0).on_time(&burst(3), 1.0));
         assert!(!model(8000.0).on_time(&burst(200), 1.0));
+    }
+
+    #[test]
+    fn a_mark_denser_than_the_link_is_slowed_by_its_own_rate_with_the_jump_to_it() {
+        let line = |bytes: usize, geometry: Option<usize>, s: f64, e: f64| super::super::ProgramLine {
+            text: "x".repeat(bytes - 1),
+            kind: super::super::LineKind::Mark,
+            geometry,
+            plan_time: Some((s, e)),
+            checks: Vec::new(),
+        };
+        // Geometry 0: 10 lines of 50 bytes in 0.1 s (5000 bytes/s); a jump
+        // of 100 bytes in 0.1 s, then geometry 1: 100 bytes in 0.1 s.
+        let mut lines: Vec<_> = (0..10).map(|i| line(50, Some(0), i as f64 * 0.01, (i + 1) as f64 * 0.01)).collect();
+        lines.push(line(100, None, 0.1, 0.2));
+        lines.push(line(100, Some(1), 0.2, 0.3));
+        let program = Program { lines, axis_letters: vec!['X', 'Y'], start: vec![0.0, 0.0], sources: Vec::new() };
+        let factors = model(2500.0).geometry_slowdowns(&program, 3);
+        assert!((factors[0] - 2.0).abs() < 1e-9, "{factors:?}");
+        assert_eq!(factors[1], 1.0, "200 bytes in 0.2 s fit: {factors:?}");
+        assert_eq!(factors[2], 1.0, "no lines, no slow-down");
     }
 
     #[test]
