@@ -340,9 +340,10 @@ fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_reco
     api.ok(Method::POST, &format!("/jobs/{id}/resume"), Some(serde_json::json!({ "confirm": true })));
     let (sent_before, job, service, _api) = kill_9_past(&rig, service, api, &id, last + (total - last) / 3);
     let again = job["last_executed_line"].as_u64().unwrap();
-    // At ~500 lines/s, half a second between saves and a planner's worth of
-    // lines behind: well under 1000 lines short of what was sent.
-    assert!(again > last && again <= sent_before && sent_before - again < 1000, "resumed at {}, {sent_before} sent before the kill, saved {again}", last + 1);
+    // Counted from the resume, the line saved would lag what was sent by at
+    // least `last` (over 1600 lines); a program line lags by what is in the
+    // controller and what streamed since the last save (a few hundred).
+    assert!(again > last && again <= sent_before && sent_before - again < last, "resumed at {}, {sent_before} sent before the kill, saved {again}", last + 1);
     drop(service);
 }
 
