@@ -134,6 +134,24 @@ pub struct ServiceConfig {
     /// Finished jobs kept with their programs and recordings; older ones are deleted.
     #[serde(default = "default_keep_jobs")]
     pub keep_jobs: usize,
+    /// Folders on the machine PC from which a job may be submitted by path
+    /// (`{"path": …}`), symbolic links resolved; none (the default): only uploads.
+    #[serde(default)]
+    pub job_folders: Vec<String>,
+    /// A job still planning after this long fails (s).
+    #[serde(default = "default_plan_timeout")]
+    pub plan_timeout: f64,
+    /// Memory a job's planning may take (MB); beyond it the job fails alone.
+    #[serde(default = "default_plan_memory_mb")]
+    pub plan_memory_mb: f64,
+}
+
+fn default_plan_timeout() -> f64 {
+    600.0
+}
+
+fn default_plan_memory_mb() -> f64 {
+    4096.0
 }
 
 fn default_socket() -> String {
@@ -146,11 +164,37 @@ fn default_keep_jobs() -> usize {
 
 impl Default for ServiceConfig {
     fn default() -> Self {
-        ServiceConfig { socket: default_socket(), tcp: None, token_file: None, keep_jobs: default_keep_jobs() }
+        ServiceConfig {
+            socket: default_socket(),
+            tcp: None,
+            token_file: None,
+            keep_jobs: default_keep_jobs(),
+            job_folders: Vec::new(),
+            plan_timeout: default_plan_timeout(),
+            plan_memory_mb: default_plan_memory_mb(),
+        }
     }
 }
 
 impl ServiceConfig {
+    /// The service's own limits, each in a range a machine PC can keep.
+    fn validate(&self) -> std::result::Result<(), String> {
+        for (name, v, lo, hi, unit) in [
+            ("service.plan_timeout", self.plan_timeout, 1.0, 86400.0, "s"),
+            ("service.plan_memory_mb", self.plan_memory_mb, 256.0, 1048576.0, "MB"),
+        ] {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                return Err(format!("{name}: must be between {lo} and {hi} {unit}, got {v}"));
+            }
+        }
+        for folder in &self.job_folders {
+            if !std::path::Path::new(folder).is_absolute() {
+                return Err(format!("service.job_folders: {folder:?} is not an absolute path"));
+            }
+        }
+        Ok(())
+    }
+
     /// The bearer token for TCP clients, from `token_file`.
     pub fn token(&self) -> Result<String> {
         let file = self.token_file.as_deref().ok_or_else(|| Error::Config("[service] tcp needs token_file: a TCP API without a token is refused".into()))?;
@@ -168,11 +212,26 @@ impl ServiceConfig {
 pub struct ImportConfig {
     pub tolerance: f64,
     pub svg_dpi: f64,
+    /// Largest job file read (MB): by `plan` and `dry-run`, uploaded to the
+    /// service or submitted to it by path.
+    #[serde(default = "default_max_file_mb")]
+    pub max_file_mb: f64,
+}
+
+fn default_max_file_mb() -> f64 {
+    128.0
 }
 
 impl Default for ImportConfig {
     fn default() -> Self {
-        ImportConfig { tolerance: 0.01, svg_dpi: 96.0 }
+        ImportConfig { tolerance: 0.01, svg_dpi: 96.0, max_file_mb: default_max_file_mb() }
+    }
+}
+
+impl ImportConfig {
+    /// The largest job file read, in bytes.
+    pub fn max_file_bytes(&self) -> usize {
+        (self.max_file_mb * 1e6) as usize
     }
 }
 
@@ -424,10 +483,16 @@ impl Limits {
 impl MachineConfig {
     /// Reads and validates a config file; `None` reads the shipped default machine.
     pub fn load(path: Option<&Path>) -> Result<MachineConfig> {
+        Self::load_with_text(path).map(|(config, _)| config)
+    }
+
+    /// The config and its text as read (the service hands the same text to
+    /// its planning processes).
+    pub fn load_with_text(path: Option<&Path>) -> Result<(MachineConfig, String)> {
         let path: PathBuf = path.map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from(DEFAULT_CONFIG_PATH));
         let text = std::fs::read_to_string(&path)
             .map_err(|e| Error::Config(format!("{}: cannot read: {e}", path.display())))?;
-        Self::parse(&text, &path.display().to_string())
+        Ok((Self::parse(&text, &path.display().to_string())?, text))
     }
 
     /// Parses and validates config text; `origin` names the file in error messages.
@@ -558,6 +623,11 @@ impl MachineConfig {
             }
         }
         positive("galvo.time_limit", g.time_limit)?;
+        self.service.validate()?;
+        let mb = self.import.max_file_mb;
+        if !(mb.is_finite() && (0.001..=4096.0).contains(&mb)) {
+            return Err(format!("import.max_file_mb: must be between 0.001 and 4096 MB, got {mb}"));
+        }
         if self.simulator.planner_blocks == 0 {
             return Err("simulator.planner_blocks: must be at least 1".into());
         }

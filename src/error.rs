@@ -24,6 +24,12 @@ pub enum Error {
     /// The service: no such job (or other object).
     #[error("not found: {0}")]
     NotFound(String),
+    /// The service: not allowed to anyone (a path outside the job folders).
+    #[error("forbidden: {0}")]
+    Forbidden(String),
+    /// The service: a file or body over its size limit.
+    #[error("too large: {0}")]
+    TooLarge(String),
     /// The service: the request does not fit the machine's or the job's state.
     #[error("conflict: {0}")]
     Conflict(String),

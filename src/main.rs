@@ -171,6 +171,18 @@ enum Command {
         #[arg(long)]
         socket: Option<PathBuf>,
     },
+    /// The service's planning of one job, in a process of its own (the
+    /// service starts it; the config comes on standard input).
+    #[command(hide = true)]
+    PlanJob {
+        source: PathBuf,
+        #[arg(long)]
+        name: String,
+        #[arg(long)]
+        program: PathBuf,
+        #[arg(long)]
+        result: PathBuf,
+    },
     /// Talk to a running `laserd serve` (docs/api.md lists the calls).
     Ctl {
         /// The service's socket (default: /run/laserd/laserd.sock).
@@ -572,6 +584,10 @@ fn run_command(command: Command) -> Result<ExitCode> {
             let machine = MachineConfig::load(Some(&config))?;
             let options = laserd::daemon::ServeOptions::from_env(Some(config), state_dir, socket, &machine);
             laserd::daemon::serve(options)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::PlanJob { source, name, program, result } => {
+            laserd::daemon::intake::plan_job_child(&source, &name, &program, &result)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Ctl { socket, which } => {

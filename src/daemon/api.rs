@@ -34,6 +34,8 @@ impl IntoResponse for ApiError {
         let code = match &self.0 {
             Error::NotFound(_) => StatusCode::NOT_FOUND,
             Error::Conflict(_) => StatusCode::CONFLICT,
+            Error::Forbidden(_) => StatusCode::FORBIDDEN,
+            Error::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             Error::Config(_) | Error::Import(_) | Error::Plan(_) => StatusCode::BAD_REQUEST,
             // The controller refused or failed what was asked of it.
             Error::Stream(_) => StatusCode::BAD_GATEWAY,
@@ -62,7 +64,30 @@ pub fn router(daemon: Arc<Daemon>) -> Router {
         .route("/unlock", post(|s| machine_call(s, Command::Unlock)))
         .route("/jog", post(jog))
         .route("/events", get(events))
+        .fallback(|| async { ApiError(Error::NotFound("no such call (docs/api.md lists them)".into())) })
+        // Uploads up to the largest job file; the same JSON errors everywhere.
+        .layer(axum::extract::DefaultBodyLimit::max(daemon.machine.import.max_file_bytes()))
+        .layer(axum::middleware::map_response(json_errors))
         .with_state(daemon)
+}
+
+/// Every error answers `{"error": …}`, also those axum gives itself (a body
+/// over the limit, a missing content type, a body of the wrong shape).
+async fn json_errors(response: Response) -> Response {
+    let status = response.status();
+    let is_json = response.headers().get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).is_some_and(|v| v.starts_with("application/json"));
+    if !(status.is_client_error() || status.is_server_error()) || is_json {
+        return response;
+    }
+    let (parts, body) = response.into_parts();
+    let text = axum::body::to_bytes(body, 64 * 1024).await.map(|b| String::from_utf8_lossy(&b).trim().to_string()).unwrap_or_default();
+    let why = if text.is_empty() { status.canonical_reason().unwrap_or("error").to_string() } else { text };
+    let mut answer = (status, Json(serde_json::json!({ "error": why }))).into_response();
+    // Keep what the client needs besides the body (e.g. WWW-Authenticate).
+    for (name, value) in parts.headers.iter().filter(|(n, _)| *n != header::CONTENT_TYPE && *n != header::CONTENT_LENGTH) {
+        answer.headers_mut().insert(name.clone(), value.clone());
+    }
+    answer
 }
 
 async fn status(State(d): State<Arc<Daemon>>) -> impl IntoResponse {
@@ -96,8 +121,9 @@ async fn submit(State(d): State<Arc<Daemon>>, Query(q): Query<SubmitQuery>, head
     let is_json = headers.get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).is_some_and(|v| v.starts_with("application/json"));
     let job = if is_json {
         let SubmitPath { path } = serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"path\": \"...\"}}: {e}")))?;
-        let source = tokio::fs::read(&path).await.map_err(|e| Error::Config(format!("{path}: cannot read: {e}")))?;
-        let name = Path::new(&path).file_name().and_then(|n| n.to_str()).unwrap_or("job.nc").to_string();
+        let service = &d.machine.service;
+        let (folders, max) = (service.job_folders.clone(), d.machine.import.max_file_bytes());
+        let (name, source) = tokio::task::spawn_blocking(move || super::intake::read_by_path(&path, &folders, max)).await.map_err(|e| Error::Io(e.to_string()))??;
         d.submit(&name, &source)?
     } else {
         let name = q.name.ok_or_else(|| Error::Config("an upload needs ?name=<file name> (its extension says how to read it)".into()))?;
@@ -110,8 +136,7 @@ async fn submit(State(d): State<Arc<Daemon>>, Query(q): Query<SubmitQuery>, head
 }
 
 async fn remove_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> ApiResult<impl IntoResponse> {
-    d.store().remove(&id)?;
-    d.queue_changed();
+    d.remove(&id)?;
     Ok(Json(serde_json::json!({ "removed": id })))
 }
 
@@ -247,7 +272,12 @@ pub fn bind_unix(path: &Path) -> Result<tokio::net::UnixListener> {
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|e| Error::Io(format!("{}: cannot create: {e}", dir.display())))?;
     }
-    if path.exists() {
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        // Only a socket is ever replaced: a file of any other kind there is
+        // a mistake in the path, not something to delete.
+        if !std::os::unix::fs::FileTypeExt::is_socket(&meta.file_type()) {
+            return Err(Error::Io(format!("{}: exists and is not a socket; give the API another path", path.display())));
+        }
         if std::os::unix::net::UnixStream::connect(path).is_ok() {
             return Err(Error::Io(format!("{}: another laserd is serving there", path.display())));
         }
@@ -281,4 +311,23 @@ pub async fn serve_tcp(listener: tokio::net::TcpListener, daemon: Arc<Daemon>, t
 /// Compares without stopping at the first difference (no timing hint).
 fn same(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn only_a_stale_socket_is_replaced_never_another_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("notes.txt");
+        std::fs::write(&file, b"keep me").unwrap();
+        let err = bind_unix(&file).err().expect("a regular file is not a socket").to_string();
+        assert!(err.contains("not a socket"), "{err}");
+        assert_eq!(std::fs::read(&file).unwrap(), b"keep me");
+        // A socket nobody serves on any more is replaced.
+        let stale = dir.path().join("api.sock");
+        drop(std::os::unix::net::UnixListener::bind(&stale).unwrap());
+        assert!(bind_unix(&stale).is_ok());
+    }
 }

@@ -11,7 +11,7 @@ use std::time::Duration;
 use laserd_sim::wire::{MachineState, StatusReport};
 use tokio::sync::{mpsc, oneshot};
 
-use super::queue::{JobRecord, JobState};
+use super::queue::{JobRecord, JobState, Progress as SavedProgress, ProgressFile};
 use super::{Daemon, MachineStatus, Progress};
 use crate::error::{Error, Result};
 use crate::record::Recording;
@@ -238,26 +238,29 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                 let Some(command) = command else { return Ok(()) };
                 match command {
                     Command::Start { id, reply } => {
-                        if let Some(job) = ready(connection, &refusal, reply, |reply| {
-                            answer(reply, take_job(daemon, id.as_deref()), |j| format!("job {} started", j.id))
+                        if let Some((job, progress)) = ready(connection, &refusal, reply, |reply| {
+                            answer(reply, take(daemon, id.as_deref(), JobState::Queued, |_| Ok(())), |(j, _)| format!("job {} started", j.id))
                         }).await? {
-                            if run_job(daemon, connection, commands, running, job, None).await? {
+                            if run_job(daemon, connection, commands, running, job, progress, None).await? {
                                 return Ok(());
                             }
                         }
                     }
                     Command::ResumeJob { id, from, reply } => {
-                        if let Some((job, from)) = ready(connection, &refusal, reply, |reply| {
-                            let job = take(daemon, Some(&id), JobState::Interrupted).and_then(|job| {
-                                let from = from.unwrap_or(job.last_executed_line + 1);
-                                if from == 0 || from > job.lines_total {
-                                    return Err(Error::Conflict(format!("job {id} has {} lines: cannot resume at line {from}", job.lines_total)));
+                        if let Some(((job, progress), from)) = ready(connection, &refusal, reply, |reply| {
+                            // The line is checked before anything changes: a
+                            // refused resume leaves the job as it was.
+                            let mut at = 0;
+                            let job = take(daemon, Some(&id), JobState::Interrupted, |job| {
+                                at = from.unwrap_or(job.last_executed_line + 1);
+                                if at == 0 || at > job.lines_total {
+                                    return Err(Error::Conflict(format!("job {id} has {} lines: cannot resume at line {at}", job.lines_total)));
                                 }
-                                Ok((job, from))
+                                Ok(())
                             });
-                            answer(reply, job, |(j, from)| format!("job {} resumed at line {from}", j.id))
+                            answer(reply, job.map(|job| (job, at)), |((j, _), from)| format!("job {} resumed at line {from}", j.id))
                         }).await? {
-                            if run_job(daemon, connection, commands, running, job, Some(from)).await? {
+                            if run_job(daemon, connection, commands, running, job, progress, Some(from)).await? {
                                 return Ok(());
                             }
                         }
@@ -322,13 +325,10 @@ fn answer<T>(reply: Reply, taken: Result<T>, done: impl FnOnce(&T) -> String) ->
     }
 }
 
-/// The job to run: `id` if given (it must be waiting), else the queue's first.
-fn take_job(daemon: &Daemon, id: Option<&str>) -> Result<JobRecord> {
-    take(daemon, id, JobState::Queued)
-}
-
-/// The job `id` (or the queue's first) if it is in state `from`, now running.
-fn take(daemon: &Daemon, id: Option<&str>, from: JobState) -> Result<JobRecord> {
+/// The job `id` (or the queue's first) if it is in state `from` and passes
+/// `check`, now running, with its progress file allocated. Nothing changes
+/// unless all of it succeeds: one transition.
+fn take(daemon: &Daemon, id: Option<&str>, from: JobState, check: impl FnOnce(&JobRecord) -> Result<()>) -> Result<(JobRecord, ProgressFile)> {
     let mut store = daemon.store();
     let id = match id {
         Some(id) => id.to_string(),
@@ -338,24 +338,46 @@ fn take(daemon: &Daemon, id: Option<&str>, from: JobState) -> Result<JobRecord> 
     if job.state != from {
         return Err(Error::Conflict(format!("job {id} is {:?}, not {from:?}", job.state).to_lowercase()));
     }
+    check(job)?;
+    // A disk too full for the progress file would lose where the job is.
+    let progress = ProgressFile::create(&store.progress_path(&id)).map_err(|e| Error::Io(format!("job {id} not started: the state folder cannot take its progress: {e}")))?;
     let job = store.update(&id, |j| {
         j.state = JobState::Running;
         j.started_at = Some(super::queue::now());
         j.message = None;
+        j.warnings.clear();
     })?;
     drop(store);
     daemon.job_changed(&job);
-    Ok(job)
+    Ok((job, progress))
 }
 
 /// Streams a job, passing the operator's hold, resume and abort on; returns
 /// whether the service is stopping.
-async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, job: JobRecord, resume_from: Option<usize>) -> Result<bool> {
+async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, running: &Arc<Mutex<Running>>, job: JobRecord, progress: ProgressFile, resume_from: Option<usize>) -> Result<bool> {
     let (program, recording_path) = {
         let store = daemon.store();
         (store.program_path(&job.id), store.recording_path(&job.id))
     };
-    let recording = Recording::create(&recording_path)?;
+    // What the job needs before its first byte: its recording and program.
+    let prepared = Recording::create(&recording_path).and_then(|recording| {
+        let file = std::fs::File::open(&program).map_err(|e| Error::Io(format!("{}: cannot read: {e}", program.display())))?;
+        Ok((recording, file))
+    });
+    let (recording, file) = match prepared {
+        Ok(prepared) => prepared,
+        Err(e) => {
+            // Nothing was sent: the job fails alone, the link stays up.
+            let failed = daemon.store().update(&job.id, |j| {
+                j.state = JobState::Failed;
+                j.message = Some(format!("not started: {e}"));
+                j.ended_at = Some(super::queue::now());
+            })?;
+            daemon.status.send_modify(|s| s.job = None);
+            daemon.job_changed(&failed);
+            return Ok(false);
+        }
+    };
     // The machine's axes and link, as every laserd recording starts.
     let sim = crate::run::sim_config(&daemon.machine, laserd_sim::controller::Faults::default());
     recording.recorder().write(crate::record::TOPIC_SETUP, 0.0, &crate::run::run_setup(&daemon.machine, &sim));
@@ -375,7 +397,6 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         s.job = Some(Progress::at(job.id.clone(), JobState::Running, line, job.lines_total, job.planned_time_s));
     });
     // Read as the controller takes lines: constant memory for any size.
-    let file = std::fs::File::open(&program).map_err(|e| Error::Io(format!("{}: cannot read: {e}", program.display())))?;
     let shown = program.display().to_string();
     let lines = std::io::BufRead::lines(std::io::BufReader::new(file)).map(move |l| l.map_err(|e| Error::Io(format!("{shown}: {e}"))));
     connection.expect_start(job.start.clone().filter(|_| resume_from.is_none()));
@@ -383,21 +404,29 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     // reports; a lower bound): where an interrupted job resumes.
     let executed_line = connection.executed_line();
     executed_line.store(resume_from.map_or(0, |from| from - 1), Ordering::Relaxed);
+    // The progress file knows the job runs before its first line does.
+    let save_progress = |state: JobState, acked: usize, executed: usize, ended_at: Option<f64>| {
+        if let Err(e) = progress.write(&SavedProgress { state, last_acked_line: acked, last_executed_line: executed, ended_at }) {
+            tracing::error!("job {}: progress: {e}", job.id);
+        }
+    };
+    save_progress(JobState::Running, resume_from.map_or(0, |from| from - 1), resume_from.map_or(0, |from| from - 1), None);
     let name = job.name.clone();
     let describe = move |n: usize, text: &str| format!("{name}:{n} `{text}`");
     let (control, mut control_rx) = mpsc::unbounded_channel();
     let mut stopping = false;
     let mut shutdown_done: Option<oneshot::Sender<()>> = None;
     let mut aborted = false;
-    let mut save = tokio::time::interval(Duration::from_millis(500));
+    let mut save = tokio::time::interval(PROGRESS_INTERVAL);
     let set_state = |state: JobState| {
         daemon.status.send_modify(|s| {
             if let Some(p) = &mut s.job {
                 p.state = state;
             }
         });
-        let job = daemon.store().update(&job.id, |j| j.state = state)?;
-        daemon.job_changed(&job);
+        if let Ok(job) = daemon.store().update(&job.id, |j| j.state = state) {
+            daemon.job_changed(&job);
+        }
         Ok::<_, Error>(())
     };
     // A planned program starts where it was planned from: bring the machine
@@ -420,11 +449,12 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                 tokio::select! {
                 outcome = &mut stream => break outcome,
                 _ = save.tick() => {
-                    // Progress on disk twice a second: what a restart after a
-                    // crash or power loss resumes from.
+                    // Progress on disk five times a second: what a restart
+                    // after a crash or power loss resumes from.
                     let sent = running.lock().unwrap_or_else(|e| e.into_inner()).last_sent;
                     let executed = executed_line.load(Ordering::Relaxed);
-                    let _ = daemon.store().update(&job.id, |j| {
+                    save_progress(JobState::Running, sent, executed, None);
+                    let _ = daemon.store().change(&job.id, |j| {
                         j.last_acked_line = sent;
                         j.last_executed_line = executed;
                     });
@@ -479,8 +509,9 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         r.job = None;
         (r.last_sent, executed_line.load(Ordering::Relaxed), r.bytes)
     };
-    if let Err(e) = recording.finish() {
-        tracing::warn!("job {}: recording: {e}", job.id);
+    let recording_cut = recording.finish().err().map(|e| format!("the recording is cut short: {e}"));
+    if let Some(why) = &recording_cut {
+        tracing::error!("job {}: {why}", job.id);
     }
     let ended = super::queue::now();
     let baud = daemon.machine.serial.baud as f64;
@@ -489,20 +520,23 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         Err(e) => (JobState::Interrupted, Some(e.to_string()), None),
     };
     let (state, message, executed) = record;
+    // The end in the progress file first: it needs no new space.
+    let (acked, executed_final) = match state {
+        JobState::Completed => (job.lines_total, job.lines_total),
+        _ => (outcome.as_ref().map_or(last_sent, |o| o.last_acked_line), executed.unwrap_or(executed_estimate)),
+    };
+    save_progress(state, acked, executed_final, Some(ended));
     let job = daemon.store().update(&job.id, |j| {
+        j.warnings.extend(recording_cut.clone());
         j.state = state;
         j.message = message;
         j.ended_at = Some(ended);
-        j.last_acked_line = outcome.as_ref().map_or(last_sent, |o| o.last_acked_line);
-        j.last_executed_line = executed.unwrap_or(executed_estimate);
+        // A resumed stream counts only its own lines: a completed job all.
+        (j.last_acked_line, j.last_executed_line) = (acked, executed_final);
         j.bytes_sent = bytes;
         if let Ok(o) = &outcome {
             j.stream_time_s = o.stream_time_s;
             j.link_utilization = (o.stream_time_s > 0.0).then(|| bytes as f64 / (baud / 10.0 * o.stream_time_s));
-        }
-        if state == JobState::Completed {
-            // A resumed stream counts only its own lines.
-            (j.last_acked_line, j.last_executed_line) = (j.lines_total, j.lines_total);
         }
     })?;
     daemon.status.send_modify(|s| s.job = None);
@@ -515,6 +549,9 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     outcome?;
     Ok(stopping)
 }
+
+/// How often a running job's progress is written to its progress file.
+const PROGRESS_INTERVAL: Duration = Duration::from_millis(200);
 
 /// How the move to a job's start ended.
 enum Approach {

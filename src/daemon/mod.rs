@@ -8,10 +8,12 @@ pub mod api;
 pub mod bench;
 pub mod client;
 pub mod ctl;
+pub mod intake;
 pub mod machine;
 pub mod queue;
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 use schemars::JsonSchema;
@@ -90,6 +92,9 @@ pub struct Status {
     pub machine: MachineStatus,
     pub job: Option<Progress>,
     pub queued: usize,
+    /// Why the state folder does not take writes (a full disk), while it does not.
+    #[serde(default)]
+    pub storage: Option<String>,
 }
 
 /// What the live event stream carries.
@@ -110,6 +115,10 @@ pub struct Daemon {
     pub status: watch::Sender<Status>,
     pub commands: mpsc::UnboundedSender<machine::Command>,
     planning: crossbeam_channel::Sender<String>,
+    /// The config's text, as handed to each planning process.
+    config_text: String,
+    /// The job being planned now, and its cancel flag.
+    planning_now: Mutex<Option<(String, Arc<AtomicBool>)>>,
 }
 
 impl Daemon {
@@ -117,6 +126,18 @@ impl Daemon {
     /// files are written atomically, so what it holds is consistent).
     pub fn store(&self) -> std::sync::MutexGuard<'_, Store> {
         self.store.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Deletes a job that is not running; one being planned is stopped first.
+    pub fn remove(&self, id: &str) -> Result<()> {
+        if let Some((planning, cancel)) = &*self.planning_now.lock().unwrap_or_else(|e| e.into_inner()) {
+            if planning == id {
+                cancel.store(true, Ordering::Relaxed);
+            }
+        }
+        self.store().remove(id)?;
+        self.queue_changed();
+        Ok(())
     }
 
     /// Tells event subscribers about a job's new record.
@@ -142,11 +163,17 @@ impl Daemon {
         });
     }
 
-    /// Accepts a job file: stores it and hands it to the planning thread.
+    /// Accepts a job file: checks its size and that it is what its name
+    /// says, stores it and hands it to the planning thread.
     pub fn submit(&self, name: &str, source: &[u8]) -> Result<JobRecord> {
-        if name.is_empty() || name.contains('/') || name.contains('\0') {
-            return Err(Error::Config(format!("job name {name:?}: give a plain file name such as part.svg")));
+        if name.is_empty() || name.len() > 255 || name.contains('/') || name.chars().any(char::is_control) {
+            return Err(Error::Config(format!("job name {:?}: give a plain file name such as part.svg", name.chars().take(80).collect::<String>())));
         }
+        let max = self.machine.import.max_file_bytes();
+        if source.len() > max {
+            return Err(Error::TooLarge(format!("{name}: {} bytes, more than the {max} a job file may have ([import] max_file_mb)", source.len())));
+        }
+        intake::JobKind::of(name, source)?;
         let job = self.store().add(name, source)?;
         self.job_changed(&job);
         self.planning.send(job.id.clone()).map_err(|_| Error::Io("the planning thread has stopped".into()))?;
@@ -155,8 +182,8 @@ impl Daemon {
 }
 
 /// Plans (or, for G-code, checks and counts) a submitted job into its
-/// `program.nc`, then queues it; a job that cannot be planned fails with the
-/// planner's message.
+/// `program.nc` in a process of its own, bounded in time and memory, then
+/// queues it; a job that cannot be planned fails with the planner's message.
 fn plan_job(daemon: &Daemon, id: &str) {
     let (source, program_path, name) = {
         let store = daemon.store();
@@ -165,24 +192,19 @@ fn plan_job(daemon: &Daemon, id: &str) {
             _ => return,
         }
     };
-    let planned = (|| -> Result<(usize, Option<f64>, Option<Vec<f64>>)> {
-        let ext = source.extension().and_then(|e| e.to_str()).unwrap_or("");
-        if matches!(ext, "nc" | "gcode" | "ngc" | "gc" | "g" | "tap") {
-            let text = std::fs::read_to_string(&source).map_err(|e| Error::Io(format!("{name}: cannot read: {e}")))?;
-            queue::write_atomic(&program_path, text.as_bytes())?;
-            return Ok((text.lines().count(), None, None));
-        }
-        let planned = crate::run::plan(&source, &daemon.machine, crate::plan::PlannerKind::Auto, None)
-            .map_err(|e| Error::Plan(format!("{name}: {}", e.to_string().replace(&source.display().to_string(), &name))))?;
-        queue::write_atomic(&program_path, planned.program.to_gcode().as_bytes())?;
-        Ok((planned.program.lines.len(), Some(planned.report.trajectory_time_s), Some(planned.program.start.clone())))
-    })();
+    let cancel = Arc::new(AtomicBool::new(false));
+    *daemon.planning_now.lock().unwrap_or_else(|e| e.into_inner()) = Some((id.to_string(), cancel.clone()));
+    let service = &daemon.machine.service;
+    let limits = intake::PlanLimits { timeout: std::time::Duration::from_secs_f64(service.plan_timeout), memory_bytes: (service.plan_memory_mb * (1u64 << 20) as f64) as u64 };
+    let planned = intake::plan_in_child(&daemon.config_text, &source, &name, &program_path, &limits, &|| cancel.load(Ordering::Relaxed));
+    *daemon.planning_now.lock().unwrap_or_else(|e| e.into_inner()) = None;
     let result = daemon.store().update(id, |j| match &planned {
-        Ok((lines, time, start)) => {
+        Ok(plan) => {
             j.state = JobState::Queued;
-            j.lines_total = *lines;
-            j.planned_time_s = *time;
-            j.start = start.clone();
+            j.lines_total = plan.lines;
+            j.planned_time_s = plan.planned_time_s;
+            j.start = plan.start.clone();
+            j.warnings = plan.warnings.clone();
         }
         Err(e) => {
             j.state = JobState::Failed;
@@ -199,12 +221,12 @@ fn plan_job(daemon: &Daemon, id: &str) {
 /// Runs the service until SIGTERM or SIGINT: a safe stop (feed hold, laser
 /// off, the job marked interrupted) before exiting.
 pub fn serve(options: ServeOptions) -> Result<()> {
-    let machine = MachineConfig::load(options.config.as_deref())?;
+    let (machine, config_text) = MachineConfig::load_with_text(options.config.as_deref())?;
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().map_err(|e| Error::Io(e.to_string()))?;
-    runtime.block_on(serve_async(options, machine))
+    runtime.block_on(serve_async(options, machine, config_text))
 }
 
-async fn serve_async(options: ServeOptions, machine: MachineConfig) -> Result<()> {
+async fn serve_async(options: ServeOptions, machine: MachineConfig, config_text: String) -> Result<()> {
     // A TCP API without its token is refused before anything starts.
     let tcp = match machine.service.tcp.clone() {
         Some(addr) => Some((addr, machine.service.token()?)),
@@ -212,11 +234,11 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig) -> Result<()
     };
     let store = Store::open(&options.state_dir)?;
     let (events, _) = broadcast::channel(1024);
-    let (status, _) = watch::channel(Status { queued: store.order().len(), machine: machine::disconnected("not connected yet"), job: None });
+    let (status, _) = watch::channel(Status { queued: store.order().len(), machine: machine::disconnected("not connected yet"), job: None, storage: store.storage_error().map(str::to_string) });
     let (commands, command_rx) = mpsc::unbounded_channel();
     let (planning, planning_rx) = crossbeam_channel::unbounded::<String>();
     let replan: Vec<String> = store.list().into_iter().filter(|j| j.state == JobState::Planning).map(|j| j.id).collect();
-    let daemon = Arc::new(Daemon { machine, store: Mutex::new(store), events, status, commands, planning });
+    let daemon = Arc::new(Daemon { machine, store: Mutex::new(store), events, status, commands, planning, config_text, planning_now: Mutex::new(None) });
     let pruned = daemon.store().prune(daemon.machine.service.keep_jobs)?;
     if !pruned.is_empty() {
         tracing::info!("removed {} old finished job(s)", pruned.len());
@@ -242,6 +264,26 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig) -> Result<()
     }
     for id in replan {
         let _ = daemon.planning.send(id);
+    }
+    // Records the disk could not take are written again as soon as it can.
+    {
+        let daemon = daemon.clone();
+        std::thread::Builder::new()
+            .name("laserd-storage".into())
+            .spawn(move || loop {
+                let storage = {
+                    let mut store = daemon.store();
+                    store.flush();
+                    store.storage_error().map(str::to_string)
+                };
+                daemon.status.send_if_modified(|s| {
+                    let changed = s.storage != storage;
+                    s.storage = storage;
+                    changed
+                });
+                std::thread::sleep(std::time::Duration::from_secs(1));
+            })
+            .map_err(|e| Error::Io(format!("cannot start the storage thread: {e}")))?;
     }
     let heartbeat = Arc::new(std::sync::atomic::AtomicU64::new(0));
     // The controller link on a thread and runtime of its own: neither API

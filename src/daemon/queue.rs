@@ -4,9 +4,16 @@
 //! recording (`recording.mcap`), and the queue's order in `<state>/queue.json`.
 //! Every file is written whole to a temporary name, flushed to the disk and
 //! renamed over the old one, so a file is always either the old or the new.
+//!
+//! A full disk is a storage error, never a lost truth: the records stay right
+//! in memory, those not written are written again as soon as space allows
+//! (`flush`), and a running job's progress goes to a small file allocated
+//! before it starts (`ProgressFile`), rewritten in place, which needs no new
+//! space. The last job id is kept in `<state>/next-id`, so ids are never reused.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::io::Write;
+use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 use schemars::JsonSchema;
@@ -69,6 +76,10 @@ pub struct JobRecord {
     pub start: Option<Vec<f64>>,
     /// Why the job failed or was interrupted.
     pub message: Option<String>,
+    /// What the operator should know although the job went on: geometry the
+    /// planner was told about, a recording cut short by a full disk, …
+    #[serde(default)]
+    pub warnings: Vec<String>,
     /// The link while it streamed: bytes sent, from the first byte to the last
     /// answer (s), and the bytes' share of what the link could carry then.
     #[serde(default)]
@@ -86,6 +97,11 @@ pub struct Store {
     /// Ids of the jobs waiting to run, in order.
     order: Vec<String>,
     next_id: u64,
+    /// Records (and the queue's order) changed in memory but not yet on disk.
+    unsaved: BTreeSet<String>,
+    order_unsaved: bool,
+    /// The last write that failed, until every record is on disk again.
+    storage_error: Option<String>,
 }
 
 /// Writes `bytes` to `path` so that the file is either wholly old or wholly new,
@@ -118,6 +134,7 @@ impl Store {
         std::fs::create_dir_all(&jobs_dir).map_err(|e| Error::Io(format!("{}: cannot create: {e}", jobs_dir.display())))?;
         let mut jobs = BTreeMap::new();
         let mut next_id = 1;
+        let mut behind = Vec::new();
         let entries = std::fs::read_dir(&jobs_dir).map_err(|e| Error::Io(format!("{}: cannot read: {e}", jobs_dir.display())))?;
         for entry in entries.flatten() {
             let file = entry.path().join("job.json");
@@ -129,10 +146,18 @@ impl Store {
                     continue;
                 }
             };
+            let mut record = record;
+            if ProgressFile::read(&entry.path().join(PROGRESS_FILE)).is_some_and(|p| p.merge_into(&mut record)) {
+                behind.push(record.id.clone());
+            }
             if let Ok(n) = record.id.trim_start_matches('j').parse::<u64>() {
                 next_id = next_id.max(n + 1);
             }
             jobs.insert(record.id.clone(), record);
+        }
+        // The newest job may have been deleted: the id file still knows it.
+        if let Some(n) = std::fs::read_to_string(dir.join(NEXT_ID_FILE)).ok().and_then(|t| t.trim().parse::<u64>().ok()) {
+            next_id = next_id.max(n);
         }
         let order_file = dir.join("queue.json");
         let mut order: Vec<String> = match std::fs::read_to_string(&order_file) {
@@ -140,13 +165,17 @@ impl Store {
             Err(_) => Vec::new(),
         };
         order.retain(|id| jobs.contains_key(id));
-        let mut store = Store { dir: dir.to_path_buf(), jobs, order, next_id };
+        let mut store = Store { dir: dir.to_path_buf(), jobs, order, next_id, unsaved: BTreeSet::new(), order_unsaved: false, storage_error: None };
         let cut_short: Vec<String> = store.jobs.values().filter(|j| matches!(j.state, JobState::Running | JobState::Paused)).map(|j| j.id.clone()).collect();
         for id in cut_short {
             store.update(&id, |j| {
                 j.state = JobState::Interrupted;
                 j.message = Some(format!("the daemon stopped while the job ran; last executed line {}", j.last_executed_line));
             })?;
+        }
+        // Records behind their progress file (the disk was full): written now.
+        for id in behind {
+            store.unsaved.insert(id);
         }
         // A job accepted but not yet queued (the daemon stopped while planning)
         // keeps its place: queued jobs first, in their order, then these.
@@ -157,7 +186,10 @@ impl Store {
             }
         }
         store.order.retain(|id| matches!(store.jobs[id].state, JobState::Queued | JobState::Planning));
-        store.save_order()?;
+        store.order_unsaved = true;
+        // A disk still full keeps the service up: the status says so and
+        // the records are written once there is space.
+        store.flush();
         Ok(store)
     }
 
@@ -173,6 +205,15 @@ impl Store {
         self.job_dir(id).join("recording.mcap")
     }
 
+    pub fn progress_path(&self, id: &str) -> PathBuf {
+        self.job_dir(id).join(PROGRESS_FILE)
+    }
+
+    /// Why the last write failed, while some record is not on disk.
+    pub fn storage_error(&self) -> Option<&str> {
+        self.storage_error.as_deref()
+    }
+
     /// The submitted file, named as it was (its extension says how to read it).
     pub fn source_path(&self, id: &str) -> Option<PathBuf> {
         let name = &self.jobs.get(id)?.name;
@@ -183,9 +224,25 @@ impl Store {
     /// puts it at the end of the queue.
     pub fn add(&mut self, name: &str, source: &[u8]) -> Result<JobRecord> {
         let id = format!("j{:06}", self.next_id);
+        // The id is spent before anything of the job is written: a job
+        // deleted later never lends its id to another.
+        write_atomic(&self.dir.join(NEXT_ID_FILE), format!("{}\n", self.next_id + 1).as_bytes()).inspect_err(|e| {
+            self.failed(e);
+        })?;
         self.next_id += 1;
         let dir = self.job_dir(&id);
         std::fs::create_dir_all(&dir).map_err(|e| Error::Io(format!("{}: cannot create: {e}", dir.display())))?;
+        let stored = self.add_in(&dir, &id, name, source);
+        if stored.is_err() {
+            let _ = std::fs::remove_dir_all(&dir);
+            self.jobs.remove(&id);
+            self.order.retain(|o| o != &id);
+        }
+        stored
+    }
+
+    fn add_in(&mut self, dir: &Path, id: &str, name: &str, source: &[u8]) -> Result<JobRecord> {
+        let id = id.to_string();
         let record = JobRecord {
             id: id.clone(),
             name: name.to_string(),
@@ -199,15 +256,21 @@ impl Store {
             planned_time_s: None,
             start: None,
             message: None,
+            warnings: Vec::new(),
             bytes_sent: 0,
             stream_time_s: 0.0,
             link_utilization: None,
         };
-        write_atomic(&dir.join(format!("source.{}", extension_of(name))), source)?;
+        write_atomic(&dir.join(format!("source.{}", extension_of(name))), source).inspect_err(|e| {
+            self.failed(e);
+        })?;
         self.jobs.insert(id.clone(), record.clone());
-        self.save_job(&id)?;
+        self.save_job(&id).inspect_err(|e| {
+            self.failed(e);
+        })?;
         self.order.push(id);
-        self.save_order()?;
+        self.order_unsaved = true;
+        self.flush();
         Ok(record)
     }
 
@@ -229,25 +292,67 @@ impl Store {
         &self.order
     }
 
-    /// Changes a job's record and stores it.
+    /// Changes a job's record and stores it. Only an unknown job is an
+    /// error: a record the disk cannot take now is kept in memory, written
+    /// by a later `flush`, and the failure shown by `storage_error`.
     pub fn update(&mut self, id: &str, change: impl FnOnce(&mut JobRecord)) -> Result<JobRecord> {
+        let job = self.change(id, change)?;
+        self.unsaved.insert(id.to_string());
+        self.flush();
+        Ok(job)
+    }
+
+    /// Changes a job's record in memory only (progress shown by the API,
+    /// kept on disk by the job's `ProgressFile`).
+    pub fn change(&mut self, id: &str, change: impl FnOnce(&mut JobRecord)) -> Result<JobRecord> {
         let job = self.jobs.get_mut(id).ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
         change(job);
         let job = job.clone();
-        self.save_job(id)?;
         if !matches!(job.state, JobState::Queued | JobState::Planning) && self.order.contains(&job.id) {
             self.order.retain(|o| o != id);
-            self.save_order()?;
+            self.order_unsaved = true;
         }
         Ok(job)
     }
 
-    /// Puts a job back in the queue (an interrupted one, to resume), at the front.
-    pub fn requeue_front(&mut self, id: &str) -> Result<()> {
-        self.order.retain(|o| o != id);
-        self.order.insert(0, id.to_string());
-        self.save_order()
+    /// Writes what is not on disk yet; true when everything is.
+    pub fn flush(&mut self) -> bool {
+        let pending: Vec<String> = self.unsaved.iter().cloned().collect();
+        for id in pending {
+            // A job removed meanwhile has nothing left to write.
+            if !self.jobs.contains_key(&id) {
+                self.unsaved.remove(&id);
+                continue;
+            }
+            match self.save_job(&id) {
+                Ok(()) => {
+                    self.unsaved.remove(&id);
+                }
+                Err(e) => return self.failed(&e),
+            }
+        }
+        if self.order_unsaved {
+            if let Err(e) = self.save_order() {
+                return self.failed(&e);
+            }
+            self.order_unsaved = false;
+        }
+        if let Some(was) = self.storage_error.take() {
+            tracing::info!("the state folder takes writes again (it had failed: {was})");
+        }
+        true
     }
+
+    /// Notes a failed write (logged once per new failure); false.
+    fn failed(&mut self, e: &Error) -> bool {
+        let why = e.to_string();
+        if self.storage_error.as_deref() != Some(why.as_str()) {
+            tracing::error!("storage: {why}; the records are kept in memory and written when it takes writes again");
+        }
+        self.storage_error = Some(why);
+        false
+    }
+
 
     /// Moves a waiting job to `position` (0 = next) in the queue.
     pub fn reorder(&mut self, id: &str, position: usize) -> Result<()> {
@@ -257,7 +362,9 @@ impl Store {
         let id = self.order.remove(at);
         let position = position.min(self.order.len());
         self.order.insert(position, id);
-        self.save_order()
+        self.order_unsaved = true;
+        self.flush();
+        Ok(())
     }
 
     /// Deletes a job that is not running: its record, files and place in the queue.
@@ -267,8 +374,10 @@ impl Store {
             return Err(Error::Conflict(format!("job {id} is running: abort it first")));
         }
         self.order.retain(|o| o != id);
-        self.save_order()?;
+        self.order_unsaved = true;
         self.jobs.remove(id);
+        self.unsaved.remove(id);
+        self.flush();
         let dir = self.job_dir(id);
         std::fs::remove_dir_all(&dir).map_err(|e| Error::Io(format!("{}: cannot remove: {e}", dir.display())))
     }
@@ -293,6 +402,80 @@ impl Store {
     fn save_order(&self) -> Result<()> {
         let text = serde_json::to_vec(&self.order).map_err(|e| Error::Io(e.to_string()))?;
         write_atomic(&self.dir.join("queue.json"), &text)
+    }
+}
+
+/// The name of a job's progress file in its folder.
+const PROGRESS_FILE: &str = "progress";
+/// The next job id, in the state folder.
+const NEXT_ID_FILE: &str = "next-id";
+/// The progress file's fixed size: one disk sector, written whole in place.
+const PROGRESS_BYTES: usize = 512;
+
+/// A running job's progress as the progress file keeps it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Progress {
+    pub state: JobState,
+    pub last_acked_line: usize,
+    pub last_executed_line: usize,
+    #[serde(default)]
+    pub ended_at: Option<f64>,
+}
+
+impl Progress {
+    /// Brings a record up to this progress (the record may have missed the
+    /// last writes); true if it changed.
+    fn merge_into(&self, job: &mut JobRecord) -> bool {
+        let before = job.clone();
+        job.last_acked_line = job.last_acked_line.max(self.last_acked_line);
+        job.last_executed_line = job.last_executed_line.max(self.last_executed_line);
+        if self.state.is_final() && matches!(job.state, JobState::Running | JobState::Paused) {
+            job.state = self.state;
+            job.ended_at = self.ended_at;
+            if self.state == JobState::Completed {
+                job.message = None;
+            }
+        }
+        *job != before
+    }
+}
+
+/// A running job's progress on disk: a file of one sector, allocated before
+/// the job starts and rewritten in place, so that a disk filling up while
+/// the job runs (its recording grows) cannot stop the progress being saved.
+/// (On copy-on-write file systems, btrfs or ZFS, an in-place write still
+/// needs space: there the state folder wants a quota of its own.)
+pub struct ProgressFile {
+    file: std::fs::File,
+    path: PathBuf,
+}
+
+impl ProgressFile {
+    /// Allocates the file (an error if the disk cannot take even that).
+    pub fn create(path: &Path) -> Result<ProgressFile> {
+        let io = |e: std::io::Error| Error::Io(format!("{}: cannot write: {e}", path.display()));
+        let file = std::fs::OpenOptions::new().create(true).truncate(true).read(true).write(true).open(path).map_err(io)?;
+        file.write_all_at(&[b' '; PROGRESS_BYTES], 0).map_err(io)?;
+        file.sync_all().map_err(io)?;
+        if let Some(parent) = path.parent() {
+            std::fs::File::open(parent).and_then(|d| d.sync_all()).map_err(io)?;
+        }
+        Ok(ProgressFile { file, path: path.to_path_buf() })
+    }
+
+    /// Rewrites the progress in place and flushes it to the disk.
+    pub fn write(&self, progress: &Progress) -> Result<()> {
+        let io = |e: std::io::Error| Error::Io(format!("{}: cannot write: {e}", self.path.display()));
+        let mut bytes = serde_json::to_vec(progress).map_err(|e| Error::Io(e.to_string()))?;
+        bytes.resize(PROGRESS_BYTES, b' ');
+        self.file.write_all_at(&bytes, 0).map_err(io)?;
+        self.file.sync_data().map_err(io)
+    }
+
+    /// What a progress file says, if it says anything readable.
+    pub fn read(path: &Path) -> Option<Progress> {
+        let bytes = std::fs::read(path).ok().filter(|b| b.len() <= PROGRESS_BYTES)?;
+        serde_json::from_slice(&bytes).ok()
     }
 }
 
@@ -360,6 +543,55 @@ mod tests {
         assert!(!store.job_dir(&ids[1]).exists());
         assert!(store.get(&ids[4]).is_some() && store.get(&ids[0]).is_some());
         assert!(matches!(store.reorder(&ids[4], 0), Err(Error::Conflict(_))), "a finished job is not in the queue");
+    }
+
+    #[test]
+    fn ids_are_never_reused_even_after_the_newest_job_is_deleted() {
+        let dir = tempfile::tempdir().unwrap();
+        let newest = {
+            let mut store = Store::open(dir.path()).unwrap();
+            store.add("a.nc", b"G0X0\n").unwrap();
+            let b = store.add("b.nc", b"G0X0\n").unwrap().id;
+            store.remove(&b).unwrap();
+            b
+        };
+        let mut store = Store::open(dir.path()).unwrap();
+        let c = store.add("c.nc", b"G0X0\n").unwrap().id;
+        assert!(c > newest, "{c} after the deleted {newest}");
+    }
+
+    #[test]
+    fn the_progress_file_brings_a_record_that_missed_its_writes_up_to_date() {
+        let dir = tempfile::tempdir().unwrap();
+        let (done, cut) = {
+            let mut store = Store::open(dir.path()).unwrap();
+            let done = store.add("done.nc", b"G0X0\n").unwrap().id;
+            let cut = store.add("cut.nc", b"G0X0\n").unwrap().id;
+            for id in [&done, &cut] {
+                store.update(id, |j| {
+                    j.state = JobState::Running;
+                    j.lines_total = 8038;
+                    j.last_executed_line = 6818;
+                })
+                .unwrap();
+            }
+            // The disk filled up: job.json stayed at line 6818 while the
+            // progress files, written in place, went on.
+            let progress = ProgressFile::create(&store.progress_path(&done)).unwrap();
+            progress.write(&Progress { state: JobState::Running, last_acked_line: 8000, last_executed_line: 7990, ended_at: None }).unwrap();
+            progress.write(&Progress { state: JobState::Completed, last_acked_line: 8038, last_executed_line: 8038, ended_at: Some(1.0) }).unwrap();
+            let progress = ProgressFile::create(&store.progress_path(&cut)).unwrap();
+            progress.write(&Progress { state: JobState::Running, last_acked_line: 7700, last_executed_line: 7690, ended_at: None }).unwrap();
+            (done, cut)
+        };
+        let store = Store::open(dir.path()).unwrap();
+        let done = store.get(&done).unwrap();
+        assert_eq!((done.state, done.last_executed_line), (JobState::Completed, 8038), "completed, not offered for resume at 6818");
+        let cut = store.get(&cut).unwrap();
+        assert_eq!((cut.state, cut.last_acked_line, cut.last_executed_line), (JobState::Interrupted, 7700, 7690));
+        // And the records are on disk now.
+        let on_disk: JobRecord = serde_json::from_slice(&std::fs::read(store.job_dir(&done.id).join("job.json")).unwrap()).unwrap();
+        assert_eq!(on_disk.state, JobState::Completed);
     }
 
     #[test]

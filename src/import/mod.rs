@@ -18,7 +18,7 @@ pub fn import_job(path: &Path, config: &MachineConfig) -> Result<Job> {
     let ext = path.extension().map(|e| e.to_string_lossy().to_lowercase());
     match ext.as_deref() {
         Some("svg") => {
-            let bytes = std::fs::read(path).map_err(|e| Error::Import(format!("{source}: cannot read: {e}")))?;
+            let bytes = read_capped(path, config.import.max_file_bytes())?;
             // usvg only takes UTF-8 text (compressed .svgz is not enabled in our build).
             let text = String::from_utf8(bytes)
                 .map_err(|_| Error::Import(format!("{source}: malformed SVG: the file is not UTF-8 text")))?;
@@ -29,6 +29,37 @@ pub fn import_job(path: &Path, config: &MachineConfig) -> Result<Job> {
             "{source}: unsupported job format: the file name has no extension (supported: .svg)"
         ))),
     }
+}
+
+/// A job file's bytes, if it is a regular file of at most `max` bytes (a
+/// device or a FIFO named like a job file is refused, not read forever).
+fn read_capped(path: &Path, max: usize) -> Result<Vec<u8>> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let shown = path.display();
+    let file = std::fs::OpenOptions::new().read(true).custom_flags(nix::libc::O_NONBLOCK).open(path).map_err(|e| Error::Import(format!("{shown}: cannot read: {e}")))?;
+    read_regular(file, max, &shown.to_string())
+}
+
+/// The bytes of an open job file (`shown` in messages), if it is a regular
+/// file of at most `max` bytes (open it with `O_NONBLOCK`: a FIFO then
+/// never blocks).
+pub fn read_regular(file: std::fs::File, max: usize, shown: &str) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let unreadable = |e: std::io::Error| Error::Import(format!("{shown}: cannot read: {e}"));
+    let too_large = || Error::TooLarge(format!("{shown}: more than the {max} bytes a job file may have ([import] max_file_mb)"));
+    let meta = file.metadata().map_err(unreadable)?;
+    if !meta.is_file() {
+        return Err(Error::Import(format!("{shown}: not a regular file")));
+    }
+    if meta.len() > max as u64 {
+        return Err(too_large());
+    }
+    let mut bytes = Vec::new();
+    file.take(max as u64 + 1).read_to_end(&mut bytes).map_err(unreadable)?;
+    if bytes.len() > max {
+        return Err(too_large());
+    }
+    Ok(bytes)
 }
 
 /// A small machine for the import tests, independent of the shipped config file: the

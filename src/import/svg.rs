@@ -26,12 +26,29 @@ const SAME_POINT_MM: f64 = 1e-9;
 /// that large would be flattened into billions of segments at a 0.01 mm tolerance.
 const MAX_COORD_MM: f64 = 1e6;
 
+/// Largest number in a geometry attribute (user units). Far beyond any
+/// drawing's need (1e9 µm is 1 km), far below where usvg's f32 arithmetic
+/// fails: an arc to 1e30 spins in its conversion for seconds, and a 1e308
+/// becomes infinite and its path vanishes.
+const MAX_RAW_NUMBER: f64 = 1e9;
+
+/// Attributes that place or shape geometry.
+const GEOMETRY_ATTRIBUTES: [&str; 17] = ["d", "points", "transform", "viewBox", "x", "y", "width", "height", "rx", "ry", "r", "cx", "cy", "x1", "y1", "x2", "y2"];
+
 /// Parses SVG `text` and converts it to a job; `source` names the file in messages.
+/// Nothing outside `text` is read: images by path or URL are refused.
 pub fn import_svg(text: &str, source: &str, config: &MachineConfig) -> Result<Job> {
-    let options = usvg::Options { dpi: config.import.svg_dpi as f32, ..usvg::Options::default() };
+    check_raw_geometry(text, source)?;
+    let options = usvg::Options {
+        dpi: config.import.svg_dpi as f32,
+        resources_dir: None,
+        // Images are not marked; loading one would read a file named by the
+        // upload (or block on a FIFO, or read a device), so none is loaded.
+        image_href_resolver: usvg::ImageHrefResolver { resolve_data: Box::new(|_, _, _| None), resolve_string: Box::new(|_, _| None) },
+        ..usvg::Options::default()
+    };
     let tree = usvg::Tree::from_str(text, &options)
         .map_err(|e| Error::Import(format!("{source}: malformed SVG: {}", parse_error_message(&e))))?;
-    warn_about_text(text, source);
 
     let mm_per_px = 25.4 / config.import.svg_dpi;
     let mut importer = Importer {
@@ -83,16 +100,109 @@ fn parse_error_message(e: &usvg::Error) -> String {
     msg.lines().collect::<Vec<_>>().join(" ")
 }
 
-/// `<text>` is dropped by usvg without fonts (we build it without), so the operator
-/// would get a job without the lettering and no hint why.
-fn warn_about_text(text: &str, source: &str) {
+/// Checks the raw geometry attributes before usvg reads them: numbers out of
+/// any drawing's range, path data or transforms it would cut short or drop
+/// (a browser draws up to the error; a laser must not), each an error naming
+/// the element. Warns of what is not marked: `<text>` (usvg is built without
+/// fonts) and `<image>`.
+fn check_raw_geometry(text: &str, source: &str) -> Result<()> {
     let options = usvg::roxmltree::ParsingOptions { allow_dtd: true, ..Default::default() };
-    if let Ok(doc) = usvg::roxmltree::Document::parse_with_options(text, options) {
-        let count = doc.descendants().filter(|n| n.has_tag_name("text")).count();
-        if count > 0 {
-            tracing::warn!("{source}: {count} <text> element(s) ignored; convert text to paths to mark it");
+    // A document roxmltree cannot read, usvg cannot either: it says why.
+    let Ok(doc) = usvg::roxmltree::Document::parse_with_options(text, options) else { return Ok(()) };
+    let (mut texts, mut images) = (0, 0);
+    for node in doc.descendants().filter(|n| n.is_element()) {
+        match node.tag_name().name() {
+            "text" => texts += 1,
+            "image" => images += 1,
+            _ => {}
+        }
+        for attr in node.attributes().filter(|a| GEOMETRY_ATTRIBUTES.contains(&a.name())) {
+            let value = attr.value();
+            let name = || {
+                let at = doc.text_pos_at(node.range().start);
+                match node.attribute("id") {
+                    Some(id) => format!("{} '{id}' (line {})", node.tag_name().name(), at.row),
+                    None => format!("{} at line {}", node.tag_name().name(), at.row),
+                }
+            };
+            let bad = |why: String| Error::Import(format!("{source}: {}: {}: {why}", name(), attr.name()));
+            if let Some(n) = numbers_in(value).find(|n| !(n.is_finite() && n.abs() <= MAX_RAW_NUMBER)) {
+                return Err(bad(format!("the number {n:e} is out of range (at most {MAX_RAW_NUMBER:e} in magnitude)")));
+            }
+            match attr.name() {
+                "d" => {
+                    if let Some(Err(e)) = svgtypes::PathParser::from(value).find(|s| s.is_err()) {
+                        return Err(bad(format!("unreadable path data ({e}); nothing after the error would be marked")));
+                    }
+                }
+                "transform" => {
+                    value.parse::<svgtypes::Transform>().map_err(|e| bad(format!("unreadable transform ({e})")))?;
+                }
+                "points" => {
+                    let count = numbers_in(value).count();
+                    if value.chars().any(|c| !(c.is_ascii_digit() || c.is_ascii_whitespace() || ",.+-eE".contains(c))) || count % 2 == 1 {
+                        return Err(bad("unreadable point list (pairs of numbers expected)".into()));
+                    }
+                }
+                _ => {}
+            }
         }
     }
+    if texts > 0 {
+        tracing::warn!("{source}: {texts} <text> element(s) ignored; convert text to paths to mark it");
+    }
+    if images > 0 {
+        tracing::warn!("{source}: {images} <image> element(s) ignored (only paths are marked)");
+    }
+    Ok(())
+}
+
+/// The numbers in an attribute's text, as SVG writes them (`-1.5e3`, `.5`,
+/// `1.2.3` is 1.2 then .3). Words and letters between them are skipped.
+fn numbers_in(text: &str) -> impl Iterator<Item = f64> + '_ {
+    let bytes = text.as_bytes();
+    let mut at = 0;
+    std::iter::from_fn(move || {
+        while at < bytes.len() {
+            let start = at;
+            let digit = |i: usize| bytes.get(i).is_some_and(u8::is_ascii_digit);
+            let mut i = at;
+            if matches!(bytes[i], b'+' | b'-') {
+                i += 1;
+            }
+            let mut seen = false;
+            while digit(i) {
+                i += 1;
+                seen = true;
+            }
+            if bytes.get(i) == Some(&b'.') && digit(i + 1) {
+                i += 1;
+                while digit(i) {
+                    i += 1;
+                }
+                seen = true;
+            }
+            if !seen {
+                at = start + 1;
+                continue;
+            }
+            if matches!(bytes.get(i), Some(b'e' | b'E')) {
+                let mut j = i + 1;
+                if matches!(bytes.get(j), Some(b'+' | b'-')) {
+                    j += 1;
+                }
+                if digit(j) {
+                    while digit(j) {
+                        j += 1;
+                    }
+                    i = j;
+                }
+            }
+            at = i;
+            return text[start..i].parse::<f64>().ok();
+        }
+        None
+    })
 }
 
 struct Importer<'a> {
@@ -123,12 +233,8 @@ impl<'a> Importer<'a> {
                     }
                 }
                 usvg::Node::Path(p) => self.add_path(p, groups)?,
-                usvg::Node::Image(_) => {
-                    tracing::warn!("{}: an <image> is ignored (only paths are marked)", self.source)
-                }
-                usvg::Node::Text(_) => {
-                    tracing::warn!("{}: a <text> is ignored; convert text to paths", self.source)
-                }
+                // Counted and warned of by `check_raw_geometry`.
+                usvg::Node::Image(_) | usvg::Node::Text(_) => {}
             }
         }
         Ok(())
@@ -436,12 +542,62 @@ mod tests {
         let err = import_svg(&svg(r#"<path id="big" d="M 0 0 L 1e30 0" stroke="black"/>"#), "h.svg", &config())
             .unwrap_err()
             .to_string();
-        assert!(err.contains("h.svg") && err.contains("'big'"), "{err}");
-        let text = svg(r#"<path d="M 0 0 L 1e39 0" stroke="black"/>"#);
-        // usvg may drop the unparsable number itself; either way no panic and no bad point.
-        if let Ok(job) = import_svg(&text, "h.svg", &config()) {
-            assert!(job.geometries.iter().flat_map(|g| &g.points).all(|p| p.x.is_finite() && p.y.is_finite()));
+        assert!(err.contains("h.svg") && err.contains("path 'big'") && err.contains("1e30"), "{err}");
+        // Beyond f32 (usvg's numbers): once dropped silently with its path.
+        for d in ["M 0 0 L 1e39 0", "M 1e308 10 L 20 20", "M 0 0 L 10 10 L -1e308 0"] {
+            let err = import_svg(&svg(&format!(r#"<path d="{d}" stroke="black"/>"#)), "h.svg", &config()).unwrap_err().to_string();
+            assert!(err.contains("path at line 1") && err.contains("out of range"), "{d}: {err}");
         }
+        // Transformed beyond reach: caught in machine mm, naming the path.
+        let err = import_svg(&svg(r#"<g transform="scale(1e8)"><path id="far" d="M 0 0 L 100 0" stroke="black"/></g>"#), "h.svg", &config()).unwrap_err().to_string();
+        assert!(err.contains("path 'far'") && err.contains("beyond 1 km"), "{err}");
+    }
+
+    /// An arc to a far point once spun for minutes in usvg's conversion: a
+    /// 150-byte upload took the planning thread.
+    #[test]
+    fn an_arc_to_a_far_point_is_refused_at_once() {
+        let text = svg(r#"<path id="arc" d="M 10 10 A 2.5 2.5 0 0 1 1e38 10" stroke="black"/>"#);
+        let started = std::time::Instant::now();
+        let err = import_svg(&text, "a.svg", &config()).unwrap_err().to_string();
+        assert!(err.contains("path 'arc'") && err.contains("out of range"), "{err}");
+        assert!(started.elapsed() < std::time::Duration::from_secs(1), "refused before any arc is converted");
+    }
+
+    /// Path data, transforms and point lists that usvg would cut short or
+    /// ignore are errors naming the element, not geometry lost in silence.
+    #[test]
+    fn unreadable_geometry_is_an_error_naming_the_element() {
+        for (body, element, what) in [
+            (r#"<path id="p1" d="M 10 10 L 20 20 L NaN 5" stroke="black"/>"#, "path 'p1'", "unreadable path data"),
+            (r#"<path id="p2" d="M 10 10 L 20 20 Q" stroke="black"/>"#, "path 'p2'", "unreadable path data"),
+            (r#"<g id="g1" transform="rotate(30"><path d="M 0 0 L 1 1" stroke="black"/></g>"#, "g 'g1'", "unreadable transform"),
+            (r#"<polyline id="l1" points="0,0 10,10 20" stroke="black" fill="none"/>"#, "polyline 'l1'", "unreadable point list"),
+            (r#"<polyline points="0,0 10,x" stroke="black" fill="none"/>"#, "polyline at line 1", "unreadable point list"),
+        ] {
+            let err = import_svg(&svg(body), "u.svg", &config()).unwrap_err().to_string();
+            assert!(err.contains("u.svg") && err.contains(element) && err.contains(what), "{body}: {err}");
+        }
+        // What SVG allows still imports: packed numbers, exponents, flags.
+        let job = import(&svg(r#"<path d="M1.5.5L2e1-3.5a1 1 0 01 1 1z" stroke="black"/><polyline points="0,0 1e1,1E1" stroke="black" fill="none"/>"#));
+        assert_eq!(job.geometries.len(), 2);
+    }
+
+    /// `<image>` is never loaded: not a file (a device, a FIFO that would
+    /// block, the controller's own port), not a data URL.
+    #[test]
+    fn images_are_never_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("fifo");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).unwrap();
+        let body = format!(
+            r#"<image href="{}" width="10" height="10"/><image href="/dev/zero" width="10" height="10"/><image href="data:image/svg+xml;base64,PHN2Zy8+" width="1" height="1"/><path d="M 0 0 L 10 0" stroke="black"/>"#,
+            fifo.display()
+        );
+        let (done, result) = std::sync::mpsc::channel();
+        std::thread::spawn(move || done.send(import_svg(&svg(&body), "i.svg", &config()).map(|j| j.geometries.len()).map_err(|e| e.to_string())));
+        let imported = result.recv_timeout(std::time::Duration::from_secs(10)).expect("the import does not block on a FIFO or read a device");
+        assert_eq!(imported, Ok(1), "the path is marked, the images are not");
     }
 
     /// The committed sample jobs import cleanly and keep the limits they promise.

@@ -1,0 +1,348 @@
+//! What the service takes in: job files (uploaded or, from configured
+//! folders only, by path), checked by size and by content, and planned each
+//! in a child process of its own with bounded time and memory. A hostile or
+//! broken file fails alone: the service, its API and the controller link go on.
+
+use std::io::Read;
+use std::os::unix::fs::OpenOptionsExt;
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::MachineConfig;
+use crate::error::{Error, Result};
+
+/// How a job file is read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum JobKind {
+    /// Planned into a program.
+    Svg,
+    /// Checked line by line as the controller would, then streamed as it is.
+    Gcode,
+}
+
+/// Extensions of G-code files, as CAM tools and senders write them.
+pub const GCODE_EXTENSIONS: [&str; 6] = ["nc", "gcode", "ngc", "gc", "g", "tap"];
+
+impl JobKind {
+    /// The kind the file's name says, if its content agrees: a job file is
+    /// taken by what it is, not by what it is called.
+    pub fn of(name: &str, bytes: &[u8]) -> Result<JobKind> {
+        let ext = Path::new(name).extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        let kind = match ext.as_deref() {
+            Some("svg") => JobKind::Svg,
+            Some(e) if GCODE_EXTENSIONS.contains(&e) => JobKind::Gcode,
+            _ => return Err(Error::Import(format!("{name}: not a job file: the name must end in .svg or a G-code extension (.{})", GCODE_EXTENSIONS.join(", ."))))
+        };
+        let text = std::str::from_utf8(bytes).map_err(|e| Error::Import(format!("{name}: not a job file: not UTF-8 text (byte {})", e.valid_up_to())))?;
+        if let Some(at) = text.find(|c: char| c.is_control() && !matches!(c, '\n' | '\r' | '\t' | '\x0c')) {
+            let line = text[..at].lines().count().max(1);
+            return Err(Error::Import(format!("{name}:{line}: not a job file: control character {:#04x}", text.as_bytes()[at])));
+        }
+        let head = text.trim_start_matches('\u{feff}').trim_start();
+        let looks_svg = head.starts_with('<') && text[..text.len().min(64 * 1024)].contains("<svg");
+        match (kind, looks_svg) {
+            (JobKind::Svg, false) => Err(Error::Import(format!("{name}: not an SVG document (no <svg> element at its start)"))),
+            (JobKind::Gcode, true) => Err(Error::Import(format!("{name}: an SVG document named as G-code: name it .svg"))),
+            _ => Ok(kind),
+        }
+    }
+}
+
+/// Reads a job file the operator named by path: only inside `folders`
+/// (symbolic links resolved), only a regular file, at most `max_bytes`.
+/// Returns the file's name and bytes.
+pub fn read_by_path(path: &str, folders: &[String], max_bytes: usize) -> Result<(String, Vec<u8>)> {
+    if folders.is_empty() {
+        return Err(Error::Forbidden("submitting by path is off: upload the file, or list the folders the service may read jobs from in [service] job_folders".into()));
+    }
+    let outside = || Error::Forbidden(format!("{path}: not inside the job folders ([service] job_folders)"));
+    let real = std::fs::canonicalize(path).map_err(|_| outside())?;
+    let inside = |p: &Path| folders.iter().filter_map(|f| std::fs::canonicalize(f).ok()).any(|f| p.starts_with(f));
+    if !inside(&real) {
+        return Err(outside());
+    }
+    // Opened without following a link swapped in since, without waiting on
+    // a FIFO; then checked again by what was opened.
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(nix::libc::O_NOFOLLOW | nix::libc::O_NONBLOCK)
+        .open(&real)
+        .map_err(|e| Error::Config(format!("{path}: cannot read: {e}")))?;
+    let opened = std::fs::read_link(format!("/proc/self/fd/{}", std::os::fd::AsRawFd::as_raw_fd(&file))).unwrap_or_else(|_| real.clone());
+    if !inside(&opened) {
+        return Err(outside());
+    }
+    let bytes = crate::import::read_regular(file, max_bytes, path)?;
+    let name = real.file_name().and_then(|n| n.to_str()).unwrap_or("job").to_string();
+    Ok((name, bytes))
+}
+
+/// Checks a G-code program line by line in the simulator's check mode
+/// (`$C`), as the controller would parse it; returns its line count. System
+/// commands (`$…`) are not program lines: a file must not change the
+/// controller's settings.
+pub fn check_gcode(name: &str, text: &str, machine: &MachineConfig) -> Result<usize> {
+    use laserd_sim::controller::{Controller, Faults};
+    use laserd_sim::wire::{error_message, alarm_message, Response};
+    let mut controller = Controller::new(crate::run::sim_config(machine, Faults::default()));
+    let mut t = 0.0;
+    let mut ask = |controller: &mut Controller, line: &str| -> Option<Response> {
+        for b in line.bytes().chain([b'\n']) {
+            controller.receive(t, b);
+        }
+        let mut out = String::new();
+        // A check takes no time: a few steps of the clock answer it.
+        for _ in 0..100 {
+            t += 1e-3;
+            controller.advance(t);
+            out.push_str(&String::from_utf8_lossy(&controller.take_output()));
+            if let Some(answer) = out.lines().map(Response::parse).find(|r| matches!(r, Response::Ok | Response::Error(_) | Response::Alarm(_))) {
+                return Some(answer);
+            }
+        }
+        None
+    };
+    controller.advance(0.0);
+    controller.take_output();
+    if ask(&mut controller, "$C") != Some(Response::Ok) {
+        return Err(Error::Io(format!("{name}: the G-code check could not enter check mode")));
+    }
+    let mut lines = 0;
+    for (i, raw) in text.lines().enumerate() {
+        lines += 1;
+        let n = i + 1;
+        let clean = crate::stream::clean_line(raw);
+        if clean.is_empty() {
+            continue;
+        }
+        let quoted = || quote(raw.trim());
+        if clean.len() + 1 > machine.serial.rx_buffer {
+            return Err(Error::Import(format!("{name}:{n} {}: {} characters, more than the controller's receive buffer takes ([serial] rx_buffer = {})", quoted(), clean.len(), machine.serial.rx_buffer)));
+        }
+        if clean.starts_with('$') {
+            return Err(Error::Import(format!("{name}:{n} {}: a system command, not a program line (a job must not change the controller's settings)", quoted())));
+        }
+        match ask(&mut controller, &clean) {
+            Some(Response::Ok) => {}
+            Some(Response::Error(code)) => return Err(Error::Import(format!("{name}:{n} {}: error:{code} ({})", quoted(), error_message(code)))),
+            Some(Response::Alarm(code)) => return Err(Error::Import(format!("{name}:{n} {}: ALARM:{code} ({})", quoted(), alarm_message(code)))),
+            _ => return Err(Error::Import(format!("{name}:{n} {}: the check got no answer", quoted()))),
+        }
+    }
+    Ok(lines)
+}
+
+/// A line as messages quote it: its first 80 characters.
+fn quote(raw: &str) -> String {
+    match raw.char_indices().nth(80) {
+        Some((at, _)) => format!("`{}…` ({} characters)", &raw[..at], raw.chars().count()),
+        None => format!("`{raw}`"),
+    }
+}
+
+/// What planning a job gave: the child's answer.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct PlanResult {
+    pub lines: usize,
+    pub planned_time_s: Option<f64>,
+    pub start: Option<Vec<f64>>,
+    #[serde(default)]
+    pub warnings: Vec<String>,
+    /// Set when the job cannot run: why.
+    pub error: Option<String>,
+}
+
+/// The child's side (`laserd plan-job`): plans or checks `source`, writes the
+/// program to `program` and the result as JSON to `result`. The config comes
+/// as text on standard input: the service's, as it was loaded.
+pub fn plan_job_child(source: &Path, name: &str, program: &Path, result: &Path) -> Result<()> {
+    let mut config = String::new();
+    std::io::stdin().take(1 << 20).read_to_string(&mut config).map_err(|e| Error::Config(format!("standard input: {e}")))?;
+    let machine = MachineConfig::parse(&config, "the service's config")?;
+    let answer = match plan_or_check(source, name, program, &machine) {
+        Ok(answer) => answer,
+        Err(e) => PlanResult { error: Some(e.to_string()), ..Default::default() },
+    };
+    let text = serde_json::to_vec(&answer).map_err(|e| Error::Io(e.to_string()))?;
+    super::queue::write_atomic(result, &text)
+}
+
+fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineConfig) -> Result<PlanResult> {
+    let bytes = std::fs::read(source).map_err(|e| Error::Io(format!("{name}: cannot read: {e}")))?;
+    match JobKind::of(name, &bytes)? {
+        JobKind::Gcode => {
+            let text = String::from_utf8_lossy(&bytes);
+            let lines = check_gcode(name, &text, machine)?;
+            super::queue::write_atomic(program, text.as_bytes())?;
+            Ok(PlanResult { lines, ..Default::default() })
+        }
+        JobKind::Svg => {
+            let planned = crate::run::plan(source, machine, crate::plan::PlannerKind::Auto, None)
+                .map_err(|e| Error::Plan(e.to_string().replace(&source.display().to_string(), name)))?;
+            super::queue::write_atomic(program, planned.program.to_gcode().as_bytes())?;
+            Ok(PlanResult {
+                lines: planned.program.lines.len(),
+                planned_time_s: Some(planned.report.trajectory_time_s),
+                start: Some(planned.program.start.clone()),
+                warnings: Vec::new(),
+                error: None,
+            })
+        }
+    }
+}
+
+/// Bounds on a job's planning.
+pub struct PlanLimits {
+    pub timeout: Duration,
+    pub memory_bytes: u64,
+}
+
+/// Plans a job in a child process (this program's `plan-job`), under
+/// `limits`; the child is killed when `cancelled` says so.
+pub fn plan_in_child(config_text: &str, source: &Path, name: &str, program: &Path, limits: &PlanLimits, cancelled: &dyn Fn() -> bool) -> Result<PlanResult> {
+    let exe = std::env::current_exe().map_err(|e| Error::Io(format!("cannot find laserd's own program to plan with: {e}")))?;
+    let result = program.with_file_name("plan-result.json");
+    let _ = std::fs::remove_file(&result);
+    let memory = limits.memory_bytes;
+    let mut command = Command::new(exe);
+    command
+        .arg("plan-job")
+        .arg(source)
+        .args(["--name", name])
+        .arg("--program")
+        .arg(program)
+        .arg("--result")
+        .arg(&result)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit());
+    // SAFETY: setrlimit is async-signal-safe; nothing else runs in the fork.
+    unsafe {
+        command.pre_exec(move || {
+            let limit = nix::libc::rlimit { rlim_cur: memory, rlim_max: memory };
+            if nix::libc::setrlimit(nix::libc::RLIMIT_AS, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let mut child = command.spawn().map_err(|e| Error::Io(format!("{name}: cannot start planning: {e}")))?;
+    if let Some(mut stdin) = child.stdin.take() {
+        use std::io::Write;
+        // A child that died at once closed its end: its exit says why.
+        let _ = stdin.write_all(config_text.as_bytes());
+    }
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().map_err(|e| Error::Io(format!("{name}: planning: {e}")))? {
+            break status;
+        }
+        let stop = if cancelled() {
+            Some(Error::Plan(format!("{name}: planning cancelled")))
+        } else if started.elapsed() > limits.timeout {
+            Some(Error::Plan(format!("{name}: planning took more than {} s ([service] plan_timeout)", limits.timeout.as_secs_f64())))
+        } else {
+            None
+        };
+        if let Some(why) = stop {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(why);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let answer = std::fs::File::open(&result).ok().and_then(|f| {
+        let mut text = Vec::new();
+        f.take(16 << 20).read_to_end(&mut text).ok()?;
+        serde_json::from_slice::<PlanResult>(&text).ok()
+    });
+    let _ = std::fs::remove_file(&result);
+    match (answer, status.code(), status.signal()) {
+        (Some(answer), Some(0), _) => match answer.error {
+            Some(why) => Err(Error::Plan(why)),
+            None => Ok(answer),
+        },
+        (_, _, Some(signal)) if signal == nix::libc::SIGABRT || signal == nix::libc::SIGSEGV || signal == nix::libc::SIGKILL => Err(Error::Plan(format!(
+            "{name}: planning ran out of memory or crashed (signal {signal}; [service] plan_memory_mb = {})",
+            memory / (1 << 20)
+        ))),
+        (_, code, signal) => Err(Error::Plan(format!("{name}: planning failed unexpectedly (exit {code:?}, signal {signal:?}); the service log has its message"))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::PathBuf;
+
+    fn machine() -> MachineConfig {
+        MachineConfig::load(Some(&Path::new(env!("CARGO_MANIFEST_DIR")).join("config/laserd.toml"))).unwrap()
+    }
+
+    #[test]
+    fn a_job_file_is_taken_by_what_it_is_not_by_its_name() {
+        let svg = br#"<?xml version="1.0"?><svg xmlns="http://www.w3.org/2000/svg"/>"#;
+        assert_eq!(JobKind::of("a.svg", svg).unwrap(), JobKind::Svg);
+        assert_eq!(JobKind::of("a.GCODE", b"G21\nG0 X1\n").unwrap(), JobKind::Gcode);
+        let cases: [(&str, &[u8], &str); 6] = [
+            ("shadow", b"root:$y$j9T$abc:19000:0:99999:7:::\n", "not a job file"),
+            ("a.svg", b"G21\nG0 X1\n", "not an SVG"),
+            ("a.nc", svg, "SVG document named as G-code"),
+            ("a.nc", b"G0 X1\n\x7fELF\x02\x01", "control character"),
+            ("a.nc", b"G0 X1\n\xff\xfe", "not UTF-8"),
+            ("a.dxf", b"0\nSECTION\n", "not a job file"),
+        ];
+        for (name, bytes, says) in cases {
+            let err = JobKind::of(name, bytes).unwrap_err().to_string();
+            assert!(err.contains(name) && err.contains(says), "{name}: {err}");
+        }
+    }
+
+    #[test]
+    fn by_path_only_regular_files_inside_the_job_folders_up_to_the_size_limit() {
+        let dir = tempfile::tempdir().unwrap();
+        let jobs = dir.path().join("jobs");
+        std::fs::create_dir(&jobs).unwrap();
+        let folders = vec![jobs.display().to_string()];
+        let part = jobs.join("part.nc");
+        std::fs::write(&part, b"G0 X1\n").unwrap();
+        let secret = dir.path().join("token");
+        std::fs::write(&secret, b"G0 X2\n").unwrap();
+        std::os::unix::fs::symlink(&secret, jobs.join("link.nc")).unwrap();
+        std::os::unix::fs::symlink("/dev/zero", jobs.join("zero.nc")).unwrap();
+        nix::unistd::mkfifo(&jobs.join("fifo.nc"), nix::sys::stat::Mode::S_IRWXU).unwrap();
+        let read = |p: &Path, folders: &[String], max| read_by_path(p.to_str().unwrap(), folders, max);
+
+        assert_eq!(read(&part, &folders, 1000).unwrap(), ("part.nc".to_string(), b"G0 X1\n".to_vec()));
+        assert!(matches!(read(&part, &[], 1000), Err(Error::Forbidden(m)) if m.contains("off")), "off unless folders are configured");
+        for outside in [secret.clone(), jobs.join("link.nc"), jobs.join("zero.nc"), PathBuf::from("/etc/passwd"), jobs.join("../token")] {
+            assert!(matches!(read(&outside, &folders, 1000), Err(Error::Forbidden(_))), "{}", outside.display());
+        }
+        let started = Instant::now();
+        let err = read(&jobs.join("fifo.nc"), &folders, 1000).unwrap_err().to_string();
+        assert!(err.contains("not a regular file") && started.elapsed() < Duration::from_secs(2), "{err}");
+        assert!(matches!(read(&part, &folders, 3), Err(Error::TooLarge(_))));
+    }
+
+    #[test]
+    fn gcode_is_checked_as_the_controller_parses_it_and_errors_name_the_line() {
+        let machine = machine();
+        assert_eq!(check_gcode("ok.nc", "G21 G90\n(a comment)\n\nG1 X10 Y10 F600 M4 S100\nM5\n", &machine).unwrap(), 5);
+        for (text, says) in [
+            ("G21\nroot:$y$j9T$abc:19000:0:99999:7:::\n", "ok.nc:2 `root:$y$j9T$abc:19000:0:99999:7:::`: error:"),
+            ("G21\n$RST=*\n", "ok.nc:2 `$RST=*`: a system command"),
+            ("G21\nG1 X1 F100 G0\n", "ok.nc:2"),
+        ] {
+            let err = check_gcode("ok.nc", text, &machine).unwrap_err().to_string();
+            assert!(err.contains(says), "{text:?}: {err}");
+        }
+        let long = format!("G1 X1 F100 ({})\nG1X{}\n", "c".repeat(500), "1".repeat(300));
+        let err = check_gcode("long.nc", &long, &machine).unwrap_err().to_string();
+        assert!(err.contains("long.nc:2") && err.contains("characters"), "{err}");
+        assert!(err.len() < 400, "the line is quoted by its start: {err}");
+    }
+}
