@@ -424,7 +424,9 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                 p.state = state;
             }
         });
-        if let Ok(job) = daemon.store().update(&job.id, |j| j.state = state) {
+        // The store's lock is let go before the news goes out.
+        let changed = daemon.store().update(&job.id, |j| j.state = state);
+        if let Ok(job) = changed {
             daemon.job_changed(&job);
         }
         Ok::<_, Error>(())

@@ -1,6 +1,8 @@
 //! What the integration tests share: `laserd sim` as a child process.
 #![allow(dead_code)]
 
+pub mod service;
+
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Command, ExitStatus, Stdio};
