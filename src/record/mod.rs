@@ -276,17 +276,15 @@ pub fn read(path: &Path) -> Result<Replay> {
         .with_prevalidate_chunk_crcs(true);
     let stream = mcap::io::MessageReader::new_with_options(std::io::BufReader::new(file), options);
     let mut out = Replay::default();
-    let mut messages = 0usize;
-    for msg in stream {
+    for (read, msg) in stream.enumerate() {
         let msg = match msg {
             Ok(m) => m,
-            Err(e) if messages == 0 => return Err(Error::Record(format!("{shown}: not a readable MCAP file: {e}"))),
+            Err(e) if read == 0 => return Err(Error::Record(format!("{shown}: not a readable MCAP file: {e}"))),
             Err(e) => {
                 out.truncated = Some(e.to_string());
                 break;
             }
         };
-        messages += 1;
         if let Err(why) = out.take(msg.channel.topic.as_str(), &msg.data) {
             out.truncated = Some(why);
             break;
