@@ -10,9 +10,90 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
+/// The values a numeric setting accepts, both bounds included, and its unit
+/// for the error message.
+#[derive(Debug, Clone, Copy)]
+pub struct Range<T> {
+    pub lo: T,
+    pub hi: T,
+    pub unit: &'static str,
+}
+
+impl<T: Setting> Range<T> {
+    /// `name: must be between lo and hi unit, got v` unless `v` is within.
+    pub fn check(&self, name: &str, v: T) -> std::result::Result<(), String> {
+        in_range(name, v, self.lo, self.hi, self.unit)
+    }
+}
+
+/// A number a setting holds: compared, and shown short in messages.
+pub trait Setting: PartialOrd + Copy {
+    fn shown(self) -> String;
+}
+
+impl Setting for f64 {
+    /// Scientific notation where plain digits would run long (1e300, 1e-300).
+    fn shown(self) -> String {
+        let a = self.abs();
+        if a != 0.0 && a.is_finite() && !(1e-3..1e7).contains(&a) {
+            format!("{self:e}")
+        } else {
+            format!("{self}")
+        }
+    }
+}
+
+macro_rules! whole_setting {
+    ($($t:ty),*) => {$(impl Setting for $t {
+        fn shown(self) -> String {
+            self.to_string()
+        }
+    })*};
+}
+whole_setting!(u32, u64, usize);
+
+/// `v` within `lo..=hi` (NaN never is), else an error naming the setting,
+/// the range and the value.
+pub fn in_range<T: Setting>(name: &str, v: T, lo: T, hi: T, unit: &str) -> std::result::Result<(), String> {
+    if lo <= v && v <= hi {
+        return Ok(());
+    }
+    let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
+    Err(format!("{name}: must be between {} and {}{unit}, got {}", lo.shown(), hi.shown(), v.shown()))
+}
+
+// Ranges shared by several settings (and the command line's flags). The
+// physical ones lie far beyond any real machine and far below where the
+// arithmetic of planning overflows or stops making progress.
+/// Stage travel and other lengths on the table (mm): up to 100 m.
+pub const TRAVEL: Range<f64> = Range { lo: 1.0, hi: 1e5, unit: "mm" };
+/// The scanner's optical field (mm).
+pub const FIELD: Range<f64> = Range { lo: 1.0, hi: 1000.0, unit: "mm" };
+/// Speeds and velocity limits (mm/s): 0.1 mm/s to 100 m/s.
+pub const VELOCITY: Range<f64> = Range { lo: 0.1, hi: 1e5, unit: "mm/s" };
+/// Acceleration limits (mm/s²): galvos reach 1e7.
+pub const ACCELERATION: Range<f64> = Range { lo: 1.0, hi: 1e9, unit: "mm/s²" };
+/// Jerk limits (mm/s³): galvos reach about 4e11.
+pub const JERK: Range<f64> = Range { lo: 1.0, hi: 1e14, unit: "mm/s³" };
+/// Every tolerance of geometry and motion (mm).
+pub const TOLERANCE: Range<f64> = Range { lo: 1e-4, hi: 10.0, unit: "mm" };
+/// Shares of a limit (the margin, the stage's share on the fly).
+pub const SHARE: Range<f64> = Range { lo: 0.1, hi: 1.0, unit: "" };
+/// S value of full power (Grbl's $30; grblHAL takes larger ones).
+pub const MAX_POWER: Range<f64> = Range { lo: 1.0, hi: 1e6, unit: "" };
 /// Longest pierce accepted (s): far beyond any real pierce, well inside what a
 /// controller's dwell counts (Grbl 1.1 counts G4 in 50 ms steps in 16 bits).
-pub const MAX_PIERCE_TIME: f64 = 60.0;
+pub const PIERCE_TIME: Range<f64> = Range { lo: 0.0, hi: 60.0, unit: "s (0: no pierce)" };
+/// The laser source's response times (s).
+pub const LASER_DELAY: Range<f64> = Range { lo: 0.0, hi: 0.01, unit: "s" };
+/// Serial link speeds (baud): 300 to USB full speed.
+pub const BAUD: Range<u32> = Range { lo: 300, hi: 12_000_000, unit: "baud" };
+/// Search time of the planners (s): up to a day.
+pub const TIME_LIMIT: Range<f64> = Range { lo: 0.01, hi: 86_400.0, unit: "s" };
+/// Weights of the galvo planners' directionality penalty.
+pub const DIRECTION_WEIGHT: Range<f64> = Range { lo: 0.0, hi: 1000.0, unit: "" };
+/// How often a layer is marked: each pass is a copy of its geometry in the plan.
+pub const PASSES: Range<u32> = Range { lo: 1, hi: 1000, unit: "passes" };
 
 /// The default machine, shipped in the repository.
 pub const DEFAULT_CONFIG_PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/laserd.toml");
@@ -177,24 +258,6 @@ impl Default for ServiceConfig {
 }
 
 impl ServiceConfig {
-    /// The service's own limits, each in a range a machine PC can keep.
-    fn validate(&self) -> std::result::Result<(), String> {
-        for (name, v, lo, hi, unit) in [
-            ("service.plan_timeout", self.plan_timeout, 1.0, 86400.0, "s"),
-            ("service.plan_memory_mb", self.plan_memory_mb, 256.0, 1048576.0, "MB"),
-        ] {
-            if !(v.is_finite() && (lo..=hi).contains(&v)) {
-                return Err(format!("{name}: must be between {lo} and {hi} {unit}, got {v}"));
-            }
-        }
-        for folder in &self.job_folders {
-            if !std::path::Path::new(folder).is_absolute() {
-                return Err(format!("service.job_folders: {folder:?} is not an absolute path"));
-            }
-        }
-        Ok(())
-    }
-
     /// The bearer token for TCP clients, from `token_file`.
     pub fn token(&self) -> Result<String> {
         let file = self.token_file.as_deref().ok_or_else(|| Error::Config("[service] tcp needs token_file: a TCP API without a token is refused".into()))?;
@@ -512,37 +575,23 @@ impl MachineConfig {
     }
 
     fn validate(&self) -> std::result::Result<(), String> {
-        fn positive(name: &str, v: f64) -> std::result::Result<(), String> {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(format!("{name}: must be a positive number, got {v}"))
-            }
-        }
         let s = &self.stage;
-        positive("stage.travel_x", s.travel_x)?;
-        positive("stage.travel_y", s.travel_y)?;
-        positive("stage.max_velocity", s.max_velocity)?;
-        positive("stage.max_acceleration", s.max_acceleration)?;
-        positive("stage.max_jerk", s.max_jerk)?;
+        TRAVEL.check("stage.travel_x", s.travel_x)?;
+        TRAVEL.check("stage.travel_y", s.travel_y)?;
+        VELOCITY.check("stage.max_velocity", s.max_velocity)?;
+        ACCELERATION.check("stage.max_acceleration", s.max_acceleration)?;
+        JERK.check("stage.max_jerk", s.max_jerk)?;
         if let Some(sc) = &self.scanner {
-            positive("scanner.field_x", sc.field_x)?;
-            positive("scanner.field_y", sc.field_y)?;
-            positive("scanner.usable_half_field", sc.usable_half_field)?;
-            if sc.usable_half_field > sc.field_x.min(sc.field_y) / 2.0 {
-                return Err(format!(
-                    "scanner.usable_half_field: {} exceeds half the field ({})",
-                    sc.usable_half_field,
-                    sc.field_x.min(sc.field_y) / 2.0
-                ));
-            }
-            positive("scanner.mark_speed", sc.mark_speed)?;
-            positive("scanner.jump_speed", sc.jump_speed)?;
+            FIELD.check("scanner.field_x", sc.field_x)?;
+            FIELD.check("scanner.field_y", sc.field_y)?;
+            in_range("scanner.usable_half_field", sc.usable_half_field, 0.5, sc.field_x.min(sc.field_y) / 2.0, "mm (half the field)")?;
+            VELOCITY.check("scanner.mark_speed", sc.mark_speed)?;
+            VELOCITY.check("scanner.jump_speed", sc.jump_speed)?;
             if sc.mark_speed > sc.jump_speed {
                 return Err("scanner.mark_speed: must not exceed scanner.jump_speed".into());
             }
-            positive("scanner.max_acceleration", sc.max_acceleration)?;
-            positive("scanner.max_jerk", sc.max_jerk)?;
+            ACCELERATION.check("scanner.max_acceleration", sc.max_acceleration)?;
+            JERK.check("scanner.max_jerk", sc.max_jerk)?;
             for (i, l) in sc.axis_letters.iter().enumerate() {
                 let ok = l.len() == 1 && "ZABCUVW".contains(l.as_str());
                 if !ok {
@@ -553,102 +602,64 @@ impl MachineConfig {
                 return Err("scanner.axis_letters: the two letters must differ".into());
             }
         }
-        positive("laser.max_power", self.laser.max_power)?;
-        let max_power = self.laser.max_power;
-        let power_in_range = |name: &str, v: f64| -> std::result::Result<(), String> {
-            if v.is_finite() && (0.0..=max_power).contains(&v) {
-                Ok(())
-            } else {
-                Err(format!("{name}: must be between 0 and laser.max_power ({max_power}), got {v}"))
-            }
-        };
-        let time_ok = |name: &str, v: f64| -> std::result::Result<(), String> {
-            if v.is_finite() && (0.0..=MAX_PIERCE_TIME).contains(&v) {
-                Ok(())
-            } else {
-                Err(format!("{name}: must be between 0 (no pierce) and {MAX_PIERCE_TIME} s, got {v}"))
-            }
-        };
-        time_ok("laser.pierce_time", self.laser.pierce_time)?;
-        if let Some(p) = self.laser.pierce_power {
-            power_in_range("laser.pierce_power", p)?;
+        let laser = &self.laser;
+        MAX_POWER.check("laser.max_power", laser.max_power)?;
+        let power = |name: &str, v: f64| in_range(name, v, 0.0, laser.max_power, "(laser.max_power)");
+        PIERCE_TIME.check("laser.pierce_time", laser.pierce_time)?;
+        if let Some(p) = laser.pierce_power {
+            power("laser.pierce_power", p)?;
         }
-        if self.serial.baud == 0 {
-            return Err("serial.baud: must be positive".into());
-        }
-        if self.serial.rx_buffer < 16 {
-            return Err(format!("serial.rx_buffer: {} is too small (at least 16 bytes)", self.serial.rx_buffer));
-        }
-        positive("serial.status_hz", self.serial.status_hz)?;
-        positive("import.tolerance", self.import.tolerance)?;
-        positive("import.svg_dpi", self.import.svg_dpi)?;
-        let m = self.motion.limit_margin;
-        if !(m.is_finite() && m > 0.0 && m <= 1.0) {
-            return Err(format!("motion.limit_margin: must be in (0, 1], got {m}"));
-        }
-        positive("program.tolerance", self.program.tolerance)?;
-        positive("program.jump_tolerance", self.program.jump_tolerance)?;
-        positive("motion.corner_tolerance", self.motion.corner_tolerance)?;
-        if !(self.motion.line_tolerance.is_finite() && self.motion.line_tolerance >= 0.0) {
-            return Err(format!("motion.line_tolerance: must be 0 or more mm, got {}", self.motion.line_tolerance));
-        }
-        let share = self.motion.stage_share;
-        if !(share.is_finite() && share > 0.0 && share <= 1.0) {
-            return Err(format!("motion.stage_share: must be in (0, 1], got {share}"));
-        }
-        for (name, v) in [("laser.on_delay", self.laser.on_delay), ("laser.off_delay", self.laser.off_delay)] {
-            if !(v.is_finite() && (0.0..=0.01).contains(&v)) {
-                return Err(format!("{name}: must be between 0 and 0.01 s, got {v}"));
-            }
-        }
-        if !(2..=9).contains(&self.program.decimals) {
-            return Err(format!("program.decimals: must be 2 to 9, got {}", self.program.decimals));
-        }
-        if !(2..=7).contains(&self.program.scanner_decimals) {
-            return Err(format!("program.scanner_decimals: must be 2 to 7, got {}", self.program.scanner_decimals));
-        }
+        LASER_DELAY.check("laser.on_delay", laser.on_delay)?;
+        LASER_DELAY.check("laser.off_delay", laser.off_delay)?;
+        BAUD.check("serial.baud", self.serial.baud)?;
+        in_range("serial.rx_buffer", self.serial.rx_buffer, 16, 65_536, "bytes")?;
+        in_range("serial.status_hz", self.serial.status_hz, 0.1, 100.0, "Hz")?;
+        TOLERANCE.check("import.tolerance", self.import.tolerance)?;
+        in_range("import.svg_dpi", self.import.svg_dpi, 10.0, 10_000.0, "dpi")?;
+        let m = &self.motion;
+        SHARE.check("motion.limit_margin", m.limit_margin)?;
+        TOLERANCE.check("motion.corner_tolerance", m.corner_tolerance)?;
+        in_range("motion.line_tolerance", m.line_tolerance, 0.0, TOLERANCE.hi, TOLERANCE.unit)?;
+        SHARE.check("motion.stage_share", m.stage_share)?;
+        let p = &self.program;
+        TOLERANCE.check("program.tolerance", p.tolerance)?;
+        TOLERANCE.check("program.jump_tolerance", p.jump_tolerance)?;
+        in_range("program.decimals", p.decimals, 2, 9, "")?;
+        in_range("program.scanner_decimals", p.scanner_decimals, 2, 7, "")?;
+        in_range("simulator.planner_blocks", self.simulator.planner_blocks, 1, 10_000, "blocks")?;
         let c = &self.cutting;
-        if !(c.pierce_cost.is_finite() && c.pierce_cost >= 0.0) {
-            return Err(format!("cutting.pierce_cost: must be 0 or a positive number of mm, got {}", c.pierce_cost));
-        }
-        positive("cutting.common_cut_tolerance", c.common_cut_tolerance)?;
-        if !(c.corner_angle.is_finite() && c.corner_angle > 0.0 && c.corner_angle <= 180.0) {
-            return Err(format!("cutting.corner_angle: must be in (0, 180] degrees, got {}", c.corner_angle));
-        }
-        positive("cutting.time_limit", c.time_limit)?;
+        in_range("cutting.pierce_cost", c.pierce_cost, 0.0, TRAVEL.hi, TRAVEL.unit)?;
+        TOLERANCE.check("cutting.common_cut_tolerance", c.common_cut_tolerance)?;
+        in_range("cutting.corner_angle", c.corner_angle, 1.0, 180.0, "degrees")?;
+        TIME_LIMIT.check("cutting.time_limit", c.time_limit)?;
         let g = &self.galvo;
-        for (name, w) in [("galvo.direction_weight", g.direction_weight), ("galvo.direction_weight_single_field", g.direction_weight_single_field)] {
-            if !(w.is_finite() && w >= 0.0) {
-                return Err(format!("{name}: must be 0 or a positive number, got {w}"));
-            }
-        }
-        positive("galvo.time_limit", g.time_limit)?;
-        self.service.validate()?;
-        let mb = self.import.max_file_mb;
-        if !(mb.is_finite() && (0.001..=4096.0).contains(&mb)) {
-            return Err(format!("import.max_file_mb: must be between 0.001 and 4096 MB, got {mb}"));
-        }
-        if self.simulator.planner_blocks == 0 {
-            return Err("simulator.planner_blocks: must be at least 1".into());
+        DIRECTION_WEIGHT.check("galvo.direction_weight", g.direction_weight)?;
+        DIRECTION_WEIGHT.check("galvo.direction_weight_single_field", g.direction_weight_single_field)?;
+        TIME_LIMIT.check("galvo.time_limit", g.time_limit)?;
+        in_range("import.max_file_mb", self.import.max_file_mb, 0.001, 4096.0, "MB")?;
+        in_range("service.keep_jobs", self.service.keep_jobs, 0, 1_000_000, "jobs")?;
+        in_range("service.plan_timeout", self.service.plan_timeout, 1.0, 86_400.0, "s")?;
+        in_range("service.plan_memory_mb", self.service.plan_memory_mb, 256.0, 1_048_576.0, "MB")?;
+        if let Some(folder) = self.service.job_folders.iter().find(|f| !Path::new(f).is_absolute()) {
+            return Err(format!("service.job_folders: {folder:?} is not an absolute path"));
         }
         if self.layers.is_empty() {
             return Err("layer: at least one [[layer]] is needed".into());
         }
         for (i, l) in self.layers.iter().enumerate() {
-            positive(&format!("layer[{i}] ({}).speed", l.name), l.speed)?;
-            power_in_range(&format!("layer[{i}] ({}).power", l.name), l.power)?;
+            let name = |setting: &str| format!("layer[{i}] ({}).{setting}", l.name);
+            VELOCITY.check(&name("speed"), l.speed)?;
+            power(&name("power"), l.power)?;
             if let Some(t) = l.pierce_time {
-                time_ok(&format!("layer[{i}] ({}).pierce_time", l.name), t)?;
+                PIERCE_TIME.check(&name("pierce_time"), t)?;
             }
             if let Some(p) = l.pierce_power {
-                power_in_range(&format!("layer[{i}] ({}).pierce_power", l.name), p)?;
+                power(&name("pierce_power"), p)?;
             }
-            if l.passes == 0 {
-                return Err(format!("layer[{i}] ({}).passes: must be at least 1", l.name));
-            }
+            PASSES.check(&name("passes"), l.passes)?;
             if let Some(c) = &l.stroke {
                 if parse_hex_colour(c).is_none() {
-                    return Err(format!("layer[{i}] ({}).stroke: '{c}' is not a #rrggbb colour", l.name));
+                    return Err(format!("{}: '{c}' is not a #rrggbb colour", name("stroke")));
                 }
             }
         }
@@ -839,6 +850,143 @@ mod tests {
         // The edges are fine.
         let text = default_text().replace("pierce_time = 0.0\n", "pierce_time = 60.0\n").replace("# pierce_power = 1000.0", "pierce_power = 0.0");
         assert!(MachineConfig::parse(&text, "t.toml").is_ok());
+    }
+
+    /// The shipped config with one value set: `path` is `section.key`, or
+    /// `layer.N.key` for the N-th layer.
+    fn with_value(path: &str, value: toml::Value) -> String {
+        let mut doc: toml::Table = toml::from_str(&default_text()).unwrap();
+        let parts: Vec<&str> = path.split('.').collect();
+        let table = match parts[..] {
+            [section, _] => doc.get_mut(section).and_then(|s| s.as_table_mut()).unwrap(),
+            ["layer", n, _] => doc["layer"].as_array_mut().unwrap()[n.parse::<usize>().unwrap()].as_table_mut().unwrap(),
+            _ => panic!("{path}"),
+        };
+        table.insert(parts[parts.len() - 1].to_string(), value);
+        toml::to_string(&doc).unwrap()
+    }
+
+    /// Issue 16, findings 10 and 11: values that passed validation and then
+    /// panicked, hung or overflowed planning are refused, each naming the
+    /// setting and its range; every numeric setting has both ends.
+    #[test]
+    fn every_numeric_setting_is_refused_outside_its_range_by_name() {
+        use toml::Value::{Float as F, Integer as I};
+        let cases: Vec<(&str, toml::Value)> = vec![
+            // The reported ones.
+            ("serial.status_hz", F(1e-300)),
+            ("serial.status_hz", F(1e300)),
+            ("import.tolerance", F(1e-300)),
+            ("cutting.time_limit", F(1e30)),
+            ("cutting.time_limit", F(1e19)),
+            ("galvo.time_limit", F(1e30)),
+            ("galvo.time_limit", F(1e19)),
+            ("layer.0.passes", I(4_294_967_295)),
+            ("stage.max_velocity", F(1e-300)),
+            ("layer.1.speed", F(5e-324)),
+            ("stage.max_velocity", F(1e308)),
+            ("stage.max_acceleration", F(1e308)),
+            ("stage.max_jerk", F(1e308)),
+            ("stage.travel_x", F(1e308)),
+            // Every other number, one end or the other.
+            ("stage.travel_y", F(0.5)),
+            ("stage.max_acceleration", F(0.1)),
+            ("stage.max_jerk", F(0.5)),
+            ("scanner.field_x", F(1e6)),
+            ("scanner.field_y", F(0.1)),
+            ("scanner.usable_half_field", F(0.01)),
+            ("scanner.usable_half_field", F(36.0)),
+            ("scanner.mark_speed", F(1e-9)),
+            ("scanner.jump_speed", F(1e9)),
+            ("scanner.max_acceleration", F(1e12)),
+            ("scanner.max_jerk", F(1e20)),
+            ("laser.max_power", F(1e300)),
+            ("laser.max_power", F(0.0)),
+            ("laser.on_delay", F(1.0)),
+            ("laser.off_delay", F(-1e-3)),
+            ("serial.baud", I(0)),
+            ("serial.baud", I(4_000_000_000)),
+            ("serial.rx_buffer", I(8)),
+            ("serial.rx_buffer", I(1 << 40)),
+            ("import.tolerance", F(100.0)),
+            ("import.svg_dpi", F(1e-300)),
+            ("import.svg_dpi", F(1e9)),
+            ("motion.limit_margin", F(1e-300)),
+            ("motion.limit_margin", F(1.5)),
+            ("motion.corner_tolerance", F(1e-9)),
+            ("motion.line_tolerance", F(1e300)),
+            ("motion.stage_share", F(1e-9)),
+            ("program.tolerance", F(1e-9)),
+            ("program.jump_tolerance", F(1e300)),
+            ("program.decimals", I(12)),
+            ("program.scanner_decimals", I(1)),
+            ("simulator.planner_blocks", I(0)),
+            ("simulator.planner_blocks", I(1 << 40)),
+            ("cutting.pierce_cost", F(1e300)),
+            ("cutting.pierce_cost", F(-1.0)),
+            ("cutting.common_cut_tolerance", F(1e-300)),
+            ("cutting.corner_angle", F(1e-300)),
+            ("cutting.corner_angle", F(720.0)),
+            ("cutting.time_limit", F(1e-300)),
+            ("galvo.direction_weight", F(1e300)),
+            ("galvo.direction_weight_single_field", F(-0.5)),
+            ("service.keep_jobs", I(1 << 40)),
+            ("service.plan_timeout", F(1e30)),
+            ("service.plan_memory_mb", F(1.0)),
+            ("import.max_file_mb", F(1e9)),
+            ("layer.0.speed", F(1e300)),
+            ("layer.0.power", F(1e300)),
+            ("layer.0.passes", I(0)),
+            ("layer.2.pierce_time", F(1e300)),
+            ("layer.2.pierce_power", F(-1.0)),
+        ];
+        for (path, value) in cases {
+            let shown = value.to_string();
+            let err = MachineConfig::parse(&with_value(path, value), "t.toml").unwrap_err().to_string();
+            let setting = match path.strip_prefix("layer.") {
+                Some(rest) => {
+                    let (n, key) = rest.split_once('.').unwrap();
+                    let layer = ["mark", "cut", "engrave"][n.parse::<usize>().unwrap()];
+                    format!("layer[{n}] ({layer}).{key}")
+                }
+                None => path.to_string(),
+            };
+            assert!(err.contains(&format!("t.toml: {setting}: must be between ")), "{path} = {shown}: {err}");
+            assert!(err.len() < 200, "short, in scientific notation: {err}");
+        }
+    }
+
+    #[test]
+    fn range_errors_show_the_range_and_value_short() {
+        let err = MachineConfig::parse(&with_value("serial.status_hz", toml::Value::Float(1e300)), "t.toml").unwrap_err().to_string();
+        assert!(err.ends_with("t.toml: serial.status_hz: must be between 0.1 and 100 Hz, got 1e300"), "{err}");
+        let err = MachineConfig::parse(&with_value("stage.max_velocity", toml::Value::Float(f64::NAN)), "t.toml").unwrap_err().to_string();
+        assert!(err.ends_with("stage.max_velocity: must be between 0.1 and 100000 mm/s, got NaN"), "{err}");
+    }
+
+    #[test]
+    fn the_ends_of_every_range_are_accepted() {
+        use toml::Value::{Float as F, Integer as I};
+        for (path, value) in [
+            ("serial.status_hz", F(0.1)),
+            ("serial.status_hz", F(100.0)),
+            ("import.tolerance", F(1e-4)),
+            ("cutting.time_limit", F(86_400.0)),
+            ("galvo.time_limit", F(0.01)),
+            ("layer.0.passes", I(1000)),
+            ("stage.max_velocity", F(0.1)),
+            ("stage.max_jerk", F(1e14)),
+            ("scanner.max_acceleration", F(1e9)),
+            ("serial.baud", I(300)),
+            ("serial.baud", I(12_000_000)),
+            ("motion.line_tolerance", F(0.0)),
+            ("service.keep_jobs", I(0)),
+            ("service.plan_timeout", F(1.0)),
+            ("import.max_file_mb", F(4096.0)),
+        ] {
+            let shown = value.to_string();
+            assert!(MachineConfig::parse(&with_value(path, value), "t.toml").is_ok(), "{path} = {shown}");
+        }
     }
 
     #[test]

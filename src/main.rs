@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use clap::{Parser, Subcommand};
-use laserd::config::MachineConfig;
+use laserd::config::{in_range, MachineConfig, BAUD, TIME_LIMIT, TRAVEL};
 use laserd::error::{Error, Result};
 use laserd::figures::sim_figures;
 use laserd::motion::Mode;
@@ -54,9 +54,6 @@ impl JobArgs {
     fn plan(&self) -> Result<(MachineConfig, run::Planned)> {
         let mut machine = MachineConfig::load(self.config.as_deref())?;
         if let Some(t) = self.time_limit {
-            if !(t.is_finite() && t > 0.0) {
-                return Err(Error::Config(format!("--time-limit: must be a positive number of seconds, got {t}")));
-            }
             machine.cutting.time_limit = t;
             machine.galvo.time_limit = t;
         }
@@ -369,7 +366,31 @@ fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
     Ok(())
 }
 
+/// Every numeric flag within its range (the config's, where the flag stands
+/// for a setting), before anything runs.
+fn check_flags(command: &Command) -> Result<()> {
+    let time_limit = |t: Option<f64>| t.map_or(Ok(()), |t| TIME_LIMIT.check("--time-limit", t));
+    let baud = |b: Option<u32>| b.map_or(Ok(()), |b| BAUD.check("--baud", b));
+    match command {
+        Command::DryRun { job, .. } | Command::Plan { job, .. } => time_limit(job.time_limit),
+        Command::Send { baud: b, .. } | Command::Sim { baud: b, .. } => baud(*b),
+        Command::Bench { which } => match which {
+            BenchCommand::Serve { clients, hz, .. } => in_range("--clients", *clients, 1, 10_000, "clients").and(in_range("--hz", *hz, 0.1, 1000.0, "Hz")),
+            BenchCommand::Ecp { time_limit: t, .. } => time_limit(Some(*t)),
+            BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(time_limit(Some(*t))),
+            BenchCommand::Galvo { seeds, time_limit: t, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds").and(time_limit(*t)),
+            BenchCommand::Motion { repeats, .. } => in_range("--repeats", *repeats, 1, 1000, "runs"),
+            BenchCommand::Link { blocks, block_ms, baud: b, .. } => in_range("--blocks", *blocks, 1, 1_000_000, "blocks")
+                .and(in_range("--block-ms", *block_ms, 0.01, 1000.0, "ms"))
+                .and(baud(Some(*b))),
+        },
+        _ => Ok(()),
+    }
+    .map_err(Error::Config)
+}
+
 fn run_command(command: Command) -> Result<ExitCode> {
+    check_flags(&command)?;
     match command {
         Command::DryRun { job, record, motion, json } => {
             let (mut machine, planned) = job.plan()?;
@@ -500,13 +521,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
         Command::Bench { which: BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } } => {
             let mut machine = MachineConfig::load(config.as_deref())?;
             if let Some(t) = time_limit {
-                if !(t.is_finite() && t > 0.0) {
-                    return Err(Error::Config(format!("--time-limit: must be a positive number of seconds, got {t}")));
-                }
                 machine.galvo.time_limit = t;
-            }
-            if seeds == 0 {
-                return Err(Error::Config("--seeds: must be at least 1".into()));
             }
             let seeds: Vec<u64> = (1..=seeds).collect();
             let r = laserd::bench::galvo_bench(&machine, &dir, planner, &seeds)?;
@@ -712,9 +727,8 @@ fn parse_faults(specs: &[String]) -> Result<Faults> {
             ("homing-switch-missing", None) => faults.homing_switch_missing = true,
             ("homing-pull-off-fails", None) => faults.homing_pull_off_fails = true,
             ("probe-contact-mm", Some(v)) => {
-                let mm: f64 = v.parse().ok().filter(|mm: &f64| mm.is_finite() && *mm > 0.0).ok_or_else(|| {
-                    Error::Config(format!("--fault {spec}: expected probe-contact-mm=D with D a positive distance in mm"))
-                })?;
+                let mm: f64 = v.parse().map_err(|_| Error::Config(format!("--fault {spec}: expected probe-contact-mm=D with D a distance in mm")))?;
+                in_range(&format!("--fault {name}"), mm, 0.001, TRAVEL.hi, TRAVEL.unit).map_err(Error::Config)?;
                 faults.probe_contact_mm = Some(mm);
             }
             (_, Some(v)) => {

@@ -132,9 +132,18 @@ struct Window {
 
 /// Windows no longer than this: the stage moves little within one.
 const WINDOW: f64 = 1.0e-3;
+/// Most windows of a job: a long, slow one (hours of marking at a tenth of a
+/// mm/s) gets longer windows rather than gigabytes of them. Longer windows
+/// bound the TCP more loosely, so they only ever make a burst harder to fit.
+const MOST_WINDOWS: f64 = 1.0e6;
 
-fn windows(tcp: &TcpPath) -> Vec<Window> {
-    // Disjoint stretches between piece boundaries, cut to at most `WINDOW`;
+/// The windows' length for `tcp`: `WINDOW`, or longer on very long jobs.
+fn window_length(tcp: &TcpPath) -> f64 {
+    (tcp.duration() / MOST_WINDOWS).max(WINDOW)
+}
+
+fn windows(tcp: &TcpPath, length: f64) -> Vec<Window> {
+    // Disjoint stretches between piece boundaries, cut to at most `length`;
     // the TCP is sampled inside each (blended corners and free moves bow).
     let mut times: Vec<f64> = tcp.pieces.iter().flat_map(|p| [p.start, p.end_time()]).collect();
     times.sort_by(f64::total_cmp);
@@ -142,7 +151,7 @@ fn windows(tcp: &TcpPath) -> Vec<Window> {
     let mut out = Vec::new();
     for pair in times.windows(2) {
         let (a, b) = (pair[0], pair[1]);
-        let parts = (((b - a) / WINDOW).ceil() as usize).max(1);
+        let parts = (((b - a) / length).ceil() as usize).max(1);
         for i in 0..parts {
             let t0 = a + (b - a) * i as f64 / parts as f64;
             let t1 = a + (b - a) * (i + 1) as f64 / parts as f64;
@@ -249,7 +258,8 @@ pub struct NoSplit(pub Vec<usize>);
 /// the field changes (by the group they lead into) without a timing for a burst.
 pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::result::Result<StagePath, NoSplit>> {
     let spans = group_spans(tcp, at.len());
-    let wins = windows(tcp);
+    let window = window_length(tcp);
+    let wins = windows(tcp, window);
     let start = at.first().copied().unwrap_or(Point::origin());
     let mut axes: [Vec<AxisMove>; 2] = [Vec::new(), Vec::new()];
     let mut stage = start;
@@ -286,7 +296,7 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
                 let earliest = axes[i].last().map_or(k_start, |m| m.end_time().max(k_start));
                 // The burst ends before the next field begins.
                 let latest = g_end.min(next_end) - leg.duration;
-                match burst_start(&wins, i, stage[i], target[i], &leg, earliest, latest, k_end, g_start, s.half) {
+                match burst_start(&wins, window, i, stage[i], target[i], &leg, earliest, latest, k_end, g_start, s.half) {
                     Some(t0) => bursts.push((i, AxisMove { start: t0, from: stage[i], to: target[i], leg })),
                     None => {
                         // Carried in the next plan; go on to find all such changes at once.
@@ -313,7 +323,7 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
 /// `[earliest, latest]` that keeps every TCP window within reach, searched
 /// outward from the field change (between `change_start` and `change_end`).
 #[allow(clippy::too_many_arguments)]
-fn burst_start(wins: &[Window], i: usize, from: f64, to: f64, leg: &Leg, earliest: f64, latest: f64, change_start: f64, change_end: f64, half: f64) -> Option<f64> {
+fn burst_start(wins: &[Window], window: f64, i: usize, from: f64, to: f64, leg: &Leg, earliest: f64, latest: f64, change_start: f64, change_end: f64, half: f64) -> Option<f64> {
     if latest < earliest {
         return None;
     }
@@ -332,7 +342,7 @@ fn burst_start(wins: &[Window], i: usize, from: f64, to: f64, leg: &Leg, earlies
     };
     // Centred on the field change first, then earlier and later by steps.
     let centre = (0.5 * (change_start + change_end) - 0.5 * d).clamp(earliest, latest);
-    let step = (d / 50.0).max(WINDOW);
+    let step = (d / 50.0).max(window);
     let mut k = 0usize;
     loop {
         let off = step * k.div_ceil(2) as f64;

@@ -323,7 +323,7 @@ fn min_block_time(limits: crate::config::Limits, decimals: usize) -> f64 {
 /// Block ends for one span: each block as long as its straight,
 /// constant-velocity line stays within `tolerance` of the planned TCP at every
 /// instant (checked at the pieces' phase changes and between them).
-fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: f64) -> Vec<f64> {
+fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: f64) -> std::result::Result<Vec<f64>, String> {
     let tcp = &trajectory.tcp;
     // Where the motion changes character: piece ends and phase changes.
     let mut marks = vec![span.start, span.end];
@@ -407,7 +407,15 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
     let mut times = vec![span.start];
     let mut a = span.start;
     let mut i = 0;
+    // Every block reaches a later phase change or is at least `min_block`
+    // long, so this many are always enough; more (or a block that does not
+    // move on) means times too large for their own rounding, as limits or
+    // speeds near zero make them: an error, not an endless loop.
+    let most_blocks = marks.len() as f64 + (span.end - span.start) / min_block + 2.0;
     while span.end - a > 1e-12 {
+        if times.len() as f64 > most_blocks {
+            return Err(format!("more than {most_blocks:.0} blocks between {} s and {} s", span.start, span.end));
+        }
         // Farthest phase change the block reaches within the tolerance:
         // galloping, then bisecting over the phase changes.
         let n = marks.len();
@@ -472,11 +480,14 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
                 b
             }
         };
+        if b <= a {
+            return Err(format!("no block fits after {a} s: the plan's times are too large for their rounding (speeds or limits too low?)"));
+        }
         times.push(b);
         a = b;
         i = marks.partition_point(|&t| t <= a + 1e-12).saturating_sub(1);
     }
-    times
+    Ok(times)
 }
 
 /// One straight block of a span: its planned times, the axes' positions at
@@ -490,9 +501,9 @@ struct PlannedBlock {
 }
 
 /// The blocks of one span (none for a pierce, which is a dwell).
-fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, min_block: f64) -> Vec<PlannedBlock> {
+fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, min_block: f64) -> std::result::Result<Vec<PlannedBlock>, String> {
     if span.kind == LineKind::Pierce {
-        return Vec::new();
+        return Ok(Vec::new());
     }
     let tolerance = if span.kind == LineKind::Mark { machine.program.tolerance } else { machine.program.jump_tolerance };
     // A block ends wherever one piece ends before the next begins (a
@@ -504,13 +515,13 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
         let end = p.end_time();
         if q.start >= end - 1e-12 && end > from + 1e-12 && end < span.end - 1e-12 {
             let part = Span { start: from, end, ..*span };
-            times.extend(block_times(trajectory, &part, tolerance, min_block).into_iter().skip(1));
+            times.extend(block_times(trajectory, &part, tolerance, min_block)?.into_iter().skip(1));
             from = end;
         }
     }
-    times.extend(block_times(trajectory, &Span { start: from, ..*span }, tolerance, min_block).into_iter().skip(1));
+    times.extend(block_times(trajectory, &Span { start: from, ..*span }, tolerance, min_block)?.into_iter().skip(1));
     let has_scanner = trajectory.has_scanner;
-    times
+    Ok(times
         .windows(2)
         .map(|pair| {
             let (a, b) = (pair[0], pair[1]);
@@ -527,7 +538,7 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
             };
             PlannedBlock { start: a, end: b, axes: axis_values(&trajectory.state_at(b), has_scanner), checks }
         })
-        .collect()
+        .collect())
 }
 
 /// The G-code program of a trajectory.
@@ -564,6 +575,10 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
             w.pierce(span.geometry.unwrap_or(0), span.power, span.start, span.end - span.start, machine.laser.mode);
             continue;
         }
+        let blocks = blocks.map_err(|e| {
+            let place = span.geometry.and_then(|g| job.geometries.get(g)).map_or("a laser-off move", |g| g.source.as_str());
+            Error::Program(format!("{place}: {e}"))
+        })?;
         for block in blocks {
             let line = ProgramLine { text: String::new(), kind: span.kind, geometry: span.geometry, plan_time: Some((block.start, block.end)), checks: block.checks };
             w.block(&block.axes, span.power, block.end - block.start, line)?;

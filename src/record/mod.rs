@@ -250,44 +250,84 @@ pub struct Replay {
     pub truncated: Option<String>,
 }
 
-fn decode<T: DeserializeOwned>(topic: &str, data: &[u8]) -> Result<T> {
-    serde_json::from_slice(data).map_err(|e| Error::Record(format!("bad message on {topic}: {e}")))
+/// Longest record (and decompressed chunk) a recording may hold: far above
+/// what laserd writes (chunks of the writer's default size, each message one
+/// line, knot or report), far below what a corrupt length field could make
+/// the reader allocate.
+const RECORD_LIMIT: usize = 64 << 20;
+
+fn decode<T: DeserializeOwned>(topic: &str, data: &[u8]) -> std::result::Result<T, String> {
+    serde_json::from_slice(data).map_err(|e| format!("bad message on {topic}: {e}"))
 }
 
 /// Reads a recording linearly, tolerating a missing end (a crash mid-run).
+/// A corrupt part (a record or chunk whose lengths, checksum or contents do
+/// not hold) ends the reading as a cut-off file does: what came before is
+/// kept and `truncated` says why. Memory stays within a few `RECORD_LIMIT`s
+/// whatever the file's lengths claim.
 pub fn read(path: &Path) -> Result<Replay> {
-    let bytes = std::fs::read(path).map_err(|e| Error::Record(format!("{}: cannot read: {e}", path.display())))?;
-    let stream = mcap::MessageStream::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
-        .map_err(|e| Error::Record(format!("{}: not an MCAP file: {e}", path.display())))?;
+    let shown = path.display();
+    let mut file = File::open(path).map_err(|e| Error::Record(format!("{shown}: cannot read: {e}")))?;
+    let ends_with_magic = ends_with(&mut file, mcap::MAGIC).map_err(|e| Error::Record(format!("{shown}: cannot read: {e}")))?;
+    let options = mcap::sans_io::LinearReaderOptions::default()
+        .with_skip_end_magic(true)
+        .with_record_length_limit(RECORD_LIMIT)
+        .with_validate_chunk_crcs(true)
+        .with_prevalidate_chunk_crcs(true);
+    let stream = mcap::io::MessageReader::new_with_options(std::io::BufReader::new(file), options);
     let mut out = Replay::default();
-    for msg in stream {
+    for (read, msg) in stream.enumerate() {
         let msg = match msg {
             Ok(m) => m,
+            Err(e) if read == 0 => return Err(Error::Record(format!("{shown}: not a readable MCAP file: {e}"))),
             Err(e) => {
                 out.truncated = Some(e.to_string());
                 break;
             }
         };
-        let topic = msg.channel.topic.as_str();
-        let data = &msg.data;
-        match topic {
-            TOPIC_SETUP => out.log.setup = Some(decode::<RunSetup>(topic, data)?),
-            TOPIC_PLAN_LINES => out.log.planned.push(decode::<PlannedLine>(topic, data)?),
-            TOPIC_LINK => {
-                let m: LinkMessage = decode(topic, data)?;
-                out.log.link.push((m.t, m.event));
-            }
-            TOPIC_AXES => out.log.knots.push(decode::<AxesMessage>(topic, data)?.to_knot()),
-            TOPIC_JOB => out.job = Some(decode(topic, data)?),
-            TOPIC_REPORT => out.report = Some(decode(topic, data)?),
-            _ => {}
+        if let Err(why) = out.take(msg.channel.topic.as_str(), &msg.data) {
+            out.truncated = Some(why);
+            break;
         }
     }
-    if out.truncated.is_none() && !bytes.ends_with(mcap::MAGIC) {
+    if out.truncated.is_none() && !ends_with_magic {
         out.truncated = Some("no end of file record: the recording was cut off".into());
     }
     if out.log.setup.is_none() {
-        return Err(Error::Record(format!("{}: no {TOPIC_SETUP} message: not a laserd recording", path.display())));
+        return Err(Error::Record(format!("{shown}: no {TOPIC_SETUP} message: not a laserd recording")));
     }
     Ok(out)
+}
+
+impl Replay {
+    /// One message of the recording into the replay.
+    fn take(&mut self, topic: &str, data: &[u8]) -> std::result::Result<(), String> {
+        match topic {
+            TOPIC_SETUP => self.log.setup = Some(decode::<RunSetup>(topic, data)?),
+            TOPIC_PLAN_LINES => self.log.planned.push(decode::<PlannedLine>(topic, data)?),
+            TOPIC_LINK => {
+                let m: LinkMessage = decode(topic, data)?;
+                self.log.link.push((m.t, m.event));
+            }
+            TOPIC_AXES => self.log.knots.push(decode::<AxesMessage>(topic, data)?.to_knot()),
+            TOPIC_JOB => self.job = Some(decode(topic, data)?),
+            TOPIC_REPORT => self.report = Some(decode(topic, data)?),
+            _ => {}
+        }
+        Ok(())
+    }
+}
+
+/// Whether the file ends with `magic` (an MCAP file written to its end).
+fn ends_with(file: &mut File, magic: &[u8]) -> std::io::Result<bool> {
+    use std::io::{Read, Seek, SeekFrom};
+    let len = file.metadata()?.len();
+    if len < magic.len() as u64 {
+        return Ok(false);
+    }
+    file.seek(SeekFrom::End(-(magic.len() as i64)))?;
+    let mut tail = vec![0; magic.len()];
+    file.read_exact(&mut tail)?;
+    file.seek(SeekFrom::Start(0))?;
+    Ok(tail == magic)
 }
