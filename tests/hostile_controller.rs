@@ -97,7 +97,7 @@ impl Peer {
                         self.queued.push(text);
                     }
                 }
-                b if b < 0x20 || b >= 0x7f || b == b'!' || b == b'~' => {}
+                b if !(0x20..0x7f).contains(&b) || b == b'!' || b == b'~' => {}
                 b => self.line.push(b),
             }
         }

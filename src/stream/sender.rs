@@ -1187,7 +1187,7 @@ fn link_failure(e: Error) -> String {
 fn same_progress(a: &StatusReport, b: &StatusReport) -> bool {
     let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
     a.state == b.state
-        && bits(&a.position()) == bits(&b.position())
+        && bits(a.position()) == bits(b.position())
         && a.buffer == b.buffer
         && a.line == b.line
 }
@@ -1642,7 +1642,7 @@ mod tests {
         let (a, b) = tokio::io::duplex(4096);
         let peer = scripted(b, |_, _| ok(), |_| "<Idle|MPos:0.000,0.000|Bf:15,0|FS:0,0>\r\n".into());
         let (out, _) = against(program(3), peer, a).await;
-        let err = out.err().expect("refused").to_string();
+        let err = out.expect_err("refused").to_string();
         assert!(err.contains("no free receive buffer while idle (`Bf:15,0`)"), "{err}");
         assert!(!err.contains("line 1"), "{err}");
     }
@@ -1670,7 +1670,7 @@ mod tests {
         let mut flood = vec![b'x'; 3 * MAX_CONTROLLER_LINE];
         flood.extend_from_slice(b"\r\nok\r\n");
         b.write_all(&flood).await.unwrap();
-        let err = link.next_line().await.err().expect("too long").to_string();
+        let err = link.next_line().await.expect_err("too long").to_string();
         assert!(err.contains("without a line end"), "{err}");
         assert!(link.partial.capacity() <= 2 * MAX_CONTROLLER_LINE, "{}", link.partial.capacity());
         // The rest of the long line is skipped; the next line reads.
