@@ -615,7 +615,7 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
     // Read as the controller takes lines: memory stays constant whatever the size.
     // Bytes read so far drive the progress bar (comments never reach the link).
     let read = std::cell::Cell::new(0u64);
-    let lines = BoundedLines::new(std::io::BufReader::new(opened), &shown).inspect(|l| {
+    let lines = stream::FileLines::new(std::io::BufReader::new(opened), &shown).inspect(|l| {
         if let Ok(l) = l {
             read.set(read.get() + l.len() as u64 + 1);
         }
@@ -678,72 +678,6 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
         return Ok(ExitCode::from(2));
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// The longest line of a G-code file `send` reads: far beyond any G-code a
-/// controller takes (Grbl: 80 characters; grblHAL: 256) even with long
-/// comments, and a bound on memory for a file that is no text at all
-/// (`/dev/zero`).
-const MAX_FILE_LINE: usize = 64 * 1024;
-
-/// The lines of a G-code file (`\n` or `\r\n` ends), each at most
-/// `MAX_FILE_LINE` bytes kept: a longer one is an error naming it, quoting
-/// its start and giving its length (its rest is read past, never kept).
-struct BoundedLines<R> {
-    reader: R,
-    shown: String,
-    number: usize,
-}
-
-impl<R: std::io::BufRead> BoundedLines<R> {
-    fn new(reader: R, shown: &str) -> Self {
-        BoundedLines { reader, shown: shown.to_string(), number: 0 }
-    }
-
-    /// Reads one line into `kept` (up to the cap); its full length, `None` at the end.
-    fn read_line(&mut self, kept: &mut Vec<u8>) -> std::io::Result<Option<usize>> {
-        let mut length = 0;
-        loop {
-            let available = self.reader.fill_buf()?;
-            if available.is_empty() {
-                return Ok((length > 0).then_some(length));
-            }
-            let end = available.iter().position(|&b| b == b'\n');
-            let chunk = &available[..end.unwrap_or(available.len())];
-            let room = (MAX_FILE_LINE + 1).saturating_sub(kept.len());
-            kept.extend_from_slice(&chunk[..chunk.len().min(room)]);
-            length += chunk.len();
-            let used = end.map_or(chunk.len(), |i| i + 1);
-            self.reader.consume(used);
-            if end.is_some() {
-                return Ok(Some(length));
-            }
-        }
-    }
-}
-
-impl<R: std::io::BufRead> Iterator for BoundedLines<R> {
-    type Item = Result<String>;
-
-    fn next(&mut self) -> Option<Result<String>> {
-        let mut kept = Vec::new();
-        let length = match self.read_line(&mut kept) {
-            Ok(length) => length?,
-            Err(e) => return Some(Err(Error::Io(format!("{}: {e}", self.shown)))),
-        };
-        self.number += 1;
-        let text = String::from_utf8_lossy(&kept);
-        let text = text.strip_suffix('\r').unwrap_or(&text);
-        if length > MAX_FILE_LINE {
-            return Some(Err(Error::Io(format!(
-                "{}:{} `{}`: a line of {length} bytes, longer than any G-code line ({MAX_FILE_LINE} bytes at most)",
-                self.shown,
-                self.number,
-                stream::sender::quote_start(text, length)
-            ))));
-        }
-        Some(Ok(text.to_string()))
-    }
 }
 
 /// `--fault NAME=N` options into the simulator's faults.

@@ -527,16 +527,15 @@ impl Book {
 /// A G-code line as messages quote it: whole, or its first `QUOTE_CHARS`
 /// characters, `…` and its length.
 pub fn quote(text: &str) -> std::borrow::Cow<'_, str> {
-    quote_start(text, text.len())
+    match quoted_start(text) {
+        start if start.len() < text.len() => format!("{start}… ({} bytes)", text.len()).into(),
+        whole => whole.into(),
+    }
 }
 
-/// `quote` of a line of `length` bytes of which `start` was kept.
-pub fn quote_start(start: &str, length: usize) -> std::borrow::Cow<'_, str> {
-    match start.char_indices().nth(QUOTE_CHARS) {
-        Some((cut, _)) => format!("{}… ({length} bytes)", &start[..cut]).into(),
-        None if length > start.len() => format!("{start}… ({length} bytes)").into(),
-        None => start.into(),
-    }
+/// The part of a line a message quotes: its first `QUOTE_CHARS` characters.
+pub fn quoted_start(text: &str) -> &str {
+    text.char_indices().nth(QUOTE_CHARS).map_or(text, |(cut, _)| &text[..cut])
 }
 
 /// Seconds a line dwells (`G4 P<seconds>`), 0 for any other line. Lines
