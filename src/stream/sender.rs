@@ -62,6 +62,10 @@ pub const STALL_TIMEOUT: Duration = Duration::from_secs(10);
 /// ten times that and still nothing in memory: anything longer is garbage.
 pub const MAX_CONTROLLER_LINE: usize = 4096;
 
+/// Acknowledged motion lines kept while no status report says they ran:
+/// far more than any planner holds (Grbl 15 to 35 blocks, grblHAL hundreds).
+const MAX_PENDING_MOTION: usize = 4096;
+
 /// How many characters of a G-code line a message quotes.
 const QUOTE_CHARS: usize = 80;
 
@@ -473,6 +477,12 @@ impl Book {
             return;
         }
         if is_motion(text) {
+            // More than any planner holds: a controller that acknowledges
+            // without reporting. Bounded memory; the oldest is dropped
+            // without being taken for executed (the bound stays low).
+            if self.pending_motion.len() >= MAX_PENDING_MOTION {
+                self.pending_motion.pop_front();
+            }
             self.pending_motion.push_back((line, text.to_string()));
         } else if self.pending_motion.is_empty() {
             self.executed(line, text);
