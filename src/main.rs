@@ -638,7 +638,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
 }
 
 fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check: bool, json: bool) -> Result<ExitCode> {
-    use std::io::{BufRead, IsTerminal};
+    use std::io::IsTerminal;
     let machine = MachineConfig::load(config)?;
     let shown = file.display().to_string();
     let opened = std::fs::File::open(file).map_err(|e| Error::Io(format!("{shown}: cannot read: {e}")))?;
@@ -646,14 +646,11 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
     // Read as the controller takes lines: memory stays constant whatever the size.
     // Bytes read so far drive the progress bar (comments never reach the link).
     let read = std::cell::Cell::new(0u64);
-    let lines = std::io::BufReader::new(opened)
-        .lines()
-        .inspect(|l| {
-            if let Ok(l) = l {
-                read.set(read.get() + l.len() as u64 + 1);
-            }
-        })
-        .map(|l| l.map(|l| l.trim_end_matches('\r').to_string()).map_err(|e| Error::Io(format!("{shown}: {e}"))));
+    let lines = stream::FileLines::new(std::io::BufReader::new(opened), &shown).inspect(|l| {
+        if let Ok(l) = l {
+            read.set(read.get() + l.len() as u64 + 1);
+        }
+    });
     let baud = baud.unwrap_or(machine.serial.baud);
     let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
     options.check_mode = check;

@@ -1,7 +1,9 @@
 //! Stream: the sender and the transports it talks through.
 
+pub mod file_lines;
 pub mod in_process;
 pub mod resume;
 pub mod sender;
 
+pub use file_lines::FileLines;
 pub use sender::{clean_line, stream, Connection, Control, LineError, LinkEvent, SenderOptions, StreamOutcome, BUILD_INFO};

@@ -21,9 +21,7 @@ use laserd_sim::gcode::LineBuilder;
 use laserd_sim::wire::{self, realtime, MachineState, Response, StatusReport};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
-use tokio::io::{
-    AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader, ReadHalf, WriteHalf,
-};
+use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader, ReadHalf, WriteHalf};
 use tokio::time::{timeout, Instant};
 
 use crate::error::{Error, Result};
@@ -45,7 +43,31 @@ pub struct SenderOptions {
     /// Send-response streaming: one line at a time, each after the previous one
     /// is answered (the simple method; the baseline character counting beats).
     pub send_response: bool,
+    /// A controller that reports it runs but whose position, buffers, line
+    /// number and answers have not changed for this long (plus the dwells it
+    /// may be in) has stalled.
+    pub stall_timeout: Duration,
 }
+
+/// Grbl never moves slower than 1 mm/min (`MINIMUM_FEED_RATE`, overrides
+/// included), so a moving machine changes its reported position (0.001 mm)
+/// at least every 60 ms whatever the block's length; 10 s of no change at
+/// all is a stall with a wide margin for coarse or slow status reports.
+/// Dwells (`G4`) come on top: see `dwell_seconds`.
+pub const STALL_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// The longest line accepted from a controller. Grbl 1.1's longest answer is
+/// a status report of a little over 100 bytes; grblHAL's full report with 8
+/// axes and every field, or its setting enumerations, a few hundred. 4 KiB is
+/// ten times that and still nothing in memory: anything longer is garbage.
+pub const MAX_CONTROLLER_LINE: usize = 4096;
+
+/// Acknowledged motion lines kept while no status report says they ran:
+/// far more than any planner holds (Grbl 15 to 35 blocks, grblHAL hundreds).
+const MAX_PENDING_MOTION: usize = 4096;
+
+/// How many characters of a G-code line a message quotes.
+const QUOTE_CHARS: usize = 80;
 
 impl SenderOptions {
     pub fn new(rx_buffer: usize, status_hz: f64) -> SenderOptions {
@@ -56,6 +78,7 @@ impl SenderOptions {
             expect_start: None,
             check_mode: false,
             send_response: false,
+            stall_timeout: STALL_TIMEOUT,
         }
     }
 }
@@ -107,7 +130,11 @@ fn secs(origin: Instant) -> f64 {
 }
 
 struct Link<R, W, F> {
-    reader: tokio::io::Split<BufReader<R>>,
+    reader: BufReader<R>,
+    /// The line being read, at most `MAX_CONTROLLER_LINE` bytes.
+    partial: Vec<u8>,
+    /// The rest of an over-long line is being skipped.
+    skipping: bool,
     writer: W,
     origin: Instant,
     on_event: F,
@@ -190,17 +217,53 @@ where
         Ok(())
     }
 
+    /// Next line from the controller without its `\n`, `None` at the end of
+    /// the link. A line longer than `MAX_CONTROLLER_LINE` is an error (and its
+    /// rest is skipped): memory never grows with what the controller sends.
+    /// Cancel-safe: bytes move from the buffer only after the await.
+    async fn read_line(&mut self) -> Result<Option<Vec<u8>>> {
+        const EIO: i32 = 5;
+        loop {
+            let available = match self.reader.fill_buf().await {
+                Ok(bytes) => bytes,
+                // A pseudo-terminal whose other side closed reads EIO.
+                Err(e) if e.raw_os_error() == Some(EIO) => return Ok(None),
+                Err(e) => return Err(Error::Stream(format!("read failed: {e}"))),
+            };
+            if available.is_empty() {
+                return Ok(None);
+            }
+            let end = available.iter().position(|&b| b == b'\n');
+            let chunk = &available[..end.unwrap_or(available.len())];
+            let used = end.map_or(chunk.len(), |i| i + 1);
+            let too_long = !self.skipping && self.partial.len() + chunk.len() > MAX_CONTROLLER_LINE;
+            if !self.skipping && !too_long {
+                self.partial.extend_from_slice(chunk);
+            }
+            self.reader.consume(used);
+            if too_long {
+                self.book.distrust();
+                self.partial.clear();
+                self.skipping = end.is_none();
+                return Err(Error::Stream(format!(
+                    "the controller sent more than {MAX_CONTROLLER_LINE} bytes without a line end: garbage, not a GRBL answer"
+                )));
+            }
+            if end.is_some() {
+                if std::mem::take(&mut self.skipping) {
+                    continue;
+                }
+                return Ok(Some(std::mem::take(&mut self.partial)));
+            }
+        }
+    }
+
     /// Next line from the controller, parsed and booked, with the line it
     /// answered (for `ok` and `error:N`); `None` when the link closed. Cancel-safe.
     async fn next_line(&mut self) -> Result<Option<(String, Response, Option<(usize, String)>)>> {
         loop {
-            let seg = self
-                .reader
-                .next_segment()
-                .await
-                .map_err(|e| Error::Stream(format!("read failed: {e}")))?;
-            let Some(seg) = seg else { return Ok(None) };
-            let text = String::from_utf8_lossy(&seg)
+            let Some(line) = self.read_line().await? else { return Ok(None) };
+            let text = String::from_utf8_lossy(&line)
                 .trim_matches(|c| c == '\r' || c == '\n')
                 .to_string();
             if text.is_empty() {
@@ -229,7 +292,7 @@ where
             match timeout(left, self.next_line()).await {
                 Err(_) => return Ok(None),
                 Ok(Err(e)) => return Err(e),
-                Ok(Ok(None)) => return Err(Error::Stream("the controller closed the link".into())),
+                Ok(Ok(None)) => return Err(Error::Stream(LINK_CLOSED.into())),
                 Ok(Ok(Some((_, r, _)))) => {
                     if want(&r) {
                         return Ok(Some(r));
@@ -272,9 +335,14 @@ where
                     ) {
                         break;
                     }
+                    // Not held yet: look again shortly, without flooding it with `?`.
+                    tokio::time::sleep(Duration::from_millis(50)).await;
                 }
                 Ok(None) => {}
-                Err(_) => return None,
+                Err(Error::Stream(m)) if m == LINK_CLOSED => return None,
+                // Garbage while the machine holds: the reset comes anyway,
+                // after the time a hold takes.
+                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
             }
         }
         if self.send_realtime(realtime::SOFT_RESET).await.is_err() {
@@ -306,11 +374,12 @@ struct Book {
     last_acked_text: String,
     planner_blocks: Option<usize>,
     /// Acknowledged motion lines not yet known to be done, oldest first.
-    pending_motion: VecDeque<usize>,
+    pending_motion: VecDeque<(usize, String)>,
     last_acked: usize,
     last_executed: Option<usize>,
+    last_executed_text: String,
     /// After a reset: nothing acknowledged later than this has run.
-    executed_cap: Option<usize>,
+    executed_cap: Option<(usize, String)>,
     /// Lines sent and lines answered, ever (answers come in order).
     sent_total: u64,
     answered_total: u64,
@@ -323,6 +392,9 @@ struct Book {
     /// `last_executed` for whoever watches the stream from outside (kept
     /// across streams: the handle is handed out once).
     executed_line: Arc<AtomicUsize>,
+    /// The controller broke the protocol (garbage, answers to nothing):
+    /// what it answers after that is not taken as progress.
+    distrusted: bool,
 }
 
 impl Book {
@@ -346,9 +418,14 @@ impl Book {
         self.report_covers.map_or(0, |c| c.saturating_sub(self.answered_total))
     }
 
+    fn distrust(&mut self) {
+        self.distrusted = true;
+    }
+
     /// Books an answer; returns the line an `ok` or `error:N` answered.
     fn answer(&mut self, response: &Response) -> Option<(usize, String)> {
         match response {
+            Response::Ok | Response::Error(_) | Response::Status(_) if self.distrusted => None,
             Response::Ok | Response::Error(_) => {
                 let (line, text) = self.fifo.pop_front()?;
                 self.answered_total += 1;
@@ -378,7 +455,7 @@ impl Book {
                 self.fifo.clear();
                 self.in_flight = 0;
                 if self.last_acked > 0 {
-                    self.executed_cap = Some(self.last_executed.unwrap_or(0));
+                    self.executed_cap = Some((self.last_executed.unwrap_or(0), self.last_executed_text.clone()));
                 }
                 None
             }
@@ -395,11 +472,26 @@ impl Book {
 
     fn acked(&mut self, line: usize, text: &str) {
         self.last_acked = line;
-        if is_motion(text) {
-            self.pending_motion.push_back(line);
-        } else if self.pending_motion.is_empty() && self.planner_blocks.is_some() {
-            self.last_executed = Some(line);
+        // Without the planner's size nothing can be known executed: keep nothing.
+        if self.planner_blocks.is_none() {
+            return;
         }
+        if is_motion(text) {
+            // More than any planner holds: a controller that acknowledges
+            // without reporting. Bounded memory; the oldest is dropped
+            // without being taken for executed (the bound stays low).
+            if self.pending_motion.len() >= MAX_PENDING_MOTION {
+                self.pending_motion.pop_front();
+            }
+            self.pending_motion.push_back((line, text.to_string()));
+        } else if self.pending_motion.is_empty() {
+            self.executed(line, text);
+        }
+    }
+
+    fn executed(&mut self, line: usize, text: &str) {
+        self.last_executed = Some(line);
+        text.clone_into(&mut self.last_executed_text);
     }
 
     fn status(&mut self, s: &StatusReport) {
@@ -408,14 +500,69 @@ impl Book {
         };
         let queued = total.saturating_sub(free as usize);
         while self.pending_motion.len() > queued {
-            self.last_executed = self.pending_motion.pop_front();
+            if let Some((line, text)) = self.pending_motion.pop_front() {
+                self.executed(line, &text);
+            }
         }
         if self.pending_motion.is_empty() {
-            self.last_executed = Some(
-                self.executed_cap
-                    .map_or(self.last_acked, |cap| cap.min(self.last_acked)),
-            );
+            match self.executed_cap.take() {
+                Some((cap, text)) if cap < self.last_acked => {
+                    self.executed(cap, &text);
+                    self.executed_cap = Some((cap, text));
+                }
+                cap => {
+                    self.executed_cap = cap;
+                    let text = self.last_acked_text.clone();
+                    self.executed(self.last_acked, &text);
+                }
+            }
         }
+    }
+
+    /// The last acknowledged and the last executed line, as a message ends.
+    fn progress(&self, describe: &dyn Fn(usize, &str) -> String) -> String {
+        let acked = match self.last_acked {
+            0 => "none".to_string(),
+            n => describe(n, &quote(&self.last_acked_text)),
+        };
+        let executed = match self.last_executed {
+            None => "unknown (the controller does not report its buffers)".to_string(),
+            Some(0) => "none".to_string(),
+            Some(n) => describe(n, &quote(&self.last_executed_text)),
+        };
+        format!("last acknowledged: {acked}; last executed: {executed}")
+    }
+}
+
+/// A G-code line as messages quote it: whole, or its first `QUOTE_CHARS`
+/// characters, `…` and its length.
+pub fn quote(text: &str) -> std::borrow::Cow<'_, str> {
+    match quoted_start(text) {
+        start if start.len() < text.len() => format!("{start}… ({} bytes)", text.len()).into(),
+        whole => whole.into(),
+    }
+}
+
+/// The part of a line a message quotes: its first `QUOTE_CHARS` characters.
+pub fn quoted_start(text: &str) -> &str {
+    text.char_indices().nth(QUOTE_CHARS).map_or(text, |(cut, _)| &text[..cut])
+}
+
+/// Seconds a line dwells (`G4 P<seconds>`), 0 for any other line. Lines
+/// are cleaned (`clean_line`): upper case, no spaces.
+fn dwell_seconds(text: &str) -> f64 {
+    let mut words = Vec::new();
+    let mut rest = text;
+    while let Some(letter) = rest.chars().next().filter(char::is_ascii_alphabetic) {
+        let number_len = rest[1..].find(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-' || c == '+')).unwrap_or(rest.len() - 1);
+        words.push((letter, rest[1..1 + number_len].parse::<f64>().ok()));
+        rest = &rest[1 + number_len..];
+    }
+    let dwells = words.iter().any(|&(l, v)| l == 'G' && v == Some(4.0));
+    let p = words.iter().find(|(l, _)| *l == 'P').and_then(|(_, v)| *v);
+    match p {
+        Some(p) if dwells && p.is_finite() && p > 0.0 => p,
+        _ => 0.0,
     }
 }
 
@@ -489,7 +636,9 @@ where
     pub async fn open(io: T, options: &SenderOptions, on_event: F) -> Result<Self> {
         let (read_half, write_half) = tokio::io::split(io);
         let mut link = Link {
-            reader: BufReader::new(read_half).split(b'\n'),
+            reader: BufReader::new(read_half),
+            partial: Vec::new(),
+            skipping: false,
             writer: write_half,
             origin: Instant::now(),
             on_event,
@@ -565,7 +714,8 @@ where
             })?;
         if let (MachineState::Idle, Some((blocks, rx))) = (&status.state, status.buffer) {
             self.link.book.planner_blocks = Some(blocks as usize);
-            if (rx as usize) < self.rx_buffer {
+            // None free at all is not a size but a fault (see `stream_from`).
+            if rx > 0 && (rx as usize) < self.rx_buffer {
                 tracing::warn!("the controller's receive buffer is {rx} bytes, less than the configured {}: using {rx}", self.rx_buffer);
                 self.rx_buffer = rx as usize;
             }
@@ -758,6 +908,13 @@ where
                 "the controller is in alarm: home ($H) or unlock ($X) it first".into(),
             ));
         }
+        if let (MachineState::Idle, Some((blocks, 0))) = (&status.state, status.buffer) {
+            return Err(Error::Stream(format!(
+                "the controller reports no free receive buffer while idle (`Bf:{blocks},0`): it holds bytes it does not process \
+                 (noise on the line, another program writing to the port) or misreports its buffer, so no line can be sent; \
+                 reset or power-cycle it and make sure nothing else uses the port"
+            )));
+        }
         if let Some(start) = self.options.expect_start.as_ref().filter(|_| check_start) {
             let off = start
                 .iter()
@@ -800,7 +957,13 @@ where
         let mut ticker = tokio::time::interval(options.status_interval);
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut last_heard = Instant::now();
+        // The last sign of progress (an answer, or a status report differing
+        // from the one before) and that report.
+        let mut last_progress = Instant::now();
+        let mut last_report: Option<StatusReport> = None;
         let mut fault: Option<String> = None;
+        // Every line is sent and answered: the job ends when the machine is idle.
+        let mut ending = false;
 
         while fault.is_none() {
             loop {
@@ -822,8 +985,9 @@ where
                             }
                             if text.len() + 1 > rx_buffer {
                                 fault = Some(format!(
-                                    "{}: longer than the controller's receive buffer",
-                                    describe(next_number, &text)
+                                    "{}: {} bytes with its line end, longer than the controller's receive buffer of {rx_buffer} bytes",
+                                    describe(next_number, &quote(&text)),
+                                    text.len() + 1
                                 ));
                                 break;
                             }
@@ -837,12 +1001,9 @@ where
                         if link.book.in_flight + text.len() < rx_buffer
                             && (!options.send_response || link.book.fifo.is_empty()) =>
                     {
-                        match link.send_line(next_number, &text).await {
-                            Err(Error::Stream(m)) if m == LINK_CLOSED => {
-                                fault = Some(LINK_CLOSED.into());
-                                break;
-                            }
-                            r => r?,
+                        if let Err(e) = link.send_line(next_number, &text).await {
+                            fault = Some(link_failure(e));
+                            break;
                         }
                         link.book.sent(next_number, &text);
                         out.lines_sent += 1;
@@ -853,27 +1014,46 @@ where
                     }
                 }
             }
-            if fault.is_some() || (exhausted && next.is_none() && link.book.fifo.is_empty()) {
+            if fault.is_some() {
                 break;
+            }
+            if exhausted && next.is_none() && link.book.fifo.is_empty() {
+                if options.check_mode {
+                    break;
+                }
+                ending = true;
             }
             tokio::select! {
                 line = link.next_line() => {
-                    let Some((text, response, answered)) = line? else {
-                        fault = Some(LINK_CLOSED.into());
-                        break;
+                    let (text, response, answered) = match line {
+                        Ok(Some(line)) => line,
+                        Ok(None) => {
+                            fault = Some(LINK_CLOSED.into());
+                            break;
+                        }
+                        Err(e) => {
+                            fault = Some(link_failure(e));
+                            break;
+                        }
                     };
                     out.last_acked_line = link.book.last_acked;
-                    let last_acked = describe(link.book.last_acked, &link.book.last_acked_text);
                     // Garbage is not a sign of life: a controller that only babbles
                     // is as gone as a silent one.
                     if !matches!(response, Response::Other(_)) {
                         last_heard = Instant::now();
                     }
                     match response {
-                        Response::Ok => {}
+                        Response::Ok | Response::Error(_) if answered.is_none() => {
+                            link.book.distrust();
+                            fault = Some(format!(
+                                "protocol error: the controller answered `{text}` with no line outstanding (more answers than lines sent)"
+                            ));
+                        }
+                        Response::Ok => last_progress = Instant::now(),
                         Response::Error(code) => {
+                            last_progress = Instant::now();
                             let (n, text) = answered.unwrap_or((0, String::new()));
-                            let message = format!("controller answered error:{code} ({}) to {}", wire::error_message(code), describe(n, &text));
+                            let message = format!("controller answered error:{code} ({}) to {}", wire::error_message(code), describe(n, &quote(&text)));
                             out.errors.push(LineError { line: n, code, message: message.clone() });
                             // In check mode nothing moves: go on and report every bad line.
                             if !options.check_mode {
@@ -882,11 +1062,10 @@ where
                         }
                         Response::Alarm(code) => {
                             out.alarms.push(code);
-                            let after = if out.last_acked_line > 0 { format!(" after {last_acked}") } else { String::new() };
-                            fault = Some(format!("controller raised ALARM:{code} ({}){after}", wire::alarm_message(code)));
+                            fault = Some(format!("controller raised ALARM:{code} ({})", wire::alarm_message(code)));
                         }
                         Response::Banner(_) => {
-                            fault = Some(format!("the controller reset itself during the job (last acknowledged: {last_acked})"));
+                            fault = Some("the controller reset itself during the job".into());
                         }
                         Response::Status(s) => {
                             let nothing_queued = s.buffer.is_none_or(|(blocks, rx)| {
@@ -897,11 +1076,21 @@ where
                             } else {
                                 idle_with_lines_out = 0;
                             }
+                            if last_report.as_ref().is_none_or(|r| !same_progress(r, &s)) {
+                                last_progress = Instant::now();
+                            }
                             if idle_with_lines_out >= 2 {
                                 fault = Some(format!(
-                                    "the controller is idle with nothing queued while {} line(s) are unanswered: bytes were lost on the link (last acknowledged: {})",
-                                    link.book.fifo.len(), last_acked));
+                                    "the controller is idle with nothing queued while {} line(s) are unanswered: bytes were lost on the link",
+                                    link.book.fifo.len()));
+                            } else if s.state == MachineState::Alarm {
+                                fault = Some("the controller went into alarm".into());
+                            } else if ending && s.state == MachineState::Idle && link.book.report_covers.is_some_and(|c| c >= link.book.sent_total) {
+                                // Idle, asked after every line was sent: done.
+                                out.final_status = Some(s);
+                                break;
                             }
+                            last_report = Some(s.clone());
                             out.final_status = Some(s);
                         }
                         Response::Other(_) => tracing::warn!("unexpected line from the controller: {text}"),
@@ -914,27 +1103,45 @@ where
                         None => std::future::pending().await,
                     }
                 } => {
-                    match command {
-                        None => control = None,
-                        Some(Control::FeedHold) => link.send_realtime(realtime::FEED_HOLD).await?,
-                        Some(Control::Resume) => link.send_realtime(realtime::CYCLE_START).await?,
-                        Some(Control::Override(byte)) => link.send_realtime(byte).await?,
-                        Some(Control::Abort) => {
-                            fault = Some(format!(
-                                "aborted by the operator (last acknowledged: {})",
-                                describe(link.book.last_acked, &link.book.last_acked_text)
-                            ));
+                    let byte = match command {
+                        None => {
+                            control = None;
+                            None
                         }
+                        Some(Control::FeedHold) => Some(realtime::FEED_HOLD),
+                        Some(Control::Resume) => Some(realtime::CYCLE_START),
+                        Some(Control::Override(byte)) => Some(byte),
+                        Some(Control::Abort) => {
+                            fault = Some("aborted by the operator".into());
+                            None
+                        }
+                    };
+                    if let Some(Err(e)) = match byte { Some(b) => Some(link.send_realtime(b).await), None => None } {
+                        fault = Some(link_failure(e));
                     }
                 }
                 _ = ticker.tick() => {
-                    if !link.book.fifo.is_empty() && last_heard.elapsed() > options.silence_timeout {
+                    if (ending || !link.book.fifo.is_empty()) && last_heard.elapsed() > options.silence_timeout {
                         fault = Some(format!(
-                            "the controller has been silent (no answer, no status report) for {:.1} s with {} line(s) unanswered (last acknowledged: {})",
-                            last_heard.elapsed().as_secs_f64(), link.book.fifo.len(), describe(link.book.last_acked, &link.book.last_acked_text)));
+                            "the controller has been silent (no answer, no status report) for {:.1} s with {} line(s) unanswered{}",
+                            last_heard.elapsed().as_secs_f64(), link.book.fifo.len(),
+                            if ending { " at the end of the job" } else { "" }));
                         break;
                     }
-                    link.send_realtime(realtime::STATUS).await?;
+                    // A dwell holds its line unanswered and the machine still.
+                    let dwells: f64 = link.book.fifo.iter().map(|(_, text)| dwell_seconds(text)).sum();
+                    let still = last_progress.elapsed().as_secs_f64();
+                    let running = last_report.as_ref().is_some_and(|r| matches!(r.state, MachineState::Run | MachineState::Idle | MachineState::Check));
+                    if running && still > options.stall_timeout.as_secs_f64() + dwells {
+                        let state = last_report.as_ref().map_or(String::new(), |r| r.state.as_field());
+                        fault = Some(format!(
+                            "the controller has stalled: it reports {state} but its position, buffers, line number and answers have not changed for {still:.1} s{}",
+                            if dwells > 0.0 { format!(" (dwells included: {dwells:.1} s)") } else { String::new() }));
+                        break;
+                    }
+                    if let Err(e) = link.send_realtime(realtime::STATUS).await {
+                        fault = Some(link_failure(e));
+                    }
                 }
             }
         }
@@ -944,7 +1151,7 @@ where
             out.final_status = link.safe_stop().await;
             out.last_acked_line = link.book.last_acked;
             out.last_executed_line = link.book.last_executed;
-            out.stop_reason = Some(reason);
+            out.stop_reason = Some(format!("{reason} ({})", link.book.progress(describe)));
             out.bytes_sent = link.bytes_sent;
             return Ok(out);
         }
@@ -966,36 +1173,32 @@ where
             }
             return Ok(out);
         }
-        // Every line is answered; wait until the machine has finished moving.
-        loop {
-            match link.query_status(Duration::from_secs(2)).await? {
-                Some(s) if s.state == MachineState::Idle => {
-                    out.final_status = Some(s);
-                    // Lines after the last one sent were blank or comments.
-                    out.last_acked_line = next_number.max(out.last_acked_line);
-                    out.last_executed_line = Some(out.last_acked_line);
-                    break;
-                }
-                Some(s) if matches!(s.state, MachineState::Alarm) => {
-                    out.stop_reason =
-                        Some("the controller went into alarm at the end of the job".into());
-                    out.final_status = Some(s);
-                    out.bytes_sent = link.bytes_sent;
-                    return Ok(out);
-                }
-                Some(_) => tokio::time::sleep(options.status_interval).await,
-                None => {
-                    out.stop_reason =
-                        Some("the controller stopped answering at the end of the job".into());
-                    out.bytes_sent = link.bytes_sent;
-                    return Ok(out);
-                }
-            }
-        }
+        // Lines after the last one sent were blank or comments.
+        out.last_acked_line = next_number.max(link.book.last_acked);
+        out.last_executed_line = Some(out.last_acked_line);
         out.bytes_sent = link.bytes_sent;
         out.completed = true;
         Ok(out)
     }
+}
+
+/// Why a stream stops when a read or write failed.
+fn link_failure(e: Error) -> String {
+    match e {
+        Error::Stream(m) => m,
+        other => other.to_string(),
+    }
+}
+
+/// Whether two status reports show the same progress: state, position,
+/// buffers and line number alike (numbers compared bit for bit, so a
+/// controller reporting `NaN` does not look like it moves).
+fn same_progress(a: &StatusReport, b: &StatusReport) -> bool {
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+    a.state == b.state
+        && bits(a.position()) == bits(b.position())
+        && a.buffer == b.buffer
+        && a.line == b.line
 }
 
 /// Connects and streams `lines` (see [`Connection::stream`]), the whole job in
@@ -1299,5 +1502,221 @@ mod tests {
         });
         assert_streaming_stops_as_silent(a).await;
         babble.abort();
+    }
+
+    /// A scripted controller that misbehaves as told: the banner, the
+    /// answers to connecting (`$I`: 15 planner blocks, 128 bytes), then
+    /// `answer(n, line)` for the n-th program line (`None`: the link closes)
+    /// and `report(answered)` for every `?`. Returns the realtime bytes it
+    /// got (`!`, 0x18 ...), which it otherwise ignores.
+    async fn scripted(
+        mut io: DuplexStream,
+        mut answer: impl FnMut(usize, &str) -> Option<Vec<u8>>,
+        mut report: impl FnMut(usize) -> String,
+    ) -> Vec<u8> {
+        io.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
+        let (mut line, mut lines, mut realtime_seen) = (Vec::new(), 0, Vec::new());
+        let mut buf = [0u8; 256];
+        loop {
+            let n = match io.read(&mut buf).await {
+                Ok(0) | Err(_) => return realtime_seen,
+                Ok(n) => n,
+            };
+            for &b in &buf[..n] {
+                let reply = match b {
+                    b'?' => Some(report(lines).into_bytes()),
+                    b'\n' => {
+                        let text = String::from_utf8_lossy(&std::mem::take(&mut line)).to_string();
+                        if text == BUILD_INFO {
+                            Some(b"[VER:1.1h:]\r\n[OPT:V,15,128]\r\nok\r\n".to_vec())
+                        } else {
+                            lines += 1;
+                            match answer(lines, &text) {
+                                Some(reply) => Some(reply),
+                                None => return realtime_seen,
+                            }
+                        }
+                    }
+                    b if realtime::is_realtime(b) || b >= 0x80 => {
+                        realtime_seen.push(b);
+                        None
+                    }
+                    b => {
+                        line.push(b);
+                        None
+                    }
+                };
+                if let Some(reply) = reply {
+                    if io.write_all(&reply).await.is_err() {
+                        return realtime_seen;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Streams `lines` to `peer`; the outcome and the realtime bytes the
+    /// peer got. Bounded: a sender that hangs fails the test.
+    async fn against(lines: Vec<String>, peer: impl std::future::Future<Output = Vec<u8>> + Send + 'static, a: DuplexStream) -> (Result<StreamOutcome>, Vec<u8>) {
+        let peer = tokio::spawn(peer);
+        let opts = SenderOptions::new(128, 5.0);
+        let run = stream(a, lines.into_iter().map(Ok), &opts, &|n, text| format!("line {n} `{text}`"), |_, _| {});
+        let out = tokio::time::timeout(Duration::from_secs(600), run).await.expect("the sender ends within 10 minutes");
+        (out, peer.await.unwrap())
+    }
+
+    fn ok() -> Option<Vec<u8>> {
+        Some(b"ok\r\n".to_vec())
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_controller_running_forever_after_the_last_ok_is_a_stall_naming_the_executed_line() {
+        let (a, b) = tokio::io::duplex(4096);
+        // Every line acknowledged, then `Run` forever with one block queued.
+        let peer = scripted(b, |_, _| ok(), |_| "<Run|MPos:1.000,2.000|Bf:14,128|FS:600,0>\r\n".into());
+        let start = Instant::now();
+        let (out, realtime_seen) = against(program(10), peer, a).await;
+        let out = out.unwrap();
+        let reason = out.stop_reason.unwrap();
+        assert!(!out.completed);
+        assert!(reason.contains("stalled") && reason.contains("Run"), "{reason}");
+        // One block still queued: the line before the last has run.
+        assert_eq!((out.last_acked_line, out.last_executed_line), (10, Some(9)));
+        assert!(reason.contains("last acknowledged: line 10 `") && reason.contains("last executed: line 9 `G1X8.12345"), "{reason}");
+        assert!(start.elapsed() < STALL_TIMEOUT + Duration::from_secs(15), "{:?}", start.elapsed());
+        assert!(realtime_seen.contains(&realtime::FEED_HOLD) && realtime_seen.contains(&realtime::SOFT_RESET), "{realtime_seen:?}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_dwell_is_not_a_stall() {
+        let (a, mut b) = tokio::io::duplex(4096);
+        // The dwell's line is answered when it is over (as Grbl does); the
+        // machine stands still meanwhile.
+        let peer = async move {
+            b.write_all(b"Grbl 1.1h ['$' for help]\r\n").await.unwrap();
+            answer_connect_with(&mut b, "V,15,128").await;
+            let (mut text, mut buf, mut dwell_ends, mut done) = (Vec::new(), [0u8; 64], None, false);
+            loop {
+                let n = tokio::select! {
+                    n = b.read(&mut buf) => n.unwrap_or(0),
+                    _ = tokio::time::sleep_until(dwell_ends.unwrap_or(Instant::now() + Duration::from_secs(3600))), if dwell_ends.is_some() => {
+                        dwell_ends = None;
+                        done = true;
+                        b.write_all(b"ok\r\n").await.unwrap();
+                        continue;
+                    }
+                };
+                if n == 0 {
+                    return Vec::new();
+                }
+                for &c in &buf[..n] {
+                    match c {
+                        b'?' => {
+                            let state = if done { "Idle" } else { "Run" };
+                            b.write_all(format!("<{state}|MPos:0.000,0.000|Bf:15,128|FS:0,0>\r\n").as_bytes()).await.unwrap();
+                        }
+                        b'\n' => {
+                            if text.starts_with(b"G4") {
+                                dwell_ends = Some(Instant::now() + Duration::from_secs(30));
+                            } else {
+                                b.write_all(b"ok\r\n").await.unwrap();
+                            }
+                            text.clear();
+                        }
+                        c => text.push(c),
+                    }
+                }
+            }
+        };
+        let (out, _) = against(vec!["G1X1F600".into(), "G4P30".into()], peer, a).await;
+        let out = out.unwrap();
+        assert!(out.completed, "{:?}", out.stop_reason);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn more_ok_than_lines_sent_is_a_protocol_error() {
+        let (a, b) = tokio::io::duplex(4096);
+        let peer = scripted(b, |_, _| Some(b"ok\r\nok\r\n".to_vec()), |_| "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0>\r\n".into());
+        let (out, realtime_seen) = against(program(10), peer, a).await;
+        let out = out.unwrap();
+        let reason = out.stop_reason.unwrap();
+        assert!(!out.completed);
+        assert!(reason.contains("protocol error") && reason.contains("more answers than lines sent"), "{reason}");
+        assert!(reason.contains("last executed: line"), "{reason}");
+        assert!(realtime_seen.contains(&realtime::FEED_HOLD) && realtime_seen.contains(&realtime::SOFT_RESET), "{realtime_seen:?}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn no_free_receive_buffer_while_idle_is_named_not_blamed_on_a_line() {
+        let (a, b) = tokio::io::duplex(4096);
+        let peer = scripted(b, |_, _| ok(), |_| "<Idle|MPos:0.000,0.000|Bf:15,0|FS:0,0>\r\n".into());
+        let (out, _) = against(program(3), peer, a).await;
+        let err = out.expect_err("refused").to_string();
+        assert!(err.contains("no free receive buffer while idle (`Bf:15,0`)"), "{err}");
+        assert!(!err.contains("line 1"), "{err}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_line_without_end_from_the_controller_is_refused_in_bounded_memory() {
+        let (a, b) = tokio::io::duplex(4096);
+        // Line 3 is answered by a megabyte without a line end.
+        let peer = scripted(b, |n, _| if n == 3 { Some(vec![b'A'; 1 << 20]) } else { ok() }, |_| "<Run|MPos:0.000,0.000|Bf:15,128|FS:0,0>\r\n".into());
+        let (out, realtime_seen) = against(program(10), peer, a).await;
+        let out = out.unwrap();
+        let reason = out.stop_reason.unwrap();
+        assert!(reason.contains(&format!("more than {MAX_CONTROLLER_LINE} bytes without a line end")), "{reason}");
+        // The answers after the garbage are not taken for progress.
+        assert!(reason.contains("last acknowledged: line 2 `"), "{reason}");
+        assert!(out.last_executed_line <= Some(2), "{reason}");
+        assert!(realtime_seen.contains(&realtime::FEED_HOLD) && realtime_seen.contains(&realtime::SOFT_RESET), "{realtime_seen:?}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn the_line_reader_keeps_at_most_the_cap() {
+        let (a, mut b) = tokio::io::duplex(1 << 16);
+        let (read_half, _write_half) = tokio::io::split(a);
+        let mut link = Link { reader: BufReader::new(read_half), partial: Vec::new(), skipping: false, writer: tokio::io::sink(), origin: Instant::now(), on_event: |_, _| {}, bytes_sent: 0, book: Book::default() };
+        let mut flood = vec![b'x'; 3 * MAX_CONTROLLER_LINE];
+        flood.extend_from_slice(b"\r\nok\r\n");
+        b.write_all(&flood).await.unwrap();
+        let err = link.next_line().await.expect_err("too long").to_string();
+        assert!(err.contains("without a line end"), "{err}");
+        assert!(link.partial.capacity() <= 2 * MAX_CONTROLLER_LINE, "{}", link.partial.capacity());
+        // The rest of the long line is skipped; the next line reads.
+        assert_eq!(link.next_line().await.unwrap().map(|(t, _, _)| t), Some("ok".to_string()));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_disconnect_names_the_last_acknowledged_and_executed_line() {
+        let (a, b) = tokio::io::duplex(4096);
+        let peer = scripted(b, |n, _| (n <= 5).then(|| b"ok\r\n".to_vec()), |_| "<Run|MPos:0.000,0.000|Bf:15,128|FS:0,0>\r\n".into());
+        let (out, _) = against(program(20), peer, a).await;
+        let out = out.unwrap();
+        let reason = out.stop_reason.unwrap();
+        assert!(reason.contains(LINK_CLOSED), "{reason}");
+        assert!(reason.contains("last acknowledged: line 5 `G1X4.12345Y4.54321F60000`"), "{reason}");
+        assert!(reason.contains("last executed: line "), "{reason}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn an_over_long_line_is_quoted_by_its_first_80_characters() {
+        let (a, b) = tokio::io::duplex(4096);
+        let controller = tokio::spawn(fake_controller(b, 128, None));
+        let long = format!("G1X{}", "1".repeat(1_000_000));
+        let lines = vec!["G1X1F600".to_string(), long];
+        let out = stream(a, lines.into_iter().map(Ok), &SenderOptions::new(128, 5.0), &|n, text| format!("line {n} `{text}`"), |_, _| {}).await.unwrap();
+        let reason = out.stop_reason.unwrap();
+        assert!(reason.contains(&format!("line 2 `G1X{}… (1000003 bytes)`", "1".repeat(77))), "{reason}");
+        assert!(reason.len() < 600, "{} bytes: {reason}", reason.len());
+        drop(controller);
+    }
+
+    #[test]
+    fn dwells_are_read_from_g4_p() {
+        assert_eq!(dwell_seconds("G4P1.5"), 1.5);
+        assert_eq!(dwell_seconds("G04P30"), 30.0);
+        assert_eq!(dwell_seconds("G1X4P2"), 0.0);
+        assert_eq!(dwell_seconds("G4P-1"), 0.0);
+        assert_eq!(dwell_seconds("$J=G91X1"), 0.0);
     }
 }
