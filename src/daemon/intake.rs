@@ -119,7 +119,7 @@ pub fn check_gcode(name: &str, text: &str, machine: &MachineConfig) -> Result<us
         if clean.is_empty() {
             continue;
         }
-        let quoted = || quote(raw.trim());
+        let quoted = || format!("`{}`", crate::stream::quote(raw.trim()));
         if clean.len() + 1 > machine.serial.rx_buffer {
             return Err(Error::Import(format!("{name}:{n} {}: {} characters, more than the controller's receive buffer takes ([serial] rx_buffer = {})", quoted(), clean.len(), machine.serial.rx_buffer)));
         }
@@ -134,14 +134,6 @@ pub fn check_gcode(name: &str, text: &str, machine: &MachineConfig) -> Result<us
         }
     }
     Ok(lines)
-}
-
-/// A line as messages quote it: its first 80 characters.
-fn quote(raw: &str) -> String {
-    match raw.char_indices().nth(80) {
-        Some((at, _)) => format!("`{}…` ({} characters)", &raw[..at], raw.chars().count()),
-        None => format!("`{raw}`"),
-    }
 }
 
 /// What planning a job gave: the child's answer.

@@ -398,7 +398,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     });
     // Read as the controller takes lines: constant memory for any size.
     let shown = program.display().to_string();
-    let lines = std::io::BufRead::lines(std::io::BufReader::new(file)).map(move |l| l.map_err(|e| Error::Io(format!("{shown}: {e}"))));
+    let lines = crate::stream::FileLines::new(std::io::BufReader::new(file), &shown);
     connection.expect_start(job.start.clone().filter(|_| resume_from.is_none()));
     // The sender's own count of lines executed (from `Bf:` in the status
     // reports; a lower bound): where an interrupted job resumes.

@@ -271,11 +271,14 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig, config_text:
         std::thread::Builder::new()
             .name("laserd-storage".into())
             .spawn(move || loop {
-                let storage = {
+                let (failed, dir) = {
                     let mut store = daemon.store();
                     store.flush();
-                    store.storage_error().map(str::to_string)
+                    (store.storage_error().map(str::to_string), store.dir().to_path_buf())
                 };
+                // A disk about to fill is shown before a write fails (the
+                // running job's recording grows without a record write).
+                let storage = failed.or_else(|| low_space(&dir));
                 daemon.status.send_if_modified(|s| {
                     let changed = s.storage != storage;
                     s.storage = storage;
@@ -341,6 +344,16 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig, config_text:
     }
     let _ = std::fs::remove_file(&options.socket);
     Ok(())
+}
+
+/// Below this much free space in the state folder the status warns.
+const LOW_SPACE_BYTES: u64 = 1 << 20;
+
+/// Why the state folder's disk cannot take a job's recording, if it cannot.
+fn low_space(dir: &std::path::Path) -> Option<String> {
+    let stat = nix::sys::statvfs::statvfs(dir).ok()?;
+    let free = stat.blocks_available() as u64 * stat.fragment_size() as u64;
+    (free < LOW_SPACE_BYTES).then(|| format!("{}: No space left on the device ({} KB free): recordings and job records cannot be written", dir.display(), free / 1024))
 }
 
 /// Pings systemd's watchdog while the machine loop is alive (its heartbeat

@@ -74,7 +74,7 @@ impl Service {
 }
 
 impl Drop for Service {
-    pub fn drop(&mut self) {
+    fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
@@ -219,11 +219,41 @@ pub fn machine_state(s: &Value) -> &str {
 }
 
 
-/// The shipped config with the serial port at `tty` and these lines added
-/// to its `[service]` section.
+/// The shipped config with the serial port at `tty` and these `key = value`
+/// lines set in its `[service]` section.
 pub fn config_with_service(dir: &Path, tty: &Path, service: &str) -> PathBuf {
     let path = config(dir, tty);
-    let text = std::fs::read_to_string(&path).unwrap().replace("\nkeep_jobs = ", &format!("\n{service}\nkeep_jobs = "));
-    std::fs::write(&path, text).unwrap();
+    for line in service.lines() {
+        let (key, value) = line.split_once(" = ").unwrap();
+        set_key(&path, "service", key, value);
+    }
     path
+}
+
+/// Sets `key = value` in `[section]` of a config file (replaced where the
+/// key is set, else added at the section's start).
+pub fn set_key(config: &Path, section: &str, key: &str, value: &str) {
+    let text = std::fs::read_to_string(config).unwrap();
+    let mut out = Vec::new();
+    let (mut inside, mut done) = (false, false);
+    for line in text.lines() {
+        if line.starts_with('[') {
+            if inside && !done {
+                panic!("[{section}] has no {key}");
+            }
+            inside = line.trim() == format!("[{section}]");
+            if inside {
+                out.push(line.to_string());
+                out.push(format!("{key} = {value}"));
+                done = true;
+                continue;
+            }
+        }
+        if inside && line.starts_with(&format!("{key} = ")) {
+            continue;
+        }
+        out.push(line.to_string());
+    }
+    assert!(done, "the config has a [{section}] section");
+    std::fs::write(config, out.join("\n")).unwrap();
 }
