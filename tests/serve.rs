@@ -4,12 +4,13 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use common::service::*;
 use common::SimProcess;
 use hyper::Method;
+use laserd::daemon::client;
 use serde_json::Value;
 
 #[test]

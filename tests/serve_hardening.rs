@@ -425,6 +425,14 @@ fn a_stream_of_random_uploads_leaves_the_link_up_and_every_job_planned_or_failed
                 (name.to_string(), bytes)
             }
         };
+        if bytes.len() > 1_000_000 {
+            // Refused before the body is read: the client may not even get
+            // to the answer before the service closes the connection.
+            let answer = api.runtime.block_on(client::request(&api.socket, Method::POST, &format!("/jobs?name={name}"), Some(("application/octet-stream", bytes))));
+            assert!(answer.as_ref().map_or(true, |a| a.status == 413), "{name}: over the size limit");
+            refused += 1;
+            continue;
+        }
         let (status, body) = upload(&api, &name, &bytes);
         match status {
             202 => accepted.push(body["id"].as_str().unwrap().to_string()),
