@@ -245,7 +245,9 @@ fn every_error_of_the_api_is_json() {
     let (_, job) = upload(&api, "part.nc", b"G21\nG1 X1 F600\n");
     let id = job["id"].as_str().unwrap().to_string();
     let move_path = format!("/jobs/{id}/move");
-    let cases: Vec<(u16, Method, String, Option<(&str, Vec<u8>)>)> = vec![
+    // (expected code, method, path, body)
+    type Case<'a> = (u16, Method, String, Option<(&'a str, Vec<u8>)>);
+    let cases: Vec<Case> = vec![
         (413, Method::POST, "/jobs?name=big.nc".into(), Some(("application/octet-stream", vec![b'G'; 20_000]))),
         (415, Method::POST, move_path.clone(), Some(("text/plain", b"{\"position\": 0}".to_vec()))),
         (422, Method::POST, move_path.clone(), Some(("application/json", b"{\"position\": \"first\"}".to_vec()))),

@@ -322,7 +322,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("notes.txt");
         std::fs::write(&file, b"keep me").unwrap();
-        let err = bind_unix(&file).err().expect("a regular file is not a socket").to_string();
+        let err = bind_unix(&file).expect_err("a regular file is not a socket").to_string();
         assert!(err.contains("not a socket"), "{err}");
         assert_eq!(std::fs::read(&file).unwrap(), b"keep me");
         // A socket nobody serves on any more is replaced.

@@ -129,6 +129,27 @@ mod tests {
         assert!(!err.contains('\n'));
     }
 
+    /// A device or FIFO named like a job file is refused at once, and a file
+    /// over `[import] max_file_mb` is not read to its end.
+    #[test]
+    fn only_regular_files_up_to_the_size_limit_are_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let zero = dir.path().join("zero.svg");
+        std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+        let fifo = dir.path().join("fifo.svg");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).unwrap();
+        for path in [&zero, &fifo] {
+            let err = import_job(path, &config()).unwrap_err().to_string();
+            assert!(err.contains("not a regular file"), "{err}");
+        }
+        let big = dir.path().join("big.svg");
+        std::fs::write(&big, vec![b' '; 2000]).unwrap();
+        let mut small = config();
+        small.import.max_file_mb = 0.001;
+        let err = import_job(&big, &small).unwrap_err().to_string();
+        assert!(err.contains("big.svg") && err.contains("max_file_mb"), "{err}");
+    }
+
     #[test]
     fn reads_an_svg_file() {
         let dir = tempfile::tempdir().unwrap();
