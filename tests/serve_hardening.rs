@@ -15,22 +15,6 @@ use hyper::Method;
 use laserd::daemon::client;
 use serde_json::{json, Value};
 
-/// `laserd serve` started by `command` (its arguments still to come).
-fn serve_with(mut command: Command, config: &Path, state: &Path, socket: &Path) -> Service {
-    let child = command
-        .arg(env!("CARGO_BIN_EXE_laserd"))
-        .args(["serve", "--config", config.to_str().unwrap(), "--state-dir", state.to_str().unwrap(), "--socket", socket.to_str().unwrap()])
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("laserd serve starts");
-    let started = Instant::now();
-    while std::os::unix::net::UnixStream::connect(socket).is_err() {
-        assert!(started.elapsed() < Duration::from_secs(10), "the API socket appears");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    Service { child, socket: socket.to_path_buf() }
-}
-
 /// Uploads `bytes` as `name`: the answer's status and JSON body.
 fn upload(api: &Api, name: &str, bytes: &[u8]) -> (u16, Value) {
     let answer = api.runtime.block_on(client::request(&api.socket, Method::POST, &format!("/jobs?name={name}"), Some(("application/octet-stream", bytes.to_vec())))).unwrap();
@@ -286,10 +270,10 @@ impl SmallDisk {
         SmallDisk { holder, state: state.to_path_buf() }
     }
 
-    /// A command that runs inside the namespace.
+    /// laserd run inside the namespace (its arguments to follow).
     fn command(&self) -> Command {
         let mut c = Command::new("nsenter");
-        c.args(["-t", &self.holder.id().to_string(), "--user", "--mount", "--preserve-credentials", "--"]);
+        c.args(["-t", &self.holder.id().to_string(), "--user", "--mount", "--preserve-credentials", "--", env!("CARGO_BIN_EXE_laserd")]);
         c
     }
 
@@ -331,7 +315,7 @@ fn a_full_disk_mid_job_is_a_storage_error_and_loses_no_progress() {
     let _sim = SimProcess::start(&tty, &["--pty"]);
     let config = config(dir.path(), &tty);
     let socket = dir.path().join("api.sock");
-    let service = serve_with(disk.command(), &config, &disk.state, &socket);
+    let service = Service::launch(disk.command(), &config, &disk.state, &socket);
     let api = Api::new(&socket);
     api.wait_status(Duration::from_secs(10), "the controller link", |s| machine_state(s) == "Idle");
     let id = api.submit(&sample("marking-300.svg"));
@@ -354,7 +338,7 @@ fn a_full_disk_mid_job_is_a_storage_error_and_loses_no_progress() {
     // A crash while the disk is still full: the job comes back completed,
     // not offered for a resume that would mark lines twice.
     service.kill();
-    let service = serve_with(disk.command(), &config, &disk.state, &socket);
+    let service = Service::launch(disk.command(), &config, &disk.state, &socket);
     let api = Api::new(&socket);
     let job = api.job(&id);
     assert_eq!((job["state"].as_str(), job["last_executed_line"].as_u64()), (Some("completed"), Some(lines)), "{job}");

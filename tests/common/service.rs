@@ -49,7 +49,13 @@ pub struct Service {
 
 impl Service {
     pub fn start(config: &Path, state: &Path, socket: &Path) -> Service {
-        let child = Command::new(env!("CARGO_BIN_EXE_laserd"))
+        Service::launch(Command::new(env!("CARGO_BIN_EXE_laserd")), config, state, socket)
+    }
+
+    /// `laserd serve` run by `command`: laserd itself, or a wrapper whose
+    /// arguments end in laserd's path.
+    pub fn launch(mut command: Command, config: &Path, state: &Path, socket: &Path) -> Service {
+        let child = command
             .args(["serve", "--config", config.to_str().unwrap(), "--state-dir", state.to_str().unwrap(), "--socket", socket.to_str().unwrap()])
             .stderr(Stdio::inherit())
             .spawn()
