@@ -55,9 +55,14 @@ failed=()
 for target in "${targets[@]}"; do
   # New inputs go to a scratch corpus; the checked-in seeds are only read.
   mkdir -p "corpus-work/$target" "corpus/$target"
+  # A dictionary of the tokens a target's format is made of, where there is one.
+  dict=()
+  if [ -f "dict/$target.dict" ]; then
+    dict=(-dict="dict/$target.dict")
+  fi
   echo "fuzz/run.sh: $target for ${seconds} s"
   if ! cargo "${toolchain[@]}" fuzz run --sanitizer "$sanitizer" "$target" "corpus-work/$target" "corpus/$target" -- \
-      -max_total_time="$seconds" -rss_limit_mb=1024 -malloc_limit_mb=1024 -timeout="$per_input" -print_final_stats=1; then
+      -max_total_time="$seconds" -rss_limit_mb=1024 -malloc_limit_mb=1024 -timeout="$per_input" -print_final_stats=1 "${dict[@]}"; then
     failed+=("$target")
   fi
 done
