@@ -59,38 +59,14 @@ def svg_seeds():
 def config_seeds():
     for f in sorted((ROOT / "config").glob("*.toml")):
         put("config_text", f.name, f.read_bytes())
-    # The small machine of the import tests (src/import/mod.rs).
-    put("config_text", "small.toml", '''default_layer = "mark"
-[stage]
-travel_x = 300.0
-travel_y = 300.0
-max_velocity = 500.0
-max_acceleration = 5000.0
-max_jerk = 250000.0
-[laser]
-max_power = 1000.0
-mode = "M4"
-[serial]
-port = "/dev/null"
-baud = 115200
-rx_buffer = 128
-status_hz = 5.0
-[import]
-tolerance = 0.01
-svg_dpi = 96.0
-[[layer]]
-name = "mark"
-stroke = "#000000"
-speed = 1000.0
-power = 300.0
-passes = 2
-pierce_time = 0.1
-[[layer]]
-name = "cut"
-id = "cut"
-speed = 10.0
-power = 1000.0
-''')
+    # The shipped machine without its scanner: a stage-only one.
+    kept, skipping = [], False
+    for line in (ROOT / "config/laserd.toml").read_text().splitlines(keepends=True):
+        if line.startswith("["):
+            skipping = line.strip() == "[scanner]"
+        if not skipping:
+            kept.append(line)
+    put("config_text", "no-scanner.toml", "".join(kept))
 
 
 def controller_lines(path, n):
