@@ -109,10 +109,11 @@ struct SubmitQuery {
     name: Option<String>,
 }
 
+/// The JSON body of `POST /jobs` (submit by path). Public for the fuzz targets.
 #[derive(Deserialize)]
-struct SubmitPath {
+pub struct SubmitPath {
     /// A file on the machine PC that the service may read.
-    path: String,
+    pub path: String,
 }
 
 /// `POST /jobs?name=part.svg` with the file as the body, or `POST /jobs` with
@@ -140,10 +141,11 @@ async fn remove_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) 
     Ok(Json(serde_json::json!({ "removed": id })))
 }
 
+/// The JSON body of `POST /jobs/{id}/move`. Public for the fuzz targets.
 #[derive(Deserialize)]
-struct MoveTo {
+pub struct MoveTo {
     /// 0 = next to run.
-    position: usize,
+    pub position: usize,
 }
 
 async fn move_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>, Json(to): Json<MoveTo>) -> ApiResult<impl IntoResponse> {
@@ -184,9 +186,10 @@ async fn machine_call(State(d): State<Arc<Daemon>>, command: fn(oneshot::Sender<
     ask(&d, command).await
 }
 
+/// The JSON body of `POST /start` (may be empty). Public for the fuzz targets.
 #[derive(Deserialize, Default)]
-struct StartBody {
-    id: Option<String>,
+pub struct StartBody {
+    pub id: Option<String>,
 }
 
 async fn start(State(d): State<Arc<Daemon>>, body: Bytes) -> ApiResult<Json<serde_json::Value>> {
@@ -194,13 +197,14 @@ async fn start(State(d): State<Arc<Daemon>>, body: Bytes) -> ApiResult<Json<serd
     ask(&d, |reply| Command::Start { id, reply }).await
 }
 
+/// The JSON body of `POST /jobs/{id}/resume`. Public for the fuzz targets.
 #[derive(Deserialize)]
-struct ResumeBody {
+pub struct ResumeBody {
     /// The operator's explicit word: resuming starts motion.
     #[serde(default)]
-    confirm: bool,
+    pub confirm: bool,
     /// Line to resume at (default: after the last executed line).
-    from: Option<usize>,
+    pub from: Option<usize>,
 }
 
 /// Resumes an interrupted job: its modal state and position are restored,
@@ -214,10 +218,11 @@ async fn resume_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>, 
     ask(&d, |reply| Command::ResumeJob { id, from: Some(from), reply }).await
 }
 
+/// The JSON body of `POST /jog`. Public for the fuzz targets.
 #[derive(Deserialize)]
-struct JogBody {
+pub struct JogBody {
     /// A jog block, e.g. `G91 X10 F600` (sent as `$J=G91 X10 F600`).
-    block: String,
+    pub block: String,
 }
 
 async fn jog(State(d): State<Arc<Daemon>>, Json(body): Json<JogBody>) -> ApiResult<Json<serde_json::Value>> {

@@ -1,0 +1,146 @@
+//! Property tests of the job and config parsers: generated SVG path data and
+//! config text, on stable, in the normal suite. The fuzz targets in fuzz/
+//! search the same parsers far longer (and with the hostile sizes left out
+//! here until the importer refuses them: issue 16, findings 4 and 9).
+
+use std::sync::OnceLock;
+
+use laserd::config::MachineConfig;
+use laserd::import::svg::import_svg;
+use proptest::prelude::*;
+
+const SHIPPED: &str = include_str!("../config/laserd.toml");
+const SOURCE: &str = "generated.svg";
+
+fn config() -> &'static MachineConfig {
+    static CONFIG: OnceLock<MachineConfig> = OnceLock::new();
+    CONFIG.get_or_init(|| MachineConfig::parse(SHIPPED, "config/laserd.toml").expect("the shipped config is valid"))
+}
+
+/// A coordinate: mostly on the sheet, sometimes tiny, negative or far off it
+/// (within 1e4 px, 2.5 m: larger ones are the fuzz target's, see above).
+fn coordinate() -> impl Strategy<Value = String> {
+    prop_oneof![
+        4 => (-100.0f64..500.0).prop_map(|x| format!("{x:.3}")),
+        1 => (-1e4f64..1e4).prop_map(|x| format!("{x:e}")),
+        1 => prop::sample::select(vec!["0", "-0", ".5", "1e-9", "-.25e1", "1e4", "00"]).prop_map(String::from),
+    ]
+}
+
+/// One path command with its arguments, any letter case; sometimes with the
+/// wrong number of arguments.
+fn command() -> impl Strategy<Value = String> {
+    let args = |n: usize| prop::collection::vec(coordinate(), n);
+    let arc = (coordinate(), coordinate(), coordinate(), 0u8..2, 0u8..2, coordinate(), coordinate())
+        .prop_map(|(rx, ry, rot, large, sweep, x, y)| format!("{rx} {ry} {rot} {large} {sweep} {x} {y}"));
+    let letter = |l: &'static str| prop::sample::select(vec![l.to_string(), l.to_lowercase()]);
+    prop_oneof![
+        (letter("M"), args(2)).prop_map(|(c, a)| format!("{c}{}", a.join(" "))),
+        (letter("L"), args(2)).prop_map(|(c, a)| format!("{c}{}", a.join(","))),
+        (letter("H"), args(1)).prop_map(|(c, a)| format!("{c}{}", a.join(" "))),
+        (letter("V"), args(1)).prop_map(|(c, a)| format!("{c} {}", a.join(" "))),
+        (letter("C"), args(6)).prop_map(|(c, a)| format!("{c}{}", a.join(" "))),
+        (letter("S"), args(4)).prop_map(|(c, a)| format!("{c}{}", a.join(" "))),
+        (letter("Q"), args(4)).prop_map(|(c, a)| format!("{c}{}", a.join(" "))),
+        (letter("T"), args(2)).prop_map(|(c, a)| format!("{c}{}", a.join(" "))),
+        (letter("A"), arc).prop_map(|(c, a)| format!("{c}{a}")),
+        letter("Z"),
+    ]
+}
+
+/// A path: a move to start, then commands, now and then a broken one (a
+/// wrong argument count or an unknown letter: usvg keeps what came before).
+fn path_data() -> impl Strategy<Value = String> {
+    let broken = (prop::sample::select(vec!["L", "C", "A", "X"]), prop::collection::vec(coordinate(), 3)).prop_map(|(c, a)| format!("{c}{}", a.join(" ")));
+    let step = prop_oneof![12 => command(), 1 => broken];
+    (coordinate(), coordinate(), prop::collection::vec(step, 1..12)).prop_map(|(x, y, rest)| format!("M{x} {y} {}", rest.join(" ")))
+}
+
+fn svg() -> impl Strategy<Value = String> {
+    let stroke = prop::sample::select(vec!["#000000", "#000000", "#ff0000", "#0000ff", "#123456", "none"]);
+    let path = (path_data(), stroke);
+    let transform = prop_oneof![
+        4 => prop::sample::select(vec!["", "rotate(33)", "matrix(0 1 -1 0 5 5)", "translate(-50 20)"]),
+        1 => prop::sample::select(vec!["scale(1000)", "scale(0)", "scale(1e-9)"]),
+    ];
+    let size = prop_oneof![
+        4 => prop::sample::select(vec![r#"width="100mm" height="100mm" viewBox="0 0 100 100""#, r#"width="300" height="200""#]),
+        1 => prop::sample::select(vec![r#"viewBox="-10 -10 0 0""#, ""]),
+    ];
+    (prop::collection::vec(path, 1..4), transform, size).prop_map(|(paths, transform, size)| {
+        let body: String = paths
+            .iter()
+            .map(|(d, stroke)| format!(r#"<path d="{d}" stroke="{stroke}" fill="none"/>"#))
+            .collect();
+        format!(r#"<svg xmlns="http://www.w3.org/2000/svg" {size}><g transform="{transform}">{body}</g></svg>"#)
+    })
+}
+
+proptest! {
+    /// Generated path data never panics: it imports to finite geometry of at
+    /// least two points each, or is refused with an error naming the file.
+    #[test]
+    fn svg_path_data_imports_or_names_the_file(text in svg()) {
+        match import_svg(&text, SOURCE, config()) {
+            Ok(job) => {
+                prop_assert!(!job.geometries.is_empty());
+                for g in &job.geometries {
+                    prop_assert!(g.points.len() >= 2, "{:?}", g);
+                    prop_assert!(g.points.iter().all(|p| p.x.is_finite() && p.y.is_finite()), "{:?}", g);
+                    prop_assert!(g.process < job.processes.len());
+                }
+            }
+            Err(e) => prop_assert!(e.to_string().starts_with(&format!("import: {SOURCE}: ")), "{}", e),
+        }
+    }
+
+    /// Any text at all as a job: never a panic, an error names the file.
+    #[test]
+    fn any_text_as_svg_never_panics(text in ".{0,200}") {
+        if let Err(e) = import_svg(&text, SOURCE, config()) {
+            prop_assert!(e.to_string().starts_with(&format!("import: {SOURCE}: ")), "{}", e);
+        }
+    }
+}
+
+/// A value for a setting: numbers of every size and sign, TOML's specials,
+/// and values of the wrong type.
+fn value() -> impl Strategy<Value = String> {
+    prop_oneof![
+        any::<f64>().prop_map(|x| format!("{x:?}")),
+        any::<i64>().prop_map(|n| n.to_string()),
+        prop::sample::select(vec!["0", "-1", "0.0", "1e-300", "1e300", "5e-324", "inf", "-inf", "nan", "4294967295", "\"x\"", "[]", "true", "{}"])
+            .prop_map(String::from),
+    ]
+}
+
+proptest! {
+    /// The shipped config with one setting set to any value, or dropped:
+    /// parsed and validated without a panic; refused with the file's name.
+    #[test]
+    fn config_with_any_value_never_panics(pick in any::<prop::sample::Index>(), v in value(), drop in any::<bool>()) {
+        let settings: Vec<usize> = SHIPPED.lines().enumerate().filter(|(_, l)| l.contains(" = ") && !l.starts_with('#')).map(|(i, _)| i).collect();
+        let chosen = settings[pick.index(settings.len())];
+        let text: String = SHIPPED
+            .lines()
+            .enumerate()
+            .filter_map(|(i, l)| match (i == chosen, drop) {
+                (false, _) => Some(l.to_string()),
+                (true, true) => None,
+                (true, false) => Some(format!("{} = {v}", l.split(" = ").next().unwrap_or(l))),
+            })
+            .collect::<Vec<_>>()
+            .join("\n");
+        if let Err(e) = MachineConfig::parse(&text, "mutated.toml") {
+            prop_assert!(e.to_string().starts_with("config: mutated.toml: "), "{}", e);
+        }
+    }
+
+    /// Any text at all as a config: never a panic.
+    #[test]
+    fn any_config_text_never_panics(text in "(.|\n){0,300}") {
+        if let Err(e) = MachineConfig::parse(&text, "any.toml") {
+            prop_assert!(e.to_string().starts_with("config: any.toml: "), "{}", e);
+        }
+    }
+}
