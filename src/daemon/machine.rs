@@ -347,8 +347,9 @@ fn take(daemon: &Daemon, id: Option<&str>, from: JobState, check: impl FnOnce(&J
         j.message = None;
         j.warnings.clear();
     })?;
+    daemon.announce(&job);
     drop(store);
-    daemon.job_changed(&job);
+    daemon.queue_changed();
     Ok((job, progress))
 }
 
@@ -368,13 +369,12 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         Ok(prepared) => prepared,
         Err(e) => {
             // Nothing was sent: the job fails alone, the link stays up.
-            let failed = daemon.store().update(&job.id, |j| {
+            daemon.status.send_modify(|s| s.job = None);
+            daemon.update_job(&job.id, |j| {
                 j.state = JobState::Failed;
                 j.message = Some(format!("not started: {e}"));
                 j.ended_at = Some(super::queue::now());
             })?;
-            daemon.status.send_modify(|s| s.job = None);
-            daemon.job_changed(&failed);
             return Ok(false);
         }
     };
@@ -424,11 +424,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                 p.state = state;
             }
         });
-        // The store's lock is let go before the news goes out.
-        let changed = daemon.store().update(&job.id, |j| j.state = state);
-        if let Ok(job) = changed {
-            daemon.job_changed(&job);
-        }
+        let _ = daemon.update_job(&job.id, |j| j.state = state);
         Ok::<_, Error>(())
     };
     // A planned program starts where it was planned from: bring the machine
@@ -451,8 +447,9 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                 tokio::select! {
                 outcome = &mut stream => break outcome,
                 _ = save.tick() => {
-                    // Progress on disk five times a second: what a restart
-                    // after a crash or power loss resumes from.
+                    // Progress on disk as the status reports move it (they
+                    // come at most every 10 ms): what a restart after a crash
+                    // or power loss resumes from.
                     let sent = running.lock().unwrap_or_else(|e| e.into_inner()).last_sent;
                     let executed = executed_line.load(Ordering::Relaxed);
                     save_progress(JobState::Running, sent, executed, None);
@@ -528,7 +525,8 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         _ => (outcome.as_ref().map_or(last_sent, |o| o.last_acked_line), executed.unwrap_or(executed_estimate)),
     };
     save_progress(state, acked, executed_final, Some(ended));
-    let job = daemon.store().update(&job.id, |j| {
+    daemon.status.send_modify(|s| s.job = None);
+    daemon.update_job(&job.id, |j| {
         j.warnings.extend(recording_cut.clone());
         j.state = state;
         j.message = message;
@@ -541,8 +539,6 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
             j.link_utilization = (o.stream_time_s > 0.0).then(|| bytes as f64 / (baud / 10.0 * o.stream_time_s));
         }
     })?;
-    daemon.status.send_modify(|s| s.job = None);
-    daemon.job_changed(&job);
     let _ = daemon.store().prune(daemon.machine.service.keep_jobs);
     if let Some(done) = shutdown_done {
         let _ = done.send(());
@@ -552,8 +548,9 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     Ok(stopping)
 }
 
-/// How often a running job's progress is written to its progress file.
-const PROGRESS_INTERVAL: Duration = Duration::from_millis(200);
+/// How often a running job's progress is looked at and, if it moved,
+/// written to its progress file.
+const PROGRESS_INTERVAL: Duration = Duration::from_millis(50);
 
 /// How the move to a job's start ended.
 enum Approach {

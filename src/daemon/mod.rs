@@ -140,8 +140,29 @@ impl Daemon {
         Ok(())
     }
 
-    /// Tells event subscribers about a job's new record.
+    /// Changes a job's record and tells subscribers, as one step: the news
+    /// goes out under the store's lock, so events come in the order of the
+    /// changes (a job is `queued` before anyone sees it `running`).
+    pub fn update_job(&self, id: &str, change: impl FnOnce(&mut JobRecord)) -> Result<JobRecord> {
+        let job = {
+            let mut store = self.store();
+            let job = store.update(id, change)?;
+            self.announce(&job);
+            job
+        };
+        self.queue_changed();
+        Ok(job)
+    }
+
+    /// Tells event subscribers about a job's new record, and the queue's count.
     pub fn job_changed(&self, job: &JobRecord) {
+        self.announce(job);
+        self.queue_changed();
+    }
+
+    /// Logs and sends a job's new record (no lock taken: callable with the
+    /// store held).
+    pub fn announce(&self, job: &JobRecord) {
         // Every call is a change of state: the journal's account of the job.
         let state = format!("{:?}", job.state).to_lowercase();
         let line = if job.state.is_final() || job.state == JobState::Interrupted { format!(", last executed line {} of {}", job.last_executed_line, job.lines_total) } else { String::new() };
@@ -150,7 +171,6 @@ impl Daemon {
             None => tracing::info!("job {} ({}): {state}{line}", job.id, job.name),
         }
         let _ = self.events.send(Event::Job(job.clone()));
-        self.queue_changed();
     }
 
     /// The status's count of waiting jobs, after the queue changed.
@@ -198,7 +218,7 @@ fn plan_job(daemon: &Daemon, id: &str) {
     let limits = intake::PlanLimits { timeout: std::time::Duration::from_secs_f64(service.plan_timeout), memory_bytes: (service.plan_memory_mb * (1u64 << 20) as f64) as u64 };
     let planned = intake::plan_in_child(&daemon.config_text, &source, &name, &program_path, &limits, &|| cancel.load(Ordering::Relaxed));
     *daemon.planning_now.lock().unwrap_or_else(|e| e.into_inner()) = None;
-    let result = daemon.store().update(id, |j| match &planned {
+    let result = daemon.update_job(id, |j| match &planned {
         Ok(plan) => {
             j.state = JobState::Queued;
             j.lines_total = plan.lines;
@@ -211,10 +231,9 @@ fn plan_job(daemon: &Daemon, id: &str) {
             j.message = Some(e.to_string());
         }
     });
-    match result {
-        Ok(job) => daemon.job_changed(&job),
+    if let Err(e) = result {
         // Removed while it was planned: nothing to tell.
-        Err(e) => tracing::debug!("job {id} after planning: {e}"),
+        tracing::debug!("job {id} after planning: {e}");
     }
 }
 

@@ -453,7 +453,14 @@ impl Progress {
 pub struct ProgressFile {
     file: std::fs::File,
     path: PathBuf,
+    /// What was written last, and when it last reached the disk.
+    written: std::sync::Mutex<(Option<Progress>, std::time::Instant)>,
 }
+
+/// How often a running job's progress is flushed to the disk (for a power
+/// loss); every write reaches the page cache at once, which a crash of the
+/// service does not lose.
+const PROGRESS_SYNC: std::time::Duration = std::time::Duration::from_millis(500);
 
 impl ProgressFile {
     /// Allocates the file (an error if the disk cannot take even that).
@@ -465,16 +472,25 @@ impl ProgressFile {
         if let Some(parent) = path.parent() {
             std::fs::File::open(parent).and_then(|d| d.sync_all()).map_err(io)?;
         }
-        Ok(ProgressFile { file, path: path.to_path_buf() })
+        Ok(ProgressFile { file, path: path.to_path_buf(), written: std::sync::Mutex::new((None, std::time::Instant::now())) })
     }
 
-    /// Rewrites the progress in place and flushes it to the disk.
+    /// Rewrites the progress in place if it changed; flushes it to the disk
+    /// at the end of the job and at most every `PROGRESS_SYNC` before.
     pub fn write(&self, progress: &Progress) -> Result<()> {
         let io = |e: std::io::Error| Error::Io(format!("{}: cannot write: {e}", self.path.display()));
-        let mut bytes = serde_json::to_vec(progress).map_err(|e| Error::Io(e.to_string()))?;
-        bytes.resize(PROGRESS_BYTES, b' ');
-        self.file.write_all_at(&bytes, 0).map_err(io)?;
-        self.file.sync_data().map_err(io)
+        let mut written = self.written.lock().unwrap_or_else(|e| e.into_inner());
+        if written.0.as_ref() != Some(progress) {
+            let mut bytes = serde_json::to_vec(progress).map_err(|e| Error::Io(e.to_string()))?;
+            bytes.resize(PROGRESS_BYTES, b' ');
+            self.file.write_all_at(&bytes, 0).map_err(io)?;
+            written.0 = Some(progress.clone());
+        }
+        if progress.state.is_final() || written.1.elapsed() >= PROGRESS_SYNC {
+            self.file.sync_data().map_err(io)?;
+            written.1 = std::time::Instant::now();
+        }
+        Ok(())
     }
 
     /// What a progress file says, if it says anything readable.
