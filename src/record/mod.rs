@@ -274,20 +274,48 @@ pub fn read(path: &Path) -> Result<Replay> {
         .with_record_length_limit(RECORD_LIMIT)
         .with_validate_chunk_crcs(true)
         .with_prevalidate_chunk_crcs(true);
-    let stream = mcap::io::MessageReader::new_with_options(std::io::BufReader::new(file), options);
+    // Records are taken from the reader raw and only the two laserd needs
+    // are decoded, by hand: the crate's parser reserves a string's claimed
+    // length (up to 4 GB) before it reads it, so a damaged length inside a
+    // small record would allocate by the file's word.
+    let mut reader = mcap::sans_io::LinearReader::new_with_options(options);
+    let mut file = std::io::BufReader::new(file);
+    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
     let mut out = Replay::default();
-    for (read, msg) in stream.enumerate() {
-        let msg = match msg {
-            Ok(m) => m,
-            Err(e) if read == 0 => return Err(Error::Record(format!("{shown}: not a readable MCAP file: {e}"))),
-            Err(e) => {
+    let mut records = 0usize;
+    loop {
+        let event = match reader.next_event() {
+            None => break,
+            Some(Ok(event)) => event,
+            Some(Err(e)) if records == 0 => return Err(Error::Record(format!("{shown}: not a readable MCAP file: {e}"))),
+            Some(Err(e)) => {
                 out.truncated = Some(e.to_string());
                 break;
             }
         };
-        if let Err(why) = out.take(msg.channel.topic.as_str(), &msg.data) {
-            out.truncated = Some(why);
-            break;
+        match event {
+            mcap::sans_io::LinearReadEvent::ReadRequest(need) => {
+                let buffer = reader.insert(need);
+                let got = std::io::Read::read(&mut file, buffer).map_err(|e| Error::Record(format!("{shown}: cannot read: {e}")))?;
+                reader.notify_read(got);
+            }
+            mcap::sans_io::LinearReadEvent::Record { data, opcode } => {
+                records += 1;
+                let taken = match opcode {
+                    mcap::records::op::CHANNEL => channel_topic(data).map(|(id, topic)| {
+                        topics.insert(id, topic);
+                    }),
+                    mcap::records::op::MESSAGE => message(data).and_then(|(channel, body)| match topics.get(&channel) {
+                        Some(topic) => out.take(topic, body),
+                        None => Err(format!("a message on channel {channel}, which no channel record defined")),
+                    }),
+                    _ => Ok(()),
+                };
+                if let Err(why) = taken {
+                    out.truncated = Some(why);
+                    break;
+                }
+            }
         }
     }
     if out.truncated.is_none() && !ends_with_magic {
@@ -316,6 +344,24 @@ impl Replay {
         }
         Ok(())
     }
+}
+
+/// A channel record's id and topic (MCAP: id u16, schema id u16, topic as
+/// a u32-length string, …), its lengths checked against the record.
+fn channel_topic(body: &[u8]) -> std::result::Result<(u16, String), String> {
+    let bad = || "a damaged channel record".to_string();
+    let id = u16::from_le_bytes(body.get(0..2).ok_or_else(bad)?.try_into().map_err(|_| bad())?);
+    let len = u32::from_le_bytes(body.get(4..8).ok_or_else(bad)?.try_into().map_err(|_| bad())?) as usize;
+    let topic = body.get(8..8usize.checked_add(len).ok_or_else(bad)?).ok_or_else(bad)?;
+    Ok((id, String::from_utf8(topic.to_vec()).map_err(|_| bad())?))
+}
+
+/// A message record's channel and data (MCAP: channel u16, sequence u32,
+/// log and publish times u64, then the data to the record's end).
+fn message(body: &[u8]) -> std::result::Result<(u16, &[u8]), String> {
+    let channel = body.get(0..2).ok_or("a damaged message record")?;
+    let data = body.get(22..).ok_or("a damaged message record")?;
+    Ok((u16::from_le_bytes([channel[0], channel[1]]), data))
 }
 
 /// Whether the file ends with `magic` (an MCAP file written to its end).
