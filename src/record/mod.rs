@@ -377,3 +377,32 @@ fn ends_with(file: &mut File, magic: &[u8]) -> std::io::Result<bool> {
     file.seek(SeekFrom::Start(0))?;
     Ok(tail == magic)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A channel record whose topic claims 4 GB inside a record of a few
+    /// bytes is damaged, not a 4 GB allocation (fuzz/mcap_replay found the
+    /// crate's parser reserving the claimed length first).
+    #[test]
+    fn record_lengths_are_checked_against_the_record_before_anything_is_taken() {
+        let mut channel = vec![7, 0, 1, 0];
+        channel.extend(4u32.to_le_bytes());
+        channel.extend(b"/run");
+        channel.extend(4u32.to_le_bytes());
+        channel.extend(b"json");
+        assert_eq!(channel_topic(&channel), Ok((7, "/run".to_string())));
+        for claimed in [17u32, 0xffff_fff0, u32::MAX] {
+            let mut damaged = channel.clone();
+            damaged[4..8].copy_from_slice(&claimed.to_le_bytes());
+            assert!(channel_topic(&damaged).is_err(), "topic length {claimed}");
+        }
+        assert!(channel_topic(&channel[..6]).is_err());
+        let mut message_body = vec![7, 0];
+        message_body.extend([0u8; 20]);
+        message_body.extend(b"{}");
+        assert_eq!(message(&message_body), Ok((7, &b"{}"[..])));
+        assert!(message(&message_body[..21]).is_err());
+    }
+}
