@@ -272,12 +272,12 @@ pub fn read(path: &Path) -> Result<Replay> {
     let options = mcap::sans_io::LinearReaderOptions::default()
         .with_skip_end_magic(true)
         .with_record_length_limit(RECORD_LIMIT)
-        .with_validate_chunk_crcs(true)
-        .with_prevalidate_chunk_crcs(true);
-    // Records are taken from the reader raw and only the two laserd needs
-    // are decoded, by hand: the crate's parser reserves a string's claimed
-    // length (up to 4 GB) before it reads it, so a damaged length inside a
-    // small record would allocate by the file's word.
+        .with_emit_chunks(true);
+    // Records are taken from the reader raw, chunks too, and only the ones
+    // laserd needs are decoded, by hand, every length checked against what
+    // holds it: the crate's parser reserves a string's claimed length (up to
+    // 4 GB) before reading it, and its chunk walk underflows on a record
+    // longer than its chunk.
     let mut reader = mcap::sans_io::LinearReader::new_with_options(options);
     let mut file = std::io::BufReader::new(file);
     let mut topics: BTreeMap<u16, String> = BTreeMap::new();
@@ -302,14 +302,16 @@ pub fn read(path: &Path) -> Result<Replay> {
             mcap::sans_io::LinearReadEvent::Record { data, opcode } => {
                 records += 1;
                 let taken = match opcode {
-                    mcap::records::op::CHANNEL => channel_topic(data).map(|(id, topic)| {
-                        topics.insert(id, topic);
+                    mcap::records::op::CHUNK => chunk_records(data).and_then(|inner| {
+                        let mut rest = &inner[..];
+                        while !rest.is_empty() {
+                            let (opcode, body, after) = split_record(rest)?;
+                            out.take_record(&mut topics, opcode, body)?;
+                            rest = after;
+                        }
+                        Ok(())
                     }),
-                    mcap::records::op::MESSAGE => message(data).and_then(|(channel, body)| match topics.get(&channel) {
-                        Some(topic) => out.take(topic, body),
-                        None => Err(format!("a message on channel {channel}, which no channel record defined")),
-                    }),
-                    _ => Ok(()),
+                    _ => out.take_record(&mut topics, opcode, data),
                 };
                 if let Err(why) = taken {
                     out.truncated = Some(why);
@@ -328,6 +330,26 @@ pub fn read(path: &Path) -> Result<Replay> {
 }
 
 impl Replay {
+    /// One record (not a chunk) into the replay: channels name topics,
+    /// messages are taken; the rest is not needed.
+    fn take_record(&mut self, topics: &mut BTreeMap<u16, String>, opcode: u8, body: &[u8]) -> std::result::Result<(), String> {
+        match opcode {
+            mcap::records::op::CHANNEL => {
+                let (id, topic) = channel_topic(body)?;
+                topics.insert(id, topic);
+                Ok(())
+            }
+            mcap::records::op::MESSAGE => {
+                let (channel, data) = message(body)?;
+                match topics.get(&channel) {
+                    Some(topic) => self.take(topic, data),
+                    None => Err(format!("a message on channel {channel}, which no channel record defined")),
+                }
+            }
+            _ => Ok(()),
+        }
+    }
+
     /// One message of the recording into the replay.
     fn take(&mut self, topic: &str, data: &[u8]) -> std::result::Result<(), String> {
         match topic {
@@ -354,6 +376,54 @@ fn channel_topic(body: &[u8]) -> std::result::Result<(u16, String), String> {
     let len = u32::from_le_bytes(body.get(4..8).ok_or_else(bad)?.try_into().map_err(|_| bad())?) as usize;
     let topic = body.get(8..8usize.checked_add(len).ok_or_else(bad)?).ok_or_else(bad)?;
     Ok((id, String::from_utf8(topic.to_vec()).map_err(|_| bad())?))
+}
+
+/// Little-endian integers at `at` of a record, if it holds them.
+fn u32_at(body: &[u8], at: usize) -> Option<u32> {
+    Some(u32::from_le_bytes(body.get(at..at.checked_add(4)?)?.try_into().ok()?))
+}
+
+fn u64_at(body: &[u8], at: usize) -> Option<u64> {
+    Some(u64::from_le_bytes(body.get(at..at.checked_add(8)?)?.try_into().ok()?))
+}
+
+/// The records a chunk holds, decompressed within `RECORD_LIMIT` (MCAP:
+/// start and end times u64, uncompressed size u64, CRC u32, compression as
+/// a u32-length string, compressed size u64, the records).
+fn chunk_records(body: &[u8]) -> std::result::Result<std::borrow::Cow<'_, [u8]>, String> {
+    let bad = || "a damaged chunk".to_string();
+    let uncompressed = u64_at(body, 16).ok_or_else(bad)?;
+    let name_len = u32_at(body, 28).ok_or_else(bad)? as usize;
+    let name = body.get(32..32usize.checked_add(name_len).ok_or_else(bad)?).ok_or_else(bad)?;
+    let at = 32 + name_len;
+    let size = u64_at(body, at).ok_or_else(bad)?;
+    let records = body.get(at + 8..).filter(|r| r.len() as u64 == size).ok_or_else(bad)?;
+    if uncompressed > RECORD_LIMIT as u64 {
+        return Err(format!("a chunk claiming {uncompressed} bytes, more than {RECORD_LIMIT}"));
+    }
+    match name {
+        b"" if uncompressed == size => Ok(records.into()),
+        b"zstd" => {
+            let data = zstd::bulk::decompress(records, uncompressed as usize).map_err(|e| format!("a damaged chunk: {e}"))?;
+            if data.len() as u64 != uncompressed {
+                return Err(bad());
+            }
+            Ok(data.into())
+        }
+        b"" => Err(bad()),
+        other => Err(format!("a chunk compressed with {:?}, which laserd does not write", String::from_utf8_lossy(other))),
+    }
+}
+
+/// The first record of `bytes` (opcode u8, length u64, body) and what
+/// follows it.
+fn split_record(bytes: &[u8]) -> std::result::Result<(u8, &[u8], &[u8]), String> {
+    let bad = || "a damaged record in a chunk".to_string();
+    let opcode = *bytes.first().ok_or_else(bad)?;
+    let len = usize::try_from(u64_at(bytes, 1).ok_or_else(bad)?).map_err(|_| bad())?;
+    let end = 9usize.checked_add(len).ok_or_else(bad)?;
+    let body = bytes.get(9..end).ok_or_else(bad)?;
+    Ok((opcode, body, &bytes[end..]))
 }
 
 /// A message record's channel and data (MCAP: channel u16, sequence u32,
