@@ -8,6 +8,13 @@ use std::sync::OnceLock;
 use laserd::config::MachineConfig;
 use laserd::import::svg::import_svg;
 use proptest::prelude::*;
+use proptest::test_runner::RngSeed;
+
+/// The same cases on every run and machine (a test that fails, fails
+/// again), and no regression files written into the source tree.
+fn reproducible() -> ProptestConfig {
+    ProptestConfig { rng_seed: RngSeed::Fixed(16), failure_persistence: None, ..ProptestConfig::default() }
+}
 
 const SHIPPED: &str = include_str!("../config/laserd.toml");
 const SOURCE: &str = "generated.svg";
@@ -77,6 +84,8 @@ fn svg() -> impl Strategy<Value = String> {
 }
 
 proptest! {
+    #![proptest_config(reproducible())]
+
     /// Generated path data never panics: it imports to finite geometry of at
     /// least two points each, or is refused with an error naming the file.
     #[test]
@@ -115,6 +124,8 @@ fn value() -> impl Strategy<Value = String> {
 }
 
 proptest! {
+    #![proptest_config(reproducible())]
+
     /// The shipped config with one setting set to any value, or dropped:
     /// parsed and validated without a panic; refused with the file's name.
     #[test]
