@@ -549,19 +549,13 @@ pub fn quoted_start(text: &str) -> &str {
 }
 
 /// Seconds a line dwells (`G4 P<seconds>`), 0 for any other line. Lines
-/// are cleaned (`clean_line`): upper case, no spaces.
+/// are cleaned (`clean_line`): upper case, no spaces; split into words as
+/// the controller splits them (`laserd_sim::gcode::split_words`).
 fn dwell_seconds(text: &str) -> f64 {
-    let mut words = Vec::new();
-    let mut rest = text;
-    while let Some(letter) = rest.chars().next().filter(char::is_ascii_alphabetic) {
-        let number_len = rest[1..].find(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-' || c == '+')).unwrap_or(rest.len() - 1);
-        words.push((letter, rest[1..1 + number_len].parse::<f64>().ok()));
-        rest = &rest[1 + number_len..];
-    }
-    let dwells = words.iter().any(|&(l, v)| l == 'G' && v == Some(4.0));
-    let p = words.iter().find(|(l, _)| *l == 'P').and_then(|(_, v)| *v);
-    match p {
-        Some(p) if dwells && p.is_finite() && p > 0.0 => p,
+    let Ok(words) = laserd_sim::gcode::split_words(text) else { return 0.0 };
+    let dwells = words.iter().any(|w| w.letter == 'G' && w.value == 4.0);
+    match words.iter().find(|w| w.letter == 'P') {
+        Some(p) if dwells && p.value.is_finite() && p.value > 0.0 => p.value,
         _ => 0.0,
     }
 }
@@ -1194,9 +1188,10 @@ fn link_failure(e: Error) -> String {
 /// buffers and line number alike (numbers compared bit for bit, so a
 /// controller reporting `NaN` does not look like it moves).
 fn same_progress(a: &StatusReport, b: &StatusReport) -> bool {
-    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+    let (pa, pb) = (a.position(), b.position());
     a.state == b.state
-        && bits(a.position()) == bits(b.position())
+        && pa.len() == pb.len()
+        && pa.iter().zip(pb).all(|(x, y)| x.to_bits() == y.to_bits())
         && a.buffer == b.buffer
         && a.line == b.line
 }
