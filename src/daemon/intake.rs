@@ -111,11 +111,13 @@ pub fn check_gcode(name: &str, text: &str, machine: &MachineConfig) -> Result<us
     if ask(&mut controller, "$C") != Some(Response::Ok) {
         return Err(Error::Io(format!("{name}: the G-code check could not enter check mode")));
     }
+    // Split and capped as the service will stream it.
     let mut lines = 0;
-    for (i, raw) in text.lines().enumerate() {
+    for (i, raw) in crate::stream::FileLines::new(text.as_bytes(), name).enumerate() {
+        let raw = raw?;
         lines += 1;
         let n = i + 1;
-        let clean = crate::stream::clean_line(raw);
+        let clean = crate::stream::clean_line(&raw);
         if clean.is_empty() {
             continue;
         }
@@ -142,8 +144,6 @@ pub struct PlanResult {
     pub lines: usize,
     pub planned_time_s: Option<f64>,
     pub start: Option<Vec<f64>>,
-    #[serde(default)]
-    pub warnings: Vec<String>,
     /// Set when the job cannot run: why.
     pub error: Option<String>,
 }
@@ -180,7 +180,6 @@ fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineCon
                 lines: planned.program.lines.len(),
                 planned_time_s: Some(planned.report.trajectory_time_s),
                 start: Some(planned.program.start.clone()),
-                warnings: Vec::new(),
                 error: None,
             })
         }

@@ -224,7 +224,6 @@ fn plan_job(daemon: &Daemon, id: &str) {
             j.lines_total = plan.lines;
             j.planned_time_s = plan.planned_time_s;
             j.start = plan.start.clone();
-            j.warnings = plan.warnings.clone();
         }
         Err(e) => {
             j.state = JobState::Failed;
