@@ -424,8 +424,8 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                 p.state = state;
             }
         });
+        // A job cannot be removed while it runs: the update finds it.
         let _ = daemon.update_job(&job.id, |j| j.state = state);
-        Ok::<_, Error>(())
     };
     // A planned program starts where it was planned from: bring the machine
     // there first, at the controller's own rates, laser off (a resume moves
@@ -461,12 +461,12 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                 command = commands.recv() => match command {
                     Some(Command::Pause(reply)) => {
                         let _ = control.send(Control::FeedHold);
-                        set_state(JobState::Paused)?;
+                        set_state(JobState::Paused);
                         let _ = reply.send(Ok(format!("job {} held", job.id)));
                     }
                     Some(Command::Resume(reply)) => {
                         let _ = control.send(Control::Resume);
-                        set_state(JobState::Running)?;
+                        set_state(JobState::Running);
                         let _ = reply.send(Ok(format!("job {} resumed", job.id)));
                     }
                     Some(Command::Abort(reply)) => {
@@ -565,7 +565,7 @@ enum Approach {
 /// and waits until it is there. The operator's commands count meanwhile:
 /// pause cancels the jog and waits for resume (which jogs there again),
 /// abort and a service stop cancel it and end the approach.
-async fn approach(daemon: &Daemon, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, target: &[f64], set_state: &dyn Fn(JobState) -> Result<()>) -> Result<Approach> {
+async fn approach(daemon: &Daemon, connection: &mut Link, commands: &mut mpsc::UnboundedReceiver<Command>, target: &[f64], set_state: &dyn Fn(JobState)) -> Result<Approach> {
     let machine = &daemon.machine;
     let words: String = machine.axis_letters().iter().zip(target).map(|(l, v)| format!("{l}{}", crate::program::format_number(*v, 4))).collect();
     // Each axis is held to the controller's own rate and acceleration limits.
@@ -596,7 +596,7 @@ async fn approach(daemon: &Daemon, connection: &mut Link, commands: &mut mpsc::U
                 command = commands.recv() => match command {
                     Some(Command::Pause(reply)) => {
                         stop_jog(connection).await?;
-                        set_state(JobState::Paused)?;
+                        set_state(JobState::Paused);
                         let _ = reply.send(Ok("held on the way to the job's start".into()));
                         break true;
                     }
@@ -627,7 +627,7 @@ async fn approach(daemon: &Daemon, connection: &mut Link, commands: &mut mpsc::U
                     }
                     command = commands.recv() => match command {
                         Some(Command::Resume(reply)) => {
-                            set_state(JobState::Running)?;
+                            set_state(JobState::Running);
                             let _ = reply.send(Ok("resumed: moving to the job's start".into()));
                             break;
                         }

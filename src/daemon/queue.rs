@@ -76,8 +76,8 @@ pub struct JobRecord {
     pub start: Option<Vec<f64>>,
     /// Why the job failed or was interrupted.
     pub message: Option<String>,
-    /// What the operator should know although the job went on: geometry the
-    /// planner was told about, a recording cut short by a full disk, …
+    /// What the operator should know although the job went on (a recording
+    /// cut short by a full disk).
     #[serde(default)]
     pub warnings: Vec<String>,
     /// The link while it streamed: bytes sent, from the first byte to the last
@@ -134,7 +134,7 @@ impl Store {
         std::fs::create_dir_all(&jobs_dir).map_err(|e| Error::Io(format!("{}: cannot create: {e}", jobs_dir.display())))?;
         let mut jobs = BTreeMap::new();
         let mut next_id = 1;
-        let mut behind = Vec::new();
+        let mut behind = BTreeSet::new();
         let entries = std::fs::read_dir(&jobs_dir).map_err(|e| Error::Io(format!("{}: cannot read: {e}", jobs_dir.display())))?;
         for entry in entries.flatten() {
             let file = entry.path().join("job.json");
@@ -148,7 +148,7 @@ impl Store {
             };
             let mut record = record;
             if ProgressFile::read(&entry.path().join(PROGRESS_FILE)).is_some_and(|p| p.merge_into(&mut record)) {
-                behind.push(record.id.clone());
+                behind.insert(record.id.clone());
             }
             if let Ok(n) = record.id.trim_start_matches('j').parse::<u64>() {
                 next_id = next_id.max(n + 1);
@@ -165,17 +165,15 @@ impl Store {
             Err(_) => Vec::new(),
         };
         order.retain(|id| jobs.contains_key(id));
-        let mut store = Store { dir: dir.to_path_buf(), jobs, order, next_id, unsaved: BTreeSet::new(), order_unsaved: false, storage_error: None };
+        // Records behind their progress file (the disk was full) are written
+        // by the flush below.
+        let mut store = Store { dir: dir.to_path_buf(), jobs, order, next_id, unsaved: behind, order_unsaved: false, storage_error: None };
         let cut_short: Vec<String> = store.jobs.values().filter(|j| matches!(j.state, JobState::Running | JobState::Paused)).map(|j| j.id.clone()).collect();
         for id in cut_short {
             store.update(&id, |j| {
                 j.state = JobState::Interrupted;
                 j.message = Some(format!("the daemon stopped while the job ran; last executed line {}", j.last_executed_line));
             })?;
-        }
-        // Records behind their progress file (the disk was full): written now.
-        for id in behind {
-            store.unsaved.insert(id);
         }
         // A job accepted but not yet queued (the daemon stopped while planning)
         // keeps its place: queued jobs first, in their order, then these.
@@ -229,24 +227,23 @@ impl Store {
     /// puts it at the end of the queue.
     pub fn add(&mut self, name: &str, source: &[u8]) -> Result<JobRecord> {
         let id = format!("j{:06}", self.next_id);
-        // The id is spent before anything of the job is written: a job
-        // deleted later never lends its id to another.
-        write_atomic(&self.dir.join(NEXT_ID_FILE), format!("{}\n", self.next_id + 1).as_bytes()).inspect_err(|e| {
-            self.failed(e);
-        })?;
-        self.next_id += 1;
-        let dir = self.job_dir(&id);
-        std::fs::create_dir_all(&dir).map_err(|e| Error::Io(format!("{}: cannot create: {e}", dir.display())))?;
-        let stored = self.add_in(&dir, &id, name, source);
-        if stored.is_err() {
-            let _ = std::fs::remove_dir_all(&dir);
+        let stored = self.add_as(&id, name, source);
+        if let Err(e) = &stored {
+            // Nothing of a job the disk could not take is kept.
+            let _ = std::fs::remove_dir_all(self.job_dir(&id));
             self.jobs.remove(&id);
-            self.order.retain(|o| o != &id);
+            self.failed(e);
         }
         stored
     }
 
-    fn add_in(&mut self, dir: &Path, id: &str, name: &str, source: &[u8]) -> Result<JobRecord> {
+    fn add_as(&mut self, id: &str, name: &str, source: &[u8]) -> Result<JobRecord> {
+        // The id is spent before anything of the job is written: a job
+        // deleted later never lends its id to another.
+        write_atomic(&self.dir.join(NEXT_ID_FILE), format!("{}\n", self.next_id + 1).as_bytes())?;
+        self.next_id += 1;
+        let dir = self.job_dir(id);
+        std::fs::create_dir_all(&dir).map_err(|e| Error::Io(format!("{}: cannot create: {e}", dir.display())))?;
         let id = id.to_string();
         let record = JobRecord {
             id: id.clone(),
@@ -266,13 +263,9 @@ impl Store {
             stream_time_s: 0.0,
             link_utilization: None,
         };
-        write_atomic(&dir.join(format!("source.{}", extension_of(name))), source).inspect_err(|e| {
-            self.failed(e);
-        })?;
+        write_atomic(&dir.join(format!("source.{}", extension_of(name))), source)?;
         self.jobs.insert(id.clone(), record.clone());
-        self.save_job(&id).inspect_err(|e| {
-            self.failed(e);
-        })?;
+        self.save_job(&id)?;
         self.order.push(id);
         self.order_unsaved = true;
         self.flush();

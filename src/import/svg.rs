@@ -126,25 +126,9 @@ fn check_raw_geometry(text: &str, source: &str) -> Result<()> {
                 }
             };
             let bad = |why: String| Error::Import(format!("{source}: {}: {}: {why}", name(), attr.name()));
-            if let Some(n) = numbers_in(value).find(|n| !(n.is_finite() && n.abs() <= MAX_RAW_NUMBER)) {
+            let numbers = numbers_of(attr.name(), value).map_err(bad)?;
+            if let Some(n) = numbers.iter().find(|n| !(n.is_finite() && n.abs() <= MAX_RAW_NUMBER)) {
                 return Err(bad(format!("the number {n:e} is out of range (at most {MAX_RAW_NUMBER:e} in magnitude)")));
-            }
-            match attr.name() {
-                "d" => {
-                    if let Some(Err(e)) = svgtypes::PathParser::from(value).find(|s| s.is_err()) {
-                        return Err(bad(format!("unreadable path data ({e}); nothing after the error would be marked")));
-                    }
-                }
-                "transform" => {
-                    value.parse::<svgtypes::Transform>().map_err(|e| bad(format!("unreadable transform ({e})")))?;
-                }
-                "points" => {
-                    let count = numbers_in(value).count();
-                    if value.chars().any(|c| !(c.is_ascii_digit() || c.is_ascii_whitespace() || ",.+-eE".contains(c))) || count % 2 == 1 {
-                        return Err(bad("unreadable point list (pairs of numbers expected)".into()));
-                    }
-                }
-                _ => {}
             }
         }
     }
@@ -157,52 +141,44 @@ fn check_raw_geometry(text: &str, source: &str) -> Result<()> {
     Ok(())
 }
 
-/// The numbers in an attribute's text, as SVG writes them (`-1.5e3`, `.5`,
-/// `1.2.3` is 1.2 then .3). Words and letters between them are skipped.
-fn numbers_in(text: &str) -> impl Iterator<Item = f64> + '_ {
-    let bytes = text.as_bytes();
-    let mut at = 0;
-    std::iter::from_fn(move || {
-        while at < bytes.len() {
-            let start = at;
-            let digit = |i: usize| bytes.get(i).is_some_and(u8::is_ascii_digit);
-            let mut i = at;
-            if matches!(bytes[i], b'+' | b'-') {
-                i += 1;
+/// The numbers of a geometry attribute, read by usvg's own parsers
+/// (svgtypes): path data, a transform's matrix, a list of numbers, a length.
+/// Path data, a transform or a point list usvg would cut short or ignore is
+/// an error; a length it cannot read has no number.
+fn numbers_of(attribute: &str, value: &str) -> std::result::Result<Vec<f64>, String> {
+    use svgtypes::PathSegment as S;
+    match attribute {
+        "d" => {
+            let mut numbers = Vec::new();
+            for segment in svgtypes::PathParser::from(value) {
+                let segment = segment.map_err(|e| format!("unreadable path data ({e}); nothing after the error would be marked"))?;
+                numbers.extend_from_slice(&match segment {
+                    S::MoveTo { x, y, .. } | S::LineTo { x, y, .. } | S::SmoothQuadratic { x, y, .. } => vec![x, y],
+                    S::HorizontalLineTo { x, .. } => vec![x],
+                    S::VerticalLineTo { y, .. } => vec![y],
+                    S::CurveTo { x1, y1, x2, y2, x, y, .. } => vec![x1, y1, x2, y2, x, y],
+                    S::SmoothCurveTo { x2, y2, x, y, .. } => vec![x2, y2, x, y],
+                    S::Quadratic { x1, y1, x, y, .. } => vec![x1, y1, x, y],
+                    S::EllipticalArc { rx, ry, x_axis_rotation, x, y, .. } => vec![rx, ry, x_axis_rotation, x, y],
+                    S::ClosePath { .. } => vec![],
+                });
             }
-            let mut seen = false;
-            while digit(i) {
-                i += 1;
-                seen = true;
-            }
-            if bytes.get(i) == Some(&b'.') && digit(i + 1) {
-                i += 1;
-                while digit(i) {
-                    i += 1;
-                }
-                seen = true;
-            }
-            if !seen {
-                at = start + 1;
-                continue;
-            }
-            if matches!(bytes.get(i), Some(b'e' | b'E')) {
-                let mut j = i + 1;
-                if matches!(bytes.get(j), Some(b'+' | b'-')) {
-                    j += 1;
-                }
-                if digit(j) {
-                    while digit(j) {
-                        j += 1;
-                    }
-                    i = j;
-                }
-            }
-            at = i;
-            return text[start..i].parse::<f64>().ok();
+            Ok(numbers)
         }
-        None
-    })
+        "transform" => {
+            let t: svgtypes::Transform = value.parse().map_err(|e| format!("unreadable transform ({e})"))?;
+            Ok(vec![t.a, t.b, t.c, t.d, t.e, t.f])
+        }
+        "points" | "viewBox" => {
+            let numbers = svgtypes::NumberListParser::from(value).collect::<std::result::Result<Vec<f64>, _>>();
+            match numbers {
+                Ok(n) if attribute == "viewBox" || n.len() % 2 == 0 => Ok(n),
+                _ if attribute == "points" => Err("unreadable point list (pairs of numbers expected)".into()),
+                _ => Err("unreadable viewBox (four numbers expected)".into()),
+            }
+        }
+        _ => Ok(value.parse::<svgtypes::Length>().map(|l| vec![l.number]).unwrap_or_default()),
+    }
 }
 
 struct Importer<'a> {
