@@ -400,6 +400,9 @@ struct Pending {
     steps: VecDeque<Step>,
     /// Bytes of the line (incl. terminator) still in RX.
     rx_len: usize,
+    /// Bytes of the line already out of RX though not yet answered (a `G4`:
+    /// Grbl has read the line into its line buffer; the sender still counts them).
+    taken: usize,
     dwell_until: Option<f64>,
     /// What was left of the dwell when a hold stopped its clock.
     dwell_left: Option<f64>,
@@ -762,8 +765,9 @@ impl Controller {
 
     /// `Bf:` free planner blocks and receive-buffer bytes (grblHAL's ring
     /// keeps one byte unused, so an empty 1024-byte buffer reports 1023).
+    /// Blocks already cut into the step-segment buffer are out of the planner.
     fn free_buffers(&self) -> (u32, u32) {
-        let used = self.planner.len() + usize::from(self.exec.is_some());
+        let used = self.planner.len() + usize::from(self.exec.is_some()) - self.prepared_blocks();
         let ring = match self.cfg.flavor {
             Flavor::Grbl => self.cfg.rx_buffer,
             Flavor::Grblhal => self.cfg.rx_buffer.saturating_sub(1),
@@ -771,16 +775,80 @@ impl Controller {
         (self.cfg.planner_blocks.saturating_sub(used) as u32, ring.saturating_sub(self.rx.len()) as u32)
     }
 
+    /// How many blocks, from the executing one on, have every segment in
+    /// the step-segment buffer. Grbl cuts the block at the planner's head into
+    /// segments of at most 10 ms (`ACCELERATION_TICKS_PER_SECOND` 100; one
+    /// ends where its block ends) ahead of the steppers and discards the block
+    /// from its planner once its last segment is prepared: `Bf:` no longer
+    /// counts it and `Ln:` names the block after it while the machine still
+    /// has it to run. The segment ring holds 6 on Grbl 1.1h (10 on grblHAL)
+    /// with one slot kept open, the running segment's included. A block that
+    /// a hold brakes to rest inside is kept.
+    fn prepared_blocks(&self) -> usize {
+        let Some(e) = self.exec.as_ref().filter(|e| e.running) else { return 0 };
+        let slots = match self.cfg.flavor {
+            Flavor::Grbl => 5,
+            Flavor::Grblhal => 9,
+        };
+        let segments = |secs: f64| (secs / planner::SEGMENT_S - 1e-9).ceil().max(1.0) as usize;
+        let mut used = segments(e.end_t - self.now);
+        let mut prepared = 0;
+        let blocks = std::iter::once(&e.block).chain(self.planner.iter());
+        if self.cfg.motion == MotionModel::Timed {
+            // Each block at its own constant speed.
+            for (i, b) in blocks.enumerate() {
+                if i > 0 {
+                    used += segments(self.block_time(b));
+                }
+                if used > slots {
+                    break;
+                }
+                prepared += 1;
+            }
+            return prepared;
+        }
+        // The profile as Grbl's segment generator cuts it from here on.
+        let (mut speed, mut remaining) = (e.speed, e.block.kin.length - e.done);
+        for (i, b) in blocks.enumerate() {
+            if i > 0 {
+                remaining = b.kin.length;
+            }
+            let nominal = self.nominal_speed(b);
+            let queue = self.planner.iter().skip(i).map(|q| Planned { nominal: self.nominal_speed(q), kin: &q.kin });
+            let input = SegmentInput {
+                speed,
+                remaining,
+                nominal,
+                exit: planner::exit_speed(nominal, queue),
+                acceleration: b.kin.acceleration,
+                stopping: self.hold || self.jog_cancel,
+            };
+            while used <= slots {
+                let Some(seg) = planner::next_segment(SegmentInput { speed, remaining, ..input }) else { break };
+                used += segments(seg.duration);
+                speed = seg.end_speed;
+                remaining -= seg.distance;
+            }
+            if used > slots || remaining > 1e-9 {
+                break;
+            }
+            prepared += 1;
+        }
+        prepared
+    }
+
     fn status_report(&mut self) -> StatusReport {
         let used = self.planner.len() + usize::from(self.exec.is_some());
-        let (feed, line) = match &self.exec {
+        let feed = match &self.exec {
             Some(e) => {
                 let len = dist(&e.start_pos, &e.end_pos);
                 let dur = e.end_t - e.start_t;
-                (if e.running && dur > 0.0 { len / dur * 60.0 } else { 0.0 }, e.block.n_word)
+                if e.running && dur > 0.0 { len / dur * 60.0 } else { 0.0 }
             }
-            None => (0.0, None),
+            None => 0.0,
         };
+        // `Ln:` is the line of the block at the planner's head.
+        let line = self.exec.iter().map(|e| &e.block).chain(self.planner.iter()).nth(self.prepared_blocks()).and_then(|b| b.n_word);
         // WCO comes in the first report after a reset or an offset change, then
         // every 10th (idle) / 30th (busy); Ov in the second, on a change, then
         // every 10th / 20th, a report later when WCO takes its turn (reference §4).
@@ -921,6 +989,9 @@ impl Controller {
 
     fn soft_reset(&mut self) {
         let moving = self.moving();
+        // Grbl's dwell (and the wait for motion to end before it) gives up on
+        // a reset, and the line it ran in is answered as done before the reboot.
+        let dwell_cut_short = self.pending.as_ref().is_some_and(|p| !p.quiet && p.steps.iter().any(|s| matches!(s, Step::Dwell(..))));
         let homing = self.exec.as_ref().is_some_and(|e| e.block.homing);
         self.stop_motion_now();
         self.planner.clear();
@@ -956,6 +1027,9 @@ impl Controller {
             let code = if homing { 6 } else { 3 };
             self.stats.alarms.push(code);
             self.send(&format!("ALARM:{code}"));
+        }
+        if dwell_cut_short {
+            self.send("ok");
         }
         let banner = self.banner();
         self.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
@@ -1326,7 +1400,7 @@ impl Controller {
             return;
         }
         if self.cfg.faults.limit_alarm_at_line == Some(n) {
-            self.drop_rx(len);
+            self.drop_rx(len, 0);
             self.limit_alarm(1);
             return;
         }
@@ -1348,24 +1422,44 @@ impl Controller {
                         last.ends_sequence = true;
                     }
                 }
-                self.pending =
-                    Some(Pending { steps: steps.into(), rx_len: len, dwell_until: None, dwell_left: None, reset_after, quiet: false })
+                // A dwell's line is out of the receive buffer while it waits and
+                // dwells (`Bf:` shows it free), as Grbl reads a line whole before
+                // it executes it; its `ok` still comes at the dwell's end.
+                let dwells = steps.iter().any(|s| matches!(s, Step::Dwell(..)));
+                let taken = if dwells { self.take_rx(len) } else { 0 };
+                self.pending = Some(Pending {
+                    steps: steps.into(),
+                    rx_len: len - taken,
+                    taken,
+                    dwell_until: None,
+                    dwell_left: None,
+                    reset_after,
+                    quiet: false,
+                })
             }
             Err(code) => {
-                self.drop_rx(len);
+                self.drop_rx(len, 0);
                 self.send_error(code);
             }
         }
     }
 
-    fn drop_rx(&mut self, len: usize) {
+    /// A line is answered: `len` of its bytes leave RX, `taken` had left it
+    /// before (the sender counts them in flight until the answer all the same).
+    fn drop_rx(&mut self, len: usize, taken: usize) {
         // (Room for another line of the longest yet: the sender was not waiting.)
-        if self.cfg.rx_buffer.saturating_sub(self.rx.len()) < self.longest_line {
+        if self.cfg.rx_buffer.saturating_sub(self.rx.len() + taken) < self.longest_line {
             self.last_room_t = self.now;
         }
+        self.take_rx(len);
+    }
+
+    /// Removes the first `len` bytes of RX; how many there were.
+    fn take_rx(&mut self, len: usize) -> usize {
         let len = len.min(self.rx.len());
         let removed_lines = self.rx.drain(..len).filter(|b| *b == b'\n' || *b == b'\r').count();
         self.rx_lines = self.rx_lines.saturating_sub(removed_lines);
+        len
     }
 
     /// Works through the pending line's steps; true when it completed.
@@ -1473,7 +1567,7 @@ impl Controller {
             self.pending = Some(p);
             return false;
         }
-        self.drop_rx(p.rx_len);
+        self.drop_rx(p.rx_len, p.taken);
         if !p.quiet {
             self.send("ok");
         }

@@ -44,8 +44,11 @@ const DOOR: Act = R(0x84);
 const ECHO_ON: Act = Ctl(echo_on);
 const BANNER: &str = "Grbl 1.1h ['$' for help]";
 const UNLOCK: &str = "[MSG:'$H'|'$X' to unlock]";
-/// An idle report once the first two (with WCO, then Ov) have gone.
-const IDLE: &str = "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0>";
+/// An idle report once the first two (with WCO, then Ov) have gone
+/// (Grbl's default `$10=1`: MPos, no buffer state).
+const IDLE: &str = "<Idle|MPos:0.000,0.000|FS:0,0>";
+/// The same with `$10=3` (MPos and `Bf:`): every block and byte free.
+const IDLE_BF: &str = "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0>";
 
 type Row = (fn() -> SimConfig, &'static [Act], &'static [Act], &'static [&'static str]);
 
@@ -149,16 +152,16 @@ fn describe(acts: &[Act]) -> String {
 fn realtime_rows() -> Vec<Row> {
     vec![
         // `?`: WCO in the first report after a reset, Ov in the second, then neither.
-        (xy, &[], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|WCO:0.000,0.000>"]),
-        (xy, &[Q], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|WCO:0.000,0.000>"]),
+        (xy, &[Q], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         (xy, &[Q, Q], &[Q], &[IDLE]),
         // `!` feed hold: at rest at once; moving, Hold:1 until stopped.
-        (xy, &[Q, Q], &[HOLD, Q], &["<Hold:0|MPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
-        (xy, &[Q, Q, L("G1X100F600")], &[HOLD, Q], &["<Hold:1|MPos:*|Bf:14,128|FS:600,0>"]),
-        (xy, &[Q, Q, L("G1X1F600"), HOLD, Wait(1.0)], &[Q], &["<Hold:0|MPos:1.000,0.000|Bf:15,128|FS:0,0>"]),
+        (xy, &[Q, Q], &[HOLD, Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G1X100F600")], &[HOLD, Q], &["<Hold:1|MPos:*|FS:600,0>"]),
+        (xy, &[Q, Q, L("G1X1F600"), HOLD, Wait(1.0)], &[Q], &["<Hold:0|MPos:1.000,0.000|FS:0,0>"]),
         // `~` cycle start: resumes a hold; otherwise nothing.
         (xy, &[Q, Q, HOLD], &[START, Q], &[IDLE]),
-        (xy, &[Q, Q, L("G1X100F600"), HOLD], &[START, Q], &["<Run|MPos:*|Bf:14,128|FS:600,0>"]),
+        (xy, &[Q, Q, L("G1X100F600"), HOLD], &[START, Q], &["<Run|MPos:*|FS:600,0>"]),
         (xy, &[Q, Q], &[START, Q], &[IDLE]),
         // 0x18 soft reset: banner; while moving the position is lost (ALARM:3).
         (xy, &[], &[RESET], &[BANNER]),
@@ -166,78 +169,78 @@ fn realtime_rows() -> Vec<Row> {
         (xy, &[L("G1X100F600"), HOLD, Q], &[RESET], &["ALARM:3", BANNER, UNLOCK]),
         (xy, &[Q, Q, R(0x91), R(0x96)], &[RESET, Q, Q], &[
             BANNER,
-            "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|WCO:0.000,0.000>",
-            "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>",
+            "<Idle|MPos:0.000,0.000|FS:0,0|WCO:0.000,0.000>",
+            "<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>",
         ]),
         // 0x84 safety door: Door:2 stopping, Door:1 open, Door:0 closed; `~` resumes once closed.
-        (xy, &[Q, Q], &[DOOR, Q], &["<Door:1|MPos:0.000,0.000|Bf:15,128|FS:0,0|Pn:D>"]),
-        (xy, &[Q, Q, L("G1X100F600")], &[DOOR, Q], &["<Door:2|MPos:*|Bf:14,128|FS:600,0|Pn:D>"]),
-        (xy, &[Q, Q, DOOR], &[Door(false), Q], &["<Door:0|MPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
-        (xy, &[Q, Q, DOOR], &[START, Q], &["<Door:1|MPos:0.000,0.000|Bf:15,128|FS:0,0|Pn:D>"]),
+        (xy, &[Q, Q], &[DOOR, Q], &["<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D>"]),
+        (xy, &[Q, Q, L("G1X100F600")], &[DOOR, Q], &["<Door:2|MPos:*|FS:600,0|Pn:D>"]),
+        (xy, &[Q, Q, DOOR], &[Door(false), Q], &["<Door:0|MPos:0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, DOOR], &[START, Q], &["<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D>"]),
         (xy, &[Q, Q, DOOR, Door(false)], &[START, Q], &[IDLE]),
-        (xy, &[Q, Q, Door(true)], &[Q], &["<Door:1|MPos:0.000,0.000|Bf:15,128|FS:0,0|Pn:D>"]),
+        (xy, &[Q, Q, Door(true)], &[Q], &["<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D>"]),
         // 0x85 jog cancel (and `!` while jogging): stop, drop the jog, Idle.
-        (xy, &[Q, Q, L("$J=X100F600")], &[R(0x85), Q], &["<Idle|MPos:*|Bf:15,128|FS:0,0>"]),
-        (xy, &[Q, Q, L("$J=X100F600"), L("$J=Y100F600")], &[HOLD, Q], &["<Idle|MPos:*|Bf:15,128|FS:0,0>"]),
+        (xy, &[Q, Q, L("$J=X100F600")], &[R(0x85), Q], &["<Idle|MPos:*|FS:0,0>"]),
+        (xy, &[Q, Q, L("$J=X100F600"), L("$J=Y100F600")], &[HOLD, Q], &["<Idle|MPos:*|FS:0,0>"]),
         (xy, &[Q, Q], &[R(0x85), Q], &[IDLE]),
         // Feed override 0x90..0x94: 10..200 %, shown on a change.
-        (xy, &[Q, Q], &[R(0x91), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:110,100,100>"]),
-        (xy, &[Q, Q], &[R(0x92), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:90,100,100>"]),
-        (xy, &[Q, Q], &[R(0x93), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:101,100,100>"]),
-        (xy, &[Q, Q], &[R(0x94), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:99,100,100>"]),
-        (xy, &[Q, Q, R(0x91), Q], &[R(0x90), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[Q, Q], &[R(0x91), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:110,100,100>"]),
+        (xy, &[Q, Q], &[R(0x92), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:90,100,100>"]),
+        (xy, &[Q, Q], &[R(0x93), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:101,100,100>"]),
+        (xy, &[Q, Q], &[R(0x94), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:99,100,100>"]),
+        (xy, &[Q, Q, R(0x91), Q], &[R(0x90), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         (xy, &[Q, Q], &[R(0x90), Q], &[IDLE]),
-        (xy, &[Q, Q], &[B(&[0x91; 12]), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:200,100,100>"]),
-        (xy, &[Q, Q], &[B(&[0x92; 12]), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:10,100,100>"]),
-        (xy, &[Q, Q], &[B(&[0x94; 200]), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:10,100,100>"]),
+        (xy, &[Q, Q], &[B(&[0x91; 12]), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:200,100,100>"]),
+        (xy, &[Q, Q], &[B(&[0x92; 12]), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:10,100,100>"]),
+        (xy, &[Q, Q], &[B(&[0x94; 200]), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:10,100,100>"]),
         // Rapid override 0x95..0x97: 100, 50, 25 %.
-        (xy, &[Q, Q], &[R(0x96), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,50,100>"]),
-        (xy, &[Q, Q], &[R(0x97), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,25,100>"]),
-        (xy, &[Q, Q, R(0x97), Q], &[R(0x95), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[Q, Q], &[R(0x96), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,50,100>"]),
+        (xy, &[Q, Q], &[R(0x97), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,25,100>"]),
+        (xy, &[Q, Q, R(0x97), Q], &[R(0x95), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         // Spindle override 0x99..0x9D: 10..200 %.
-        (xy, &[Q, Q], &[R(0x9A), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,110>"]),
-        (xy, &[Q, Q], &[R(0x9B), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,90>"]),
-        (xy, &[Q, Q], &[R(0x9C), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,101>"]),
-        (xy, &[Q, Q], &[R(0x9D), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,99>"]),
-        (xy, &[Q, Q, R(0x9A), Q], &[R(0x99), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>"]),
-        (xy, &[Q, Q], &[B(&[0x9A; 12]), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,200>"]),
+        (xy, &[Q, Q], &[R(0x9A), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,110>"]),
+        (xy, &[Q, Q], &[R(0x9B), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,90>"]),
+        (xy, &[Q, Q], &[R(0x9C), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,101>"]),
+        (xy, &[Q, Q], &[R(0x9D), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,99>"]),
+        (xy, &[Q, Q, R(0x9A), Q], &[R(0x99), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[Q, Q], &[B(&[0x9A; 12]), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,200>"]),
         // 0x9E spindle stop, only in Hold (here not in laser mode: the spindle
         // keeps turning in a hold until stopped); resuming restores it.
-        (xy, &[L("$32=0"), L("M3S100"), HOLD, Q], &[Q], &["<Hold:0|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:S>"]),
-        (xy, &[L("$32=0"), L("M3S100"), HOLD, Q, Q], &[R(0x9E), Q], &["<Hold:0|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[L("$32=0"), L("M3S100"), HOLD, Q], &[Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:S>"]),
+        (xy, &[L("$32=0"), L("M3S100"), HOLD, Q, Q], &[R(0x9E), Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         (xy, &[L("$32=0"), L("M3S100"), HOLD, Q, Q, R(0x9E), Q], &[R(0x9E), Q], &[
             "[MSG:Restoring spindle]",
-            "<Hold:0|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:S>",
+            "<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:S>",
         ]),
         (xy, &[L("$32=0"), L("M3S100"), HOLD, Q, Q, R(0x9E), Q], &[START, Q], &[
             "[MSG:Restoring spindle]",
-            "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:S>",
+            "<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:S>",
         ]),
         (xy, &[L("M3S100"), Q, Q], &[R(0x9E), Q], &[IDLE]),
         // In laser mode ($32=1) a hold stops the laser by itself (the same
         // override), so `~` restores it and 0x9E in the hold turns it back on.
-        (xy, &[L("M4S100"), Q, Q], &[HOLD, Q], &["<Hold:0|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[L("M4S100"), Q, Q], &[HOLD, Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         (xy, &[L("M4S100"), Q, Q, HOLD, Q], &[START, Q], &[
             "[MSG:Restoring spindle]",
-            "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:C>",
+            "<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:C>",
         ]),
         (xy, &[L("M4S100"), Q, Q, HOLD, Q], &[R(0x9E), Q], &[
             "[MSG:Restoring spindle]",
-            "<Hold:0|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:C>",
+            "<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:C>",
         ]),
         // 0xA0 flood / 0xA1 mist toggles (Idle, Run, Hold), as M8/M7/M9 would.
-        (xy, &[Q, Q], &[R(0xA0), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:F>"]),
-        (xy, &[Q, Q], &[R(0xA1), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:M>"]),
-        (xy, &[Q, Q, R(0xA0)], &[R(0xA1), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:FM>"]),
-        (xy, &[Q, Q, R(0xA0), Q], &[R(0xA0), Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>"]),
-        (xy, &[L("M3S1"), Q, Q, HOLD], &[R(0xA1), Q], &["<Hold:0|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:M>"]),
+        (xy, &[Q, Q], &[R(0xA0), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:F>"]),
+        (xy, &[Q, Q], &[R(0xA1), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:M>"]),
+        (xy, &[Q, Q, R(0xA0)], &[R(0xA1), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:FM>"]),
+        (xy, &[Q, Q, R(0xA0), Q], &[R(0xA0), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[L("M3S1"), Q, Q, HOLD], &[R(0xA1), Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:M>"]),
         (xy, &[R(0xA0), R(0xA1)], &[L("$G")], &["[GC:G0 G54 G17 G21 G90 G94 M5 M7 M8 T0 F0 S0]", "ok"]),
-        (xy, &[L("G0X-1"), RESET, Q, Q], &[R(0xA0), Q], &["<Alarm|MPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
-        (xy, &[L("$C"), Q, Q], &[R(0xA1), Q], &["<Check|MPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
+        (xy, &[L("G0X-1"), RESET, Q, Q], &[R(0xA0), Q], &["<Alarm|MPos:0.000,0.000|FS:0,0>"]),
+        (xy, &[L("$C"), Q, Q], &[R(0xA1), Q], &["<Check|MPos:0.000,0.000|FS:0,0>"]),
         // grblHAL's extra bytes (0x80-0x82 aliases, 0x87 full report): Grbl 1.1 discards them.
         (xy, &[Q, Q], &[R(0x80), R(0x87)], &[]),
         (xy, &[Q, Q], &[R(0x82), Q], &[IDLE]),
-        (xy, &[Q, Q, HOLD], &[R(0x81), Q], &["<Hold:0|MPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
+        (xy, &[Q, Q, HOLD], &[R(0x81), Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0>"]),
     ]
 }
 
@@ -266,42 +269,42 @@ fn every_realtime_byte_has_a_row() {
 #[test]
 fn states_and_status_fields() {
     let rows: &[Row] = &[
-        (xy, &[Q, Q, L("G1X100F600")], &[Q], &["<Run|MPos:*|Bf:14,128|FS:600,0>"]),
-        (xy, &[Q, Q, L("N7G1X100F600")], &[Q], &["<Run|MPos:*|Bf:14,128|Ln:7|FS:600,0>"]),
-        (xy, &[Q, Q, L("M3S250"), L("G1X100F600")], &[Q], &["<Run|MPos:*|Bf:14,128|FS:600,250|Ov:100,100,100|A:S>"]),
-        (xy, &[Q, Q, L("$J=X100F600")], &[Q], &["<Jog|MPos:*|Bf:14,128|FS:600,0>"]),
-        (xy, &[Q, Q, L("$C")], &[Q], &["<Check|MPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
-        (xy, &[Q, Q, L("$SLP")], &[Q], &["<Sleep|MPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
-        (xy, &[Q, Q, L("G0X-1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
+        (xy, &[Q, Q, L("G1X100F600")], &[Q], &["<Run|MPos:*|FS:600,0>"]),
+        (xy, &[Q, Q, L("N7G1X100F600")], &[Q], &["<Run|MPos:*|Ln:7|FS:600,0>"]),
+        (xy, &[Q, Q, L("M3S250"), L("G1X100F600")], &[Q], &["<Run|MPos:*|FS:600,250|Ov:100,100,100|A:S>"]),
+        (xy, &[Q, Q, L("$J=X100F600")], &[Q], &["<Jog|MPos:*|FS:600,0>"]),
+        (xy, &[Q, Q, L("$C")], &[Q], &["<Check|MPos:0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("$SLP")], &[Q], &["<Sleep|MPos:0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G0X-1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000|FS:0,0>"]),
         // Home: no reports while homing.
         (xy, &[L("$22=1"), L("G0X100"), Wait(1.5)], &[L("$H"), Q], &[]),
         // $10: bit 0 MPos (else WPos), bit 1 Bf; Grbl 1.1 has no other bits.
         (xy, &[L("$10=0"), Q, Q], &[Q], &["<Idle|WPos:0.000,0.000|FS:0,0>"]),
         (xy, &[L("$10=1"), Q, Q], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0>"]),
         (xy, &[L("$10=2"), Q, Q], &[Q], &["<Idle|WPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
-        (xy, &[L("$10=3"), Q, Q], &[Q], &[IDLE]),
-        (xy, &[L("$10=255"), Q, Q], &[Q], &[IDLE]),
+        (xy, &[L("$10=3"), Q, Q], &[Q], &[IDLE_BF]),
+        (xy, &[L("$10=255"), Q, Q], &[Q], &[IDLE_BF]),
         // WCO = G54..G59 + G92 + TLO, at once after a change; WPos = MPos - WCO.
-        (xy, &[Q, Q, L("G10L2P1X10Y5")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|WCO:10.000,5.000>"]),
+        (xy, &[Q, Q, L("G10L2P1X10Y5")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|WCO:10.000,5.000>"]),
         (xy, &[L("$10=0"), L("G10L2P1X10Y5"), Q, Q], &[Q], &["<Idle|WPos:-10.000,-5.000|FS:0,0>"]),
-        (xy, &[Q, Q, L("G10L2P2X10"), L("G55G0X1"), Wait(0.5)], &[Q], &["<Idle|MPos:11.000,0.000|Bf:15,128|FS:0,0|WCO:10.000,0.000>"]),
-        (xy, &[Q, Q, L("G0X3"), L("G92X1")], &[Q], &["<Idle|MPos:3.000,0.000|Bf:15,128|FS:0,0|WCO:2.000,0.000>"]),
-        (xy, &[Q, Q, L("G0X3"), L("G92X1"), Q], &[L("G92.1"), Q], &["ok", "<Idle|MPos:3.000,0.000|Bf:15,128|FS:0,0|WCO:0.000,0.000>"]),
-        (xyz, &[Q, Q, L("G43.1Z2")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|Bf:15,128|FS:0,0|WCO:0.000,0.000,2.000>"]),
-        (xyz, &[Q, Q, L("G43.1Z2"), Q], &[L("G49"), Q], &["ok", "<Idle|MPos:0.000,0.000,0.000|Bf:15,128|FS:0,0|WCO:0.000,0.000,0.000>"]),
+        (xy, &[Q, Q, L("G10L2P2X10"), L("G55G0X1"), Wait(0.5)], &[Q], &["<Idle|MPos:11.000,0.000|FS:0,0|WCO:10.000,0.000>"]),
+        (xy, &[Q, Q, L("G0X3"), L("G92X1")], &[Q], &["<Idle|MPos:3.000,0.000|FS:0,0|WCO:2.000,0.000>"]),
+        (xy, &[Q, Q, L("G0X3"), L("G92X1"), Q], &[L("G92.1"), Q], &["ok", "<Idle|MPos:3.000,0.000|FS:0,0|WCO:0.000,0.000>"]),
+        (xyz, &[Q, Q, L("G43.1Z2")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,2.000>"]),
+        (xyz, &[Q, Q, L("G43.1Z2"), Q], &[L("G49"), Q], &["ok", "<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>"]),
         // Pn: D door, X limit switch (after a hard limit), P probe.
-        (limit_1, &[L("G0X1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000|Bf:15,128|FS:0,0|Pn:X>"]),
-        (limit_1, &[L("G0X1"), RESET, Q, Q, L("$X"), L("G0X1"), Wait(0.5)], &[Q], &["<Idle|MPos:1.000,0.000|Bf:15,128|FS:0,0>"]),
-        (probe_2mm, &[Q, Q, L("G38.2X10F600"), Wait(0.5)], &[Q], &["<Idle|MPos:2.000,0.000|Bf:15,128|FS:0,0|Pn:P>"]),
-        (xy, &[Q, Q, DOOR, Door(false), START, Door(true), DOOR], &[Q], &["<Door:1|MPos:0.000,0.000|Bf:15,128|FS:0,0|Pn:D>"]),
+        (limit_1, &[L("G0X1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000|FS:0,0|Pn:X>"]),
+        (limit_1, &[L("G0X1"), RESET, Q, Q, L("$X"), L("G0X1"), Wait(0.5)], &[Q], &["<Idle|MPos:1.000,0.000|FS:0,0>"]),
+        (probe_2mm, &[Q, Q, L("G38.2X10F600"), Wait(0.5)], &[Q], &["<Idle|MPos:2.000,0.000|FS:0,0|Pn:P>"]),
+        (xy, &[Q, Q, DOOR, Door(false), START, Door(true), DOOR], &[Q], &["<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D>"]),
         // A: S (M3), C (M4), F (flood), M (mist), in the report with Ov.
-        (xy, &[Q, Q, L("M3S1"), L("M8"), L("M7")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:SFM>"]),
-        (xy, &[Q, Q, L("M4S1"), L("M7")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:CM>"]),
-        (xy, &[Q, Q, L("M4S1"), L("M7"), Q], &[L("M9"), L("M5"), Q], &["ok", "ok", "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[Q, Q, L("M3S1"), L("M8"), L("M7")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:SFM>"]),
+        (xy, &[Q, Q, L("M4S1"), L("M7")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:CM>"]),
+        (xy, &[Q, Q, L("M4S1"), L("M7"), Q], &[L("M9"), L("M5"), Q], &["ok", "ok", "<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         // FS: the laser standing still in laser mode: M3 burns at S in G1 (in
         // G0 it stays dark, rows above), M4 is dark (no motion, no power).
-        (xy, &[Q, Q, L("G1F100"), L("M3S500")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,500|Ov:100,100,100|A:S>"]),
-        (xy, &[Q, Q, L("G1F100"), L("M4S500")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0|Ov:100,100,100|A:C>"]),
+        (xy, &[Q, Q, L("G1F100"), L("M3S500")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,500|Ov:100,100,100|A:S>"]),
+        (xy, &[Q, Q, L("G1F100"), L("M4S500")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:C>"]),
     ];
     check(rows);
 }
@@ -310,7 +313,7 @@ fn states_and_status_fields() {
 fn listing(changes: &[(&str, &str)]) -> Vec<String> {
     let defaults = [
         ("0", "10"), ("1", "25"), ("2", "0"), ("3", "0"), ("4", "0"), ("5", "0"), ("6", "0"),
-        ("10", "3"), ("11", "0.010"), ("12", "0.002"), ("13", "0"),
+        ("10", "1"), ("11", "0.010"), ("12", "0.002"), ("13", "0"),
         ("20", "1"), ("21", "0"), ("22", "0"), ("23", "0"), ("24", "25.000"), ("25", "500.000"),
         ("26", "250"), ("27", "1.000"), ("30", "1000"), ("31", "0"), ("32", "1"),
         ("100", "250.000"), ("101", "250.000"), ("110", "6000.000"), ("111", "6000.000"),
@@ -390,13 +393,13 @@ fn system_commands() {
         (xy, &[L("G0X-1"), RESET], &[L("$N")], &["$N0=", "$N1=", "ok"]),
         (xy, &[L("$N0=G20"), L("G0X-1")], &[RESET], &[BANNER, UNLOCK]),
         (xy, &[L("$N0=G20"), L("G0X-1"), RESET], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
-        (xy, &[L("$N0=G20"), DOOR], &[RESET, Q], &[BANNER, "[MSG:Check Door]", "<Door:1|MPos:0.000,0.000|Bf:15,128|FS:0,0|Pn:D|WCO:0.000,0.000>"]),
+        (xy, &[L("$N0=G20"), DOOR], &[RESET, Q], &[BANNER, "[MSG:Check Door]", "<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D|WCO:0.000,0.000>"]),
         (xy, &[L("$N0=G20"), DOOR, RESET, Door(false)], &[START], &[">G20:ok"]),
         (xy, &[L("$22=1"), L("$N0=G20")], &[L("$H")], &[">G20:ok", "ok"]),
         // $C check mode.
         (xy, &[], &[L("$C")], &["[MSG:Enabled]", "ok"]),
         (xy, &[L("$C")], &[L("$C")], &["[MSG:Disabled]", "ok", BANNER]),
-        (xy, &[L("$C")], &[L("G1X10F100"), L("G4P5"), Q], &["ok", "ok", "<Check|MPos:0.000,0.000|Bf:15,128|FS:0,0|WCO:0.000,0.000>"]),
+        (xy, &[L("$C")], &[L("G1X10F100"), L("G4P5"), Q], &["ok", "ok", "<Check|MPos:0.000,0.000|FS:0,0|WCO:0.000,0.000>"]),
         (xy, &[L("G0X-1"), RESET], &[L("$C")], &["error:8"]),
         // $X.
         (xy, &[], &[L("$X")], &["ok"]),
@@ -561,7 +564,7 @@ fn alarms() {
         // 6: reset during homing; 7: door opened during homing.
         (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), RESET], &["ALARM:6", BANNER, UNLOCK]),
         (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), DOOR], &["ALARM:7", BANNER, UNLOCK]),
-        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0), L("$H"), DOOR], &[Q], &["<Alarm|MPos:*|Bf:15,128|FS:0,0|Pn:D|WCO:0.000,0.000>"]),
+        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0), L("$H"), DOOR], &[Q], &["<Alarm|MPos:*|FS:0,0|Pn:D|WCO:0.000,0.000>"]),
         // 8: the pull-off does not clear the switch; 9: no switch found.
         (pull_off_fails, &[L("$22=1")], &[L("$H")], &["ALARM:8", BANNER, UNLOCK]),
         (switch_missing, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), Wait(8.0)], &["ALARM:9", BANNER, UNLOCK]),
@@ -580,17 +583,54 @@ fn gcode_feedback() {
         (xy, &[L("G91G55M8"), L("M2")], &[L("$G")], &["[GC:G1 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]", "ok"]),
         // M0 pauses (Hold) and answers once resumed (its 3 bytes stay in RX
         // until answered, as every line's do here); M1 is ignored.
-        (xy, &[Q, Q], &[L("M0"), Q], &["<Hold:0|MPos:0.000,0.000|Bf:15,125|FS:0,0>"]),
+        (xy, &[L("$10=3"), Q, Q], &[L("M0"), Q], &["<Hold:0|MPos:0.000,0.000|Bf:15,125|FS:0,0>"]),
         (xy, &[L("M0")], &[START], &["ok"]),
         (xy, &[L("M0"), L("G0X1")], &[START, Wait(0.5)], &["ok", "ok"]),
         (xy, &[], &[L("M1")], &["ok"]),
         (xy, &[], &[L("M0M1")], &["error:21"]),
         // G28/G30: to the stored position, via a given point with only its axes.
-        (xy, &[Q, Q, L("G0X5Y5"), L("G28.1"), L("G0X20Y1"), Wait(0.5)], &[L("G28"), Wait(0.5), Q], &["ok", "<Idle|MPos:5.000,5.000|Bf:15,128|FS:0,0>"]),
-        (xy, &[Q, Q, L("G0X5Y5"), L("G30.1"), L("G0X20Y1"), Wait(0.5)], &[L("G30X10"), Wait(0.5), Q], &["ok", "<Idle|MPos:5.000,1.000|Bf:15,128|FS:0,0>"]),
+        (xy, &[Q, Q, L("G0X5Y5"), L("G28.1"), L("G0X20Y1"), Wait(0.5)], &[L("G28"), Wait(0.5), Q], &["ok", "<Idle|MPos:5.000,5.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G0X5Y5"), L("G30.1"), L("G0X20Y1"), Wait(0.5)], &[L("G30X10"), Wait(0.5), Q], &["ok", "<Idle|MPos:5.000,1.000|FS:0,0>"]),
         // G10 L20: the present position reads as given.
-        (xy, &[Q, Q, L("G0X5"), L("G10L20P1X1")], &[Q], &["<Idle|MPos:5.000,0.000|Bf:15,128|FS:0,0|WCO:4.000,0.000>"]),
+        (xy, &[Q, Q, L("G0X5"), L("G10L20P1X1")], &[Q], &["<Idle|MPos:5.000,0.000|FS:0,0|WCO:4.000,0.000>"]),
         (xy, &[L("G0X5"), L("G10L20P0X1"), L("$10=0"), Q, Q], &[L("G0X0"), Wait(0.5), Q], &["ok", "<Idle|WPos:0.000,0.000|FS:0,0>"]),
+    ];
+    check(rows);
+}
+
+fn grbl_motion() -> SimConfig {
+    SimConfig { motion: laserd_sim::MotionModel::Grbl, ..cfg() }
+}
+
+/// Dwells and the buffer state (issue 17, rows 18-20): `$10` defaults to 1
+/// (no `Bf:`); during a `G4` the machine is Idle, the dwell's line is out of
+/// the receive buffer and its `ok` comes at the dwell's end, or before the
+/// banner when a reset cuts it short; `Bf:` counts planner blocks only, so a
+/// block whose last step segment is prepared (within 5 segments of 10 ms)
+/// no longer counts though it still runs, and `Ln:` names the next one.
+#[test]
+fn dwells_and_buffer_state() {
+    let rows: &[Row] = &[
+        // Row 19: the default report has no `Bf:`; `$10=3` adds it.
+        (xy, &[Q, Q], &[Q], &[IDLE]),
+        (xy, &[L("$10=3"), Q, Q], &[Q], &[IDLE_BF]),
+        // Row 18: Idle during the dwell, its line out of the buffer, no `ok` yet.
+        (xy, &[Q, Q, L("$10=3"), L("G4P1")], &[Q], &[IDLE_BF]),
+        (xy, &[Q, Q, L("G4P1")], &[Q], &[IDLE]),
+        (xy, &[Q, Q, L("$10=3"), L("G4P1")], &[Wait(1.0)], &["ok"]),
+        // The lines behind it wait in the buffer.
+        (xy, &[Q, Q, L("$10=3"), B(b"G4P1\nG0X1\n")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,123|FS:0,0>"]),
+        // Row 20: a reset ends the dwell; its line is answered, then the banner.
+        (xy, &[L("G4P2")], &[RESET], &["ok", BANNER]),
+        (xy, &[L("G1X100F600"), L("G4P1")], &[RESET], &["ALARM:3", "ok", BANNER, UNLOCK]),
+        // `Bf:` while moving: a block with more than 5 segments (50 ms) to run counts...
+        (xy, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n")], &[Q], &["<Run|MPos:*|Bf:13,128|Ln:7|FS:600,0>"]),
+        // ...one with 4 left is out of the planner: `Bf:` and `Ln:` are the next block's.
+        (xy, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n"), Wait(0.07)], &[Q], &["<Run|MPos:*|Bf:14,128|Ln:8|FS:600,0>"]),
+        (grbl_motion, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n")], &[Q], &["<Run|MPos:*|Bf:13,128|Ln:7|FS:600,0>"]),
+        (grbl_motion, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n"), Wait(0.07)], &[Q], &["<Run|MPos:*|Bf:14,128|Ln:8|FS:600,0>"]),
+        // The last block prepared: the planner is empty while it runs, no `Ln:`.
+        (xy, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X3.6\n"), Wait(0.13)], &[Q], &["<Run|MPos:*|Bf:15,128|FS:600,0>"]),
     ];
     check(rows);
 }

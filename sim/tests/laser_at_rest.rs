@@ -154,7 +154,7 @@ fn a_reset_during_a_pierce_leaves_the_laser_off_and_the_job_dropped() {
     assert_eq!(s.ctl.laser_power(), 500.0);
     let n = s.lines.len();
     s.realtime(realtime::SOFT_RESET);
-    assert_eq!(&s.texts()[n..], &[BANNER], "standing still: no alarm");
+    assert_eq!(&s.texts()[n..], &["ok", BANNER], "standing still: no alarm; the dwell's line answered");
     assert_eq!(s.ctl.laser_power(), 0.0);
     let last = s.knots.last().unwrap();
     assert!(close(last.t, arrived + 0.1) && last.power == 0.0, "{last:?}");

@@ -49,7 +49,7 @@ fn serve_on_pty() {
     assert_eq!(next(), BANNER);
     port.write_all(b"?").unwrap();
     let status = next();
-    assert!(status.starts_with("<Idle|MPos:0.000,0.000|Bf:15,128"), "{status}");
+    assert!(status.starts_with("<Idle|MPos:0.000,0.000|FS:0,0"), "{status}");
     port.write_all(b"G1 X1 F600\n").unwrap();
     assert_eq!(Response::parse(&next()), Response::Ok);
     // 1 mm at 600 mm/min = 0.1 s.

@@ -204,7 +204,7 @@ impl Controller {
         self.proto.startup_due = false;
         let steps = self.startup_steps();
         if !steps.is_empty() {
-            self.pending = Some(Pending { steps: steps.into(), rx_len: 0, dwell_until: None, dwell_left: None, reset_after: false, quiet: true });
+            self.pending = Some(Pending { steps: steps.into(), rx_len: 0, taken: 0, dwell_until: None, dwell_left: None, reset_after: false, quiet: true });
         }
     }
 
@@ -537,8 +537,9 @@ impl Controller {
             (4, Bool, 0.0),
             (5, Bool, 0.0),
             (6, Bool, 0.0),
-            // MPos + Bf: what a sender wants to see.
-            (10, Int, 3.0),
+            // Grbl 1.1h's default: MPos only, no `Bf:` (grblHAL reports the
+            // buffers by default).
+            (10, Int, if self.cfg.flavor == Flavor::Grblhal { 3.0 } else { 1.0 }),
             (11, Float, 0.010),
             (12, Float, 0.002),
             (13, Bool, 0.0),
