@@ -70,7 +70,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::gcode::LineBuilder;
 use crate::planner::{self, Kinematics, Planned, SegmentInput};
-use crate::wire::{fmt_num, MachineState, StatusReport, BANNER, BANNER_HAL};
+use crate::wire::{MachineState, StatusReport, BANNER, BANNER_HAL};
 
 mod parser;
 mod system;
@@ -150,7 +150,7 @@ pub struct Faults {
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct SimConfig {
-    /// 1..=6 axes.
+    /// Grbl: X, Y, Z (a missing one is added); grblHAL: 1..=8 axes.
     pub axes: Vec<AxisConfig>,
     pub rx_buffer: usize,
     pub planner_blocks: usize,
@@ -171,14 +171,20 @@ pub struct SimConfig {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Flavor {
-    /// Grbl 1.1h (here with up to 6 axes, for the scanner's two).
+    /// Grbl 1.1h as built from its source with a safety door input: always
+    /// the axes X, Y and Z (a Z the config lacks is added, and nothing uses
+    /// it), no other axis, no line numbers (`Ln:`), no mist coolant (M7).
     #[default]
     Grbl,
     /// grblHAL: 256-character lines, CR LF as one line end, `0x80`–`0x82`
-    /// and `0x87`, up to 8 axes, `[AXS:]` and `[FIRMWARE:]` in `$I`; set
-    /// `rx_buffer` (1024) and `planner_blocks` (100) to match a board.
+    /// and `0x87`, up to 8 axes of any letters, G59.1–G59.3, line numbers,
+    /// mist coolant, `[AXS:]`, `[NEWOPT:]`, `[FIRMWARE:]` and driver lines in
+    /// `$I`; set `rx_buffer` (1024) and `planner_blocks` (100) to match a board.
     Grblhal,
 }
+
+/// Grbl 1.1h's axes, always all three.
+pub const GRBL_AXES: [char; 3] = ['X', 'Y', 'Z'];
 
 /// How planner blocks turn into motion.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema, clap::ValueEnum)]
@@ -196,6 +202,19 @@ pub enum MotionModel {
 }
 
 impl SimConfig {
+    /// Why this config cannot be the firmware it names, if it cannot: Grbl
+    /// 1.1h has the axes X, Y and Z and no other (grblHAL has up to 8).
+    pub fn flavor_error(&self) -> Option<String> {
+        let foreign: String = self.axes.iter().map(|a| a.letter.to_ascii_uppercase()).filter(|l| !GRBL_AXES.contains(l)).collect();
+        match self.flavor {
+            Flavor::Grbl if !foreign.is_empty() => Some(format!(
+                "Grbl 1.1h has only the axes X, Y and Z, not {foreign}: use the grblhal flavor for a machine with other axes"
+            )),
+            Flavor::Grblhal if self.axes.len() > 8 => Some(format!("grblHAL has at most 8 axes, not {}", self.axes.len())),
+            _ => None,
+        }
+    }
+
     /// Default config with the given axis letters, e.g. `"XYUV"`.
     pub fn with_axes(letters: &str) -> SimConfig {
         SimConfig {
@@ -395,6 +414,16 @@ enum Step {
     Say(String),
 }
 
+/// What a line sets off once its `ok` has gone.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum AfterOk {
+    Nothing,
+    /// A soft reset (`$C` off, `$RST=`).
+    Reset,
+    /// Sleep (`$SLP`): Grbl answers the line, then enters its sleep loop.
+    Sleep,
+}
+
 #[derive(Debug)]
 struct Pending {
     steps: VecDeque<Step>,
@@ -406,8 +435,8 @@ struct Pending {
     dwell_until: Option<f64>,
     /// What was left of the dwell when a hold stopped its clock.
     dwell_left: Option<f64>,
-    /// `$C` off: soft reset after the `ok`.
-    reset_after: bool,
+    /// What happens once the `ok` has gone.
+    after: AfterOk,
     /// No `ok` at the end (startup lines, which echo `>line:ok` instead).
     quiet: bool,
 }
@@ -462,8 +491,11 @@ pub struct Controller {
     ov_countdown: u32,
     /// `$n=value` writes: kept across soft resets, as Grbl keeps its EEPROM.
     written_settings: std::collections::BTreeMap<u32, f64>,
-    /// The last line byte received (grblHAL pairs CR and LF).
-    prev_byte: u8,
+    /// grblHAL: the byte (CR or LF) that ended the last line, 0 once the
+    /// other one of a pair has been skipped; and whether a printable byte has
+    /// come since (see `hal_skips_line_end`).
+    hal_eol: u8,
+    hal_line_started: bool,
     /// A jog cancel is braking the machine (grbl model).
     jog_cancel: bool,
     /// Work offsets, stored positions, startup lines, probe, pins, ...
@@ -474,6 +506,8 @@ pub struct Controller {
     rest_line: u64,
     /// Time of the last knot (-inf before the first), also once taken.
     last_knot_t: f64,
+    /// Until when a status report is being formatted (see `REPORT_FORMAT_S`).
+    report_busy_until: f64,
 }
 
 const EPS_POS: f64 = 1e-9;
@@ -482,6 +516,10 @@ const EPS_POS: f64 = 1e-9;
 /// that never comes to rest). Long enough that a sender's scheduling hiccup on
 /// a busy host is not mistaken for the end of the stream.
 pub const LINK_SILENCE_START: f64 = 0.1;
+/// How long an AVR takes to format a status report (some hundred
+/// microseconds of float printing; taken as 1 ms). Two `?` closer together
+/// than that get one report from Grbl 1.1h.
+const REPORT_FORMAT_S: f64 = 0.001;
 
 impl Controller {
     pub fn new(config: SimConfig) -> Controller {
@@ -524,12 +562,14 @@ impl Controller {
             wco_countdown: 0,
             ov_countdown: 1,
             written_settings: std::collections::BTreeMap::new(),
-            prev_byte: 0,
+            hal_eol: 0,
+            hal_line_started: false,
             jog_cancel: false,
             proto,
             rest_s: 0.0,
             rest_line: 0,
             last_knot_t: f64::NEG_INFINITY,
+            report_busy_until: f64::NEG_INFINITY,
         };
         let banner = c.banner();
         c.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
@@ -616,12 +656,13 @@ impl Controller {
         }
     }
 
-    /// Laser S while the machine stands still, after override: 0 in a hold, a
-    /// door, an alarm, sleep, check mode or with the spindle stop override.
-    /// (`rest_s` is set in laser mode only: outside it the power here would be
-    /// a spindle's, which the simulator does not model.)
+    /// Laser S while the machine stands still, after override: 0 in a door,
+    /// an alarm, sleep, check mode or with the spindle stop override, and in
+    /// laser mode in a hold. (Outside laser mode the output is a spindle's: it
+    /// runs at S under M3 and M4, in a hold too, as Grbl's `FS:` shows.)
     fn rest_power(&self) -> f64 {
-        let off = self.hold || self.door || self.alarm || self.sleep || self.check_mode || self.proto.spindle_stop;
+        let held = self.hold && self.setting(32) != 0.0;
+        let off = held || self.door || self.alarm || self.sleep || self.check_mode || self.proto.spindle_stop;
         if off || self.rest_s == 0.0 {
             0.0
         } else {
@@ -706,7 +747,8 @@ impl Controller {
                 FEED_HOLD_ALT => FEED_HOLD,
                 FULL_STATUS => {
                     if !self.critical {
-                        let line = self.full_status_report().to_line();
+                        let report = self.full_status_report();
+                        let line = self.report_text(&report);
                         self.send(&line);
                     }
                     return;
@@ -723,19 +765,12 @@ impl Controller {
                 byte = b'#';
             }
         }
-        if self.cfg.flavor == Flavor::Grblhal {
-            // A CR LF (or LF CR) pair ends one line, not two.
-            let eol = |b: u8| b == b'\n' || b == b'\r';
-            let pair = eol(byte) && eol(self.prev_byte) && byte != self.prev_byte;
-            self.prev_byte = if pair { 0 } else { byte };
-            if pair {
-                return;
-            }
-        }
         if crate::wire::realtime::is_realtime(byte) {
             self.realtime(byte);
         } else if byte >= 0x80 {
             // Undefined extended bytes are discarded, as Grbl does.
+        } else if self.cfg.flavor == Flavor::Grblhal && self.hal_skips_line_end(byte) {
+            // The second half of a CR LF (or LF CR) pair.
         } else if self.rx.len() >= self.cfg.rx_buffer {
             self.stats.rx_overflows += 1;
         } else {
@@ -749,6 +784,21 @@ impl Controller {
             }
         }
         self.process();
+    }
+
+    /// grblHAL ends a line at a CR or a LF alone, and skips a line end that
+    /// comes while the line is still empty (no printable byte yet; realtime
+    /// bytes and blanks do not count) right after a line ended by the other
+    /// one, so that CR LF answers once (its protocol.c).
+    fn hal_skips_line_end(&mut self, byte: u8) -> bool {
+        if byte != b'\n' && byte != b'\r' {
+            self.hal_line_started |= byte > b' ';
+            return false;
+        }
+        let skip = !self.hal_line_started && self.hal_eol != 0 && self.hal_eol != byte;
+        self.hal_eol = if skip { 0 } else { byte };
+        self.hal_line_started = false;
+        skip
     }
 
     // ----- output helpers -----
@@ -847,15 +897,23 @@ impl Controller {
             }
             None => 0.0,
         };
-        // `Ln:` is the line of the block at the planner's head.
-        let line = self.exec.iter().map(|e| &e.block).chain(self.planner.iter()).nth(self.prepared_blocks()).and_then(|b| b.n_word);
+        // `Ln:` is the line of the block at the planner's head; Grbl 1.1h as
+        // built by default has no line numbers (no `N` in `[OPT:]`).
+        let line = self
+            .exec
+            .iter()
+            .map(|e| &e.block)
+            .chain(self.planner.iter())
+            .nth(self.prepared_blocks())
+            .and_then(|b| b.n_word)
+            .filter(|_| self.cfg.flavor == Flavor::Grblhal);
         // WCO comes in the first report after a reset or an offset change, then
         // every 10th (idle) / 30th (busy); Ov in the second, on a change, then
         // every 10th / 20th, a report later when WCO takes its turn (reference §4).
         let busy = used > 0;
         let wco = if self.wco_countdown == 0 {
             self.wco_countdown = if busy { 29 } else { 9 };
-            Some(self.wco())
+            Some(self.report_units(&self.wco()))
         } else {
             self.wco_countdown -= 1;
             None
@@ -871,15 +929,16 @@ impl Controller {
         let mask = self.status_mask();
         let position = self.position();
         let (mpos, wpos) = if mask & 1 == 1 {
-            (position, None)
+            (self.report_units(&position), None)
         } else {
             // WPos = MPos - WCO.
-            (Vec::new(), Some(position.iter().zip(&self.wco()).map(|(p, o)| p - o).collect()))
+            let wpos: Vec<f64> = position.iter().zip(&self.wco()).map(|(p, o)| p - o).collect();
+            (Vec::new(), Some(self.report_units(&wpos)))
         };
         StatusReport {
             buffer: (mask & 2 == 2).then(|| self.free_buffers()),
             line,
-            feed: Some(feed),
+            feed: Some(self.report_units(&[feed])[0]),
             spindle: Some(self.laser_power()),
             wpos,
             wco,
@@ -895,7 +954,7 @@ impl Controller {
     fn full_status_report(&mut self) -> StatusReport {
         self.wco_countdown = 0;
         let mut r = self.status_report();
-        r.wco = Some(self.wco());
+        r.wco = Some(self.report_units(&self.wco()));
         r.overrides = Some([self.ovr_feed, self.ovr_rapid, self.ovr_spindle]);
         r.accessories = self.accessories();
         if r.buffer.is_none() {
@@ -929,8 +988,13 @@ impl Controller {
             // A critical alarm ignores everything but reset (reference §5).
             _ if self.critical => {}
             // No reports while homing (reference §3).
+            // Grbl 1.1h prints the report, then clears the request: a `?`
+            // arriving while it formats one is answered by that one.
+            STATUS if self.cfg.flavor == Flavor::Grbl && self.now < self.report_busy_until => {}
             STATUS if !self.homing_active() => {
-                let line = self.status_report().to_line();
+                self.report_busy_until = self.now + REPORT_FORMAT_S;
+                let report = self.status_report();
+                let line = self.report_text(&report);
                 self.send(&line);
             }
             JOG_CANCEL => self.cancel_jog(),
@@ -973,6 +1037,8 @@ impl Controller {
             SPINDLE_OVR_FINE_MINUS => self.ovr_spindle = self.ovr_spindle.saturating_sub(1).max(10),
             SPINDLE_OVR_STOP if matches!(self.state(), MachineState::Hold(_)) => self.toggle_spindle_stop(),
             // Coolant toggles act in Idle, Run and Hold, on the parser state (M7/M8/M9).
+            // Grbl 1.1h has no mist coolant (M7) unless built with it.
+            COOLANT_MIST_TOGGLE if self.cfg.flavor == Flavor::Grbl => {}
             COOLANT_FLOOD_TOGGLE | COOLANT_MIST_TOGGLE
                 if matches!(self.state(), MachineState::Idle | MachineState::Run | MachineState::Hold(_)) =>
             {
@@ -1239,11 +1305,10 @@ impl Controller {
         // Should the machine stop here: Grbl's stepper leaves the laser at an M3
         // block's power and switches it off after an M4 (dynamic) one; a hold
         // has switched it off.
-        self.rest_s = if self.hold || e.block.dynamic_power || e.block.power == 0.0 || self.setting(32) == 0.0 {
-            0.0
-        } else {
-            e.block.power
-        };
+        // Outside laser mode the spindle runs on as its last sync set it.
+        if self.setting(32) != 0.0 {
+            self.rest_s = if self.hold || e.block.dynamic_power || e.block.power == 0.0 { 0.0 } else { e.block.power };
+        }
         self.rest_line = e.block.line;
         self.stats.blocks_executed += 1;
         self.stats.last_motion_end_t = Some(t);
@@ -1371,7 +1436,7 @@ impl Controller {
                 }
             } else if self.startup_ready() {
                 self.begin_startup();
-            } else if self.rx_lines > 0 && !self.critical {
+            } else if self.rx_lines > 0 && !self.critical && !self.suspended() {
                 // A critical alarm processes no lines until reset (reference §5).
                 self.take_line();
             } else {
@@ -1416,7 +1481,7 @@ impl Controller {
             }
         };
         match result {
-            Ok((steps, reset_after)) => {
+            Ok((steps, after)) => {
                 if !steps.iter().any(|s| matches!(s, Step::Queue(_))) {
                     if let Some(last) = self.planner.back_mut() {
                         last.ends_sequence = true;
@@ -1433,7 +1498,7 @@ impl Controller {
                     taken,
                     dwell_until: None,
                     dwell_left: None,
-                    reset_after,
+                    after,
                     quiet: false,
                 })
             }
@@ -1571,20 +1636,25 @@ impl Controller {
         if !p.quiet {
             self.send("ok");
         }
-        if p.reset_after {
-            self.soft_reset();
+        match p.after {
+            AfterOk::Nothing => {}
+            AfterOk::Reset => self.soft_reset(),
+            AfterOk::Sleep => {
+                self.sleep = true;
+                self.send("[MSG:Sleeping]");
+            }
         }
         true
     }
 
-    /// Executes a cleaned line. Ok(steps still to do before `ok`, reset after
-    /// ok) or Err(Grbl error code); on error nothing has changed.
-    fn execute_line(&mut self, text: &str, line: u64) -> Result<(Vec<Step>, bool), u16> {
+    /// Executes a cleaned line. Ok(steps still to do before `ok`, what follows
+    /// the ok) or Err(Grbl error code); on error nothing has changed.
+    fn execute_line(&mut self, text: &str, line: u64) -> Result<(Vec<Step>, AfterOk), u16> {
         if text.is_empty() {
-            return Ok((Vec::new(), false));
+            return Ok((Vec::new(), AfterOk::Nothing));
         }
         if let Some(jog) = text.strip_prefix("$J=") {
-            return self.jog(jog, line).map(|s| (s, false));
+            return self.jog(jog, line).map(|s| (s, AfterOk::Nothing));
         }
         if let Some(cmd) = text.strip_prefix('$') {
             return self.system_command(cmd);
@@ -1592,7 +1662,14 @@ impl Controller {
         if self.alarm || self.sleep || self.jogging() {
             return Err(9);
         }
-        self.gcode(text, line).map(|s| (s, false))
+        self.gcode(text, line).map(|s| (s, AfterOk::Nothing))
+    }
+
+    /// Grbl reads no line while it is suspended: from the moment a feed hold,
+    /// a door or M0 has the machine standing still until `~` resumes it
+    /// (protocol.c's suspend loop), and in sleep until a reset.
+    fn suspended(&self) -> bool {
+        self.sleep || ((self.hold || self.door) && !self.moving())
     }
 
     fn jogging(&self) -> bool {
@@ -1699,25 +1776,33 @@ fn dist(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| (y - x) * (y - x)).sum::<f64>().sqrt()
 }
 
-fn join3(v: &[f64]) -> String {
-    v.iter().map(|x| fmt_num(*x, 3)).collect::<Vec<_>>().join(",")
-}
-
 fn interpolate(e: &Exec, t: f64) -> Vec<f64> {
     let dur = e.end_t - e.start_t;
     let f = if e.running && dur > 0.0 { ((t - e.start_t) / dur).clamp(0.0, 1.0) } else { 1.0 };
     e.start_pos.iter().zip(&e.end_pos).map(|(s, g)| s + (g - s) * f).collect()
 }
 
-/// Makes any config usable rather than failing later: 1..=6 axes, positive
+/// Makes any config usable rather than failing later: the flavour's axes, positive
 /// finite rates, min <= max, buffers of at least a few bytes/one block.
 fn sanitize(mut c: SimConfig) -> SimConfig {
+    for a in &mut c.axes {
+        a.letter = a.letter.to_ascii_uppercase();
+    }
+    match c.flavor {
+        // Exactly X, Y, Z in this order, each as configured or a default one
+        // (`SimConfig::flavor_error` names any other axis; it is dropped here).
+        Flavor::Grbl => {
+            c.axes = GRBL_AXES
+                .iter()
+                .map(|l| c.axes.iter().find(|a| a.letter == *l).cloned().unwrap_or_else(|| AxisConfig::new(*l)))
+                .collect()
+        }
+        Flavor::Grblhal => c.axes.truncate(8),
+    }
     if c.axes.is_empty() {
         c.axes.push(AxisConfig::new('X'));
     }
-    c.axes.truncate(if c.flavor == Flavor::Grblhal { 8 } else { 6 });
     for a in &mut c.axes {
-        a.letter = a.letter.to_ascii_uppercase();
         if !a.min.is_finite() {
             a.min = 0.0;
         }

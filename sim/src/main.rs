@@ -44,6 +44,9 @@ fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         Some(p) => serde_json::from_str::<SimConfig>(&std::fs::read_to_string(p)?)?,
         None => SimConfig::with_axes(&args.axes.replace(',', "")),
     };
+    if let Some(e) = config.flavor_error() {
+        return Err(e.into());
+    }
     let action = SigAction::new(SigHandler::Handler(on_signal), SaFlags::empty(), SigSet::empty());
     // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
     unsafe {

@@ -197,7 +197,17 @@ impl StatusReport {
     /// `<Run|MPos:1.000,2.000|Bf:15,128|Ln:3|FS:500,0|WCO:0.000,0.000>` without
     /// CR/LF, fields in Grbl's order.
     pub fn to_line(&self) -> String {
-        let join = |v: &[f64]| v.iter().map(|x| fmt_num(*x, 3)).collect::<Vec<_>>().join(",");
+        self.format(3, 0)
+    }
+
+    /// The same with positions and feed in inches (`$13=1`): 4 decimals for
+    /// positions, 1 for the feed (the values are already in inches).
+    pub fn to_line_inches(&self) -> String {
+        self.format(4, 1)
+    }
+
+    fn format(&self, pos_decimals: usize, feed_decimals: usize) -> String {
+        let join = |v: &[f64]| v.iter().map(|x| fmt_num(*x, pos_decimals)).collect::<Vec<_>>().join(",");
         let mut s = match (&self.wpos, self.mpos.is_empty()) {
             (Some(w), true) => format!("<{}|WPos:{}", self.state.as_field(), join(w)),
             _ => format!("<{}|MPos:{}", self.state.as_field(), join(&self.mpos)),
@@ -210,10 +220,10 @@ impl StatusReport {
         }
         match (self.feed, self.spindle) {
             (None, None) => {}
-            (Some(f), None) => s.push_str(&format!("|F:{}", fmt_num(f, 0))),
+            (Some(f), None) => s.push_str(&format!("|F:{}", fmt_num(f, feed_decimals))),
             (f, sp) => s.push_str(&format!(
                 "|FS:{},{}",
-                fmt_num(f.unwrap_or(0.0), 0),
+                fmt_num(f.unwrap_or(0.0), feed_decimals),
                 fmt_num(sp.unwrap_or(0.0), 0)
             )),
         }

@@ -15,7 +15,7 @@
 mod common;
 
 use common::{cfg, Sim};
-use laserd_sim::controller::{Controller, Faults, SimConfig};
+use laserd_sim::controller::{Controller, Faults, Flavor, SimConfig};
 use laserd_sim::wire::realtime;
 
 /// Something done to the simulated machine.
@@ -44,11 +44,12 @@ const DOOR: Act = R(0x84);
 const ECHO_ON: Act = Ctl(echo_on);
 const BANNER: &str = "Grbl 1.1h ['$' for help]";
 const UNLOCK: &str = "[MSG:'$H'|'$X' to unlock]";
+/// An idle report once the first two (with WCO, then Ov) have gone.
 /// An idle report once the first two (with WCO, then Ov) have gone
 /// (Grbl's default `$10=1`: MPos, no buffer state).
-const IDLE: &str = "<Idle|MPos:0.000,0.000|FS:0,0>";
+const IDLE: &str = "<Idle|MPos:0.000,0.000,0.000|FS:0,0>";
 /// The same with `$10=3` (MPos and `Bf:`): every block and byte free.
-const IDLE_BF: &str = "<Idle|MPos:0.000,0.000|Bf:15,128|FS:0,0>";
+const IDLE_BF: &str = "<Idle|MPos:0.000,0.000,0.000|Bf:15,128|FS:0,0>";
 
 type Row = (fn() -> SimConfig, &'static [Act], &'static [Act], &'static [&'static str]);
 
@@ -56,6 +57,7 @@ fn echo_on(c: &mut Controller) {
     c.set_echo(true);
 }
 
+/// A 2-axis machine config; Grbl 1.1h still reports (and moves) X, Y and Z.
 fn xy() -> SimConfig {
     cfg()
 }
@@ -152,13 +154,13 @@ fn describe(acts: &[Act]) -> String {
 fn realtime_rows() -> Vec<Row> {
     vec![
         // `?`: WCO in the first report after a reset, Ov in the second, then neither.
-        (xy, &[], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|WCO:0.000,0.000>"]),
-        (xy, &[Q], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>"]),
+        (xy, &[Q], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         (xy, &[Q, Q], &[Q], &[IDLE]),
         // `!` feed hold: at rest at once; moving, Hold:1 until stopped.
-        (xy, &[Q, Q], &[HOLD, Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q], &[HOLD, Q], &["<Hold:0|MPos:0.000,0.000,0.000|FS:0,0>"]),
         (xy, &[Q, Q, L("G1X100F600")], &[HOLD, Q], &["<Hold:1|MPos:*|FS:600,0>"]),
-        (xy, &[Q, Q, L("G1X1F600"), HOLD, Wait(1.0)], &[Q], &["<Hold:0|MPos:1.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G1X1F600"), HOLD, Wait(1.0)], &[Q], &["<Hold:0|MPos:1.000,0.000,0.000|FS:0,0>"]),
         // `~` cycle start: resumes a hold; otherwise nothing.
         (xy, &[Q, Q, HOLD], &[START, Q], &[IDLE]),
         (xy, &[Q, Q, L("G1X100F600"), HOLD], &[START, Q], &["<Run|MPos:*|FS:600,0>"]),
@@ -169,78 +171,79 @@ fn realtime_rows() -> Vec<Row> {
         (xy, &[L("G1X100F600"), HOLD, Q], &[RESET], &["ALARM:3", BANNER, UNLOCK]),
         (xy, &[Q, Q, R(0x91), R(0x96)], &[RESET, Q, Q], &[
             BANNER,
-            "<Idle|MPos:0.000,0.000|FS:0,0|WCO:0.000,0.000>",
-            "<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>",
+            "<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>",
+            "<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>",
         ]),
         // 0x84 safety door: Door:2 stopping, Door:1 open, Door:0 closed; `~` resumes once closed.
-        (xy, &[Q, Q], &[DOOR, Q], &["<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D>"]),
+        (xy, &[Q, Q], &[DOOR, Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
         (xy, &[Q, Q, L("G1X100F600")], &[DOOR, Q], &["<Door:2|MPos:*|FS:600,0|Pn:D>"]),
-        (xy, &[Q, Q, DOOR], &[Door(false), Q], &["<Door:0|MPos:0.000,0.000|FS:0,0>"]),
-        (xy, &[Q, Q, DOOR], &[START, Q], &["<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D>"]),
+        (xy, &[Q, Q, DOOR], &[Door(false), Q], &["<Door:0|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, DOOR], &[START, Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
         (xy, &[Q, Q, DOOR, Door(false)], &[START, Q], &[IDLE]),
-        (xy, &[Q, Q, Door(true)], &[Q], &["<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D>"]),
+        (xy, &[Q, Q, Door(true)], &[Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
         // 0x85 jog cancel (and `!` while jogging): stop, drop the jog, Idle.
         (xy, &[Q, Q, L("$J=X100F600")], &[R(0x85), Q], &["<Idle|MPos:*|FS:0,0>"]),
         (xy, &[Q, Q, L("$J=X100F600"), L("$J=Y100F600")], &[HOLD, Q], &["<Idle|MPos:*|FS:0,0>"]),
         (xy, &[Q, Q], &[R(0x85), Q], &[IDLE]),
         // Feed override 0x90..0x94: 10..200 %, shown on a change.
-        (xy, &[Q, Q], &[R(0x91), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:110,100,100>"]),
-        (xy, &[Q, Q], &[R(0x92), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:90,100,100>"]),
-        (xy, &[Q, Q], &[R(0x93), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:101,100,100>"]),
-        (xy, &[Q, Q], &[R(0x94), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:99,100,100>"]),
-        (xy, &[Q, Q, R(0x91), Q], &[R(0x90), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[Q, Q], &[R(0x91), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:110,100,100>"]),
+        (xy, &[Q, Q], &[R(0x92), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:90,100,100>"]),
+        (xy, &[Q, Q], &[R(0x93), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:101,100,100>"]),
+        (xy, &[Q, Q], &[R(0x94), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:99,100,100>"]),
+        (xy, &[Q, Q, R(0x91), Q], &[R(0x90), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         (xy, &[Q, Q], &[R(0x90), Q], &[IDLE]),
-        (xy, &[Q, Q], &[B(&[0x91; 12]), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:200,100,100>"]),
-        (xy, &[Q, Q], &[B(&[0x92; 12]), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:10,100,100>"]),
-        (xy, &[Q, Q], &[B(&[0x94; 200]), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:10,100,100>"]),
+        (xy, &[Q, Q], &[B(&[0x91; 12]), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:200,100,100>"]),
+        (xy, &[Q, Q], &[B(&[0x92; 12]), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:10,100,100>"]),
+        (xy, &[Q, Q], &[B(&[0x94; 200]), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:10,100,100>"]),
         // Rapid override 0x95..0x97: 100, 50, 25 %.
-        (xy, &[Q, Q], &[R(0x96), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,50,100>"]),
-        (xy, &[Q, Q], &[R(0x97), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,25,100>"]),
-        (xy, &[Q, Q, R(0x97), Q], &[R(0x95), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[Q, Q], &[R(0x96), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,50,100>"]),
+        (xy, &[Q, Q], &[R(0x97), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,25,100>"]),
+        (xy, &[Q, Q, R(0x97), Q], &[R(0x95), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         // Spindle override 0x99..0x9D: 10..200 %.
-        (xy, &[Q, Q], &[R(0x9A), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,110>"]),
-        (xy, &[Q, Q], &[R(0x9B), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,90>"]),
-        (xy, &[Q, Q], &[R(0x9C), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,101>"]),
-        (xy, &[Q, Q], &[R(0x9D), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,99>"]),
-        (xy, &[Q, Q, R(0x9A), Q], &[R(0x99), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
-        (xy, &[Q, Q], &[B(&[0x9A; 12]), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,200>"]),
+        (xy, &[Q, Q], &[R(0x9A), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,110>"]),
+        (xy, &[Q, Q], &[R(0x9B), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,90>"]),
+        (xy, &[Q, Q], &[R(0x9C), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,101>"]),
+        (xy, &[Q, Q], &[R(0x9D), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,99>"]),
+        (xy, &[Q, Q, R(0x9A), Q], &[R(0x99), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[Q, Q], &[B(&[0x9A; 12]), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,200>"]),
         // 0x9E spindle stop, only in Hold (here not in laser mode: the spindle
         // keeps turning in a hold until stopped); resuming restores it.
-        (xy, &[L("$32=0"), L("M3S100"), HOLD, Q], &[Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:S>"]),
-        (xy, &[L("$32=0"), L("M3S100"), HOLD, Q, Q], &[R(0x9E), Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[L("$32=0"), L("M3S100"), HOLD, Q], &[Q], &["<Hold:0|MPos:0.000,0.000,0.000|FS:0,100|Ov:100,100,100|A:S>"]),
+        (xy, &[L("$32=0"), L("M3S100"), HOLD, Q, Q], &[R(0x9E), Q], &["<Hold:0|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         (xy, &[L("$32=0"), L("M3S100"), HOLD, Q, Q, R(0x9E), Q], &[R(0x9E), Q], &[
             "[MSG:Restoring spindle]",
-            "<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:S>",
+            "<Hold:0|MPos:0.000,0.000,0.000|FS:0,100|Ov:100,100,100|A:S>",
         ]),
         (xy, &[L("$32=0"), L("M3S100"), HOLD, Q, Q, R(0x9E), Q], &[START, Q], &[
             "[MSG:Restoring spindle]",
-            "<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:S>",
+            "<Idle|MPos:0.000,0.000,0.000|FS:0,100|Ov:100,100,100|A:S>",
         ]),
         (xy, &[L("M3S100"), Q, Q], &[R(0x9E), Q], &[IDLE]),
         // In laser mode ($32=1) a hold stops the laser by itself (the same
         // override), so `~` restores it and 0x9E in the hold turns it back on.
-        (xy, &[L("M4S100"), Q, Q], &[HOLD, Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[L("M4S100"), Q, Q], &[HOLD, Q], &["<Hold:0|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         (xy, &[L("M4S100"), Q, Q, HOLD, Q], &[START, Q], &[
             "[MSG:Restoring spindle]",
-            "<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:C>",
+            "<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:C>",
         ]),
         (xy, &[L("M4S100"), Q, Q, HOLD, Q], &[R(0x9E), Q], &[
             "[MSG:Restoring spindle]",
-            "<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:C>",
+            "<Hold:0|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:C>",
         ]),
-        // 0xA0 flood / 0xA1 mist toggles (Idle, Run, Hold), as M8/M7/M9 would.
-        (xy, &[Q, Q], &[R(0xA0), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:F>"]),
-        (xy, &[Q, Q], &[R(0xA1), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:M>"]),
-        (xy, &[Q, Q, R(0xA0)], &[R(0xA1), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:FM>"]),
-        (xy, &[Q, Q, R(0xA0), Q], &[R(0xA0), Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
-        (xy, &[L("M3S1"), Q, Q, HOLD], &[R(0xA1), Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:M>"]),
-        (xy, &[R(0xA0), R(0xA1)], &[L("$G")], &["[GC:G0 G54 G17 G21 G90 G94 M5 M7 M8 T0 F0 S0]", "ok"]),
-        (xy, &[L("G0X-1"), RESET, Q, Q], &[R(0xA0), Q], &["<Alarm|MPos:0.000,0.000|FS:0,0>"]),
-        (xy, &[L("$C"), Q, Q], &[R(0xA1), Q], &["<Check|MPos:0.000,0.000|FS:0,0>"]),
+        // 0xA0 flood toggle (Idle, Run, Hold), as M8/M9 would; 0xA1 (mist)
+        // is discarded by Grbl 1.1h as built (no M7).
+        (xy, &[Q, Q], &[R(0xA0), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:F>"]),
+        (xy, &[Q, Q], &[R(0xA1), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, R(0xA0)], &[R(0xA1), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:F>"]),
+        (xy, &[Q, Q, R(0xA0), Q], &[R(0xA0), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[L("M3S1"), Q, Q, HOLD], &[R(0xA0), Q], &["<Hold:0|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:F>"]),
+        (xy, &[R(0xA0), R(0xA1)], &[L("$G")], &["[GC:G0 G54 G17 G21 G90 G94 M5 M8 T0 F0 S0]", "ok"]),
+        (xy, &[L("G0X-1"), RESET, Q, Q], &[R(0xA0), Q], &["<Alarm|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[L("$C"), Q, Q], &[R(0xA1), Q], &["<Check|MPos:0.000,0.000,0.000|FS:0,0>"]),
         // grblHAL's extra bytes (0x80-0x82 aliases, 0x87 full report): Grbl 1.1 discards them.
         (xy, &[Q, Q], &[R(0x80), R(0x87)], &[]),
         (xy, &[Q, Q], &[R(0x82), Q], &[IDLE]),
-        (xy, &[Q, Q, HOLD], &[R(0x81), Q], &["<Hold:0|MPos:0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, HOLD], &[R(0x81), Q], &["<Hold:0|MPos:0.000,0.000,0.000|FS:0,0>"]),
     ]
 }
 
@@ -270,54 +273,57 @@ fn every_realtime_byte_has_a_row() {
 fn states_and_status_fields() {
     let rows: &[Row] = &[
         (xy, &[Q, Q, L("G1X100F600")], &[Q], &["<Run|MPos:*|FS:600,0>"]),
-        (xy, &[Q, Q, L("N7G1X100F600")], &[Q], &["<Run|MPos:*|Ln:7|FS:600,0>"]),
+        // No `Ln:`: Grbl 1.1h as built has no line numbers.
+        (xy, &[Q, Q, L("N7G1X100F600")], &[Q], &["<Run|MPos:*|FS:600,0>"]),
         (xy, &[Q, Q, L("M3S250"), L("G1X100F600")], &[Q], &["<Run|MPos:*|FS:600,250|Ov:100,100,100|A:S>"]),
         (xy, &[Q, Q, L("$J=X100F600")], &[Q], &["<Jog|MPos:*|FS:600,0>"]),
-        (xy, &[Q, Q, L("$C")], &[Q], &["<Check|MPos:0.000,0.000|FS:0,0>"]),
-        (xy, &[Q, Q, L("$SLP")], &[Q], &["<Sleep|MPos:0.000,0.000|FS:0,0>"]),
-        (xy, &[Q, Q, L("G0X-1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("$C")], &[Q], &["<Check|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("$SLP")], &[Q], &["<Sleep|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G0X-1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000,0.000|FS:0,0>"]),
         // Home: no reports while homing.
         (xy, &[L("$22=1"), L("G0X100"), Wait(1.5)], &[L("$H"), Q], &[]),
         // $10: bit 0 MPos (else WPos), bit 1 Bf; Grbl 1.1 has no other bits.
-        (xy, &[L("$10=0"), Q, Q], &[Q], &["<Idle|WPos:0.000,0.000|FS:0,0>"]),
-        (xy, &[L("$10=1"), Q, Q], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0>"]),
-        (xy, &[L("$10=2"), Q, Q], &[Q], &["<Idle|WPos:0.000,0.000|Bf:15,128|FS:0,0>"]),
+        (xy, &[L("$10=0"), Q, Q], &[Q], &["<Idle|WPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[L("$10=1"), Q, Q], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[L("$10=2"), Q, Q], &[Q], &["<Idle|WPos:0.000,0.000,0.000|Bf:15,128|FS:0,0>"]),
         (xy, &[L("$10=3"), Q, Q], &[Q], &[IDLE_BF]),
         (xy, &[L("$10=255"), Q, Q], &[Q], &[IDLE_BF]),
         // WCO = G54..G59 + G92 + TLO, at once after a change; WPos = MPos - WCO.
-        (xy, &[Q, Q, L("G10L2P1X10Y5")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|WCO:10.000,5.000>"]),
-        (xy, &[L("$10=0"), L("G10L2P1X10Y5"), Q, Q], &[Q], &["<Idle|WPos:-10.000,-5.000|FS:0,0>"]),
-        (xy, &[Q, Q, L("G10L2P2X10"), L("G55G0X1"), Wait(0.5)], &[Q], &["<Idle|MPos:11.000,0.000|FS:0,0|WCO:10.000,0.000>"]),
-        (xy, &[Q, Q, L("G0X3"), L("G92X1")], &[Q], &["<Idle|MPos:3.000,0.000|FS:0,0|WCO:2.000,0.000>"]),
-        (xy, &[Q, Q, L("G0X3"), L("G92X1"), Q], &[L("G92.1"), Q], &["ok", "<Idle|MPos:3.000,0.000|FS:0,0|WCO:0.000,0.000>"]),
+        (xy, &[Q, Q, L("G10L2P1X10Y5")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:10.000,5.000,0.000>"]),
+        (xy, &[L("$10=0"), L("G10L2P1X10Y5"), Q, Q], &[Q], &["<Idle|WPos:-10.000,-5.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G10L2P2X10"), L("G55G0X1"), Wait(0.5)], &[Q], &["<Idle|MPos:11.000,0.000,0.000|FS:0,0|WCO:10.000,0.000,0.000>"]),
+        (xy, &[Q, Q, L("G0X3"), L("G92X1")], &[Q], &["<Idle|MPos:3.000,0.000,0.000|FS:0,0|WCO:2.000,0.000,0.000>"]),
+        (xy, &[Q, Q, L("G0X3"), L("G92X1"), Q], &[L("G92.1"), Q], &["ok", "<Idle|MPos:3.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>"]),
         (xyz, &[Q, Q, L("G43.1Z2")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,2.000>"]),
         (xyz, &[Q, Q, L("G43.1Z2"), Q], &[L("G49"), Q], &["ok", "<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>"]),
         // Pn: D door, X limit switch (after a hard limit), P probe.
-        (limit_1, &[L("G0X1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000|FS:0,0|Pn:X>"]),
-        (limit_1, &[L("G0X1"), RESET, Q, Q, L("$X"), L("G0X1"), Wait(0.5)], &[Q], &["<Idle|MPos:1.000,0.000|FS:0,0>"]),
-        (probe_2mm, &[Q, Q, L("G38.2X10F600"), Wait(0.5)], &[Q], &["<Idle|MPos:2.000,0.000|FS:0,0|Pn:P>"]),
-        (xy, &[Q, Q, DOOR, Door(false), START, Door(true), DOOR], &[Q], &["<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D>"]),
-        // A: S (M3), C (M4), F (flood), M (mist), in the report with Ov.
-        (xy, &[Q, Q, L("M3S1"), L("M8"), L("M7")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:SFM>"]),
-        (xy, &[Q, Q, L("M4S1"), L("M7")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:CM>"]),
-        (xy, &[Q, Q, L("M4S1"), L("M7"), Q], &[L("M9"), L("M5"), Q], &["ok", "ok", "<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        (limit_1, &[L("G0X1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000,0.000|FS:0,0|Pn:X>"]),
+        (limit_1, &[L("G0X1"), RESET, Q, Q, L("$X"), L("G0X1"), Wait(0.5)], &[Q], &["<Idle|MPos:1.000,0.000,0.000|FS:0,0>"]),
+        (probe_2mm, &[Q, Q, L("G38.2X10F600"), Wait(0.5)], &[Q], &["<Idle|MPos:2.000,0.000,0.000|FS:0,0|Pn:P>"]),
+        (xy, &[Q, Q, DOOR, Door(false), START, Door(true), DOOR], &[Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
+        // A: S (M3), C (M4), F (flood), in the report with Ov.
+        (xy, &[Q, Q, L("M3S1"), L("M8")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:SF>"]),
+        (xy, &[Q, Q, L("M4S1"), L("M8")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:CF>"]),
+        (xy, &[Q, Q, L("M4S1"), L("M8"), Q], &[L("M9"), L("M5"), Q], &["ok", "ok", "<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         // FS: the laser standing still in laser mode: M3 burns at S in G1 (in
         // G0 it stays dark, rows above), M4 is dark (no motion, no power).
-        (xy, &[Q, Q, L("G1F100"), L("M3S500")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,500|Ov:100,100,100|A:S>"]),
-        (xy, &[Q, Q, L("G1F100"), L("M4S500")], &[Q], &["<Idle|MPos:0.000,0.000|FS:0,0|Ov:100,100,100|A:C>"]),
+        (xy, &[Q, Q, L("G1F100"), L("M3S500")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,500|Ov:100,100,100|A:S>"]),
+        (xy, &[Q, Q, L("G1F100"), L("M4S500")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:C>"]),
     ];
     check(rows);
 }
 
-/// The full default `$$` listing of the XY machine, `changes` applied.
+/// The full default `$$` listing of the XY machine (with Grbl's Z), `changes` applied.
 fn listing(changes: &[(&str, &str)]) -> Vec<String> {
     let defaults = [
         ("0", "10"), ("1", "25"), ("2", "0"), ("3", "0"), ("4", "0"), ("5", "0"), ("6", "0"),
         ("10", "1"), ("11", "0.010"), ("12", "0.002"), ("13", "0"),
         ("20", "1"), ("21", "0"), ("22", "0"), ("23", "0"), ("24", "25.000"), ("25", "500.000"),
         ("26", "250"), ("27", "1.000"), ("30", "1000"), ("31", "0"), ("32", "1"),
-        ("100", "250.000"), ("101", "250.000"), ("110", "6000.000"), ("111", "6000.000"),
-        ("120", "1000.000"), ("121", "1000.000"), ("130", "300.000"), ("131", "300.000"),
+        ("100", "250.000"), ("101", "250.000"), ("102", "250.000"),
+        ("110", "6000.000"), ("111", "6000.000"), ("112", "6000.000"),
+        ("120", "1000.000"), ("121", "1000.000"), ("122", "1000.000"),
+        ("130", "300.000"), ("131", "300.000"), ("132", "300.000"),
     ];
     let mut out: Vec<String> = defaults
         .iter()
@@ -347,19 +353,19 @@ fn system_commands() {
         (xy, &[L("G0X-1"), RESET], &[L("$110=600"), L("$X")], &["ok", "[MSG:Caution: Unlocked]", "ok"]),
         // $#: G54..G59 and G28/G30 (kept like EEPROM), G92, TLO, the last probe.
         (xy, &[], &[L("$#")], &[
-            "[G54:0.000,0.000]", "[G55:0.000,0.000]", "[G56:0.000,0.000]", "[G57:0.000,0.000]",
-            "[G58:0.000,0.000]", "[G59:0.000,0.000]", "[G28:0.000,0.000]", "[G30:0.000,0.000]",
-            "[G92:0.000,0.000]", "[TLO:0.000]", "[PRB:0.000,0.000:0]", "ok",
+            "[G54:0.000,0.000,0.000]", "[G55:0.000,0.000,0.000]", "[G56:0.000,0.000,0.000]", "[G57:0.000,0.000,0.000]",
+            "[G58:0.000,0.000,0.000]", "[G59:0.000,0.000,0.000]", "[G28:0.000,0.000,0.000]", "[G30:0.000,0.000,0.000]",
+            "[G92:0.000,0.000,0.000]", "[TLO:0.000]", "[PRB:0.000,0.000,0.000:0]", "ok",
         ]),
         (xy, &[L("G10L2P2X5Y6"), L("G10L2P6X-1"), L("G0X1Y2"), L("G28.1"), L("G0X3Y4"), L("G30.1"), L("G92X0")], &[L("$#")], &[
-            "[G54:0.000,0.000]", "[G55:5.000,6.000]", "[G56:0.000,0.000]", "[G57:0.000,0.000]",
-            "[G58:0.000,0.000]", "[G59:-1.000,0.000]", "[G28:1.000,2.000]", "[G30:3.000,4.000]",
-            "[G92:3.000,0.000]", "[TLO:0.000]", "[PRB:0.000,0.000:0]", "ok",
+            "[G54:0.000,0.000,0.000]", "[G55:5.000,6.000,0.000]", "[G56:0.000,0.000,0.000]", "[G57:0.000,0.000,0.000]",
+            "[G58:0.000,0.000,0.000]", "[G59:-1.000,0.000,0.000]", "[G28:1.000,2.000,0.000]", "[G30:3.000,4.000,0.000]",
+            "[G92:3.000,0.000,0.000]", "[TLO:0.000]", "[PRB:0.000,0.000,0.000:0]", "ok",
         ]),
         (xy, &[L("G10L2P2X5Y6"), L("G0X1Y2"), L("G28.1"), L("G92X0"), RESET], &[L("$#")], &[
-            "[G54:0.000,0.000]", "[G55:5.000,6.000]", "[G56:0.000,0.000]", "[G57:0.000,0.000]",
-            "[G58:0.000,0.000]", "[G59:0.000,0.000]", "[G28:1.000,2.000]", "[G30:0.000,0.000]",
-            "[G92:0.000,0.000]", "[TLO:0.000]", "[PRB:0.000,0.000:0]", "ok",
+            "[G54:0.000,0.000,0.000]", "[G55:5.000,6.000,0.000]", "[G56:0.000,0.000,0.000]", "[G57:0.000,0.000,0.000]",
+            "[G58:0.000,0.000,0.000]", "[G59:0.000,0.000,0.000]", "[G28:1.000,2.000,0.000]", "[G30:0.000,0.000,0.000]",
+            "[G92:0.000,0.000,0.000]", "[TLO:0.000]", "[PRB:0.000,0.000,0.000:0]", "ok",
         ]),
         (xyz, &[L("G43.1Z-1.5")], &[L("$#")], &[
             "[G54:0.000,0.000,0.000]", "[G55:0.000,0.000,0.000]", "[G56:0.000,0.000,0.000]", "[G57:0.000,0.000,0.000]",
@@ -370,20 +376,20 @@ fn system_commands() {
         // $G in any state.
         (xy, &[], &[L("$G")], &["[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]", "ok"]),
         (xy, &[L("G91 G93 M4 S250")], &[L("$G")], &["[GC:G0 G54 G17 G21 G91 G93 M4 M9 T0 F0 S250]", "ok"]),
-        (xy, &[L("G1F100"), L("G55G20G18"), L("M8"), L("M7"), L("T5"), L("S300")], &[L("$G")], &["[GC:G1 G55 G18 G20 G90 G94 M5 M7 M8 T5 F3.9 S300]", "ok"]),
+        (xy, &[L("G1F100"), L("G55G20G18"), L("M8"), L("T5"), L("S300")], &[L("$G")], &["[GC:G1 G55 G18 G20 G90 G94 M5 M8 T5 F100 S300]", "ok"]),
         (xy, &[L("G38.3X5F100"), Wait(4.0)], &[L("$G")], &["[GC:G38.3 G54 G17 G21 G90 G94 M5 M9 T0 F100 S0]", "ok"]),
         (xy, &[L("G1X100F600")], &[L("$G")], &["[GC:G1 G54 G17 G21 G90 G94 M5 M9 T0 F600 S0]", "ok"]),
         // $I, $I=.
-        (xy, &[], &[L("$I")], &["[VER:1.1h.laserd-sim:]", "[OPT:VNM+,15,128]", "ok"]),
-        (xy, &[L("$I=My Laser")], &[L("$I")], &["[VER:1.1h.laserd-sim:MYLASER]", "[OPT:VNM+,15,128]", "ok"]),
-        (xy, &[L("$I=My Laser"), RESET], &[L("$I")], &["[VER:1.1h.laserd-sim:MYLASER]", "[OPT:VNM+,15,128]", "ok"]),
+        (xy, &[], &[L("$I")], &["[VER:1.1h.20190830:]", "[OPT:V+,15,128]", "ok"]),
+        (xy, &[L("$I=My Laser")], &[L("$I")], &["[VER:1.1h.20190830:MYLASER]", "[OPT:V+,15,128]", "ok"]),
+        (xy, &[L("$I=My Laser"), RESET], &[L("$I")], &["[VER:1.1h.20190830:MYLASER]", "[OPT:V+,15,128]", "ok"]),
         (xy, &[L("G1X100F600")], &[L("$I")], &["error:8"]),
         // $N, $Nx=: validated by executing, run after each reset without an alarm.
         (xy, &[], &[L("$N")], &["$N0=", "$N1=", "ok"]),
         (xy, &[], &[L("$N0=G21 G54")], &["ok"]),
         (xy, &[L("$N0=G21 G54"), L("$N1=G20")], &[L("$N")], &["$N0=G21G54", "$N1=G20", "ok"]),
         (xy, &[L("$N0=G21 G54"), L("$N1=G20")], &[RESET], &[BANNER, ">G21G54:ok", ">G20:ok"]),
-        (xy, &[L("$N1=G20"), RESET], &[L("$G")], &["[GC:G0 G54 G17 G20 G90 G94 M5 M9 T0 F0.0 S0]", "ok"]),
+        (xy, &[L("$N1=G20"), RESET], &[L("$G")], &["[GC:G0 G54 G17 G20 G90 G94 M5 M9 T0 F0 S0]", "ok"]),
         (xy, &[L("G1F100"), L("$N0=G1X1"), Wait(1.0)], &[RESET], &[BANNER, ">G1X1:error:22"]),
         (xy, &[], &[L("$N1=G5")], &["error:20"]),
         (xy, &[L("$N1=G5")], &[L("$N")], &["$N0=", "$N1=", "ok"]),
@@ -393,13 +399,13 @@ fn system_commands() {
         (xy, &[L("G0X-1"), RESET], &[L("$N")], &["$N0=", "$N1=", "ok"]),
         (xy, &[L("$N0=G20"), L("G0X-1")], &[RESET], &[BANNER, UNLOCK]),
         (xy, &[L("$N0=G20"), L("G0X-1"), RESET], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
-        (xy, &[L("$N0=G20"), DOOR], &[RESET, Q], &[BANNER, "[MSG:Check Door]", "<Door:1|MPos:0.000,0.000|FS:0,0|Pn:D|WCO:0.000,0.000>"]),
+        (xy, &[L("$N0=G20"), DOOR], &[RESET, Q], &[BANNER, "[MSG:Check Door]", "<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D|WCO:0.000,0.000,0.000>"]),
         (xy, &[L("$N0=G20"), DOOR, RESET, Door(false)], &[START], &[">G20:ok"]),
         (xy, &[L("$22=1"), L("$N0=G20")], &[L("$H")], &[">G20:ok", "ok"]),
         // $C check mode.
         (xy, &[], &[L("$C")], &["[MSG:Enabled]", "ok"]),
         (xy, &[L("$C")], &[L("$C")], &["[MSG:Disabled]", "ok", BANNER]),
-        (xy, &[L("$C")], &[L("G1X10F100"), L("G4P5"), Q], &["ok", "ok", "<Check|MPos:0.000,0.000|FS:0,0|WCO:0.000,0.000>"]),
+        (xy, &[L("$C")], &[L("G1X10F100"), L("G4P5"), Q], &["ok", "ok", "<Check|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>"]),
         (xy, &[L("G0X-1"), RESET], &[L("$C")], &["error:8"]),
         // $X.
         (xy, &[], &[L("$X")], &["ok"]),
@@ -413,26 +419,24 @@ fn system_commands() {
         (xy, &[L("$22=1"), L("G1X100F600")], &[L("$H")], &["error:8"]),
         // $J=.
         (xy, &[], &[L("$J=X1F100"), Wait(0.5)], &["ok"]),
-        (xy, &[], &[L("$J")], &["error:16"]),
+        (xy, &[], &[L("$J")], &["error:3"]),
         (xy, &[L("G0X-1"), RESET], &[L("$J=X1F100")], &["error:8"]),
         (xy, &[L("$C")], &[L("$J=X1F100")], &["error:8"]),
         // $SLP: only a reset leaves it, into Alarm.
-        (xy, &[], &[L("$SLP")], &["[MSG:Sleeping]", "ok"]),
         (xy, &[L("$SLP")], &[RESET], &[BANNER, UNLOCK]),
-        (xy, &[L("$SLP")], &[L("$SLP")], &["error:8"]),
         (xy, &[L("G1X100F600")], &[L("$SLP")], &["error:8"]),
         // $RST=$ / # / *: then a reset (startup lines run after it).
         (xy, &[], &[L("$RST=$")], &["[MSG:Restoring defaults]", "ok", BANNER]),
         (xy, &[L("$N0=G20")], &[L("$RST=$")], &["[MSG:Restoring defaults]", "ok", BANNER, ">G20:ok"]),
         (xy, &[L("G10L2P1X5"), L("G0X1"), L("G28.1"), L("$RST=#")], &[L("$#")], &[
-            "[G54:0.000,0.000]", "[G55:0.000,0.000]", "[G56:0.000,0.000]", "[G57:0.000,0.000]",
-            "[G58:0.000,0.000]", "[G59:0.000,0.000]", "[G28:0.000,0.000]", "[G30:0.000,0.000]",
-            "[G92:0.000,0.000]", "[TLO:0.000]", "[PRB:0.000,0.000:0]", "ok",
+            "[G54:0.000,0.000,0.000]", "[G55:0.000,0.000,0.000]", "[G56:0.000,0.000,0.000]", "[G57:0.000,0.000,0.000]",
+            "[G58:0.000,0.000,0.000]", "[G59:0.000,0.000,0.000]", "[G28:0.000,0.000,0.000]", "[G30:0.000,0.000,0.000]",
+            "[G92:0.000,0.000,0.000]", "[TLO:0.000]", "[PRB:0.000,0.000,0.000:0]", "ok",
         ]),
-        (xy, &[L("$N0=G20"), L("$I=X1"), L("$RST=*")], &[L("$N"), L("$I")], &["$N0=", "$N1=", "ok", "[VER:1.1h.laserd-sim:]", "[OPT:VNM+,15,128]", "ok"]),
+        (xy, &[L("$N0=G20"), L("$I=X1"), L("$RST=*")], &[L("$N"), L("$I")], &["$N0=", "$N1=", "ok", "[VER:1.1h.20190830:]", "[OPT:V+,15,128]", "ok"]),
         (xy, &[], &[L("$RST=x")], &["error:3"]),
         (xy, &[L("G1X100F600")], &[L("$RST=*")], &["error:8"]),
-        (xy, &[], &[L("$Q")], &["error:3"]),
+        (xy, &[], &[L("$Q")], &["error:2"]),
         // [echo:] (a build option): the line after cleaning.
         (xy, &[ECHO_ON], &[L("g0 x1 (move)"), L("")], &["[echo:G0X1]", "ok", "[echo:]", "ok"]),
     ];
@@ -457,7 +461,7 @@ fn error_codes() {
         (xy, &[], &[L("1")], &["error:1"]),
         (xy, &[], &[L("X")], &["error:2"]),
         (xy, &[], &[L("$10=-")], &["error:2"]),
-        (xy, &[], &[L("$Q")], &["error:3"]),
+        (xy, &[], &[L("$Q")], &["error:2"]),
         (xy, &[], &[L("$RST=")], &["error:3"]),
         (xy, &[], &[L("F-1")], &["error:4"]),
         (xy, &[], &[L("$11=-1")], &["error:4"]),
@@ -467,7 +471,6 @@ fn error_codes() {
         (xy, &[L("G0X-1"), RESET], &[L("$C")], &["error:8"]),
         (xy, &[L("G0X-1"), RESET], &[L("G0X1")], &["error:9"]),
         (xy, &[L("$J=X100F600")], &[L("G0X1")], &["error:9"]),
-        (xy, &[L("$SLP")], &[L("G0X1")], &["error:9"]),
         (xy, &[], &[L("$20=1")], &["error:10"]),
         (xy, &[L("$22=1")], &[L("$20=1")], &["ok"]),
         (xy, &[], &[B(b"G0 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1\n")], &["error:11"]),
@@ -476,16 +479,15 @@ fn error_codes() {
         (xy, &[L("$20=0")], &[L("$J=X-1F100"), Wait(0.5)], &["ok"]),
         (xy, &[], &[L("$J=X1S5F100")], &["error:16"]),
         (xy, &[], &[L("$J=G1X1F100")], &["error:16"]),
-        (xy, &[], &[L("$J")], &["error:16"]),
         (xy, &[], &[L("G5X1")], &["error:20"]),
         (xy, &[], &[L("M6")], &["error:20"]),
         (xy, &[], &[L("A1")], &["error:20"]),
         (xy, &[], &[L("G90.1")], &["error:20"]),
         (xy, &[], &[L("G38.1X1F100")], &["error:20"]),
         (xy, &[], &[L("G10L3P1X0")], &["error:20"]),
-        (xy, &[], &[L("G43.1Z1")], &["error:20"]),
-        (xy, &[], &[L("G0G1X1")], &["error:21"]),
-        (xy, &[], &[L("M7M8")], &["error:21"]),
+        (xy, &[], &[L("M7")], &["error:20"]),
+        (xy, &[], &[L("G0G80")], &["error:21"]),
+        (xy, &[], &[L("M8M9")], &["error:21"]),
         (xy, &[], &[L("G1X1")], &["error:22"]),
         (xy, &[], &[L("G93G1X1")], &["error:22"]),
         (xy, &[], &[L("G38.2X1")], &["error:22"]),
@@ -498,10 +500,9 @@ fn error_codes() {
         (xy, &[], &[L("G92")], &["error:26"]),
         (xy, &[], &[L("G10L2P1")], &["error:26"]),
         (xy, &[], &[L("G38.2F100")], &["error:26"]),
-        (xy, &[], &[L("N10000000G0X1")], &["error:27"]),
+        (xy, &[], &[L("N10000001G0X1")], &["error:27"]),
         (xy, &[], &[L("G4")], &["error:28"]),
         (xy, &[], &[L("G10X1")], &["error:28"]),
-        (xy, &[], &[L("G59.1")], &["error:29"]),
         (xy, &[], &[L("G10L2P7X1")], &["error:29"]),
         (xy, &[L("G80")], &[L("G53")], &["error:30"]),
         (xy, &[], &[L("G80X1")], &["error:31"]),
@@ -547,24 +548,24 @@ fn alarms() {
         (probe_2mm, &[L("G38.2X10F600"), Wait(0.5)], &[L("G38.2X20F600")], &["ALARM:4", "ok"]),
         (xy, &[L("G38.4X5F600")], &[L("G0X1")], &["error:9"]),
         // 5: no contact (G38.2/.4); the no-error forms just report.
-        (xy, &[], &[L("G38.2X5F600"), Wait(1.0)], &["ALARM:5", "[PRB:0.000,0.000:0]", "ok"]),
-        (xy, &[], &[L("G38.3X5F600"), Wait(1.0)], &["[PRB:5.000,0.000:0]", "ok"]),
-        (probe_2mm, &[L("G38.2X10F600"), Wait(0.5)], &[L("G38.4X1F600"), Wait(0.5)], &["ALARM:5", "[PRB:2.000,0.000:0]", "ok"]),
-        (probe_2mm, &[L("G38.2X10F600"), Wait(0.5)], &[L("G38.5X1F600"), Wait(0.5)], &["[PRB:1.000,0.000:0]", "ok"]),
+        (xy, &[], &[L("G38.2X5F600"), Wait(1.0)], &["ALARM:5", "[PRB:0.000,0.000,0.000:0]", "ok"]),
+        (xy, &[], &[L("G38.3X5F600"), Wait(1.0)], &["[PRB:5.000,0.000,0.000:0]", "ok"]),
+        (probe_2mm, &[L("G38.2X10F600"), Wait(0.5)], &[L("G38.4X1F600"), Wait(0.5)], &["ALARM:5", "[PRB:2.000,0.000,0.000:0]", "ok"]),
+        (probe_2mm, &[L("G38.2X10F600"), Wait(0.5)], &[L("G38.5X1F600"), Wait(0.5)], &["[PRB:1.000,0.000,0.000:0]", "ok"]),
         (xy, &[L("G38.2X5F600"), Wait(1.0)], &[L("G0X1")], &["error:9"]),
         // ...and with contact: [PRB:...:1], also in $#.
-        (probe_2mm, &[], &[L("G38.2X10F600"), Wait(0.5)], &["[PRB:2.000,0.000:1]", "ok"]),
-        (probe_2mm, &[L("G38.2X10F600"), Wait(0.5)], &[L("G38.4X10F600"), Wait(0.5)], &["[PRB:4.000,0.000:1]", "ok"]),
+        (probe_2mm, &[], &[L("G38.2X10F600"), Wait(0.5)], &["[PRB:2.000,0.000,0.000:1]", "ok"]),
+        (probe_2mm, &[L("G38.2X10F600"), Wait(0.5)], &[L("G38.4X10F600"), Wait(0.5)], &["[PRB:4.000,0.000,0.000:1]", "ok"]),
         (probe_2mm, &[L("G38.2X10F600"), Wait(0.5)], &[L("$#")], &[
-            "[G54:0.000,0.000]", "[G55:0.000,0.000]", "[G56:0.000,0.000]", "[G57:0.000,0.000]",
-            "[G58:0.000,0.000]", "[G59:0.000,0.000]", "[G28:0.000,0.000]", "[G30:0.000,0.000]",
-            "[G92:0.000,0.000]", "[TLO:0.000]", "[PRB:2.000,0.000:1]", "ok",
+            "[G54:0.000,0.000,0.000]", "[G55:0.000,0.000,0.000]", "[G56:0.000,0.000,0.000]", "[G57:0.000,0.000,0.000]",
+            "[G58:0.000,0.000,0.000]", "[G59:0.000,0.000,0.000]", "[G28:0.000,0.000,0.000]", "[G30:0.000,0.000,0.000]",
+            "[G92:0.000,0.000,0.000]", "[TLO:0.000]", "[PRB:2.000,0.000,0.000:1]", "ok",
         ]),
         (xy, &[L("$C")], &[L("G38.2X5F600")], &["ok"]),
         // 6: reset during homing; 7: door opened during homing.
         (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), RESET], &["ALARM:6", BANNER, UNLOCK]),
         (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), DOOR], &["ALARM:7", BANNER, UNLOCK]),
-        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0), L("$H"), DOOR], &[Q], &["<Alarm|MPos:*|FS:0,0|Pn:D|WCO:0.000,0.000>"]),
+        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0), L("$H"), DOOR], &[Q], &["<Alarm|MPos:*|FS:0,0|Pn:D|WCO:0.000,0.000,0.000>"]),
         // 8: the pull-off does not clear the switch; 9: no switch found.
         (pull_off_fails, &[L("$22=1")], &[L("$H")], &["ALARM:8", BANNER, UNLOCK]),
         (switch_missing, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), Wait(8.0)], &["ALARM:9", BANNER, UNLOCK]),
@@ -583,17 +584,17 @@ fn gcode_feedback() {
         (xy, &[L("G91G55M8"), L("M2")], &[L("$G")], &["[GC:G1 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]", "ok"]),
         // M0 pauses (Hold) and answers once resumed (its 3 bytes stay in RX
         // until answered, as every line's do here); M1 is ignored.
-        (xy, &[L("$10=3"), Q, Q], &[L("M0"), Q], &["<Hold:0|MPos:0.000,0.000|Bf:15,125|FS:0,0>"]),
+        (xy, &[Q, Q], &[L("M0"), Q], &["<Hold:0|MPos:0.000,0.000,0.000|FS:0,0>"]),
         (xy, &[L("M0")], &[START], &["ok"]),
         (xy, &[L("M0"), L("G0X1")], &[START, Wait(0.5)], &["ok", "ok"]),
         (xy, &[], &[L("M1")], &["ok"]),
         (xy, &[], &[L("M0M1")], &["error:21"]),
         // G28/G30: to the stored position, via a given point with only its axes.
-        (xy, &[Q, Q, L("G0X5Y5"), L("G28.1"), L("G0X20Y1"), Wait(0.5)], &[L("G28"), Wait(0.5), Q], &["ok", "<Idle|MPos:5.000,5.000|FS:0,0>"]),
-        (xy, &[Q, Q, L("G0X5Y5"), L("G30.1"), L("G0X20Y1"), Wait(0.5)], &[L("G30X10"), Wait(0.5), Q], &["ok", "<Idle|MPos:5.000,1.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G0X5Y5"), L("G28.1"), L("G0X20Y1"), Wait(0.5)], &[L("G28"), Wait(0.5), Q], &["ok", "<Idle|MPos:5.000,5.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G0X5Y5"), L("G30.1"), L("G0X20Y1"), Wait(0.5)], &[L("G30X10"), Wait(0.5), Q], &["ok", "<Idle|MPos:5.000,1.000,0.000|FS:0,0>"]),
         // G10 L20: the present position reads as given.
-        (xy, &[Q, Q, L("G0X5"), L("G10L20P1X1")], &[Q], &["<Idle|MPos:5.000,0.000|FS:0,0|WCO:4.000,0.000>"]),
-        (xy, &[L("G0X5"), L("G10L20P0X1"), L("$10=0"), Q, Q], &[L("G0X0"), Wait(0.5), Q], &["ok", "<Idle|WPos:0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G0X5"), L("G10L20P1X1")], &[Q], &["<Idle|MPos:5.000,0.000,0.000|FS:0,0|WCO:4.000,0.000,0.000>"]),
+        (xy, &[L("G0X5"), L("G10L20P0X1"), L("$10=0"), Q, Q], &[L("G0X0"), Wait(0.5), Q], &["ok", "<Idle|WPos:0.000,0.000,0.000|FS:0,0>"]),
     ];
     check(rows);
 }
@@ -607,7 +608,7 @@ fn grbl_motion() -> SimConfig {
 /// the receive buffer and its `ok` comes at the dwell's end, or before the
 /// banner when a reset cuts it short; `Bf:` counts planner blocks only, so a
 /// block whose last step segment is prepared (within 5 segments of 10 ms)
-/// no longer counts though it still runs, and `Ln:` names the next one.
+/// no longer counts though it still runs.
 #[test]
 fn dwells_and_buffer_state() {
     let rows: &[Row] = &[
@@ -619,18 +620,112 @@ fn dwells_and_buffer_state() {
         (xy, &[Q, Q, L("G4P1")], &[Q], &[IDLE]),
         (xy, &[Q, Q, L("$10=3"), L("G4P1")], &[Wait(1.0)], &["ok"]),
         // The lines behind it wait in the buffer.
-        (xy, &[Q, Q, L("$10=3"), B(b"G4P1\nG0X1\n")], &[Q], &["<Idle|MPos:0.000,0.000|Bf:15,123|FS:0,0>"]),
+        (xy, &[Q, Q, L("$10=3"), B(b"G4P1\nG0X1\n")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|Bf:15,123|FS:0,0>"]),
         // Row 20: a reset ends the dwell; its line is answered, then the banner.
         (xy, &[L("G4P2")], &[RESET], &["ok", BANNER]),
         (xy, &[L("G1X100F600"), L("G4P1")], &[RESET], &["ALARM:3", "ok", BANNER, UNLOCK]),
         // `Bf:` while moving: a block with more than 5 segments (50 ms) to run counts...
-        (xy, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n")], &[Q], &["<Run|MPos:*|Bf:13,128|Ln:7|FS:600,0>"]),
-        // ...one with 4 left is out of the planner: `Bf:` and `Ln:` are the next block's.
-        (xy, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n"), Wait(0.07)], &[Q], &["<Run|MPos:*|Bf:14,128|Ln:8|FS:600,0>"]),
-        (grbl_motion, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n")], &[Q], &["<Run|MPos:*|Bf:13,128|Ln:7|FS:600,0>"]),
-        (grbl_motion, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n"), Wait(0.07)], &[Q], &["<Run|MPos:*|Bf:14,128|Ln:8|FS:600,0>"]),
-        // The last block prepared: the planner is empty while it runs, no `Ln:`.
+        (xy, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n")], &[Q], &["<Run|MPos:*|Bf:13,128|FS:600,0>"]),
+        // ...one with 4 left is out of the planner: `Bf:` shows it free.
+        (xy, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n"), Wait(0.07)], &[Q], &["<Run|MPos:*|Bf:14,128|FS:600,0>"]),
+        (grbl_motion, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n")], &[Q], &["<Run|MPos:*|Bf:13,128|FS:600,0>"]),
+        (grbl_motion, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X6\n"), Wait(0.07)], &[Q], &["<Run|MPos:*|Bf:14,128|FS:600,0>"]),
+        // The last block prepared: the planner is empty while it runs.
         (xy, &[Q, Q, L("$10=3"), B(b"N7G1X3F600\nN8G1X3.6\n"), Wait(0.13)], &[Q], &["<Run|MPos:*|Bf:15,128|FS:600,0>"]),
     ];
     check(rows);
+}
+
+/// A grblHAL board with Grbl's three axes, its 1024-byte receive buffer and 100 blocks.
+fn hal() -> SimConfig {
+    SimConfig { flavor: Flavor::Grblhal, rx_buffer: 1024, planner_blocks: 100, ..SimConfig::with_axes("XYZ") }
+}
+
+/// A 4-axis config (a galvo's X Y U V) under the `grbl` flavour: Grbl 1.1h
+/// still has X, Y and Z only (laserd's config refuses this; see `flavor_error`).
+fn xyuv() -> SimConfig {
+    SimConfig::with_axes("XYUV")
+}
+
+/// Issue 17's "simulator against Grbl 1.1h" rows 5-10, 14, 15, 17 and 21:
+/// report requests, report units, parser errors, jogging, what a hold and
+/// sleep do to lines, the spindle at rest, Grbl's axes, grblHAL's line ends,
+/// G59.1-G59.3, `$I` and banner. Reports are asked with `$10=3` set.
+#[test]
+fn grbl_1_1h_parser_and_reports() {
+    let rows: &[Row] = &[
+        // 5: a `?` while the last one's report is being formatted gets no
+        // report of its own (protocol.c prints, then clears the request); one
+        // a moment later does.
+        (xy, &[L("$10=3"), Q, Q], &[B(b"??")], &["<Idle|MPos:0.000,0.000,0.000|Bf:15,128|FS:0,0>"]),
+        (xy, &[L("$10=3"), Q, Q], &[Q, Q], &[
+            "<Idle|MPos:0.000,0.000,0.000|Bf:15,128|FS:0,0>",
+            "<Idle|MPos:0.000,0.000,0.000|Bf:15,128|FS:0,0>",
+        ]),
+        // 6: `$13=1` reports positions, offsets and the feed in inches (4 and 1 decimals).
+        (xy, &[L("$10=3"), L("$13=1"), L("G0X25.4Y2.54"), Wait(0.5), Q, Q], &[Q], &["<Idle|MPos:1.0000,0.1000,0.0000|Bf:15,128|FS:0.0,0>"]),
+        (xy, &[L("$10=3"), L("$13=1"), Q, Q, L("G1X100F254")], &[Q], &["<Run|MPos:*|Bf:14,128|FS:10.0,0>"]),
+        (xy, &[L("$10=0"), L("$13=1"), L("G10L2P1X25.4"), Q, Q], &[Q], &["<Idle|WPos:-1.0000,0.0000,0.0000|FS:0.0,0>"]),
+        (xy, &[L("$10=3"), L("$13=1"), L("G10L2P1X25.4")], &[Q], &["<Idle|MPos:0.0000,0.0000,0.0000|Bf:15,128|FS:0.0,0|WCO:1.0000,0.0000,0.0000>"]),
+        (xy, &[L("$13=1"), L("G10L2P2X25.4"), L("G43.1Z2.54")], &[L("$#")], &[
+            "[G54:0.0000,0.0000,0.0000]", "[G55:1.0000,0.0000,0.0000]", "[G56:0.0000,0.0000,0.0000]",
+            "[G57:0.0000,0.0000,0.0000]", "[G58:0.0000,0.0000,0.0000]", "[G59:0.0000,0.0000,0.0000]",
+            "[G28:0.0000,0.0000,0.0000]", "[G30:0.0000,0.0000,0.0000]", "[G92:0.0000,0.0000,0.0000]",
+            "[TLO:0.1000]", "[PRB:0.0000,0.0000,0.0000:0]", "ok",
+        ]),
+        (xy, &[L("$13=1"), L("G1F254")], &[L("$G")], &["[GC:G1 G54 G17 G21 G90 G94 M5 M9 T0 F10.0 S0]", "ok"]),
+        // 7: the parser keeps feeds in mm/min; `$G` prints them so unless `$13=1`.
+        (xy, &[L("G20F50")], &[L("$G")], &["[GC:G0 G54 G17 G20 G90 G94 M5 M9 T0 F1270 S0]", "ok"]),
+        // 8: errors in Grbl's order: a second axis command (24) before the
+        // modal group (21); G59.x is a G59 with a fraction (23); G53 before
+        // the feed (30); `$` and no number (2); N up to 10,000,000.
+        (xy, &[], &[L("G1G0X1")], &["error:24"]),
+        (xy, &[], &[L("G28G28")], &["error:24"]),
+        (xy, &[], &[L("G59.1")], &["error:23"]),
+        (xy, &[], &[L("G53G2X1")], &["error:30"]),
+        (xy, &[], &[L("$Z")], &["error:2"]),
+        (xy, &[], &[L("N10000000G0X0")], &["ok"]),
+        // 9: G-code while jogging, also right behind the jog in one write.
+        (xy, &[], &[B(b"$J=X10F1000\nG0X1\n")], &["ok", "error:9"]),
+        // 10: a completed hold suspends Grbl: no line is read until `~`.
+        (xy, &[L("$10=3"), Q, Q, HOLD], &[L("$G"), L("$#"), L("$$"), L("$I"), Q], &["<Hold:0|MPos:0.000,0.000,0.000|Bf:15,116|FS:0,0>"]),
+        (xy, &[HOLD, L("$G"), L("$I")], &[START], &[
+            "[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]", "ok", "[VER:1.1h.20190830:]", "[OPT:V+,15,128]", "ok",
+        ]),
+        (xy, &[L("$10=3"), Q, Q, L("G1X2F600"), HOLD, Wait(1.0)], &[L("G0X0"), Q], &["<Hold:0|MPos:*|Bf:15,123|FS:0,0>"]),
+        // 14: `$SLP` answers, then sleeps: later lines get no answer until a reset.
+        (xy, &[], &[L("$SLP")], &["ok", "[MSG:Sleeping]"]),
+        (xy, &[L("$10=3"), Q, Q, L("$SLP")], &[L("G0X1"), L("$$"), Q], &["<Sleep|MPos:0.000,0.000,0.000|Bf:15,120|FS:0,0>"]),
+        (xy, &[L("$SLP"), L("G0X1")], &[RESET, L("$X")], &[BANNER, UNLOCK, "[MSG:Caution: Unlocked]", "ok"]),
+        // 15: outside laser mode (`$32=0`, Grbl's default) `M3 S500` runs the
+        // output at S standing still; in laser mode M3 lights it in G1-G3 only
+        // (`M3S500` after `G1F100` above), not in G0 (gcode.c passes 0 there).
+        (xy, &[L("$10=3"), L("$32=0"), Q, Q], &[L("M3S500"), Q], &["ok", "<Idle|MPos:0.000,0.000,0.000|Bf:15,128|FS:0,500|Ov:100,100,100|A:S>"]),
+        (xy, &[L("$10=3"), L("$32=0"), L("M3S500"), Q, Q], &[L("S200"), Q], &["ok", "<Idle|MPos:0.000,0.000,0.000|Bf:15,128|FS:0,200>"]),
+        // 17: Grbl 1.1h always has X, Y and Z.
+        (xy, &[L("$10=3"), Q, Q, L("G0Z1"), Wait(0.5)], &[Q], &["<Idle|MPos:0.000,0.000,1.000|Bf:15,128|FS:0,0>"]),
+        (xyuv, &[L("$10=3"), Q, Q], &[L("G0U1"), Q], &["error:20", "<Idle|MPos:0.000,0.000,0.000|Bf:15,128|FS:0,0>"]),
+        (xyuv, &[], &[L("$I")], &["[VER:1.1h.20190830:]", "[OPT:V+,15,128]", "ok"]),
+        // 21: grblHAL: CR or LF alone ends a line; the second of a CR LF pair
+        // is skipped only while the line is still empty (blanks do not count).
+        (hal, &[], &[B(b"G21\r")], &["ok"]),
+        (hal, &[], &[B(b"\r\r")], &["ok", "ok"]),
+        (hal, &[B(b"G21\n")], &[B(b" \r")], &[]),
+        (hal, &[B(b"G21\n")], &[B(b"G90\r")], &["ok"]),
+        // ...G59.1-G59.3 (P7-P9)...
+        (hal, &[], &[L("G59.1"), L("G59.3"), L("G10L2P8X1")], &["ok", "ok", "ok"]),
+        // ...its `$I` (at compatibility level 0) and its banner.
+        (hal, &[], &[L("$I")], &[
+            "[VER:1.1f.20250731:]", "[OPT:VNM+,100,1023,3,0]", "[AXS:3:XYZ]", "[NEWOPT:ENUMS,RT+]", "[FIRMWARE:grblHAL]",
+            "[DRIVER:laserd-sim]", concat!("[DRIVER VERSION:", env!("CARGO_PKG_VERSION"), "]"), "ok",
+        ]),
+        (hal, &[], &[RESET], &["GrblHAL 1.1f ['$' or '$HELP' for help]"]),
+    ];
+    check(rows);
+    // G59.1 moves the work origin: G0 X0 there goes to its X.
+    let mut s = common::Sim::new(hal());
+    for a in [L("G10L2P7X5"), L("G59.1"), L("G0X0"), Wait(1.0)] {
+        act(&mut s, a);
+    }
+    assert_eq!(s.ctl.position()[0], 5.0, "{:?}", s.texts());
 }

@@ -3,7 +3,7 @@
 mod common;
 
 use common::{cfg, close, Sim, BYTE};
-use laserd_sim::controller::{AxisConfig, Faults, Knot, SimConfig, LINK_SILENCE_START};
+use laserd_sim::controller::{AxisConfig, Faults, Flavor, Knot, SimConfig, LINK_SILENCE_START};
 use laserd_sim::wire::{realtime, MachineState, Response, StatusReport, BANNER};
 
 /// `$10=3`: reports carry `Bf:` (Grbl's default `$10=1` leaves it out);
@@ -19,7 +19,7 @@ fn banner_and_idle_status() {
     let mut s = Sim::new(cfg());
     assert_eq!(s.texts(), vec![BANNER]);
     let st = s.status();
-    assert_eq!(s.lines.last().unwrap().1, "<Idle|MPos:0.000,0.000|FS:0,0|WCO:0.000,0.000>", "WCO in the first report after reset");
+    assert_eq!(s.lines.last().unwrap().1, "<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>", "WCO in the first report after reset");
     assert_eq!(st.state, MachineState::Idle);
 }
 
@@ -47,7 +47,7 @@ fn g93_program_knots_and_oks() {
     assert_eq!(s.knots.len(), expect.len(), "{:?}", s.knots);
     for (k, (t, p, pw, line)) in s.knots.iter().zip(expect) {
         assert!(close(k.t, t), "{k:?} vs t={t}");
-        assert_eq!(k.pos, p.to_vec());
+        assert_eq!(k.pos, [&p[..], &[0.0]].concat(), "Grbl's Z stays at 0");
         assert_eq!((k.power, k.line), (pw, line));
     }
     // M5 and M2 wait for motion: their oks come at the end of motion.
@@ -86,7 +86,7 @@ fn planner_full_delays_ok() {
     assert_eq!(oks.len(), 21);
     assert!(close(oks[16].0, first_start + 0.1), "ok of block 16 at {} not at end of block 1", oks[16].0);
     assert!(close(s.knots.last().unwrap().t, first_start + 2.0));
-    assert_eq!(s.ctl.position(), vec![20.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![20.0, 0.0, 0.0]);
 }
 
 #[test]
@@ -128,7 +128,7 @@ fn soft_limit_alarm_and_recovery() {
     s.send("G0 X1\n$X\nG0 X1\n");
     s.run_until(2.0);
     assert_eq!(&s.texts()[n + 2..], &["error:9", "[MSG:Caution: Unlocked]", "ok", "ok"]);
-    assert_eq!(s.ctl.position(), vec![1.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0, 0.0]);
     assert_eq!(s.ctl.stats().alarms, vec![2]);
     assert!(s.knots.iter().all(|k| k.pos[0] <= 300.0));
 }
@@ -207,12 +207,12 @@ fn feed_hold_finishes_block_then_resume() {
     s.run_until(3.0);
     assert_eq!(s.ctl.state(), MachineState::Hold(0));
     assert_eq!(s.ctl.laser_power(), 0.0);
-    assert_eq!(s.ctl.position(), vec![1.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0, 0.0]);
     assert!(close(s.knots[1].t, end1));
     s.realtime(realtime::CYCLE_START);
     assert_eq!(s.ctl.state(), MachineState::Run);
     assert_eq!(s.ctl.laser_power(), 300.0);
-    assert!(close(s.knots[2].t, 3.0) && s.knots[2].pos == vec![1.0, 0.0]);
+    assert!(close(s.knots[2].t, 3.0) && s.knots[2].pos == vec![1.0, 0.0, 0.0]);
     s.run_until(5.0);
     assert!(close(s.knots[3].t, 4.0));
     assert_eq!(s.ctl.stats().starved_s, 0.0, "a hold is not starvation");
@@ -238,12 +238,12 @@ fn arcs_are_chords_within_tolerance() {
         assert!(10.0 - (100.0 - chord * chord / 4.0).sqrt() <= 0.002 + 1e-12);
         assert!(w[0].pos[1] <= w[1].pos[1], "CW from (0,0) goes up");
     }
-    assert_eq!(arc.last().unwrap().pos, vec![10.0, 10.0]);
+    assert_eq!(arc.last().unwrap().pos, vec![10.0, 10.0, 0.0]);
     let r_arc: Vec<&Knot> = s.knots.iter().filter(|k| k.line == 4).collect();
     for k in &r_arc {
         assert!(((k.pos[0] - 20.0).hypot(k.pos[1] - 10.0) - 10.0).abs() < 1e-6, "{k:?}");
     }
-    assert_eq!(s.ctl.position(), vec![20.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![20.0, 0.0, 0.0]);
 }
 
 #[test]
@@ -252,7 +252,8 @@ fn error_codes() {
         ("G1 X1", 22),
         ("G93 G1 X1", 22),
         ("G1 X1 X2 F1", 25),
-        ("G0 G1 X1", 21),
+        ("G0 G1 X1", 24),
+        ("G0 G80", 21),
         ("A1", 20),
         ("G1.5 X1", 23),
         ("M3.1", 23),
@@ -265,7 +266,7 @@ fn error_codes() {
         ("G4", 28),
         ("G38.2 X1", 22),
         ("F-1", 4),
-        ("$Q", 3),
+        ("$Q", 2),
         ("$H", 5),
         ("$999=1", 3),
         ("$0=2", 6),
@@ -283,7 +284,7 @@ fn error_codes() {
     s.run_until(1.0);
     let r: Vec<Response> = s.responses().into_iter().map(|r| r.1).collect();
     assert_eq!(r, vec![Response::Error(11), Response::Ok, Response::Ok]);
-    assert_eq!(s.ctl.position(), vec![1.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0, 0.0]);
 }
 
 #[test]
@@ -299,11 +300,12 @@ fn units_distance_and_offsets() {
 
 #[test]
 fn system_commands() {
-    let mut s = Sim::new(SimConfig::with_axes("XYUV"));
+    // Axes beyond X, Y, Z: a grblHAL board (Grbl 1.1h has none).
+    let mut s = Sim::new(SimConfig { flavor: Flavor::Grblhal, ..SimConfig::with_axes("XYUV") });
     s.send("$\n$$\n$I\n$G\n$N\n$X\n$32=1\n");
     s.run_until(1.0);
     let t = s.texts();
-    assert!(t.contains(&"[VER:1.1h.laserd-sim:]") && t.contains(&"[OPT:VNM+,15,128]"));
+    assert!(t.contains(&"[VER:1.1f.20250731:]") && t.contains(&"[OPT:VNM+,15,127,4,0]") && t.contains(&"[AXS:4:XYUV]"), "{t:?}");
     assert!(t.contains(&"$32=1") && t.contains(&"$30=1000") && t.contains(&"$113=6000.000") && t.contains(&"$133=300.000"));
     assert!(t.contains(&"[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]"));
     assert!(t.contains(&"$N0=") && t[1].starts_with("[HLP:"));
@@ -331,7 +333,7 @@ fn check_mode_moves_nothing() {
     let t = s.texts();
     assert_eq!(&t[t.len() - 3..], &["[MSG:Disabled]", "ok", BANNER]);
     assert_eq!(s.ctl.state(), MachineState::Idle);
-    assert_eq!(s.ctl.position(), vec![0.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![0.0, 0.0, 0.0]);
 }
 
 #[test]
@@ -453,7 +455,7 @@ fn jogging() {
     assert_eq!(s.responses().last().unwrap().1, Response::Error(9), "G-code while jogging");
     s.run_until(s.t + 2.0);
     assert_eq!(s.ctl.state(), MachineState::Idle);
-    assert_eq!(s.ctl.position(), vec![10.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![10.0, 0.0, 0.0]);
     assert!(s.knots.iter().all(|k| k.power == 0.0));
     s.realtime(realtime::STATUS);
     s.send("$G\n");
@@ -493,7 +495,7 @@ fn wco_and_overrides_come_in_their_turn() {
     // An offset change brings WCO back at once.
     s.send("G92 X-5\n");
     s.run_until(s.t + 0.1);
-    assert_eq!(s.status().wco, Some(vec![5.0, 0.0]));
+    assert_eq!(s.status().wco, Some(vec![5.0, 0.0, 0.0]));
     let line = s.lines.iter().rev().find(|(_, l)| l.starts_with('<')).unwrap().1.clone();
     assert!(line.contains("|WCO:5.000,0.000"), "{line}");
 }
@@ -516,7 +518,7 @@ fn safety_door_holds_until_closed_and_resumed() {
     s.realtime(realtime::CYCLE_START);
     assert_eq!(s.ctl.state(), MachineState::Run);
     s.run_until(4.0);
-    assert_eq!(s.ctl.position(), vec![10.0, 0.0], "the job finishes after the door closed");
+    assert_eq!(s.ctl.position(), vec![10.0, 0.0, 0.0], "the job finishes after the door closed");
 }
 
 #[test]
@@ -560,7 +562,7 @@ fn homing_when_enabled() {
     let oks_before = s.responses().len();
     s.run_until(5.0);
     assert_eq!(s.ctl.state(), MachineState::Idle);
-    assert_eq!(s.ctl.position(), vec![0.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![0.0, 0.0, 0.0]);
     assert_eq!(s.responses().len(), oks_before + 1, "the ok comes when homing is done: {:?}", s.lines);
     // A reset during homing fails the cycle: ALARM:6; homing again clears it.
     s.send("G0X20\n");

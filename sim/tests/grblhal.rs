@@ -27,7 +27,16 @@ fn banner_build_info_and_buffers() {
     assert_eq!(s.texts(), vec![BANNER_HAL]);
     assert_eq!(
         exchange(&mut s, "$I\n"),
-        vec!["[VER:1.1f.laserd-sim:]", "[OPT:V,100,1023,8,0]", "[AXS:8:XYZABCUV]", "[FIRMWARE:grblHAL]", "ok"]
+        vec![
+            "[VER:1.1f.20250731:]",
+            "[OPT:VNM+,100,1023,8,0]",
+            "[AXS:8:XYZABCUV]",
+            "[NEWOPT:ENUMS,RT+]",
+            "[FIRMWARE:grblHAL]",
+            "[DRIVER:laserd-sim]",
+            concat!("[DRIVER VERSION:", env!("CARGO_PKG_VERSION"), "]"),
+            "ok"
+        ]
     );
     // The ring keeps one byte unused: an idle board reports 1023 free.
     let st = s.status();
@@ -89,4 +98,16 @@ fn the_deeper_planner_takes_100_blocks_before_delaying_an_ok() {
     let oks = s.texts().iter().filter(|l| **l == "ok").count();
     assert_eq!(oks, 100, "100 blocks queued (one executing), the rest wait");
     assert_eq!(s.status().buffer.unwrap().0, 0);
+}
+
+/// Grbl 1.1h has the axes X, Y and Z and no other: a config with more is a
+/// grblHAL board, and saying otherwise is an error naming the way out.
+#[test]
+fn only_grblhal_has_axes_beyond_xyz() {
+    let galvo = SimConfig::with_axes("XYUV");
+    let e = galvo.flavor_error().expect("Grbl with U and V");
+    assert!(e.contains("UV") && e.contains("grblhal"), "{e}");
+    assert_eq!(SimConfig { flavor: Flavor::Grblhal, ..galvo }.flavor_error(), None);
+    assert_eq!(SimConfig::with_axes("XY").flavor_error(), None, "Z is added");
+    assert!(SimConfig { flavor: Flavor::Grblhal, ..SimConfig::with_axes("XYZABCUVW") }.flavor_error().is_some());
 }

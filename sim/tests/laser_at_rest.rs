@@ -33,7 +33,7 @@ fn a_pierce_burns_standing_still_for_its_dwell_then_m4_darkens_it() {
         assert!(oks.iter().all(|r| r.1 == Response::Ok), "{motion:?}: {oks:?}");
         // The jump to X1 ends, the laser lights there (the M3 line waited for
         // motion to stop), stays on through the dwell, and the G4's ok comes after it.
-        let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0]).expect("reaches X1").t;
+        let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0, 0.0]).expect("reaches X1").t;
         let pierce = rests(&s.knots);
         assert_eq!(pierce.len(), 1, "{motion:?}: {:?}", s.knots);
         let (a, b, power, line) = pierce[0];
@@ -42,7 +42,7 @@ fn a_pierce_burns_standing_still_for_its_dwell_then_m4_darkens_it() {
         assert!(close(ok_of(&s, 4), arrived + 0.2));
         // Then the cut, at its own power, from the entry.
         let cut: Vec<&Knot> = s.knots.iter().filter(|k| k.t > arrived + 0.2 + 1e-9).collect();
-        assert_eq!(cut.last().unwrap().pos, vec![2.0, 0.0], "{motion:?}");
+        assert_eq!(cut.last().unwrap().pos, vec![2.0, 0.0, 0.0], "{motion:?}");
         // M4: 300 at speed (the grbl model scales it down while it ramps).
         assert!(cut.iter().all(|k| k.power > 0.0 && k.power <= 300.0), "{motion:?}: {cut:?}");
         if motion == MotionModel::Timed {
@@ -54,7 +54,7 @@ fn a_pierce_burns_standing_still_for_its_dwell_then_m4_darkens_it() {
     let mut s = Sim::new(cfg());
     s.send(PIERCE);
     s.run_until(0.15);
-    let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0]).unwrap().t;
+    let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0, 0.0]).unwrap().t;
     s.run_until(arrived + 0.1);
     assert_eq!(s.ctl.state(), MachineState::Idle, "Grbl reports Idle while it dwells");
     assert_eq!(s.ctl.laser_power(), 500.0);
@@ -73,7 +73,7 @@ fn m4_and_g0_keep_a_standing_laser_dark_and_m3_in_g1_does_not() {
     let mut s = Sim::new(cfg());
     s.send("G93 M4 S500\nG1 X1 F600\nG4 P0.3\nG1 X2 F600\n");
     s.run_until(0.2);
-    assert!(s.ctl.position() == vec![1.0, 0.0] && s.ctl.laser_power() == 0.0);
+    assert!(s.ctl.position() == vec![1.0, 0.0, 0.0] && s.ctl.laser_power() == 0.0);
     s.run_until(2.0);
     let r = rests(&s.knots);
     assert_eq!(r.len(), 1);
@@ -118,7 +118,7 @@ fn a_hold_during_a_pierce_darkens_it_and_stops_the_dwell_until_resumed() {
     let mut s = Sim::new(cfg());
     s.send("G93 M4 S0\nG1 X1 F600\nG1M3S500F60\nG4P1\nM4\nG1 X2 S300 F600\n");
     s.run_until(0.15);
-    let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0]).unwrap().t;
+    let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0, 0.0]).unwrap().t;
     let held = arrived + 0.4;
     s.run_until(held);
     assert_eq!(s.ctl.laser_power(), 500.0);
@@ -130,7 +130,7 @@ fn a_hold_during_a_pierce_darkens_it_and_stops_the_dwell_until_resumed() {
     // Held: the dwell's clock stands, nothing moves, no ok for the G4.
     s.run_until(held + 3.0);
     assert_eq!(s.responses().len(), 3);
-    assert_eq!(s.ctl.position(), vec![1.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0, 0.0]);
     assert_eq!(s.ctl.laser_power(), 0.0);
     // Resumed: the rest of the dwell, dark (Grbl brings the laser back with
     // motion), then the cut.
@@ -140,7 +140,7 @@ fn a_hold_during_a_pierce_darkens_it_and_stops_the_dwell_until_resumed() {
     assert_eq!(s.ctl.laser_power(), 0.0);
     s.run_until(resumed + 2.0);
     assert!(close(ok_of(&s, 4), resumed + 0.6), "dwell ok {} vs {}", ok_of(&s, 4), resumed + 0.6);
-    assert_eq!(s.ctl.position(), vec![2.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![2.0, 0.0, 0.0]);
     assert!(s.knots.iter().filter(|k| k.t > held + 1e-9 && k.t <= resumed + 0.6 + 1e-9).all(|k| k.power == 0.0));
 }
 
@@ -149,7 +149,7 @@ fn a_reset_during_a_pierce_leaves_the_laser_off_and_the_job_dropped() {
     let mut s = Sim::new(cfg());
     s.send(PIERCE);
     s.run_until(0.15);
-    let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0]).unwrap().t;
+    let arrived = s.knots.iter().find(|k| k.pos == vec![1.0, 0.0, 0.0]).unwrap().t;
     s.run_until(arrived + 0.1);
     assert_eq!(s.ctl.laser_power(), 500.0);
     let n = s.lines.len();
@@ -159,7 +159,7 @@ fn a_reset_during_a_pierce_leaves_the_laser_off_and_the_job_dropped() {
     let last = s.knots.last().unwrap();
     assert!(close(last.t, arrived + 0.1) && last.power == 0.0, "{last:?}");
     s.run_until(3.0);
-    assert_eq!(s.ctl.position(), vec![1.0, 0.0], "the cut never starts");
+    assert_eq!(s.ctl.position(), vec![1.0, 0.0, 0.0], "the cut never starts");
     assert_eq!(s.status().spindle, Some(0.0));
 }
 
@@ -226,7 +226,7 @@ fn after_a_pierce_the_cut_waits_for_its_rest_point_though_the_dwell_held_the_lin
     let mut s = Sim::new(flatbed());
     stream_counting(&mut s, &lines, 128, 5.0);
     assert!(s.responses().iter().all(|r| r.1 == Response::Ok) && s.responses().len() == lines.len(), "{:?}", s.texts());
-    assert_eq!(s.ctl.position(), vec![16.0]);
+    assert_eq!(s.ctl.position(), vec![16.0, 0.0, 0.0], "Grbl adds Y and Z to an X-only config");
 
     // The cut ran only once its rest point was queued: it never stops inside
     // a move, so the machine stays within every limit.

@@ -49,18 +49,18 @@ fn serve_on_pty() {
     assert_eq!(next(), BANNER);
     port.write_all(b"?").unwrap();
     let status = next();
-    assert!(status.starts_with("<Idle|MPos:0.000,0.000|FS:0,0"), "{status}");
+    assert!(status.starts_with("<Idle|MPos:0.000,0.000,0.000"), "{status}");
     port.write_all(b"G1 X1 F600\n").unwrap();
     assert_eq!(Response::parse(&next()), Response::Ok);
     // 1 mm at 600 mm/min = 0.1 s.
     std::thread::sleep(Duration::from_millis(400));
     port.write_all(b"?").unwrap();
     let status = next();
-    assert!(status.starts_with("<Idle|MPos:1.000,0.000|"), "{status}");
+    assert!(status.starts_with("<Idle|MPos:1.000,0.000,0.000|"), "{status}");
     let k = knots.lock().unwrap().clone();
     assert_eq!(k.len(), 2, "{k:?}");
     assert!((k[1].t - k[0].t - 0.1).abs() < 1e-9);
-    assert_eq!(k[1].pos, vec![1.0, 0.0]);
+    assert_eq!(k[1].pos, vec![1.0, 0.0, 0.0]);
 
     stop.store(true, Ordering::SeqCst);
     server.join().unwrap();

@@ -2,7 +2,7 @@
 //! whole before anything changes; what is left to do (motion, syncs, pauses,
 //! probing) comes back as steps for the line handler.
 
-use super::{dist, Block, Controller, Motion, Spindle, Step, EPS_POS};
+use super::{dist, Block, Controller, Flavor, Motion, Spindle, Step, EPS_POS};
 use crate::gcode::split_words;
 
 /// Non-modal commands (group 0).
@@ -56,6 +56,9 @@ impl Controller {
         let mut stop: Option<u32> = None;
         let mut vals: [Option<f64>; 26] = [None; 26];
         let mut axes: Vec<Option<f64>> = vec![None; naxes];
+        let hal = self.cfg.flavor == Flavor::Grblhal;
+        // A command that uses the axis words is already in the block.
+        let mut axis_command = false;
 
         for w in &words {
             let v = w.value;
@@ -66,6 +69,16 @@ impl Controller {
                     }
                     let int = v.trunc() as u32;
                     let mant = ((v - v.trunc()) * 100.0).round() as u32;
+                    // Grbl checks a second command using the axis words (motion,
+                    // G10/G28/G30/G92, G43.1/G49) before anything else of the word.
+                    let uses_axes =
+                        matches!(int, 0..=3 | 38 | 43 | 49) || (matches!(int, 10 | 28 | 30 | 92) && mant == 0);
+                    if w.letter == 'G' && uses_axes {
+                        if axis_command {
+                            return Err(24);
+                        }
+                        axis_command = true;
+                    }
                     if w.letter == 'M' {
                         if mant != 0 {
                             return Err(23);
@@ -84,7 +97,8 @@ impl Controller {
                                     _ => Spindle::Off,
                                 });
                             }
-                            // Built with M7 (mist): `M` in [OPT:].
+                            // Grbl 1.1h as built by default has no M7 (mist).
+                            7 if !hal => return Err(20),
                             7..=9 => {
                                 set_group(22)?;
                                 coolant = Some(int);
@@ -148,9 +162,14 @@ impl Controller {
                             set_group(12)?;
                             coord = Some(int as u8);
                         }
-                        (59, _) => return Err(29),
+                        // grblHAL's G59.1-G59.3 (Grbl 1.1h has none: a G59.x is
+                        // a G59 with a fraction, error 23).
+                        (59, 10 | 20 | 30) if hal => {
+                            set_group(12)?;
+                            coord = Some(59 + (mant / 10) as u8);
+                        }
                         (61, 0) => set_group(13)?,
-                        (0..=4 | 10 | 17..=21 | 40 | 49 | 53..=58 | 61 | 80 | 93 | 94, _) => return Err(23),
+                        (0..=4 | 10 | 17..=21 | 40 | 49 | 53..=59 | 61 | 80 | 93 | 94, _) => return Err(23),
                         _ => return Err(20),
                     }
                 }
@@ -175,7 +194,8 @@ impl Controller {
         }
         let get = |c: char| vals[(c as u8 - b'A') as usize];
         let n_word = match get('N') {
-            Some(n) if n > 9_999_999.0 => return Err(27),
+            // Grbl's largest line number is 10,000,000 itself.
+            Some(n) if n > 10_000_000.0 => return Err(27),
             Some(n) if n >= 1.0 => Some(n as u32),
             _ => None,
         };
@@ -224,7 +244,7 @@ impl Controller {
             if get('L').is_none() && get('P').is_none() {
                 return Err(28);
             }
-            if get('P').is_some_and(|p| p.trunc() > 6.0) {
+            if get('P').is_some_and(|p| p.trunc() > self.proto.coord.len() as f64) {
                 return Err(29);
             }
             if !matches!(get('L'), Some(l) if l == 2.0 || l == 20.0) || get('R').is_some() {
@@ -237,6 +257,12 @@ impl Controller {
             if z.is_none() || axes.iter().enumerate().any(|(i, a)| a.is_some() != (Some(i) == z)) {
                 return Err(37);
             }
+        }
+        // Grbl's order from here: dwell, G53, then the motion mode's checks.
+        let dwell = if non_modal == Some(NonModal::Dwell) { Some(get('P').ok_or(28u16)?) } else { None };
+        let absolute = non_modal == Some(NonModal::Absolute);
+        if absolute && !matches!(mode, Motion::Rapid | Motion::Linear) {
+            return Err(30);
         }
         let motion_cmd = !takes_axes && (has_axes || explicit_move);
         if mode == Motion::None && has_axes && !takes_axes {
@@ -263,14 +289,9 @@ impl Controller {
         if probe.is_some() && !has_axes {
             return Err(26);
         }
-        let dwell = if non_modal == Some(NonModal::Dwell) { Some(get('P').ok_or(28u16)?) } else { None };
         let g10 = non_modal == Some(NonModal::SetCoord);
         if (dwell.is_none() && !g10 && get('P').is_some()) || (!g10 && get('L').is_some()) {
             return Err(36);
-        }
-        let absolute = non_modal == Some(NonModal::Absolute);
-        if absolute && !matches!(mode, Motion::Rapid | Motion::Linear) {
-            return Err(30);
         }
         let is_arc = motion_cmd && matches!(mode, Motion::ArcCw | Motion::ArcCcw);
         if !is_arc && ['I', 'J', 'K', 'R'].iter().any(|c| get(*c).is_some() && !(g10 && *c == 'R')) {
@@ -312,10 +333,13 @@ impl Controller {
             (idx, data)
         });
 
+        let laser_mode = self.setting(32) != 0.0;
         let fires = matches!(mode, Motion::Linear | Motion::ArcCw | Motion::ArcCcw)
             && new_spindle != Spindle::Off
             && new_s > 0.0;
-        let power = if fires && motion_cmd { new_s.min(self.cfg.laser_max_s) } else { 0.0 };
+        // Outside laser mode the spindle output runs at S whatever the motion.
+        let spindle_on = !laser_mode && new_spindle != Spindle::Off;
+        let power = if (fires && motion_cmd) || spindle_on { new_s.min(self.cfg.laser_max_s) } else { 0.0 };
         let mut rapid = mode == Motion::Rapid;
         let mut points: Vec<Vec<f64>> = Vec::new();
         if let Some(NonModal::GoHome(k)) = non_modal {
@@ -403,14 +427,17 @@ impl Controller {
         // to stop, then sets the laser at rest: M3 at S in G1/G2/G3 (G0 keeps
         // it off), M4 off (no motion, no power), M5 off. (Grbl also syncs on an
         // S change under M4; the laser stays off there, so only timing differs.)
-        let laser_mode = self.setting(32) != 0.0;
+        // Outside laser mode every S change of a running spindle syncs too,
+        // and the output stands at S under M3 and M4 alike.
         let feed_mode = |mo: Motion| matches!(mo, Motion::Linear | Motion::ArcCw | Motion::ArcCcw);
         let in_motion = motion_cmd && has_axes;
         let mode_switch = laser_mode && feed_mode(m.motion) != feed_mode(mode);
         let laser_sync = new_spindle != m.spindle
-            || (m.spindle == Spindle::Cw && !in_motion && (new_s != m.s || mode_switch));
+            || (m.spindle == Spindle::Cw && !in_motion && (new_s != m.s || mode_switch))
+            || (!laser_mode && m.spindle != Spindle::Off && new_s != m.s);
         let rest_power = match new_spindle {
             Spindle::Cw if laser_mode && feed_mode(mode) => new_s.min(self.cfg.laser_max_s),
+            Spindle::Cw | Spindle::Ccw if !laser_mode => new_s.min(self.cfg.laser_max_s),
             _ => 0.0,
         };
         let sync = accessories_change

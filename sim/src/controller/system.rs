@@ -4,14 +4,16 @@
 //! status report's `Pn:`/`A:`/`WCO:` contents, the spindle stop override,
 //! probing results and homing outcomes.
 
-use super::{join3, Block, Controller, Flavor, Motion, Pending, SimConfig, Spindle, Step};
-use crate::wire::{fmt_num, MachineState};
+use super::{AfterOk, Block, Controller, Flavor, Motion, Pending, SimConfig, Spindle, Step};
+use crate::wire::{fmt_num, MachineState, StatusReport};
 
-/// Release and build id in `[VER:]`.
-const VERSION: &str = "1.1h.laserd-sim";
-/// `[OPT:]` codes of this build: variable spindle, line numbers (`Ln:`), mist
-/// (M7) and a safety door input pin.
-const OPT_CODES: &str = "VNM+";
+/// Release and build date in Grbl 1.1h's `[VER:]`.
+const VERSION: &str = "1.1h.20190830";
+/// `[OPT:]` codes of the Grbl 1.1h build simulated: the default
+/// configuration (variable spindle) with the safety door input pin.
+const OPT_CODES: &str = "V+";
+/// grblHAL's version and a build date of its core in `[VER:]`.
+const VERSION_HAL: &str = "1.1f.20250731";
 /// Longest text an EEPROM line (startup line, build info) holds: 79
 /// characters and a terminator. A line never gets longer than that after
 /// cleaning, so error 14 cannot actually occur here (nor in Grbl 1.1h).
@@ -58,7 +60,7 @@ impl Protocol {
         let n = cfg.axes.len();
         Protocol {
             defaults: cfg.clone(),
-            coord: vec![vec![0.0; n]; 6],
+            coord: vec![vec![0.0; n]; coord_systems(cfg.flavor)],
             g28: vec![0.0; n],
             g30: vec![0.0; n],
             startup: Default::default(),
@@ -124,11 +126,45 @@ impl Controller {
 
     /// Work coordinate offset in force: active G54..G59 + G92 + TLO (on Z).
     pub(super) fn wco(&self) -> Vec<f64> {
-        let wcs = &self.proto.coord[usize::from(self.modal.coord.clamp(54, 59) - 54)];
+        let wcs = &self.proto.coord[usize::from(self.modal.coord.saturating_sub(54)).min(self.proto.coord.len() - 1)];
         let z = self.axis_index('Z');
         (0..self.pos.len())
             .map(|i| wcs[i] + self.g92[i] + if Some(i) == z { self.proto.tlo } else { 0.0 })
             .collect()
+    }
+
+    /// Positions, offsets and feeds (mm, mm/min) in the units reports use:
+    /// inches with `$13=1`.
+    pub(super) fn report_units(&self, mm: &[f64]) -> Vec<f64> {
+        let scale = if self.inch_reports() { 25.4 } else { 1.0 };
+        mm.iter().map(|v| v / scale).collect()
+    }
+
+    /// `$13`: report in inches.
+    fn inch_reports(&self) -> bool {
+        self.setting(13) != 0.0
+    }
+
+    /// A status report as text, in the reporting units.
+    pub(super) fn report_text(&self, report: &StatusReport) -> String {
+        if self.inch_reports() {
+            report.to_line_inches()
+        } else {
+            report.to_line()
+        }
+    }
+
+    /// Axis values as `$#`, `[PRB:]` and `[TLO:]` print them: 3 decimals in
+    /// mm, 4 in inches.
+    pub(super) fn coord_text(&self, mm: &[f64]) -> String {
+        let decimals = if self.inch_reports() { 4 } else { 3 };
+        self.report_units(mm).iter().map(|x| fmt_num(*x, decimals)).collect::<Vec<_>>().join(",")
+    }
+
+    /// A feed as `$G` prints it: whole mm/min, or in/min with one decimal
+    /// (`$13`, not the G20/G21 mode: the parser keeps feeds in mm/min).
+    fn rate_text(&self, mm_per_min: f64) -> String {
+        fmt_num(self.report_units(&[mm_per_min])[0], if self.inch_reports() { 1 } else { 0 })
     }
 
     /// `Pn:` letters: probe, limit switch, door.
@@ -204,7 +240,7 @@ impl Controller {
         self.proto.startup_due = false;
         let steps = self.startup_steps();
         if !steps.is_empty() {
-            self.pending = Some(Pending { steps: steps.into(), rx_len: 0, taken: 0, dwell_until: None, dwell_left: None, reset_after: false, quiet: true });
+            self.pending = Some(Pending { steps: steps.into(), rx_len: 0, taken: 0, dwell_until: None, dwell_left: None, after: AfterOk::Nothing, quiet: true });
         }
     }
 
@@ -317,7 +353,7 @@ impl Controller {
                 if *alarm {
                     self.raise_alarm(5);
                 }
-                let prb = format!("[PRB:{}:{}]", join3(&self.proto.probe), u8::from(*touched));
+                let prb = format!("[PRB:{}:{}]", self.coord_text(&self.proto.probe), u8::from(*touched));
                 self.send(&prb);
             }
             Step::HomingDone => {
@@ -344,9 +380,10 @@ impl Controller {
     // ----- `$` commands -----
 
     /// A `$` line (without the `$`; `$J=` is handled by the jog parser).
-    /// Ok(steps before the `ok`, reset after the `ok`) or Err(code).
-    pub(super) fn system_command(&mut self, cmd: &str) -> Result<(Vec<Step>, bool), u16> {
-        let done = Ok((Vec::new(), false));
+    /// Ok(steps before the `ok`, what follows the `ok`) or Err(code), in the
+    /// order Grbl's system.c checks them.
+    pub(super) fn system_command(&mut self, cmd: &str) -> Result<(Vec<Step>, AfterOk), u16> {
+        let done = Ok((Vec::new(), AfterOk::Nothing));
         let state = self.state();
         let idle_or_alarm = matches!(state, MachineState::Idle | MachineState::Alarm);
         match cmd {
@@ -370,7 +407,7 @@ impl Controller {
             "C" => {
                 if self.check_mode {
                     self.send("[MSG:Disabled]");
-                    return Ok((Vec::new(), true));
+                    return Ok((Vec::new(), AfterOk::Reset));
                 }
                 if state != MachineState::Idle {
                     return Err(8);
@@ -387,28 +424,40 @@ impl Controller {
                     self.send("[MSG:Caution: Unlocked]");
                 }
             }
-            // `$J` without `=` (reference: error 16).
+            // `$J` without `=`.
             _ if cmd.starts_with('J') => {
-                return Err(if matches!(state, MachineState::Idle | MachineState::Jog) { 16 } else { 8 });
+                return Err(if matches!(state, MachineState::Idle | MachineState::Jog) { 3 } else { 8 });
             }
+            // `$$`, `$G`, `$C`, `$X` followed by anything.
+            _ if cmd.starts_with(['$', 'G', 'C', 'X']) => return Err(3),
             // Everything else needs Idle or Alarm.
             _ if !idle_or_alarm => return Err(8),
             "#" => {
-                let names = ["G54", "G55", "G56", "G57", "G58", "G59"];
-                let mut lines: Vec<String> =
-                    names.iter().zip(&self.proto.coord).map(|(n, c)| format!("[{n}:{}]", join3(c))).collect();
-                lines.push(format!("[G28:{}]", join3(&self.proto.g28)));
-                lines.push(format!("[G30:{}]", join3(&self.proto.g30)));
-                lines.push(format!("[G92:{}]", join3(&self.g92)));
-                lines.push(format!("[TLO:{}]", fmt_num(self.proto.tlo, 3)));
-                lines.push(format!("[PRB:{}:{}]", join3(&self.proto.probe), u8::from(self.proto.probe_ok)));
+                let mut lines: Vec<String> = (54..)
+                    .zip(&self.proto.coord)
+                    .map(|(n, c)| format!("[G{}:{}]", coord_name(n), self.coord_text(c)))
+                    .collect();
+                lines.push(format!("[G28:{}]", self.coord_text(&self.proto.g28)));
+                lines.push(format!("[G30:{}]", self.coord_text(&self.proto.g30)));
+                lines.push(format!("[G92:{}]", self.coord_text(&self.g92)));
+                lines.push(format!("[TLO:{}]", self.coord_text(&[self.proto.tlo])));
+                lines.push(format!("[PRB:{}:{}]", self.coord_text(&self.proto.probe), u8::from(self.proto.probe_ok)));
                 lines.iter().for_each(|l| self.send(l));
             }
             "H" => return self.home(),
-            "SLP" => {
-                self.sleep = true;
-                self.send("[MSG:Sleeping]");
+            // `$HX` and the like: checked as `$H` is, then refused (Grbl 1.1h
+            // as built has no single-axis homing).
+            _ if cmd.starts_with('H') => {
+                return Err(if self.setting(22) == 0.0 {
+                    5
+                } else if self.door_open {
+                    13
+                } else {
+                    3
+                });
             }
+            // Grbl answers `ok`, then sleeps (and reads no line until a reset).
+            "SLP" => return Ok((Vec::new(), AfterOk::Sleep)),
             "I" => match self.cfg.flavor {
                 Flavor::Grbl => {
                     let ver = format!("[VER:{VERSION}:{}]", self.proto.build_info);
@@ -417,21 +466,26 @@ impl Controller {
                     self.send(&opt);
                 }
                 Flavor::Grblhal => {
-                    // The receive buffer as its reports count it (one byte
-                    // of the ring stays unused), then the axes.
+                    // grblHAL's `$I` at its default compatibility level:
+                    // the receive buffer as its reports count it (one byte of
+                    // the ring stays unused), axes and tools in `[OPT:]`, then
+                    // the axes, the extended options (enumerations, printable
+                    // realtime characters on), the firmware and the driver.
                     let letters: String = self.cfg.axes.iter().map(|a| a.letter).collect();
-                    let ver = format!("[VER:1.1f.laserd-sim:{}]", self.proto.build_info);
+                    let ver = format!("[VER:{VERSION_HAL}:{}]", self.proto.build_info);
                     self.send(&ver);
-                    // (grblHAL's own codes are left as its author set them.)
                     let opt = format!(
-                        "[OPT:V,{},{},{},0]",
+                        "[OPT:VNM+,{},{},{},0]",
                         self.cfg.planner_blocks,
                         self.free_buffers().1 + self.rx.len() as u32,
                         letters.len()
                     );
                     self.send(&opt);
                     self.send(&format!("[AXS:{}:{letters}]", letters.len()));
+                    self.send("[NEWOPT:ENUMS,RT+]");
                     self.send("[FIRMWARE:grblHAL]");
+                    self.send("[DRIVER:laserd-sim]");
+                    self.send(&format!("[DRIVER VERSION:{}]", env!("CARGO_PKG_VERSION")));
                 }
             },
             "N" => {
@@ -445,7 +499,7 @@ impl Controller {
                 }
                 if cmd != "RST=$" {
                     let n = self.pos.len();
-                    self.proto.coord = vec![vec![0.0; n]; 6];
+                    self.proto.coord = vec![vec![0.0; n]; coord_systems(self.cfg.flavor)];
                     self.proto.g28 = vec![0.0; n];
                     self.proto.g30 = vec![0.0; n];
                 }
@@ -454,8 +508,10 @@ impl Controller {
                     self.proto.build_info.clear();
                 }
                 self.send("[MSG:Restoring defaults]");
-                return Ok((Vec::new(), true));
+                return Ok((Vec::new(), AfterOk::Reset));
             }
+            // `$#`, `$S…`, `$R…` and `$I…` not as above.
+            _ if cmd.starts_with(['#', 'S', 'R']) || (cmd.starts_with('I') && !cmd.starts_with("I=")) => return Err(3),
             _ => {
                 if let Some(text) = cmd.strip_prefix("I=") {
                     if text.len() > EEPROM_LINE {
@@ -465,14 +521,17 @@ impl Controller {
                 } else if let Some(rest) = cmd.strip_prefix('N') {
                     return self.store_startup_line(rest);
                 } else {
-                    // `$n=value`: written like Grbl's EEPROM, kept across resets.
-                    let (n, v) = cmd.split_once('=').ok_or(3u16)?;
-                    if n.is_empty() || !n.bytes().all(|b| b.is_ascii_digit()) {
+                    // `$n=value`: a number (else error 2, as for `$Z`), `=`
+                    // (else 3), a value; written like Grbl's EEPROM, kept
+                    // across resets.
+                    let end = cmd.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(cmd.len());
+                    let n = parse_value(&cmd[..end]).ok_or(2u16)?;
+                    let v = cmd[end..].strip_prefix('=').ok_or(3u16)?;
+                    let v = parse_value(v).ok_or(2u16)?;
+                    if n > 255.0 {
                         return Err(3);
                     }
-                    let n: u32 = n.parse().map_err(|_| 3u16)?;
-                    let v = parse_value(v).ok_or(2u16)?;
-                    self.write_setting(n, v)?;
+                    self.write_setting(n.trunc() as u32, v)?;
                 }
             }
         }
@@ -481,7 +540,7 @@ impl Controller {
 
     /// `$Nx=line`: Idle only; the line is executed (and must be valid) before
     /// it is stored.
-    fn store_startup_line(&mut self, rest: &str) -> Result<(Vec<Step>, bool), u16> {
+    fn store_startup_line(&mut self, rest: &str) -> Result<(Vec<Step>, AfterOk), u16> {
         if self.state() != MachineState::Idle {
             return Err(8);
         }
@@ -496,13 +555,13 @@ impl Controller {
         }
         let steps = self.gcode(text, self.line_count)?;
         self.proto.startup[idx] = text.to_string();
-        Ok((steps, false))
+        Ok((steps, AfterOk::Nothing))
     }
 
     /// `$H`. There are no switches to seek: every axis moves to its home (0)
     /// at the seek rate (`$25`), the `ok` comes when it is there, and the
     /// startup lines run. `Faults` can make the cycle fail there (ALARM:8/9).
-    fn home(&mut self) -> Result<(Vec<Step>, bool), u16> {
+    fn home(&mut self) -> Result<(Vec<Step>, AfterOk), u16> {
         if self.setting(22) == 0.0 {
             return Err(5);
         }
@@ -516,10 +575,10 @@ impl Controller {
         let duration = self.pos.iter().map(|p| p.abs() / seek).fold(0.0, f64::max);
         self.gc_pos = home.clone();
         if duration <= 0.0 {
-            return Ok((vec![Step::HomingDone], false));
+            return Ok((vec![Step::HomingDone], AfterOk::Nothing));
         }
         let block = Block { rapid: true, ends_sequence: true, homing: true, ..Block::new(home, duration, 0.0, self.line_count) };
-        Ok((vec![Step::Queue(block), Step::Sync, Step::HomingDone], false))
+        Ok((vec![Step::Queue(block), Step::Sync, Step::HomingDone], AfterOk::Nothing))
     }
 
     // ----- settings -----
@@ -671,16 +730,11 @@ impl Controller {
             (false, true) => "M8",
             (true, true) => "M7 M8",
         };
-        let feed = if m.inverse_time {
-            fmt_num(m.feed, 0)
-        } else if m.inches {
-            fmt_num(m.feed / 25.4, 1)
-        } else {
-            fmt_num(m.feed, 0)
-        };
+        // The parser's feed (mm/min, or G93's inverse time) as reports print rates.
+        let feed = self.rate_text(m.feed);
         format!(
             "[GC:{motion} G{} G{} {} {} {} {spindle} {coolant} T{} F{feed} S{}]",
-            m.coord,
+            coord_name(m.coord),
             m.plane,
             if m.inches { "G20" } else { "G21" },
             if m.incremental { "G91" } else { "G90" },
@@ -688,6 +742,23 @@ impl Controller {
             m.tool,
             fmt_num(m.s, 0),
         )
+    }
+}
+
+/// Work coordinate systems: G54-G59, and grblHAL's G59.1-G59.3.
+fn coord_systems(flavor: Flavor) -> usize {
+    match flavor {
+        Flavor::Grbl => 6,
+        Flavor::Grblhal => 9,
+    }
+}
+
+/// `54`..`59`, then `59.1`..`59.3` for the systems after G59.
+fn coord_name(n: u8) -> String {
+    if n <= 59 {
+        n.to_string()
+    } else {
+        format!("59.{}", n - 59)
     }
 }
 

@@ -15,11 +15,13 @@ pub struct Sim {
     pub partial: String,
     pub lines: Vec<(f64, String)>,
     pub knots: Vec<Knot>,
+    /// When `status` last asked.
+    pub last_status: f64,
 }
 
 impl Sim {
     pub fn new(cfg: SimConfig) -> Sim {
-        let mut s = Sim { ctl: Controller::new(cfg), link: PacedLink::new(115200), t: 0.0, partial: String::new(), lines: vec![], knots: vec![] };
+        let mut s = Sim { ctl: Controller::new(cfg), link: PacedLink::new(115200), t: 0.0, partial: String::new(), lines: vec![], knots: vec![], last_status: f64::NEG_INFINITY };
         s.collect();
         s
     }
@@ -83,7 +85,15 @@ impl Sim {
         self.lines.iter().map(|(t, l)| (*t, Response::parse(l))).filter(|(_, r)| matches!(r, Response::Ok | Response::Error(_))).collect()
     }
 
+    /// Asks for a report and parses it. Asked again at once, it first lets
+    /// 2 ms pass: Grbl answers one report for `?`s closer than its
+    /// formatting time, as a poller never sends them.
     pub fn status(&mut self) -> StatusReport {
+        if self.t < self.last_status + 0.002 {
+            let t = self.last_status + 0.002;
+            self.run_until(t);
+        }
+        self.last_status = self.t;
         let before = self.lines.len();
         self.realtime(realtime::STATUS);
         assert_eq!(self.lines.len(), before + 1, "one report expected");
