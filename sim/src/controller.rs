@@ -435,6 +435,9 @@ pub struct Controller {
     alarm: bool,
     /// Soft-limit alarm before reset: everything is locked out.
     critical: bool,
+    /// The line that hit a soft limit is answered `ok` once the reset comes
+    /// (Grbl's parser finishes it after leaving its alarm loop).
+    ok_after_reset: bool,
     check_mode: bool,
     sleep: bool,
     ovr_feed: u32,
@@ -504,6 +507,7 @@ impl Controller {
             door_open: false,
             alarm: false,
             critical: false,
+            ok_after_reset: false,
             check_mode: false,
             sleep: false,
             ovr_feed: 100,
@@ -957,6 +961,12 @@ impl Controller {
             self.stats.alarms.push(code);
             self.send(&format!("ALARM:{code}"));
         }
+        // A line cut short by the reset returns to Grbl's line loop with its
+        // `ok` before the banner: the `$H` of a homing cycle, the line that
+        // hit a soft limit.
+        if homing || std::mem::take(&mut self.ok_after_reset) {
+            self.send("ok");
+        }
         let banner = self.banner();
         self.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
         self.after_banner();
@@ -1350,6 +1360,12 @@ impl Controller {
                 }
                 self.pending =
                     Some(Pending { steps: steps.into(), rx_len: len, dwell_until: None, dwell_left: None, reset_after, quiet: false })
+            }
+            // Only a soft limit fails a line into a critical alarm: its
+            // answer waits for the reset (see `ok_after_reset`).
+            Err(_) if self.critical => {
+                self.drop_rx(len);
+                self.ok_after_reset = true;
             }
             Err(code) => {
                 self.drop_rx(len);
