@@ -523,10 +523,11 @@ impl Controller {
         let dir_mask = self.setting(23) as u32;
         let pull_off = self.setting(27);
         let home: Vec<f64> = (0..self.pos.len() as u32)
-            .map(|i| match i {
-                3.. => self.pos[i as usize],
-                _ if dir_mask & (1 << i) != 0 => -self.setting(130 + i) + pull_off,
-                _ => -pull_off,
+            .map(|i| match self.cfg.axes[i as usize].letter {
+                'X' | 'Y' | 'Z' if dir_mask & (1 << i) != 0 => -self.setting(130 + i) + pull_off,
+                'X' | 'Y' | 'Z' => -pull_off,
+                // Axes Grbl's cycles do not home (a scanner's) stay.
+                _ => self.pos[i as usize],
             })
             .collect();
         let duration = self.pos.iter().zip(&home).map(|(p, h)| (p - h).abs() / seek).fold(0.0, f64::max);
