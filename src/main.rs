@@ -669,13 +669,17 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
             .open_native_async()
             .map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
         let describe = |n: usize, text: &str| format!("{shown}:{n} `{text}`");
-        stream::stream(io, lines, &options, &describe, |_, event| {
+        let mut connection = stream::Connection::open(io, &options, |_, event| {
             if let (Some(bar), LinkEvent::Sent { line, .. }) = (&progress, &event) {
                 bar.set_position(read.get());
                 bar.set_message(line.to_string());
             }
         })
-        .await
+        .await?;
+        // laserd's programs are in bed coordinates: the controller's work
+        // coordinates are made those first (G54 from its homing settings).
+        connection.use_program_frame([machine.stage.travel_x, machine.stage.travel_y]).await?;
+        connection.stream(lines, &describe, None).await
     })?;
     if let Some(bar) = progress {
         bar.finish_and_clear();

@@ -467,6 +467,9 @@ pub struct Controller {
     alarm: bool,
     /// Soft-limit alarm before reset: everything is locked out.
     critical: bool,
+    /// The line that hit a soft limit is answered `ok` once the reset comes
+    /// (Grbl's parser finishes it after leaving its alarm loop).
+    ok_after_reset: bool,
     check_mode: bool,
     sleep: bool,
     ovr_feed: u32,
@@ -545,6 +548,7 @@ impl Controller {
             door_open: false,
             alarm: false,
             critical: false,
+            ok_after_reset: false,
             check_mode: false,
             sleep: false,
             ovr_feed: 100,
@@ -1094,7 +1098,11 @@ impl Controller {
             self.stats.alarms.push(code);
             self.send(&format!("ALARM:{code}"));
         }
-        if dwell_cut_short {
+        // A line cut short by the reset returns to Grbl's line loop with its
+        // `ok` before the banner: the `$H` of a homing cycle, the line that
+        // hit a soft limit, a dwell.
+        let ok_owed = std::mem::take(&mut self.ok_after_reset);
+        if dwell_cut_short || homing || ok_owed {
             self.send("ok");
         }
         let banner = self.banner();
@@ -1501,6 +1509,12 @@ impl Controller {
                     after,
                     quiet: false,
                 })
+            }
+            // Only a soft limit fails a line into a critical alarm: its
+            // answer waits for the reset (see `ok_after_reset`).
+            Err(_) if self.critical => {
+                self.drop_rx(len, 0);
+                self.ok_after_reset = true;
             }
             Err(code) => {
                 self.drop_rx(len, 0);

@@ -42,6 +42,9 @@ const START: Act = R(b'~');
 const RESET: Act = R(0x18);
 const DOOR: Act = R(0x84);
 const ECHO_ON: Act = Ctl(echo_on);
+/// Soft limits on (they need homing on), then a move past them: a critical
+/// ALARM:2 (Grbl's machine space is negative, so X1 is beyond it).
+const TRIP: Act = B(b"$22=1\n$20=1\nG0X1\n");
 const BANNER: &str = "Grbl 1.1h ['$' for help]";
 const UNLOCK: &str = "[MSG:'$H'|'$X' to unlock]";
 /// An idle report once the first two (with WCO, then Ov) have gone.
@@ -238,7 +241,7 @@ fn realtime_rows() -> Vec<Row> {
         (xy, &[Q, Q, R(0xA0), Q], &[R(0xA0), Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
         (xy, &[L("M3S1"), Q, Q, HOLD], &[R(0xA0), Q], &["<Hold:0|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:F>"]),
         (xy, &[R(0xA0), R(0xA1)], &[L("$G")], &["[GC:G0 G54 G17 G21 G90 G94 M5 M8 T0 F0 S0]", "ok"]),
-        (xy, &[L("G0X-1"), RESET, Q, Q], &[R(0xA0), Q], &["<Alarm|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[TRIP, RESET, Q, Q], &[R(0xA0), Q], &["<Alarm|MPos:0.000,0.000,0.000|FS:0,0>"]),
         (xy, &[L("$C"), Q, Q], &[R(0xA1), Q], &["<Check|MPos:0.000,0.000,0.000|FS:0,0>"]),
         // grblHAL's extra bytes (0x80-0x82 aliases, 0x87 full report): Grbl 1.1 discards them.
         (xy, &[Q, Q], &[R(0x80), R(0x87)], &[]),
@@ -279,7 +282,7 @@ fn states_and_status_fields() {
         (xy, &[Q, Q, L("$J=X100F600")], &[Q], &["<Jog|MPos:*|FS:600,0>"]),
         (xy, &[Q, Q, L("$C")], &[Q], &["<Check|MPos:0.000,0.000,0.000|FS:0,0>"]),
         (xy, &[Q, Q, L("$SLP")], &[Q], &["<Sleep|MPos:0.000,0.000,0.000|FS:0,0>"]),
-        (xy, &[Q, Q, L("G0X-1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, TRIP, RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000,0.000|FS:0,0>"]),
         // Home: no reports while homing.
         (xy, &[L("$22=1"), L("G0X100"), Wait(1.5)], &[L("$H"), Q], &[]),
         // $10: bit 0 MPos (else WPos), bit 1 Bf; Grbl 1.1 has no other bits.
@@ -318,7 +321,7 @@ fn listing(changes: &[(&str, &str)]) -> Vec<String> {
     let defaults = [
         ("0", "10"), ("1", "25"), ("2", "0"), ("3", "0"), ("4", "0"), ("5", "0"), ("6", "0"),
         ("10", "1"), ("11", "0.010"), ("12", "0.002"), ("13", "0"),
-        ("20", "1"), ("21", "0"), ("22", "0"), ("23", "0"), ("24", "25.000"), ("25", "500.000"),
+        ("20", "0"), ("21", "0"), ("22", "0"), ("23", "0"), ("24", "25.000"), ("25", "500.000"),
         ("26", "250"), ("27", "1.000"), ("30", "1000"), ("31", "0"), ("32", "1"),
         ("100", "250.000"), ("101", "250.000"), ("102", "250.000"),
         ("110", "6000.000"), ("111", "6000.000"), ("112", "6000.000"),
@@ -350,7 +353,7 @@ fn system_commands() {
         (xy, &[], &[L("$10")], &["error:3"]),
         (xy, &[], &[L("$999=1")], &["error:3"]),
         (xy, &[L("G1X100F600")], &[L("$110=600")], &["error:8"]),
-        (xy, &[L("G0X-1"), RESET], &[L("$110=600"), L("$X")], &["ok", "[MSG:Caution: Unlocked]", "ok"]),
+        (xy, &[TRIP, RESET], &[L("$110=600"), L("$X")], &["ok", "[MSG:Caution: Unlocked]", "ok"]),
         // $#: G54..G59 and G28/G30 (kept like EEPROM), G92, TLO, the last probe.
         (xy, &[], &[L("$#")], &[
             "[G54:0.000,0.000,0.000]", "[G55:0.000,0.000,0.000]", "[G56:0.000,0.000,0.000]", "[G57:0.000,0.000,0.000]",
@@ -395,10 +398,10 @@ fn system_commands() {
         (xy, &[L("$N1=G5")], &[L("$N")], &["$N0=", "$N1=", "ok"]),
         (xy, &[], &[L("$N2=G20")], &["error:3"]),
         (xy, &[], &[L("$N0")], &["error:3"]),
-        (xy, &[L("G0X-1"), RESET], &[L("$N0=G20")], &["error:8"]),
-        (xy, &[L("G0X-1"), RESET], &[L("$N")], &["$N0=", "$N1=", "ok"]),
-        (xy, &[L("$N0=G20"), L("G0X-1")], &[RESET], &[BANNER, UNLOCK]),
-        (xy, &[L("$N0=G20"), L("G0X-1"), RESET], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
+        (xy, &[TRIP, RESET], &[L("$N0=G20")], &["error:8"]),
+        (xy, &[TRIP, RESET], &[L("$N")], &["$N0=", "$N1=", "ok"]),
+        (xy, &[L("$N0=G20"), TRIP], &[RESET], &["ok", BANNER, UNLOCK]),
+        (xy, &[L("$N0=G20"), TRIP, RESET], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
         (xy, &[L("$N0=G20"), DOOR], &[RESET, Q], &[BANNER, "[MSG:Check Door]", "<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D|WCO:0.000,0.000,0.000>"]),
         (xy, &[L("$N0=G20"), DOOR, RESET, Door(false)], &[START], &[">G20:ok"]),
         (xy, &[L("$22=1"), L("$N0=G20")], &[L("$H")], &[">G20:ok", "ok"]),
@@ -406,21 +409,21 @@ fn system_commands() {
         (xy, &[], &[L("$C")], &["[MSG:Enabled]", "ok"]),
         (xy, &[L("$C")], &[L("$C")], &["[MSG:Disabled]", "ok", BANNER]),
         (xy, &[L("$C")], &[L("G1X10F100"), L("G4P5"), Q], &["ok", "ok", "<Check|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>"]),
-        (xy, &[L("G0X-1"), RESET], &[L("$C")], &["error:8"]),
+        (xy, &[TRIP, RESET], &[L("$C")], &["error:8"]),
         // $X.
         (xy, &[], &[L("$X")], &["ok"]),
-        (xy, &[L("G0X-1"), RESET], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
-        (xy, &[L("G0X-1"), RESET, Door(true)], &[L("$X")], &["error:13"]),
+        (xy, &[TRIP, RESET], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
+        (xy, &[TRIP, RESET, Door(true)], &[L("$X")], &["error:13"]),
         // $H.
         (xy, &[], &[L("$H")], &["error:5"]),
         (xy, &[L("$22=1"), L("$25=600"), L("G0X10"), Wait(0.5)], &[L("$H"), Wait(1.0)], &["ok"]),
-        (xy, &[L("$22=1"), L("G0X-1"), RESET, Door(true)], &[L("$H")], &["error:13"]),
+        (xy, &[TRIP, RESET, Door(true)], &[L("$H")], &["error:13"]),
         (xy, &[L("$22=1")], &[L("$HX")], &["error:3"]),
         (xy, &[L("$22=1"), L("G1X100F600")], &[L("$H")], &["error:8"]),
         // $J=.
         (xy, &[], &[L("$J=X1F100"), Wait(0.5)], &["ok"]),
         (xy, &[], &[L("$J")], &["error:3"]),
-        (xy, &[L("G0X-1"), RESET], &[L("$J=X1F100")], &["error:8"]),
+        (xy, &[TRIP, RESET], &[L("$J=X1F100")], &["error:8"]),
         (xy, &[L("$C")], &[L("$J=X1F100")], &["error:8"]),
         // $SLP: only a reset leaves it, into Alarm.
         (xy, &[L("$SLP")], &[RESET], &[BANNER, UNLOCK]),
@@ -450,7 +453,7 @@ fn system_commands() {
     ));
     rows.push((xy, &[L("$22=0")], &[L("$$")], leak(listing(&[("20", "0")]))));
     rows.push((xy, &[L("$110=600"), L("$22=1"), L("$RST=$")], &[L("$$")], leak(listing(&[]))));
-    rows.push((xy, &[L("G0X-1"), RESET], &[L("$$")], leak(listing(&[]))));
+    rows.push((xy, &[TRIP, RESET], &[L("$$")], leak(listing(&[("20", "1"), ("22", "1")]))));
     check(&rows);
 }
 
@@ -468,15 +471,15 @@ fn error_codes() {
         (xy, &[], &[L("$H")], &["error:5"]),
         (xy, &[], &[L("$0=2")], &["error:6"]),
         (xy, &[L("G1X100F600")], &[L("$$")], &["error:8"]),
-        (xy, &[L("G0X-1"), RESET], &[L("$C")], &["error:8"]),
-        (xy, &[L("G0X-1"), RESET], &[L("G0X1")], &["error:9"]),
+        (xy, &[TRIP, RESET], &[L("$C")], &["error:8"]),
+        (xy, &[TRIP, RESET], &[L("G0X1")], &["error:9"]),
         (xy, &[L("$J=X100F600")], &[L("G0X1")], &["error:9"]),
         (xy, &[], &[L("$20=1")], &["error:10"]),
         (xy, &[L("$22=1")], &[L("$20=1")], &["ok"]),
         (xy, &[], &[B(b"G0 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1 X1\n")], &["error:11"]),
-        (xy, &[L("G0X-1"), RESET, Door(true)], &[L("$X")], &["error:13"]),
-        (xy, &[], &[L("$J=X-1F100")], &["error:15"]),
-        (xy, &[L("$20=0")], &[L("$J=X-1F100"), Wait(0.5)], &["ok"]),
+        (xy, &[TRIP, RESET, Door(true)], &[L("$X")], &["error:13"]),
+        (xy, &[L("$22=1"), L("$20=1")], &[L("$J=X1F100")], &["error:15"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("$20=0")], &[L("$J=X1F100"), Wait(0.5)], &["ok"]),
         (xy, &[], &[L("$J=X1S5F100")], &["error:16"]),
         (xy, &[], &[L("$J=G1X1F100")], &["error:16"]),
         (xy, &[], &[L("G5X1")], &["error:20"]),
@@ -533,13 +536,10 @@ fn alarms() {
         (limit_1, &[L("G0X1")], &[L("G0X2"), L("$X"), Q], &[]),
         (limit_1, &[L("G0X1")], &[RESET], &[BANNER, UNLOCK]),
         (limit_2, &[L("$21=1"), L("G0X1")], &[RESET], &[BANNER, UNLOCK, "[MSG:Check Limits]"]),
-        // 2: soft limit (critical); the line itself answers error:9.
-        (xy, &[], &[L("G0X-1")], &["ALARM:2", "[MSG:Reset to continue]", "error:9"]),
-        (xy, &[L("G0X-1")], &[Q, L("G0X1")], &[]),
-        (xy, &[L("G0X-1")], &[RESET], &[BANNER, UNLOCK]),
-        (xy, &[L("G0X-1"), RESET], &[L("G0X1")], &["error:9"]),
-        (xy, &[L("G0X-1"), RESET], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
-        (xy, &[L("G0X290"), Wait(3.0)], &[L("G28X310")], &["ALARM:2", "[MSG:Reset to continue]", "error:9"]),
+        // 2: soft limit (critical): see `homing_and_soft_limits`.
+        (xy, &[TRIP, RESET], &[L("G0X-1")], &["error:9"]),
+        (xy, &[TRIP, RESET], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("G0X-290"), Wait(3.0)], &[L("G28X-310")], &["ALARM:2", "[MSG:Reset to continue]"]),
         // 3: reset while moving.
         (xy, &[L("G0X100F100")], &[RESET], &["ALARM:3", BANNER, UNLOCK]),
         // 4: probe not in its expected state at the start.
@@ -563,13 +563,11 @@ fn alarms() {
         ]),
         (xy, &[L("$C")], &[L("G38.2X5F600")], &["ok"]),
         // 6: reset during homing; 7: door opened during homing.
-        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), RESET], &["ALARM:6", BANNER, UNLOCK]),
-        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), DOOR], &["ALARM:7", BANNER, UNLOCK]),
+        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), RESET], &["ALARM:6", "ok", BANNER, UNLOCK]),
+        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), DOOR], &["ALARM:7", "ok", BANNER, UNLOCK]),
         (xy, &[L("$22=1"), L("G0X50"), Wait(1.0), L("$H"), DOOR], &[Q], &["<Alarm|MPos:*|FS:0,0|Pn:D|WCO:0.000,0.000,0.000>"]),
         // 8: the pull-off does not clear the switch; 9: no switch found.
-        (pull_off_fails, &[L("$22=1")], &[L("$H")], &["ALARM:8", BANNER, UNLOCK]),
-        (switch_missing, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), Wait(8.0)], &["ALARM:9", BANNER, UNLOCK]),
-        (switch_missing, &[L("$22=1"), L("$H")], &[L("$H")], &["ALARM:9", BANNER, UNLOCK]),
+        // (8 and 9: see `homing_and_soft_limits`.)
     ];
     check(rows);
 }
@@ -728,4 +726,47 @@ fn grbl_1_1h_parser_and_reports() {
         act(&mut s, a);
     }
     assert_eq!(s.ctl.position()[0], 5.0, "{:?}", s.texts());
+}
+
+/// Homing and soft limits as Grbl 1.1h has them: its default settings (no
+/// homing, no soft limits), its negative machine space (homing to the
+/// positive end by default, `$23` turning an axis round, the pull-off `$27`
+/// inside the switch), the critical soft-limit alarm and its silence until a
+/// reset, and the order of a failed homing cycle's answers.
+#[test]
+fn homing_and_soft_limits() {
+    let rows: &[Row] = &[
+        // Grbl's defaults ($20=0, $22=0): no soft limits, so nothing is beyond travel.
+        (xy, &[], &[L("G0X-1"), Wait(0.5)], &["ok"]),
+        (xy, &[], &[L("$J=X-1F100"), Wait(0.5)], &["ok"]),
+        // After `$H`: each axis at minus the pull-off, at the positive end.
+        (xy, &[L("$10=1"), L("$22=1"), L("$H"), Wait(0.5), Q, Q], &[Q], &["<Idle|MPos:-1.000,-1.000,-1.000|FS:0,0>"]),
+        (xy, &[L("$10=1"), L("$22=1"), L("$27=5"), L("$H"), Wait(1.0), Q, Q], &[Q], &["<Idle|MPos:-5.000,-5.000,-5.000|FS:0,0>"]),
+        // $23 bit 0: X homes to its negative end, pull-off inside it.
+        (xy, &[L("$10=1"), L("$22=1"), L("$23=1"), L("$25=6000"), L("$H"), Wait(3.5), Q, Q], &[Q], &["<Idle|MPos:-299.000,-1.000,-1.000|FS:0,0>"]),
+        // Soft limits: -$130 <= MPos <= 0 on every axis, however it homes.
+        (xy, &[L("$22=1"), L("$20=1"), L("$H"), Wait(0.5)], &[L("$J=G91X10F600")], &["error:15"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("$H"), Wait(0.5)], &[L("$J=G91X-10F600"), Wait(1.5)], &["ok"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("$23=3"), L("$25=6000"), L("$H"), Wait(3.5)], &[L("$J=G91X-0.5F600"), Wait(0.5)], &["ok"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("$23=3"), L("$25=6000"), L("$H"), Wait(3.5)], &[L("$J=G91X-1.5F600")], &["error:15"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("$130=100"), L("$H"), Wait(0.5)], &[L("$J=X-100F6000"), Wait(1.5)], &["ok"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("$130=100"), L("$H"), Wait(0.5)], &[L("$J=X-100.1F6000")], &["error:15"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("$H"), Wait(0.5)], &[L("G0X-300Y-300"), Wait(3.5)], &["ok"]),
+        // A move past them: the critical ALARM:2, then nothing (not even
+        // status reports) until a reset; the line's `ok` comes with the
+        // reset, before the banner.
+        (xy, &[L("$22=1"), L("$20=1")], &[L("G0X1")], &["ALARM:2", "[MSG:Reset to continue]"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("$H"), Wait(0.5)], &[L("G0X-301")], &["ALARM:2", "[MSG:Reset to continue]"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("G0X1")], &[Q, L("G0X-1"), L("$X"), Wait(1.0)], &[]),
+        (xy, &[L("$22=1"), L("$20=1"), L("G0X1"), Q, L("G0X-1")], &[RESET], &["ok", BANNER, UNLOCK]),
+        (xy, &[L("$22=1"), L("$20=1"), L("G0X-100"), Wait(0.1)], &[L("G0X5"), Q], &["ALARM:2", "[MSG:Reset to continue]"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("G0X-100"), Wait(0.1), L("G0X5")], &[RESET], &["ok", BANNER, UNLOCK]),
+        // A failed homing cycle: the alarm, the `$H` line's `ok`, then the
+        // reset Grbl does itself (banner) into Alarm.
+        (pull_off_fails, &[L("$22=1")], &[L("$H"), Wait(0.5)], &["ALARM:8", "ok", BANNER, UNLOCK]),
+        (switch_missing, &[L("$22=1"), L("G0X-50"), Wait(1.0)], &[L("$H"), Wait(8.0)], &["ALARM:9", "ok", BANNER, UNLOCK]),
+        (switch_missing, &[L("$22=1"), L("$H"), Wait(0.5)], &[L("$H"), Wait(0.5)], &["ALARM:9", "ok", BANNER, UNLOCK]),
+        (switch_missing, &[L("$22=1"), L("$H"), Wait(0.5)], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
+    ];
+    check(rows);
 }

@@ -114,23 +114,25 @@ fn error_on_line_fault() {
 #[test]
 fn soft_limit_alarm_and_recovery() {
     let mut s = Sim::new(cfg());
-    s.send("G0 X400\nG0 X1\n$X\n");
+    // Soft limits need homing on; Grbl's machine space is -300..0 here.
+    s.send("$22=1\n$20=1\nG0 X-400\nG0 X-1\n$X\n");
     s.run_until(1.0);
     let t = s.texts();
     // Critical: the lines after the alarming one are not even read; the reset drops them.
-    assert_eq!(&t[1..], &["ALARM:2", "[MSG:Reset to continue]", "error:9"]);
+    assert_eq!(&t[1..], &["ok", "ok", "ALARM:2", "[MSG:Reset to continue]"]);
     assert_eq!(s.ctl.state(), MachineState::Alarm);
     let n = s.lines.len();
     s.realtime(realtime::STATUS); // ignored until reset
     assert_eq!(s.lines.len(), n);
     s.realtime(realtime::SOFT_RESET);
-    assert_eq!(&s.texts()[n..], &[BANNER, "[MSG:'$H'|'$X' to unlock]"]);
-    s.send("G0 X1\n$X\nG0 X1\n");
+    // The alarming line's `ok` comes with the reset.
+    assert_eq!(&s.texts()[n..], &["ok", BANNER, "[MSG:'$H'|'$X' to unlock]"]);
+    s.send("G0 X-1\n$X\nG0 X-1\n");
     s.run_until(2.0);
-    assert_eq!(&s.texts()[n + 2..], &["error:9", "[MSG:Caution: Unlocked]", "ok", "ok"]);
-    assert_eq!(s.ctl.position(), vec![1.0, 0.0, 0.0]);
+    assert_eq!(&s.texts()[n + 3..], &["error:9", "[MSG:Caution: Unlocked]", "ok", "ok"]);
+    assert_eq!(s.ctl.position(), vec![-1.0, 0.0, 0.0]);
     assert_eq!(s.ctl.stats().alarms, vec![2]);
-    assert!(s.knots.iter().all(|k| k.pos[0] <= 300.0));
+    assert!(s.knots.iter().all(|k| (-300.0..=0.0).contains(&k.pos[0])));
 }
 
 #[test]
@@ -439,15 +441,18 @@ fn feed_hold_runs_on_to_the_next_rest_point_with_the_laser_off() {
 #[test]
 fn jogging() {
     let mut s = Sim::new(cfg());
+    // Soft limits on (Grbl's machine space: -300..0 here).
+    s.send("$22=1\n$20=1\n");
+    s.run_until(0.1);
     // Forbidden words, missing feed, beyond travel: refused, nothing moves.
-    for (line, code) in [("$J=G1X10F100", 16), ("$J=X10S100F100", 16), ("$J=X10", 22), ("$J=X-5F100", 15), ("$J=F100", 26)] {
+    for (line, code) in [("$J=G1X-10F100", 16), ("$J=X-10S100F100", 16), ("$J=X-10", 22), ("$J=X5F100", 15), ("$J=F100", 26)] {
         s.send(&format!("{line}\n"));
         s.run_until(s.t + 0.1);
         assert_eq!(s.responses().last().unwrap().1, Response::Error(code), "{line}");
     }
     assert!(s.knots.is_empty());
     // A jog runs in state Jog with the laser off and leaves the parser modes alone.
-    s.send("G91\n$J=G90X10F600\n");
+    s.send("G91\n$J=G90X-10F600\n");
     s.run_until(s.t + 0.5);
     assert_eq!(s.ctl.state(), MachineState::Jog);
     s.send("G1X1F100\n");
@@ -455,20 +460,20 @@ fn jogging() {
     assert_eq!(s.responses().last().unwrap().1, Response::Error(9), "G-code while jogging");
     s.run_until(s.t + 2.0);
     assert_eq!(s.ctl.state(), MachineState::Idle);
-    assert_eq!(s.ctl.position(), vec![10.0, 0.0, 0.0]);
+    assert_eq!(s.ctl.position(), vec![-10.0, 0.0, 0.0]);
     assert!(s.knots.iter().all(|k| k.power == 0.0));
     s.realtime(realtime::STATUS);
     s.send("$G\n");
     s.run_until(s.t + 0.1);
     assert!(s.texts().iter().any(|t| t.starts_with("[GC:") && t.contains("G91")), "G91 kept: {:?}", s.texts());
     // Jog cancel stops at once and drops what is queued.
-    s.send("$J=G90X100F600\n$J=G90Y50F600\n");
+    s.send("$J=G90X-100F600\n$J=G90Y-50F600\n");
     s.run_until(s.t + 0.5);
     assert_eq!(s.ctl.state(), MachineState::Jog);
     s.realtime(realtime::JOG_CANCEL);
     assert_eq!(s.ctl.state(), MachineState::Idle);
     let x = s.ctl.position()[0];
-    assert!(x > 10.0 && x < 100.0, "{x}");
+    assert!(x < -10.0 && x > -100.0, "{x}");
     s.run_until(s.t + 5.0);
     assert_eq!(s.ctl.position()[0], x, "nothing runs after the cancel");
     assert_eq!(s.ctl.position()[1], 0.0);
@@ -535,15 +540,16 @@ fn settings_are_written_act_and_survive_a_reset() {
     // $10=0: work positions, no buffer field.
     let r = s.status();
     assert!(r.mpos.is_empty() && r.wpos.is_some() && r.buffer.is_none(), "{r:?}");
-    // The new travel is a soft limit; the new rate limits G0.
-    s.send("G0X40\n");
+    // The new travel is a soft limit (with homing, so soft limits, on:
+    // -50..0); the new rate limits G0.
+    s.send("$22=1\n$20=1\nG0X-40\n");
     s.run_until(0.5);
     s.run_until(10.0);
     let moved = s.knots.last().unwrap();
-    assert_eq!(moved.pos[0], 40.0);
+    assert_eq!(moved.pos[0], -40.0);
     let took = moved.t - s.knots[s.knots.len() - 2].t;
     assert!(close(took, 4.0), "40 mm at 600 mm/min: {took}");
-    s.send("G0X60\n");
+    s.send("G0X-60\n");
     s.run_until(11.0);
     assert!(s.texts().contains(&"ALARM:2"));
 }
@@ -562,7 +568,8 @@ fn homing_when_enabled() {
     let oks_before = s.responses().len();
     s.run_until(5.0);
     assert_eq!(s.ctl.state(), MachineState::Idle);
-    assert_eq!(s.ctl.position(), vec![0.0, 0.0, 0.0]);
+    // Grbl's machine space is negative: home is the positive end, less the pull-off ($27).
+    assert_eq!(s.ctl.position(), vec![-1.0, -1.0, -1.0]);
     assert_eq!(s.responses().len(), oks_before + 1, "the ok comes when homing is done: {:?}", s.lines);
     // A reset during homing fails the cycle: ALARM:6; homing again clears it.
     s.send("G0X20\n");

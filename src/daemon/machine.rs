@@ -238,7 +238,7 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                 let Some(command) = command else { return Ok(()) };
                 match command {
                     Command::Start { id, reply } => {
-                        if let Some((job, progress)) = ready(connection, &refusal, reply, |reply| {
+                        if let Some((job, progress)) = ready(daemon, connection, &refusal, reply, |reply| {
                             answer(reply, take(daemon, id.as_deref(), JobState::Queued, |_| Ok(())), |(j, _)| format!("job {} started", j.id))
                         }).await? {
                             if run_job(daemon, connection, commands, running, job, progress, None).await? {
@@ -247,7 +247,7 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                         }
                     }
                     Command::ResumeJob { id, from, reply } => {
-                        if let Some(((job, progress), from)) = ready(connection, &refusal, reply, |reply| {
+                        if let Some(((job, progress), from)) = ready(daemon, connection, &refusal, reply, |reply| {
                             // The line is checked before anything changes: a
                             // refused resume leaves the job as it was.
                             let mut at = 0;
@@ -298,7 +298,7 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
 
 /// Checks that a job may start (settings in line with the config, machine
 /// Idle), then lets `take` pick it and answer; `None` when it may not.
-async fn ready<T>(connection: &mut Link, refusal: &Option<String>, reply: Reply, take: impl FnOnce(Reply) -> Option<T>) -> Result<Option<T>> {
+async fn ready<T>(daemon: &Daemon, connection: &mut Link, refusal: &Option<String>, reply: Reply, take: impl FnOnce(Reply) -> Option<T>) -> Result<Option<T>> {
     if let Some(why) = refusal {
         let _ = reply.send(Err(Error::Conflict(why.clone())));
         return Ok(None);
@@ -308,7 +308,17 @@ async fn ready<T>(connection: &mut Link, refusal: &Option<String>, reply: Reply,
         let _ = reply.send(Err(Error::Conflict(format!("the machine is {}: a job starts only from Idle", state.as_field()))));
         return Ok(None);
     }
+    // The program, the jog to its start and a resume are in bed coordinates.
+    if let Err(e) = connection.use_program_frame(stage_travel(daemon)).await {
+        let _ = reply.send(Err(Error::Conflict(format!("cannot set the work coordinates (G54) jobs run in: {e}"))));
+        return Ok(None);
+    }
     Ok(take(reply))
+}
+
+/// The config's stage travel (X, Y): the bed coordinates programs use.
+fn stage_travel(daemon: &Daemon) -> [f64; 2] {
+    [daemon.machine.stage.travel_x, daemon.machine.stage.travel_y]
 }
 
 /// Answers the operator with what `taken` says, and passes on what was taken.
@@ -570,12 +580,11 @@ async fn approach(daemon: &Daemon, connection: &mut Link, commands: &mut mpsc::U
     let words: String = machine.axis_letters().iter().zip(target).map(|(l, v)| format!("{l}{}", crate::program::format_number(*v, 4))).collect();
     // Each axis is held to the controller's own rate and acceleration limits.
     let jog = format!("G90G21{words}F{}", crate::program::format_number(machine.stage.max_velocity * 60.0, 1));
-    let there = |status: &StatusReport| {
-        let here = status.position();
-        here.len() >= target.len() && here.iter().zip(target).all(|(a, b)| (a - b).abs() <= 0.001)
-    };
+    // Jogs and the program are in work coordinates (see `ready`).
+    let there = |here: &[f64]| here.len() >= target.len() && here.iter().zip(target).all(|(a, b)| (a - b).abs() <= 0.001);
     loop {
-        if !there(&connection.status().await?) {
+        let status = connection.status().await?;
+        if !there(&connection.work_position(&status)) {
             connection.jog(&jog).await?;
         }
         let started = std::time::Instant::now();
@@ -584,10 +593,11 @@ async fn approach(daemon: &Daemon, connection: &mut Link, commands: &mut mpsc::U
                 _ = tokio::time::sleep(Duration::from_millis(50)) => {
                     let status = connection.status().await?;
                     if status.state == MachineState::Idle {
-                        if there(&status) {
+                        let here = connection.work_position(&status);
+                        if there(&here) {
                             return Ok(Approach::There);
                         }
-                        return Err(Error::Stream(format!("the move to the program's start {target:?} ended at {:?}", status.position())));
+                        return Err(Error::Stream(format!("the move to the program's start {target:?} ended at {here:?} (work coordinates)")));
                     }
                     if started.elapsed() > Duration::from_secs(120) {
                         return Err(Error::Stream(format!("the machine did not reach the program's start {target:?} within 120 s")));
@@ -689,6 +699,12 @@ async fn home(daemon: &Daemon, connection: &mut Link, commands: &mut mpsc::Unbou
             }
         }
     };
+    // Homed: the bed's coordinates are known now, for jogs too.
+    if homed.is_ok() {
+        if let Err(e) = connection.use_program_frame(stage_travel(daemon)).await {
+            tracing::warn!("after homing: cannot set the work coordinates (G54): {e}");
+        }
+    }
     let _ = reply.send(homed.map(|_| "homed".to_string()));
     // Show the state the cycle left, whatever it was.
     connection.status().await?;

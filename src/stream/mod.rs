@@ -1,6 +1,7 @@
 //! Stream: the sender and the transports it talks through.
 
 pub mod file_lines;
+pub mod frame;
 pub mod in_process;
 pub mod resume;
 pub mod sender;

@@ -618,6 +618,11 @@ pub struct Connection<T, F> {
     rx_buffer: usize,
     /// The status just read, if nothing was sent since (saves a round trip).
     fresh_status: Option<StatusReport>,
+    /// The build option codes of `[OPT:]` (e.g. `VNM+`).
+    build_codes: String,
+    /// The work coordinate offset (`WCO:`, sent now and then; or set by
+    /// `use_program_frame`): work position = machine position − this.
+    wco: Option<Vec<f64>>,
 }
 
 impl<T, F> Connection<T, F>
@@ -661,6 +666,8 @@ where
             options: options.clone(),
             rx_buffer: options.rx_buffer,
             fresh_status: None,
+            build_codes: String::new(),
+            wco: None,
         };
         connection.status().await?;
         connection.learn_build_options().await?;
@@ -683,6 +690,7 @@ where
             })
             .await?;
         let fields: Vec<&str> = options.as_deref().unwrap_or("").split(',').collect();
+        self.build_codes = fields.first().map_or(String::new(), |c| c.trim().to_string());
         let number = |i: usize| fields.get(i).and_then(|f| f.trim().parse::<usize>().ok()).filter(|n| *n > 0);
         if let Some(blocks) = number(1) {
             self.link.book.planner_blocks = Some(blocks);
@@ -714,8 +722,63 @@ where
                 self.rx_buffer = rx as usize;
             }
         }
+        if let Some(wco) = &status.wco {
+            self.wco = Some(wco.clone());
+        }
         self.fresh_status = Some(status.clone());
         Ok(status)
+    }
+
+    /// The work position (program coordinates) of a status report: `WPos:`
+    /// as reported, or `MPos:` less the last work coordinate offset known.
+    pub fn work_position(&self, status: &StatusReport) -> Vec<f64> {
+        match (&status.wpos, status.wco.as_ref().or(self.wco.as_ref())) {
+            (Some(w), _) if status.mpos.is_empty() => w.clone(),
+            (_, Some(wco)) => status.mpos.iter().zip(wco.iter().chain(std::iter::repeat(&0.0))).map(|(m, o)| m - o).collect(),
+            _ => status.mpos.clone(),
+        }
+    }
+
+    /// Makes the controller's work coordinates laserd's bed coordinates (see
+    /// `frame`): reads `$$` and `$#`, writes G54 (`G10 L2 P1`) if it is not
+    /// already the bed's origin, then selects G54 and clears G92. `travel`
+    /// is the config's stage travel (X, Y). Returns the origin (machine X, Y
+    /// of the bed's 0).
+    pub async fn use_program_frame(&mut self, travel: [f64; 2]) -> Result<[f64; 2]> {
+        let settings = self.settings().await?;
+        let origin = super::frame::program_origin(&settings, &self.build_codes, travel)?;
+        let mut g54 = self.work_origin().await?;
+        if g54.len() < 2 {
+            return Err(Error::Stream(format!("`$#` gave no G54 origin for X and Y (got {g54:?})")));
+        }
+        if g54.iter().zip(origin).any(|(a, b)| (a - b).abs() > 5e-4) {
+            let [x, y] = origin.map(|v| crate::program::format_number(v, 3));
+            self.expect_ok(&format!("G10L2P1X{x}Y{y}")).await?;
+            g54[..2].copy_from_slice(&origin);
+        }
+        self.expect_ok("G54G92.1").await?;
+        self.wco = Some(g54);
+        Ok(origin)
+    }
+
+    /// The G54 origin in machine coordinates, from `$#`.
+    async fn work_origin(&mut self) -> Result<Vec<f64>> {
+        self.fresh_status = None;
+        let mut g54 = None;
+        let answer = self
+            .link
+            .command_seeing("$#", Duration::from_secs(3), |r| {
+                if let Response::Feedback(f) = r {
+                    if let Some(values) = f.strip_prefix("[G54:").and_then(|v| v.strip_suffix(']')) {
+                        g54 = values.split(',').map(|v| v.trim().parse::<f64>().ok()).collect::<Option<Vec<f64>>>();
+                    }
+                }
+            })
+            .await?;
+        if let Response::Error(code) = answer {
+            return Err(Error::Stream(format!("`$#` refused: error:{code} ({})", wire::error_message(code))));
+        }
+        g54.ok_or_else(|| Error::Stream("`$#` gave no readable `[G54:...]` line".into()))
     }
 
     /// Sends a command of the sender's own and waits (up to `limit`) for its answer.
@@ -910,14 +973,12 @@ where
             )));
         }
         if let Some(start) = self.options.expect_start.as_ref().filter(|_| check_start) {
-            let off = start
-                .iter()
-                .zip(status.position())
-                .any(|(a, b)| (a - b).abs() > 0.01);
-            if off || status.position().len() < start.len() {
+            // The program's coordinates are the work coordinates.
+            let here = self.work_position(&status);
+            let off = start.iter().zip(&here).any(|(a, b)| (a - b).abs() > 0.01);
+            if off || here.len() < start.len() {
                 return Err(Error::Stream(format!(
-                    "the machine is at {:?} but the program starts at {:?}: home it first",
-                    status.position(), start
+                    "the machine is at {here:?} (work coordinates) but the program starts at {start:?}: home it first"
                 )));
             }
         }

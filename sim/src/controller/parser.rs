@@ -376,15 +376,9 @@ impl Controller {
         }
 
         // Soft limits, checked on every point before anything is queued.
-        if self.soft_limits() {
-            for p in &points {
-                for (i, a) in self.cfg.axes.iter().enumerate() {
-                    if p[i] < a.min - 1e-6 || p[i] > a.max + 1e-6 {
-                        self.soft_limit_alarm();
-                        return Err(9);
-                    }
-                }
-            }
+        if self.soft_limits() && points.iter().any(|p| self.beyond_travel(p)) {
+            self.soft_limit_alarm();
+            return Err(9);
         }
 
         // Build the blocks.
@@ -591,9 +585,7 @@ impl Controller {
                 mm + wco[i]
             };
         }
-        if self.soft_limits()
-            && self.cfg.axes.iter().enumerate().any(|(i, a)| target[i] < a.min - 1e-6 || target[i] > a.max + 1e-6)
-        {
+        if self.soft_limits() && self.beyond_travel(&target) {
             return Err(15);
         }
         let len = dist(&self.gc_pos, &target);

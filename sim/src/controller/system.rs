@@ -322,6 +322,9 @@ impl Controller {
         self.planner.clear();
         self.stats.alarms.push(code);
         self.send(&format!("ALARM:{code}"));
+        // Grbl's `$H` returns to its line loop before the reset is acted on:
+        // the `ok` comes between the alarm and the banner.
+        self.send("ok");
         self.alarm = true;
         self.soft_reset();
     }
@@ -558,9 +561,14 @@ impl Controller {
         Ok((steps, AfterOk::Nothing))
     }
 
-    /// `$H`. There are no switches to seek: every axis moves to its home (0)
-    /// at the seek rate (`$25`), the `ok` comes when it is there, and the
-    /// startup lines run. `Faults` can make the cycle fail there (ALARM:8/9).
+    /// `$H`. There are no switches to seek: X, Y and Z (Grbl's homing
+    /// cycles) move at the seek rate (`$25`) straight to where Grbl's cycle
+    /// leaves them, the `ok` comes when they are there, and the startup lines
+    /// run. `Faults` can make the cycle fail there (ALARM:8/9).
+    ///
+    /// Where: Grbl's machine space is negative, the switch at 0 for an axis
+    /// homing toward plus (the default) and at minus its max travel for one
+    /// whose `$23` bit is set; the pull-off (`$27`) leaves it that far inside.
     fn home(&mut self) -> Result<(Vec<Step>, AfterOk), u16> {
         if self.setting(22) == 0.0 {
             return Err(5);
@@ -571,8 +579,17 @@ impl Controller {
         // A successful cycle clears the alarm (the state reads Home meanwhile).
         self.alarm = false;
         let seek = self.setting(25).max(1e-3) / 60.0;
-        let home = vec![0.0; self.pos.len()];
-        let duration = self.pos.iter().map(|p| p.abs() / seek).fold(0.0, f64::max);
+        let dir_mask = self.setting(23) as u32;
+        let pull_off = self.setting(27);
+        let home: Vec<f64> = (0..self.pos.len() as u32)
+            .map(|i| match self.cfg.axes[i as usize].letter {
+                'X' | 'Y' | 'Z' if dir_mask & (1 << i) != 0 => -self.setting(130 + i) + pull_off,
+                'X' | 'Y' | 'Z' => -pull_off,
+                // Axes Grbl's cycles do not home (a scanner's) stay.
+                _ => self.pos[i as usize],
+            })
+            .collect();
+        let duration = self.pos.iter().zip(&home).map(|(p, h)| (p - h).abs() / seek).fold(0.0, f64::max);
         self.gc_pos = home.clone();
         if duration <= 0.0 {
             return Ok((vec![Step::HomingDone], AfterOk::Nothing));
@@ -602,9 +619,8 @@ impl Controller {
             (11, Float, 0.010),
             (12, Float, 0.002),
             (13, Bool, 0.0),
-            // Soft limits on (travel from the config) without homing, which
-            // Grbl itself would refuse (error 10): the simulator's default.
-            (20, Bool, 1.0),
+            // Grbl's defaults: soft limits off, and they need homing ($22).
+            (20, Bool, 0.0),
             (21, Bool, 0.0),
             (22, Bool, 0.0),
             (23, Int, 0.0),
@@ -646,6 +662,15 @@ impl Controller {
     /// Soft limits (`$20`) in force.
     pub(super) fn soft_limits(&self) -> bool {
         self.setting(20) != 0.0
+    }
+
+    /// A machine position outside Grbl's machine space: every axis from
+    /// minus its max travel (`$130`..) up to 0, whichever way it homes (`$23`
+    /// only moves where homing ends; Grbl built without
+    /// HOMING_FORCE_SET_ORIGIN, as this one is: no `Z` in `[OPT:]`).
+    pub(super) fn beyond_travel(&self, target: &[f64]) -> bool {
+        const EPS: f64 = 1e-6;
+        target.iter().zip(0..).any(|(p, i)| *p > EPS || *p < -self.setting(130 + i) - EPS)
     }
 
     /// Writes setting `n` (`$n=value`), with the effect Grbl gives it.
