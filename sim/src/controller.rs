@@ -15,8 +15,9 @@
 //! Like Grbl, a feed move is never faster than the axes allow: its duration is
 //! at least the G0 duration of the same move. Overrides are applied when a
 //! block starts. There is no acceleration: executed motion is piecewise linear
-//! through the knots, and stopping is instantaneous. This is deliberate, the
-//! limit checker in [`crate::limits`] judges what the *sender* planned.
+//! through the knots, and a reset or an alarm stops it at once. This is
+//! deliberate, the limit checker in [`crate::limits`] judges what the *sender*
+//! planned. A feed hold brakes within the limits (`hold.rs`).
 //! Zero-length blocks are dropped (as Grbl does).
 //!
 //! # Lines and buffers
@@ -39,7 +40,9 @@
 //! line, from the `ok` that made room, whichever is later. A sender counting
 //! characters waits for that `ok` (a `G4` holds its bytes and those behind it
 //! until its `ok`, after the dwell), so a link quiet then is not the stream's end.
-//! A feed hold runs on, laser off, to the next rest point, then stops.
+//! A feed hold (or a door) slows the program clock to a stop along the path,
+//! laser off, within half of every axis' acceleration and jerk limit, then
+//! reads `Hold:0`; `~` is taken only then, and ramps the clock up again.
 //!
 //! # The laser standing still
 //! In laser mode (`$32=1`) the laser follows Grbl's rules while the machine
@@ -72,6 +75,7 @@ use crate::gcode::LineBuilder;
 use crate::planner::{self, Kinematics, Planned, SegmentInput};
 use crate::wire::{MachineState, StatusReport, BANNER, BANNER_HAL};
 
+mod hold;
 mod parser;
 mod system;
 
@@ -121,8 +125,10 @@ pub struct Faults {
     /// TX line or a wedged USB bridge); it still receives and moves.
     #[serde(default)]
     pub mute_from_line: Option<u64>,
-    /// The controller resets by itself on receiving the n-th line (a brown-out,
-    /// the reset button), losing everything queued.
+    /// The controller reboots on receiving the n-th line (a brown-out, the
+    /// reset button): banner only, everything queued lost, the power-up
+    /// state (EEPROM kept, zero where the machine stands); the lines sent
+    /// after it run from there.
     #[serde(default)]
     pub reset_at_line: Option<u64>,
     /// A hard limit switch (the first axis') trips on receiving the n-th
@@ -511,6 +517,11 @@ pub struct Controller {
     last_knot_t: f64,
     /// Until when a status report is being formatted (see `REPORT_FORMAT_S`).
     report_busy_until: f64,
+    /// Timed model: a hold braking the program clock, or a resume ramping it up.
+    ramp: Option<hold::Ramp>,
+    /// Where the machine's zero is since a hardware reset (it restarts
+    /// counting where it stood).
+    power_up_shift: Vec<f64>,
 }
 
 const EPS_POS: f64 = 1e-9;
@@ -574,6 +585,8 @@ impl Controller {
             rest_line: 0,
             last_knot_t: f64::NEG_INFINITY,
             report_busy_until: f64::NEG_INFINITY,
+            ramp: None,
+            power_up_shift: vec![0.0; n],
         };
         let banner = c.banner();
         c.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
@@ -646,7 +659,7 @@ impl Controller {
     /// Machine position now (interpolated inside the executing block).
     pub fn position(&self) -> Vec<f64> {
         match &self.exec {
-            Some(e) => interpolate(e, self.now),
+            Some(e) => self.on_ramp().map_or_else(|| interpolate(e, self.now), |r| r.0),
             None => self.pos.clone(),
         }
     }
@@ -674,8 +687,13 @@ impl Controller {
         }
     }
 
-    fn push_knot(&mut self, knot: Knot) {
+    /// Knots are where the machine is: Grbl's position plus where its zero
+    /// has been since a hardware reset.
+    fn push_knot(&mut self, mut knot: Knot) {
         self.last_knot_t = knot.t;
+        if self.power_up_shift.iter().any(|s| *s != 0.0) {
+            knot.pos.iter_mut().zip(&self.power_up_shift).for_each(|(p, s)| *p += s);
+        }
         self.knots.push(knot);
     }
 
@@ -897,7 +915,12 @@ impl Controller {
             Some(e) => {
                 let len = dist(&e.start_pos, &e.end_pos);
                 let dur = e.end_t - e.start_t;
-                if e.running && dur > 0.0 { len / dur * 60.0 } else { 0.0 }
+                let speed = match self.on_ramp() {
+                    Some((_, speed)) => speed,
+                    None if e.running && dur > 0.0 => len / dur,
+                    None => 0.0,
+                };
+                speed * 60.0
             }
             None => 0.0,
         };
@@ -1008,21 +1031,21 @@ impl Controller {
                 self.hold_stops_laser();
                 self.pause_starvation();
                 self.replan_now();
+                self.begin_braking();
             }
-            SAFETY_DOOR if !(self.alarm || self.sleep) => self.open_door(),
-            CYCLE_START if self.hold && !self.alarm && !(self.door && self.door_open) => {
+            SAFETY_DOOR => self.door_event(),
+            // Only a hold that has come to rest resumes (Grbl ignores `~`
+            // while it still decelerates), a door's once it is closed.
+            CYCLE_START if self.hold && !self.alarm && !self.moving() && !(self.door && self.door_open) => {
                 self.restore_spindle();
                 self.hold = false;
                 self.door = false;
+                self.begin_ramp_up();
                 match &self.exec {
                     None if self.planner.is_empty() => self.mark_idle(self.now),
                     None => self.start_next(self.now, true, 0.0),
-                    // Stopped inside a block (grbl model): start again from rest there.
-                    Some(e) if !e.running => {
-                        let knot = Knot { t: self.now, pos: e.end_pos.clone(), power: 0.0, line: e.block.line };
-                        self.push_knot(knot);
-                        self.next_segment(self.now);
-                    }
+                    // Stopped inside a block: start again from rest there.
+                    Some(e) if !e.running => self.resume_inside_block(),
                     Some(_) => {}
                 }
             }
@@ -1063,6 +1086,58 @@ impl Controller {
         // a reset, and the line it ran in is answered as done before the reboot.
         let dwell_cut_short = self.pending.as_ref().is_some_and(|p| !p.quiet && p.steps.iter().any(|s| matches!(s, Step::Dwell(..))));
         let homing = self.exec.as_ref().is_some_and(|e| e.block.homing);
+        let ok_owed = std::mem::take(&mut self.ok_after_reset);
+        self.clear_volatile_state();
+        if self.sleep {
+            // Leaving sleep always goes through Alarm (reference §7).
+            self.sleep = false;
+            self.alarm = true;
+        }
+        if moving {
+            self.alarm = true;
+            // A reset during homing fails the cycle (6); otherwise position is lost (3).
+            let code = if homing { 6 } else { 3 };
+            self.stats.alarms.push(code);
+            self.send(&format!("ALARM:{code}"));
+        }
+        // A line cut short by the reset returns to Grbl's line loop with its
+        // `ok` before the banner: the `$H` of a homing cycle, the line that
+        // hit a soft limit, a dwell.
+        if dwell_cut_short || homing || ok_owed {
+            self.send("ok");
+        }
+        self.announce();
+    }
+
+    /// A hardware reset (a brown-out, the reset button): the controller
+    /// reboots as at power-up. Only EEPROM survives (settings, work offsets,
+    /// stored positions, startup lines); the machine stops where it is, and
+    /// that place is the new zero, since the step counters start from zero.
+    /// Nothing reports a lost position: the banner is all the host sees, and
+    /// the lines it sends after it run in the power-up state.
+    fn hardware_reset(&mut self) {
+        self.clear_volatile_state();
+        for ((shift, p), g) in self.power_up_shift.iter_mut().zip(&mut self.pos).zip(&mut self.gc_pos) {
+            *shift += *p;
+            *p = 0.0;
+            *g = 0.0;
+        }
+        self.sleep = false;
+        // With homing enabled Grbl starts locked (its default build).
+        self.alarm = self.setting(22) != 0.0;
+        self.announce();
+    }
+
+    /// Banner, then what follows it.
+    fn announce(&mut self) {
+        let banner = self.banner();
+        self.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
+        self.after_banner();
+    }
+
+    /// What any reset clears: motion stops where it is, everything queued
+    /// and the parser's state are gone, the laser is off.
+    fn clear_volatile_state(&mut self) {
         self.stop_motion_now();
         self.planner.clear();
         self.rx.clear();
@@ -1083,35 +1158,15 @@ impl Controller {
         self.hold = false;
         self.door = false;
         self.critical = false;
-        if self.sleep {
-            // Leaving sleep always goes through Alarm (reference §7).
-            self.sleep = false;
-            self.alarm = true;
-        }
+        self.ok_after_reset = false;
         self.reset_starvation();
         // Grbl's reset stops the spindle: the laser is off.
         self.rest_s = 0.0;
-        if moving {
-            self.alarm = true;
-            // A reset during homing fails the cycle (6); otherwise position is lost (3).
-            let code = if homing { 6 } else { 3 };
-            self.stats.alarms.push(code);
-            self.send(&format!("ALARM:{code}"));
-        }
-        // A line cut short by the reset returns to Grbl's line loop with its
-        // `ok` before the banner: the `$H` of a homing cycle, the line that
-        // hit a soft limit, a dwell.
-        let ok_owed = std::mem::take(&mut self.ok_after_reset);
-        if dwell_cut_short || homing || ok_owed {
-            self.send("ok");
-        }
-        let banner = self.banner();
-        self.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
-        self.after_banner();
     }
 
     /// Stops the executing block where it is (reset or alarm), with a knot.
     fn stop_motion_now(&mut self) {
+        self.ramp = None;
         if let Some(e) = self.exec.take() {
             let p = interpolate(&e, self.now);
             if e.running {
@@ -1172,22 +1227,13 @@ impl Controller {
         }
         self.stats.first_motion_t.get_or_insert(t);
         let pos = self.pos.clone();
+        self.exec = Some(Exec {
+            origin: pos.clone(), start_t: t, end_t: t, start_pos: pos.clone(), end_pos: pos,
+            done: 0.0, speed: entry_speed, running: false, power, block,
+        });
         match self.cfg.motion {
-            MotionModel::Timed => {
-                let dur = self.block_time(&block);
-                let (target, length) = (block.target.clone(), block.kin.length);
-                self.exec = Some(Exec {
-                    origin: pos.clone(), start_t: t, end_t: t + dur, start_pos: pos, end_pos: target,
-                    done: length, speed: 0.0, running: true, power, block,
-                });
-            }
-            MotionModel::Grbl => {
-                self.exec = Some(Exec {
-                    origin: pos.clone(), start_t: t, end_t: t, start_pos: pos.clone(), end_pos: pos,
-                    done: 0.0, speed: entry_speed, running: false, power, block,
-                });
-                self.next_segment(t);
-            }
+            MotionModel::Timed => self.timed_segment(t),
+            MotionModel::Grbl => self.next_segment(t),
         }
     }
 
@@ -1280,8 +1326,10 @@ impl Controller {
         let block_done = e.block.kin.length - e.done <= 1e-9;
         self.push_knot(knot);
         self.stats.last_motion_end_t = Some(t);
-        if self.cfg.motion == MotionModel::Timed || block_done {
+        if block_done {
             self.finish_block(t);
+        } else if self.cfg.motion == MotionModel::Timed {
+            self.timed_segment(t);
         } else {
             self.next_segment(t);
         }
@@ -1292,19 +1340,9 @@ impl Controller {
     /// the profile planned again from there. (A ramp segment, at most 10 ms,
     /// runs out, as Grbl's prepared segments do.)
     fn replan_now(&mut self) {
-        if self.cfg.motion != MotionModel::Grbl {
-            return;
+        if self.cfg.motion == MotionModel::Grbl && self.exec.as_ref().is_some_and(|e| e.end_t - self.now > planner::SEGMENT_S) {
+            self.cut_segment_now();
         }
-        let now = self.now;
-        let Some(e) = self.exec.as_mut() else { return };
-        if !e.running || e.end_t - now <= planner::SEGMENT_S || now <= e.start_t {
-            return;
-        }
-        let here = interpolate(e, now);
-        e.done -= dist(&here, &e.end_pos);
-        e.end_pos = here;
-        e.end_t = now;
-        self.finish_segment();
     }
 
     fn finish_block(&mut self, t: f64) {
@@ -1333,11 +1371,9 @@ impl Controller {
             return;
         }
         if self.hold {
-            // A hold runs on (laser off) to the next point where the machine can
-            // stop within its limits, as Grbl decelerates; then Hold:0. Waiting for
-            // `~` is not starvation.
-            let at_rest_point = e.block.gentle && self.planner.front().is_none_or(|b| b.gentle);
-            if !at_rest_point && !self.planner.is_empty() {
+            // A braking hold goes on along the path into the next block until
+            // it has stopped (then Hold:0; waiting for `~` is not starvation).
+            if self.ramp.is_some_and(|r| r.braking) && !self.braked_to_rest(t) && !self.planner.is_empty() {
                 self.start_next(t, false, 0.0);
             }
         } else if !self.planner.is_empty() && self.may_start() {
@@ -1469,7 +1505,7 @@ impl Controller {
         self.longest_line = self.longest_line.max(len);
         let n = self.line_count;
         if self.cfg.faults.reset_at_line == Some(n) {
-            self.soft_reset();
+            self.hardware_reset();
             return;
         }
         if self.cfg.faults.limit_alarm_at_line == Some(n) {
@@ -1695,22 +1731,28 @@ impl Controller {
     /// closing it, `~` resumes.
     pub fn set_door(&mut self, open: bool) {
         self.watching_rest_laser(|c| {
+            c.door_open = open;
             if open {
-                c.open_door();
-            } else {
-                c.door_open = false;
+                c.door_event();
             }
         });
     }
 
-    fn open_door(&mut self) {
-        self.door_open = true;
+    /// The door opened (its switch) or `0x84` came. Grbl acts on both alike;
+    /// only the switch holds the door open: after `0x84` alone the door reads
+    /// closed as soon as the machine has stopped (`Door:0`), and `~` resumes.
+    fn door_event(&mut self) {
         if self.homing_active() {
             // The door fails a homing cycle (reference §3).
             self.homing_fail(7);
             return;
         }
-        if self.alarm || self.sleep {
+        if self.alarm || self.check_mode {
+            return;
+        }
+        // Grbl says so on every door event it acts on, sleeping included.
+        self.send("[MSG:Check Door]");
+        if self.sleep {
             return;
         }
         self.door_clears_spindle_stop();
@@ -1722,11 +1764,11 @@ impl Controller {
         if self.jogging() {
             self.cancel_jog();
         }
-        if !self.check_mode {
-            self.door = true;
-            self.hold = true;
-            self.pause_starvation();
-        }
+        self.door = true;
+        self.hold = true;
+        self.pause_starvation();
+        self.replan_now();
+        self.begin_braking();
     }
 
     /// Jog cancel: stop the jog and drop every queued jog block.

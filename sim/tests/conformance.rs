@@ -162,7 +162,7 @@ fn realtime_rows() -> Vec<Row> {
         (xy, &[Q, Q], &[Q], &[IDLE]),
         // `!` feed hold: at rest at once; moving, Hold:1 until stopped.
         (xy, &[Q, Q], &[HOLD, Q], &["<Hold:0|MPos:0.000,0.000,0.000|FS:0,0>"]),
-        (xy, &[Q, Q, L("G1X100F600")], &[HOLD, Q], &["<Hold:1|MPos:*|FS:600,0>"]),
+        (xy, &[Q, Q, L("G1X100F600")], &[B(b"!?")], &["<Hold:1|MPos:*|FS:600,0>"]),
         (xy, &[Q, Q, L("G1X1F600"), HOLD, Wait(1.0)], &[Q], &["<Hold:0|MPos:1.000,0.000,0.000|FS:0,0>"]),
         // `~` cycle start: resumes a hold; otherwise nothing.
         (xy, &[Q, Q, HOLD], &[START, Q], &[IDLE]),
@@ -171,19 +171,22 @@ fn realtime_rows() -> Vec<Row> {
         // 0x18 soft reset: banner; while moving the position is lost (ALARM:3).
         (xy, &[], &[RESET], &[BANNER]),
         (xy, &[L("G0X100F100")], &[RESET], &["ALARM:3", BANNER, UNLOCK]),
-        (xy, &[L("G1X100F600"), HOLD, Q], &[RESET], &["ALARM:3", BANNER, UNLOCK]),
+        (xy, &[L("G1X100F600")], &[B(b"!\x18")], &["ALARM:3", BANNER, UNLOCK]),
+        (xy, &[L("G1X100F600"), HOLD, Q], &[RESET], &[BANNER]),
         (xy, &[Q, Q, R(0x91), R(0x96)], &[RESET, Q, Q], &[
             BANNER,
             "<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>",
             "<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>",
         ]),
-        // 0x84 safety door: Door:2 stopping, Door:1 open, Door:0 closed; `~` resumes once closed.
-        (xy, &[Q, Q], &[DOOR, Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
-        (xy, &[Q, Q, L("G1X100F600")], &[DOOR, Q], &["<Door:2|MPos:*|FS:600,0|Pn:D>"]),
-        (xy, &[Q, Q, DOOR], &[Door(false), Q], &["<Door:0|MPos:0.000,0.000,0.000|FS:0,0>"]),
-        (xy, &[Q, Q, DOOR], &[START, Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
-        (xy, &[Q, Q, DOOR, Door(false)], &[START, Q], &[IDLE]),
-        (xy, &[Q, Q, Door(true)], &[Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
+        // 0x84 safety door: Door:2 stopping, Door:1 open (its switch), Door:0
+        // closed; `~` resumes once closed. `0x84` alone leaves the switch closed.
+        (xy, &[Q, Q], &[DOOR, Q], &["[MSG:Check Door]", "<Door:0|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, L("G1X100F600")], &[B(&[0x84, b'?'])], &["[MSG:Check Door]", "<Door:2|MPos:*|FS:600,0>"]),
+        (xy, &[Q, Q, Door(true)], &[Door(false), Q], &["<Door:0|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, &[Q, Q, Door(true)], &[START, Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
+        (xy, &[Q, Q, Door(true), Door(false)], &[START, Q], &[IDLE]),
+        (xy, &[Q, Q, DOOR], &[START, Q], &[IDLE]),
+        (xy, &[Q, Q], &[Door(true), Q], &["[MSG:Check Door]", "<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
         // 0x85 jog cancel (and `!` while jogging): stop, drop the jog, Idle.
         (xy, &[Q, Q, L("$J=X100F600")], &[R(0x85), Q], &["<Idle|MPos:*|FS:0,0>"]),
         (xy, &[Q, Q, L("$J=X100F600"), L("$J=Y100F600")], &[HOLD, Q], &["<Idle|MPos:*|FS:0,0>"]),
@@ -303,7 +306,7 @@ fn states_and_status_fields() {
         (limit_1, &[L("G0X1"), RESET, Q, Q], &[Q], &["<Alarm|MPos:0.000,0.000,0.000|FS:0,0|Pn:X>"]),
         (limit_1, &[L("G0X1"), RESET, Q, Q, L("$X"), L("G0X1"), Wait(0.5)], &[Q], &["<Idle|MPos:1.000,0.000,0.000|FS:0,0>"]),
         (probe_2mm, &[Q, Q, L("G38.2X10F600"), Wait(0.5)], &[Q], &["<Idle|MPos:2.000,0.000,0.000|FS:0,0|Pn:P>"]),
-        (xy, &[Q, Q, DOOR, Door(false), START, Door(true), DOOR], &[Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
+        (xy, &[Q, Q, Door(true), Door(false), START, Door(true), DOOR], &[Q], &["<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
         // A: S (M3), C (M4), F (flood), in the report with Ov.
         (xy, &[Q, Q, L("M3S1"), L("M8")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:SF>"]),
         (xy, &[Q, Q, L("M4S1"), L("M8")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:CF>"]),
@@ -346,7 +349,7 @@ fn system_commands() {
     let mut rows: Vec<Row> = vec![
         (xy, &[], &[L("$")], &["[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]", "ok"]),
         (xy, &[L("G1X100F600")], &[L("$$")], &["error:8"]),
-        (xy, &[L("G1X100F600"), HOLD], &[L("$$")], &["error:8"]),
+        (xy, &[L("G1X100F600")], &[B(b"!$$\n")], &["error:8"]),
         // $x=value: written values read back (integers truncated, booleans 0/1) and survive a reset.
         (xy, &[], &[L("$110=600.5")], &["ok"]),
         (xy, &[], &[L("$10=abc")], &["error:2"]),
@@ -402,8 +405,8 @@ fn system_commands() {
         (xy, &[TRIP, RESET], &[L("$N")], &["$N0=", "$N1=", "ok"]),
         (xy, &[L("$N0=G20"), TRIP], &[RESET], &["ok", BANNER, UNLOCK]),
         (xy, &[L("$N0=G20"), TRIP, RESET], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
-        (xy, &[L("$N0=G20"), DOOR], &[RESET, Q], &[BANNER, "[MSG:Check Door]", "<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D|WCO:0.000,0.000,0.000>"]),
-        (xy, &[L("$N0=G20"), DOOR, RESET, Door(false)], &[START], &[">G20:ok"]),
+        (xy, &[L("$N0=G20"), Door(true)], &[RESET, Q], &[BANNER, "[MSG:Check Door]", "<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D|WCO:0.000,0.000,0.000>"]),
+        (xy, &[L("$N0=G20"), Door(true), RESET, Door(false)], &[START], &[">G20:ok"]),
         (xy, &[L("$22=1"), L("$N0=G20")], &[L("$H")], &[">G20:ok", "ok"]),
         // $C check mode.
         (xy, &[], &[L("$C")], &["[MSG:Enabled]", "ok"]),
@@ -565,7 +568,8 @@ fn alarms() {
         // 6: reset during homing; 7: door opened during homing.
         (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), RESET], &["ALARM:6", "ok", BANNER, UNLOCK]),
         (xy, &[L("$22=1"), L("G0X50"), Wait(1.0)], &[L("$H"), DOOR], &["ALARM:7", "ok", BANNER, UNLOCK]),
-        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0), L("$H"), DOOR], &[Q], &["<Alarm|MPos:*|FS:0,0|Pn:D|WCO:0.000,0.000,0.000>"]),
+        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0), L("$H"), DOOR], &[Q], &["<Alarm|MPos:*|FS:0,0|WCO:0.000,0.000,0.000>"]),
+        (xy, &[L("$22=1"), L("G0X50"), Wait(1.0), L("$H"), Door(true)], &[Q], &["<Alarm|MPos:*|FS:0,0|Pn:D|WCO:0.000,0.000,0.000>"]),
         // 8: the pull-off does not clear the switch; 9: no switch found.
         // (8 and 9: see `homing_and_soft_limits`.)
     ];
@@ -690,7 +694,7 @@ fn grbl_1_1h_parser_and_reports() {
         (xy, &[HOLD, L("$G"), L("$I")], &[START], &[
             "[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]", "ok", "[VER:1.1h.20190830:]", "[OPT:V+,15,128]", "ok",
         ]),
-        (xy, &[L("$10=3"), Q, Q, L("G1X2F600"), HOLD, Wait(1.0)], &[L("G0X0"), Q], &["<Hold:0|MPos:*|Bf:15,123|FS:0,0>"]),
+        (xy, &[L("$10=3"), Q, Q, L("G1X2F600"), HOLD, Wait(1.0)], &[L("G0X0"), Q], &["<Hold:0|MPos:*|Bf:14,123|FS:0,0>"]),
         // 14: `$SLP` answers, then sleeps: later lines get no answer until a reset.
         (xy, &[], &[L("$SLP")], &["ok", "[MSG:Sleeping]"]),
         (xy, &[L("$10=3"), Q, Q, L("$SLP")], &[L("G0X1"), L("$$"), Q], &["<Sleep|MPos:0.000,0.000,0.000|Bf:15,120|FS:0,0>"]),
@@ -769,4 +773,94 @@ fn homing_and_soft_limits() {
         (switch_missing, &[L("$22=1"), L("$H"), Wait(0.5)], &[L("$X")], &["[MSG:Caution: Unlocked]", "ok"]),
     ];
     check(rows);
+}
+
+/// The machine reboots on its 4th line (a brown-out, the reset button).
+fn reboot_4() -> SimConfig {
+    faults(Faults { reset_at_line: Some(4), ..Default::default() })
+}
+
+/// Stopping and resetting as Grbl 1.1h does: a feed hold brakes to `Hold:0`;
+/// a safety door (`0x84`) says so, stops (`Door:2`), reads closed once
+/// stopped (`Door:0`: only the switch holds it open) and resumes on `~`; the
+/// spindle stop override acts only in a hold; a hardware reset is a reboot
+/// (banner only, power-up state, the lines after it run). Reports at `$10=1`.
+#[test]
+fn holds_doors_and_resets() {
+    const MOVING: &[Act] = &[L("$10=1"), Q, Q, L("G1X100F600")];
+    const IDLE1: &str = "<Idle|MPos:0.000,0.000,0.000|FS:0,0>";
+    let rows: &[Row] = &[
+        // 1: a hold brakes (timed model) to Hold:0; `~` is ignored until then.
+        (xy, MOVING, &[HOLD, Q], &["<Hold:0|MPos:*|FS:0,0>"]),
+        (xy, MOVING, &[B(b"!?")], &["<Hold:1|MPos:*|FS:600,0>"]),
+        (xy, MOVING, &[B(b"!~"), Q], &["<Hold:0|MPos:*|FS:0,0>"]),
+        (xy, &[L("$10=1"), Q, Q, L("G1X100F600"), HOLD], &[START, Q], &["<Run|MPos:*|FS:600,0>"]),
+        // 2: the door.
+        (xy, &[L("$10=1"), Q, Q], &[DOOR, Q], &["[MSG:Check Door]", "<Door:0|MPos:0.000,0.000,0.000|FS:0,0>"]),
+        (xy, MOVING, &[B(&[0x84, b'?'])], &["[MSG:Check Door]", "<Door:2|MPos:*|FS:600,0>"]),
+        (xy, MOVING, &[DOOR, Q], &["[MSG:Check Door]", "<Door:0|MPos:*|FS:0,0>"]),
+        (xy, &[L("$10=1"), Q, Q, L("G1X100F600"), DOOR], &[START, Q], &["<Run|MPos:*|FS:600,0>"]),
+        (xy, &[L("$10=1"), Q, Q, L("G1X100F600")], &[B(&[0x84, b'~']), Q], &["[MSG:Check Door]", "<Door:0|MPos:*|FS:0,0>"]),
+        (xy, &[L("$10=1"), DOOR, Q, Q], &[RESET, Q], &[BANNER, "<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>"]),
+        (xy, &[L("$10=1"), Q, Q], &[Door(true), START, Q], &["[MSG:Check Door]", "<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D>"]),
+        (xy, &[L("$10=1"), Q, Q, Door(true)], &[RESET, Q], &[BANNER, "[MSG:Check Door]", "<Door:1|MPos:0.000,0.000,0.000|FS:0,0|Pn:D|WCO:0.000,0.000,0.000>"]),
+        (xy, &[L("$10=1"), Q, Q, Door(true), Door(false)], &[START, Q], &[IDLE1]),
+        (xy, &[L("$C")], &[DOOR], &[]),
+        // 11: 0x9E outside a hold is ignored: a later hold keeps the laser
+        // off, `~` brings it back with the motion.
+        (xy, &[L("$10=1"), L("M3S500"), L("G1X100F600"), Q, Q], &[R(0x9E), Q], &["<Run|MPos:*|FS:600,500>"]),
+        (xy, &[L("$10=1"), L("M3S500"), L("G1X100F600"), Q, Q, R(0x9E)], &[HOLD, Q], &["<Hold:0|MPos:*|FS:0,0|Ov:100,100,100>"]),
+        (xy, &[L("$10=1"), L("M3S500"), L("G1X100F600"), Q, Q, R(0x9E), HOLD, Q], &[START, Q], &["[MSG:Restoring spindle]", "<Run|MPos:*|FS:600,500|Ov:100,100,100|A:S>"]),
+        // 16: a hardware reset: the banner only (no ALARM:3 though moving),
+        // position 0 where it stopped, G90 again; the next line runs.
+        (reboot_4, &[L("$10=1"), L("G91"), L("G1X50F600")], &[L("G0X1"), Q], &[BANNER, "<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>"]),
+        (reboot_4, &[L("$10=1"), L("G91"), L("G1X50F600"), L("G0X1")], &[L("G0X1"), Wait(0.5), Q, L("$G")], &[
+            "ok",
+            "<Idle|MPos:1.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>",
+            "[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]",
+            "ok",
+        ]),
+        (reboot_4, &[L("$22=1"), L("$10=1"), L("G10L2P1X7")], &[L("G0X1"), Q, L("$#")], &[
+            BANNER, UNLOCK, "<Alarm|MPos:0.000,0.000,0.000|FS:0,0|WCO:7.000,0.000,0.000>",
+            "[G54:7.000,0.000,0.000]", "[G55:0.000,0.000,0.000]", "[G56:0.000,0.000,0.000]", "[G57:0.000,0.000,0.000]",
+            "[G58:0.000,0.000,0.000]", "[G59:0.000,0.000,0.000]", "[G28:0.000,0.000,0.000]", "[G30:0.000,0.000,0.000]",
+            "[G92:0.000,0.000,0.000]", "[TLO:0.000]", "[PRB:0.000,0.000,0.000:0]", "ok",
+        ]),
+    ];
+    check(rows);
+}
+
+/// A hold in the default (timed) motion model stops within a fraction of a
+/// second, within every axis limit, laser off from the hold on; `~` goes on
+/// along the path within the limits too, and the move ends where programmed.
+#[test]
+fn a_timed_hold_brakes_within_the_limits_and_resumes() {
+    let mut s = Sim::new(cfg());
+    for line in ["$10=1", "M3S500", "G1X20Y10F1200", "G1X40Y10", "G1X60Y30"] {
+        s.send(&format!("{line}\n"));
+    }
+    s.run_until(0.5);
+    let moving = s.ctl.position();
+    s.realtime(b'!');
+    let hold_t = s.t;
+    s.run_until(0.6);
+    s.realtime(b'?');
+    s.run_until(0.61);
+    let report = s.texts().last().unwrap().to_string();
+    assert!(report.starts_with("<Hold:0|"), "{report}");
+    let stopped = s.ctl.position();
+    let braked = ((stopped[0] - moving[0]).powi(2) + (stopped[1] - moving[1]).powi(2)).sqrt();
+    assert!(braked > 0.0 && braked < 1.0, "braked over {braked} mm");
+    s.run_until(1.5);
+    assert_eq!(s.ctl.position(), stopped, "held still");
+    s.realtime(b'~');
+    s.run_until(6.0);
+    assert_eq!(s.ctl.position(), vec![60.0, 30.0, 0.0]);
+    let mut checker = laserd_sim::limits::LimitChecker::new(&s.ctl.config().axes);
+    s.knots.iter().for_each(|k| checker.push(k));
+    let report = checker.finish();
+    assert_eq!(report.violations, 0, "{:?}", report.first_violation);
+    // Dark from the hold until the resume.
+    assert!(s.knots.iter().filter(|k| k.t > hold_t + 1e-9 && k.t < 1.5).all(|k| k.power == 0.0));
+    assert!(s.knots.iter().any(|k| k.t > 1.6 && k.power == 500.0), "lit again after `~`");
 }
