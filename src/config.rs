@@ -479,7 +479,8 @@ pub struct SimulatorConfig {
     /// programmed time) or `grbl` (Grbl 1.1's trapezoids and junction speeds).
     #[serde(default)]
     pub motion: laserd_sim::controller::MotionModel,
-    /// Which firmware the simulated controller answers as: `grbl` or `grblhal`.
+    /// Which firmware the simulated controller answers as: `grbl` (Grbl 1.1h:
+    /// X, Y, Z only, so no scanner) or `grblhal`.
     #[serde(default)]
     pub flavor: laserd_sim::controller::Flavor,
 }
@@ -600,6 +601,15 @@ impl MachineConfig {
             }
             if sc.axis_letters[0] == sc.axis_letters[1] {
                 return Err("scanner.axis_letters: the two letters must differ".into());
+            }
+            // Grbl 1.1h has X, Y and Z only: two scanner axes beside the stage's
+            // take a grblHAL board.
+            if self.simulator.flavor == laserd_sim::controller::Flavor::Grbl {
+                return Err(format!(
+                    "[simulator] flavor: \"grbl\" is Grbl 1.1h, which has only the axes X, Y and Z, not the scanner's {}: \
+                     use flavor = \"grblhal\" (and its buffers: serial.rx_buffer = 1024, simulator.planner_blocks = 100)",
+                    sc.axis_letters.join(" ")
+                ));
             }
         }
         let laser = &self.laser;
@@ -764,6 +774,18 @@ mod tests {
         assert_eq!(c.stage.travel_x, 300.0);
         assert_eq!(c.scanner.as_ref().unwrap().usable_half_field, 32.0);
         assert!(c.scanner.as_ref().unwrap().split_oversize);
+    }
+
+    /// Grbl 1.1h has X, Y and Z only: the galvo's U and V take grblHAL,
+    /// and the error says where and what instead.
+    #[test]
+    fn a_scanner_needs_the_grblhal_flavour() {
+        let text = default_text();
+        assert!(text.contains("flavor = \"grblhal\"\n"));
+        let err = MachineConfig::parse(&text.replace("flavor = \"grblhal\"\n", "flavor = \"grbl\"\n"), "t.toml").unwrap_err().to_string();
+        assert!(err.contains("t.toml: [simulator] flavor:") && err.contains("U V") && err.contains("flavor = \"grblhal\""), "{err}");
+        // The default flavour is grbl: leaving it out with a scanner is the same error.
+        assert!(MachineConfig::parse(&text.replace("flavor = \"grblhal\"\n", ""), "t.toml").is_err());
     }
 
     #[test]

@@ -133,8 +133,9 @@ enum Command {
         #[arg(long)]
         motion: Option<MotionModel>,
         /// The firmware it answers as (default: the config's [simulator]
-        /// flavor). For grblhal also set [serial] rx_buffer and
-        /// [simulator] planner_blocks to the board's (1024, 100).
+        /// flavor): grbl (Grbl 1.1h, axes X Y Z only) or grblhal. For
+        /// grblhal also set [serial] rx_buffer and [simulator]
+        /// planner_blocks to the board's (1024, 100).
         #[arg(long)]
         flavor: Option<Flavor>,
         /// Inject a fault, e.g. `--fault error-on-line=40`; repeatable. Faults:
@@ -756,6 +757,10 @@ fn parse_faults(specs: &[String]) -> Result<Faults> {
 
 fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: Option<&Path>, faults: Faults) -> Result<ExitCode> {
     let sim = run::sim_config(machine, faults);
+    // `--flavor grbl` with a scanner config: Grbl 1.1h has no U or V.
+    if let Some(e) = sim.flavor_error() {
+        return Err(Error::Config(format!("--flavor / [simulator] flavor: {e}")));
+    }
     let setup = run::run_setup(machine, &sim);
     let device = laserd_sim::pty::open_pty(link).map_err(|e| Error::Io(format!("cannot open a pseudo-terminal: {e}")))?;
     let recording = record.map(Recording::create).transpose()?;

@@ -466,6 +466,11 @@ mod tests {
         assert_eq!(Response::parse("error:20"), Response::Error(20));
         assert_eq!(Response::parse("ALARM:2\r\n"), Response::Alarm(2));
         assert_eq!(Response::parse(&format!("{BANNER}\r\n")), Response::Banner(BANNER.to_string()));
+        // grblHAL's banner as its report.c prints it (compatibility level 0),
+        // and at a higher level, where it names itself Grbl.
+        assert_eq!(BANNER_HAL, "GrblHAL 1.1f ['$' or '$HELP' for help]");
+        assert_eq!(Response::parse(BANNER_HAL), Response::Banner(BANNER_HAL.to_string()));
+        assert!(matches!(Response::parse("Grbl 1.1f ['$' for help]"), Response::Banner(_)));
         assert_eq!(Response::parse("[MSG:Pgm End]"), Response::Message("Pgm End".into()));
         assert_eq!(Response::parse("[GC:G0 G54]"), Response::Feedback("[GC:G0 G54]".into()));
         assert_eq!(Response::parse("error:x"), Response::Other("error:x".into()));
