@@ -4,7 +4,6 @@
 //! resume and abort to a running stream. It never starts or resumes motion
 //! on its own: after a reconnect the machine waits for the operator.
 
-use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -252,7 +251,11 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                             // refused resume leaves the job as it was.
                             let mut at = 0;
                             let job = take(daemon, Some(&id), JobState::Interrupted, |job| {
-                                at = from.unwrap_or(job.last_executed_line + 1);
+                                at = match (from, job.last_executed_line) {
+                                    (Some(from), _) => from,
+                                    (None, Some(done)) => done + 1,
+                                    (None, None) => return Err(Error::Conflict(format!("job {id}: which lines ran is unknown: give the line to resume from"))),
+                                };
                                 if at == 0 || at > job.lines_total {
                                     return Err(Error::Conflict(format!("job {id} has {} lines: cannot resume at line {at}", job.lines_total)));
                                 }
@@ -410,17 +413,18 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     let shown = program.display().to_string();
     let lines = crate::stream::FileLines::new(std::io::BufReader::new(file), &shown);
     connection.expect_start(job.start.clone().filter(|_| resume_from.is_none()));
-    // The sender's own count of lines executed (from `Bf:` in the status
-    // reports; a lower bound): where an interrupted job resumes.
+    // The sender's lower bound on the lines executed (from its answers and
+    // status reports; unknown when they prove nothing): where an interrupted
+    // job resumes.
     let executed_line = connection.executed_line();
-    executed_line.store(resume_from.map_or(0, |from| from - 1), Ordering::Relaxed);
+    executed_line.set(Some(resume_from.map_or(0, |from| from - 1)));
     // The progress file knows the job runs before its first line does.
-    let save_progress = |state: JobState, acked: usize, executed: usize, ended_at: Option<f64>| {
+    let save_progress = |state: JobState, acked: usize, executed: Option<usize>, ended_at: Option<f64>| {
         if let Err(e) = progress.write(&SavedProgress { state, last_acked_line: acked, last_executed_line: executed, ended_at }) {
             tracing::error!("job {}: progress: {e}", job.id);
         }
     };
-    save_progress(JobState::Running, resume_from.map_or(0, |from| from - 1), resume_from.map_or(0, |from| from - 1), None);
+    save_progress(JobState::Running, resume_from.map_or(0, |from| from - 1), Some(resume_from.map_or(0, |from| from - 1)), None);
     let name = job.name.clone();
     let describe = move |n: usize, text: &str| format!("{name}:{n} `{text}`");
     let (control, mut control_rx) = mpsc::unbounded_channel();
@@ -461,7 +465,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                     // come at most every 10 ms): what a restart after a crash
                     // or power loss resumes from.
                     let sent = running.lock().unwrap_or_else(|e| e.into_inner()).last_sent;
-                    let executed = executed_line.load(Ordering::Relaxed);
+                    let executed = executed_line.get();
                     save_progress(JobState::Running, sent, executed, None);
                     let _ = daemon.store().change(&job.id, |j| {
                         j.last_acked_line = sent;
@@ -516,7 +520,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
         r.recorder = None;
         r.job = None;
-        (r.last_sent, executed_line.load(Ordering::Relaxed), r.bytes)
+        (r.last_sent, executed_line.get(), r.bytes)
     };
     let recording_cut = recording.finish().err().map(|e| format!("the recording is cut short: {e}"));
     if let Some(why) = &recording_cut {
@@ -531,8 +535,8 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     let (state, message, executed) = record;
     // The end in the progress file first: it needs no new space.
     let (acked, executed_final) = match state {
-        JobState::Completed => (job.lines_total, job.lines_total),
-        _ => (outcome.as_ref().map_or(last_sent, |o| o.last_acked_line), executed.unwrap_or(executed_estimate)),
+        JobState::Completed => (job.lines_total, Some(job.lines_total)),
+        _ => (outcome.as_ref().map_or(last_sent, |o| o.last_acked_line), executed.or(executed_estimate)),
     };
     save_progress(state, acked, executed_final, Some(ended));
     daemon.status.send_modify(|s| s.job = None);

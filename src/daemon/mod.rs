@@ -165,7 +165,7 @@ impl Daemon {
     pub fn announce(&self, job: &JobRecord) {
         // Every call is a change of state: the journal's account of the job.
         let state = format!("{:?}", job.state).to_lowercase();
-        let line = if job.state.is_final() || job.state == JobState::Interrupted { format!(", last executed line {} of {}", job.last_executed_line, job.lines_total) } else { String::new() };
+        let line = if job.state.is_final() || job.state == JobState::Interrupted { format!(", last executed line {} of {}", queue::shown_line(job.last_executed_line), job.lines_total) } else { String::new() };
         match &job.message {
             Some(why) => tracing::info!("job {} ({}): {state}{line}: {why}", job.id, job.name),
             None => tracing::info!("job {} ({}): {state}{line}", job.id, job.name),

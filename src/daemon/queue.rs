@@ -65,9 +65,12 @@ pub struct JobRecord {
     pub lines_total: usize,
     /// The last line the controller accepted into its buffer.
     pub last_acked_line: usize,
-    /// The last line whose motion the controller finished, as its status
-    /// reports tell: where an interrupted job resumes.
-    pub last_executed_line: usize,
+    /// A lower bound on the last line the controller executed (every line up
+    /// to it has run, as its answers and status reports prove): where an
+    /// interrupted job resumes. `None` when they proved nothing (a controller
+    /// without `Bf:` in its reports that never came to rest): a resume must
+    /// then name its line.
+    pub last_executed_line: Option<usize>,
     /// Planned machine time of the program (s), for the ETA.
     pub planned_time_s: Option<f64>,
     /// Axis positions the planned program starts from (the machine is
@@ -118,6 +121,11 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         std::fs::File::open(parent).and_then(|d| d.sync_all()).map_err(io)?;
     }
     Ok(())
+}
+
+/// An executed line as messages show it (`unknown` for `None`).
+pub fn shown_line(line: Option<usize>) -> String {
+    line.map_or_else(|| "unknown".to_string(), |n| n.to_string())
 }
 
 /// Unix time now (s).
@@ -172,7 +180,7 @@ impl Store {
         for id in cut_short {
             store.update(&id, |j| {
                 j.state = JobState::Interrupted;
-                j.message = Some(format!("the daemon stopped while the job ran; last executed line {}", j.last_executed_line));
+                j.message = Some(format!("the daemon stopped while the job ran; last executed line {}", shown_line(j.last_executed_line)));
             })?;
         }
         // A job accepted but not yet queued (the daemon stopped while planning)
@@ -254,7 +262,7 @@ impl Store {
             ended_at: None,
             lines_total: 0,
             last_acked_line: 0,
-            last_executed_line: 0,
+            last_executed_line: Some(0),
             planned_time_s: None,
             start: None,
             message: None,
@@ -415,7 +423,7 @@ const PROGRESS_BYTES: usize = 512;
 pub struct Progress {
     pub state: JobState,
     pub last_acked_line: usize,
-    pub last_executed_line: usize,
+    pub last_executed_line: Option<usize>,
     #[serde(default)]
     pub ended_at: Option<f64>,
 }
@@ -521,7 +529,7 @@ mod tests {
             store
                 .update(&a, |j| {
                     j.state = JobState::Running;
-                    j.last_executed_line = 120;
+                    j.last_executed_line = Some(120);
                 })
                 .unwrap();
             (a, b, c)
@@ -531,7 +539,7 @@ mod tests {
         assert_eq!(store.order(), &[c.clone(), b.clone()], "the waiting jobs in their order");
         let a = store.get(&a).unwrap();
         assert_eq!(a.state, JobState::Interrupted);
-        assert_eq!(a.last_executed_line, 120);
+        assert_eq!(a.last_executed_line, Some(120));
         assert!(a.message.as_deref().unwrap().contains("120"));
         assert_eq!(std::fs::read(store.source_path(&b).unwrap()).unwrap(), b"G1X1\n");
         assert!(store.source_path(&c).unwrap().ends_with("source.dxf"));
@@ -585,24 +593,24 @@ mod tests {
                 store.update(id, |j| {
                     j.state = JobState::Running;
                     j.lines_total = 8038;
-                    j.last_executed_line = 6818;
+                    j.last_executed_line = Some(6818);
                 })
                 .unwrap();
             }
             // The disk filled up: job.json stayed at line 6818 while the
             // progress files, written in place, went on.
             let progress = ProgressFile::create(&store.progress_path(&done)).unwrap();
-            progress.write(&Progress { state: JobState::Running, last_acked_line: 8000, last_executed_line: 7990, ended_at: None }).unwrap();
-            progress.write(&Progress { state: JobState::Completed, last_acked_line: 8038, last_executed_line: 8038, ended_at: Some(1.0) }).unwrap();
+            progress.write(&Progress { state: JobState::Running, last_acked_line: 8000, last_executed_line: Some(7990), ended_at: None }).unwrap();
+            progress.write(&Progress { state: JobState::Completed, last_acked_line: 8038, last_executed_line: Some(8038), ended_at: Some(1.0) }).unwrap();
             let progress = ProgressFile::create(&store.progress_path(&cut)).unwrap();
-            progress.write(&Progress { state: JobState::Running, last_acked_line: 7700, last_executed_line: 7690, ended_at: None }).unwrap();
+            progress.write(&Progress { state: JobState::Running, last_acked_line: 7700, last_executed_line: Some(7690), ended_at: None }).unwrap();
             (done, cut)
         };
         let store = Store::open(dir.path()).unwrap();
         let done = store.get(&done).unwrap();
-        assert_eq!((done.state, done.last_executed_line), (JobState::Completed, 8038), "completed, not offered for resume at 6818");
+        assert_eq!((done.state, done.last_executed_line), (JobState::Completed, Some(8038)), "completed, not offered for resume at 6818");
         let cut = store.get(&cut).unwrap();
-        assert_eq!((cut.state, cut.last_acked_line, cut.last_executed_line), (JobState::Interrupted, 7700, 7690));
+        assert_eq!((cut.state, cut.last_acked_line, cut.last_executed_line), (JobState::Interrupted, 7700, Some(7690)));
         // And the records are on disk now.
         let on_disk: JobRecord = serde_json::from_slice(&std::fs::read(store.job_dir(&done.id).join("job.json")).unwrap()).unwrap();
         assert_eq!(on_disk.state, JobState::Completed);

@@ -7,4 +7,4 @@ pub mod resume;
 pub mod sender;
 
 pub use file_lines::FileLines;
-pub use sender::{clean_line, quote, stream, Connection, Control, LineError, LinkEvent, SenderOptions, StreamOutcome, BUILD_INFO};
+pub use sender::{clean_line, quote, stream, Connection, Control, ExecutedLine, LineError, LinkEvent, SenderOptions, StreamOutcome, BUILD_INFO};

@@ -24,6 +24,7 @@ use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader, ReadHalf, WriteHalf};
 use tokio::time::{timeout, Instant};
 
+use super::resume::ModalState;
 use crate::error::{Error, Result};
 
 #[derive(Debug, Clone)]
@@ -66,6 +67,10 @@ pub const MAX_CONTROLLER_LINE: usize = 4096;
 /// far more than any planner holds (Grbl 15 to 35 blocks, grblHAL hundreds).
 const MAX_PENDING_MOTION: usize = 4096;
 
+/// Time a dwell may take beyond its `P` before its line counts as lost:
+/// Grbl dwells in steps of 50 ms and a busy host reads late.
+const DWELL_MARGIN_S: f64 = 1.0;
+
 /// How many characters of a G-code line a message quotes.
 const QUOTE_CHARS: usize = 80;
 
@@ -74,7 +79,9 @@ impl SenderOptions {
         SenderOptions {
             rx_buffer,
             status_interval: Duration::from_secs_f64(1.0 / status_hz),
-            silence_timeout: Duration::from_millis(800),
+            // Three requests at least go unanswered before a controller counts
+            // as silent (see the stream's tick).
+            silence_timeout: Duration::from_millis(800).max(Duration::from_secs_f64(3.0 / status_hz)),
             expect_start: None,
             check_mode: false,
             send_response: false,
@@ -114,8 +121,10 @@ pub struct StreamOutcome {
     pub errors: Vec<LineError>,
     pub alarms: Vec<u16>,
     pub last_acked_line: usize,
-    /// The last line whose motion the controller has finished, as far as its
-    /// status reports tell (`None` when it does not report its buffers).
+    /// A lower bound on the last line the controller has executed: every
+    /// line up to it has run, as its answers and status reports prove (see
+    /// `Book`); `None` when they prove nothing (a controller without `Bf:`
+    /// that never came to rest, or of unknown firmware).
     pub last_executed_line: Option<usize>,
     pub completed: bool,
     /// Why the stream stopped early, one line naming the place.
@@ -363,41 +372,115 @@ where
 pub const BUILD_INFO: &str = "$I";
 
 /// The sender's books: lines sent and not yet answered (their bytes are what
-/// the controller's receive buffer holds or will hold), and which answered
-/// lines the machine has executed, from the free planner blocks of status
-/// reports (`Bf:`): the newest acknowledged motion lines, as many as the
-/// planner holds blocks, are still to run; the ones before are done.
+/// the controller's receive buffer holds or will hold), and a lower bound on
+/// the lines the machine has executed.
+///
+/// # Why `last_executed` is a lower bound
+/// Lines are answered in order, and a line's `ok` comes once its blocks are
+/// in the planner (or it is done, for a line without motion), so an `ok` read
+/// before a status report was sent before the report was made: every line
+/// acknowledged by then has its blocks in the planner, in the step-segment
+/// buffer, or done. A report bounds what is not done yet:
+/// * Idle with `Bf:` showing every planner block free: no block is queued and
+///   the segment buffer is empty (Grbl leaves its cycle only once it ran
+///   out), so every acknowledged line is done.
+/// * Idle without `Bf:`: the same once two reports in a row say so, each asked
+///   with no line in flight. The first may come from the instant after the
+///   last `ok` and before Grbl starts the cycle (it handles a report before a
+///   cycle start in the same pass); the next was made after that pass.
+/// * Otherwise, with `Bf:` from a controller whose segment buffer is known:
+///   at most `queued + segment_blocks` blocks are not done, `queued` from
+///   `Bf:` (blocks of a line still being parsed only add to it) and
+///   `segment_blocks` the blocks the controller may have cut into step
+///   segments and discarded from its planner though they have yet to run.
+///   A line is done once the lines after it surely make that many blocks;
+///   a line is counted as making a block only when it is a move that takes
+///   some axis at least one step from where the line before left it (a move
+///   to where the machine already is, or to somewhere unknown, counts none;
+///   an arc or a `G28` may make more than one, which only lowers the bound).
+///
+/// Anything else (a running controller without `Bf:`, or of unknown firmware)
+/// says nothing, and the bound stays where it was.
 #[derive(Debug, Default)]
 struct Book {
     fifo: VecDeque<(usize, String)>,
     in_flight: usize,
     last_acked_text: String,
     planner_blocks: Option<usize>,
-    /// Acknowledged motion lines not yet known to be done, oldest first.
-    pending_motion: VecDeque<(usize, String)>,
+    /// Blocks the controller may hold in its step-segment buffer, no longer in
+    /// `Bf:` (see `segment_run_ahead`); `None` for firmware where it is unknown.
+    segment_blocks: Option<usize>,
+    /// The longest step of any axis (mm), from `$100`…; `None` until `$$` is read.
+    step_mm: Option<f64>,
+    /// Where the program's moves take the machine, to tell which lines surely
+    /// make a planner block.
+    moves: Option<ModalState>,
+    /// Acknowledged lines not yet known to be done, oldest first, with the
+    /// planner blocks each surely made (0 or 1).
+    pending: VecDeque<(usize, String, usize)>,
     last_acked: usize,
+    /// The lines before the stream's first: taken as done.
+    base: usize,
+    /// The last line known done from the controller's reports.
     last_executed: Option<usize>,
     last_executed_text: String,
-    /// After a reset: nothing acknowledged later than this has run.
-    executed_cap: Option<(usize, String)>,
     /// Lines sent and lines answered, ever (answers come in order).
     sent_total: u64,
     answered_total: u64,
-    /// `sent_total` when each status request not yet answered went out.
-    status_requests: VecDeque<u64>,
-    /// Lines sent before the request the latest status report answers: a
-    /// controller reporting an empty, idle queue has answered all of them.
-    /// `None` for a report nobody asked for (an auto-report).
-    report_covers: Option<u64>,
-    /// `last_executed` for whoever watches the stream from outside (kept
-    /// across streams: the handle is handed out once).
-    executed_line: Arc<AtomicUsize>,
+    /// `sent_total` and `answered_total` when each status request not yet
+    /// answered went out.
+    status_requests: VecDeque<(u64, u64)>,
+    /// The same for the request the latest status report answers: a
+    /// controller reporting an empty, idle queue has answered every line sent
+    /// before it. `None` for a report nobody asked for (an auto-report).
+    report_covers: Option<(u64, u64)>,
+    /// The latest report showed Idle and was asked with no line in flight.
+    idle_before: bool,
+    /// `executed()` for whoever watches the stream from outside (kept across
+    /// streams: the handle is handed out once).
+    executed_line: ExecutedLine,
     /// The controller broke the protocol (garbage, answers to nothing):
     /// what it answers after that is not taken as progress.
     distrusted: bool,
 }
 
+/// The blocks a controller may have cut into its step-segment buffer and
+/// discarded from its planner (so `Bf:` no longer counts them) while they have
+/// yet to run. Grbl 1.1 prepares segments of at most 10 ms, each of one block,
+/// in a ring of 6 with one slot kept open (stepper.c `SEGMENT_BUFFER_SIZE`):
+/// up to 5 blocks. grblHAL's ring is 10: 9. Other firmware: unknown.
+fn segment_run_ahead(banner: &str) -> Option<usize> {
+    if banner.starts_with("GrblHAL ") {
+        Some(9)
+    } else if banner.starts_with("Grbl 1.1") {
+        Some(5)
+    } else {
+        None
+    }
+}
+
+/// The step taken for an axis whose steps per mm are not known (`$$` not
+/// read): 1 mm. A machine has many steps per mm; a smaller move is not taken
+/// to make a block.
+const UNKNOWN_STEP_MM: f64 = 1.0;
+
+/// Every axis letter Grbl and grblHAL know: the moves are followed on all.
+const AXIS_LETTERS: [char; 9] = ['X', 'Y', 'Z', 'A', 'B', 'C', 'U', 'V', 'W'];
+
 impl Book {
+    /// Fresh books for a stream whose lines before `first_line` are done:
+    /// what is known of the controller stays.
+    fn for_stream(&self, first_line: usize) -> Book {
+        Book {
+            planner_blocks: self.planner_blocks,
+            segment_blocks: self.segment_blocks,
+            step_mm: self.step_mm,
+            base: first_line.saturating_sub(1),
+            executed_line: self.executed_line.clone(),
+            ..Book::default()
+        }
+    }
+
     fn sent(&mut self, line: usize, text: &str) {
         self.in_flight += text.len() + 1;
         self.sent_total += 1;
@@ -409,13 +492,13 @@ impl Book {
         if self.status_requests.len() >= 256 {
             self.status_requests.pop_front();
         }
-        self.status_requests.push_back(self.sent_total);
+        self.status_requests.push_back((self.sent_total, self.answered_total));
     }
 
     /// Lines sent before the latest report was asked for and still unanswered
     /// although it shows the controller idle with nothing queued: lost.
     fn lost_before_report(&self) -> u64 {
-        self.report_covers.map_or(0, |c| c.saturating_sub(self.answered_total))
+        self.report_covers.map_or(0, |(sent, _)| sent.saturating_sub(self.answered_total))
     }
 
     fn distrust(&mut self) {
@@ -445,77 +528,108 @@ impl Book {
                 self.status(s);
                 None
             }
-            Response::Banner(_) => {
+            Response::Banner(banner) => {
+                self.segment_blocks = segment_run_ahead(banner);
                 self.answered_total = self.sent_total;
                 self.status_requests.clear();
                 self.report_covers = None;
+                self.idle_before = false;
                 // A reset flushed everything queued: those lines never run, and
                 // lines still unanswered will never be answered.
-                self.pending_motion.clear();
+                self.pending.clear();
                 self.fifo.clear();
                 self.in_flight = 0;
-                if self.last_acked > 0 {
-                    self.executed_cap = Some((self.last_executed.unwrap_or(0), self.last_executed_text.clone()));
-                }
                 None
             }
             _ => None,
         }
     }
 
-    /// Shows `last_executed` to the watchers.
-    fn publish(&self) {
-        if let Some(line) = self.last_executed {
-            self.executed_line.store(line, Ordering::Relaxed);
+    /// The last line surely executed: the lines before the stream's first,
+    /// or what the reports showed done since. Unknown once a line has been
+    /// acknowledged (it may have run) and no report has told anything.
+    fn executed(&self) -> Option<usize> {
+        match self.last_executed {
+            Some(line) => Some(line.max(self.base)),
+            None if self.last_acked == 0 || self.base > 0 => Some(self.base),
+            None => None,
         }
+    }
+
+    /// Shows `executed()` to the watchers.
+    fn publish(&self) {
+        self.executed_line.set(self.executed());
     }
 
     fn acked(&mut self, line: usize, text: &str) {
         self.last_acked = line;
-        // Without the planner's size nothing can be known executed: keep nothing.
-        if self.planner_blocks.is_none() {
-            return;
+        let blocks = self.sure_blocks(text);
+        // More than any planner holds: a controller that acknowledges without
+        // reporting. Bounded memory; the oldest is dropped without being taken
+        // for executed (the bound stays low).
+        if self.pending.len() >= MAX_PENDING_MOTION {
+            self.pending.pop_front();
         }
-        if is_motion(text) {
-            // More than any planner holds: a controller that acknowledges
-            // without reporting. Bounded memory; the oldest is dropped
-            // without being taken for executed (the bound stays low).
-            if self.pending_motion.len() >= MAX_PENDING_MOTION {
-                self.pending_motion.pop_front();
-            }
-            self.pending_motion.push_back((line, text.to_string()));
-        } else if self.pending_motion.is_empty() {
-            self.executed(line, text);
-        }
+        self.pending.push_back((line, text.to_string(), blocks));
     }
 
-    fn executed(&mut self, line: usize, text: &str) {
-        self.last_executed = Some(line);
-        text.clone_into(&mut self.last_executed_text);
+    /// The planner blocks a line surely makes: 1 for a straight move or an
+    /// arc whose end is at least a step (`step_mm`, with a margin for the
+    /// controller's single-precision arithmetic) from where the move before
+    /// ended on some axis, 0 otherwise: a move in place, a probe (it may stop
+    /// at once), anything after which the position is unknown, anything that
+    /// shifts the coordinates (the next move is then taken from an unknown
+    /// place), and every line without motion.
+    fn sure_blocks(&mut self, text: &str) -> usize {
+        let moves = self.moves.get_or_insert_with(|| ModalState::new(&AXIS_LETTERS));
+        let before = moves.position.clone();
+        moves.apply(text);
+        let t = text.to_ascii_uppercase();
+        if ["G10", "G92", "G43", "G49", "G5"].iter().any(|g| t.contains(g)) {
+            moves.position.iter_mut().for_each(|p| *p = None);
+            return 0;
+        }
+        if !is_motion(&t) || t.contains("G38") {
+            return 0;
+        }
+        let step = 1.01 * self.step_mm.unwrap_or(UNKNOWN_STEP_MM);
+        let moved = before.iter().zip(&moves.position).any(|(a, b)| matches!((a, b), (Some(a), Some(b)) if (b - a).abs() >= step));
+        usize::from(moved)
+    }
+
+    /// The pending lines, oldest first, up to `n` of them, are done.
+    fn done(&mut self, n: usize) {
+        for _ in 0..n {
+            if let Some((line, text, _)) = self.pending.pop_front() {
+                self.last_executed = Some(line);
+                self.last_executed_text = text;
+            }
+        }
     }
 
     fn status(&mut self, s: &StatusReport) {
-        let (Some(total), Some((free, _))) = (self.planner_blocks, s.buffer) else {
-            return;
-        };
-        let queued = total.saturating_sub(free as usize);
-        while self.pending_motion.len() > queued {
-            if let Some((line, text)) = self.pending_motion.pop_front() {
-                self.executed(line, &text);
-            }
-        }
-        if self.pending_motion.is_empty() {
-            match self.executed_cap.take() {
-                Some((cap, text)) if cap < self.last_acked => {
-                    self.executed(cap, &text);
-                    self.executed_cap = Some((cap, text));
+        let asked_with_nothing_in_flight = self.report_covers.is_some_and(|(sent, answered)| sent == answered);
+        let idle = s.state == MachineState::Idle;
+        let idle_before = std::mem::replace(&mut self.idle_before, idle && asked_with_nothing_in_flight);
+        match (s.buffer, self.planner_blocks) {
+            (Some((free, _)), Some(total)) if idle && free as usize >= total => self.done(self.pending.len()),
+            (None, _) if idle && asked_with_nothing_in_flight && idle_before => self.done(self.pending.len()),
+            (Some((free, _)), Some(total)) => {
+                let Some(run_ahead) = self.segment_blocks else { return };
+                let not_done = total.saturating_sub(free as usize) + run_ahead;
+                // The newest lines that surely hold `not_done` blocks; the older are done.
+                let mut blocks = 0;
+                let mut keep = 0;
+                for (_, _, b) in self.pending.iter().rev() {
+                    if blocks >= not_done {
+                        break;
+                    }
+                    blocks += b;
+                    keep += 1;
                 }
-                cap => {
-                    self.executed_cap = cap;
-                    let text = self.last_acked_text.clone();
-                    self.executed(self.last_acked, &text);
-                }
+                self.done(self.pending.len() - keep);
             }
+            _ => {}
         }
     }
 
@@ -525,12 +639,29 @@ impl Book {
             0 => "none".to_string(),
             n => describe(n, &quote(&self.last_acked_text)),
         };
-        let executed = match self.last_executed {
-            None => "unknown (the controller does not report its buffers)".to_string(),
-            Some(0) => "none".to_string(),
-            Some(n) => describe(n, &quote(&self.last_executed_text)),
+        let executed = match (self.executed(), self.last_executed) {
+            (None, _) => "unknown (no status report has told which lines ran)".to_string(),
+            (Some(0), _) => "none".to_string(),
+            (Some(n), Some(m)) if n == m => describe(n, &quote(&self.last_executed_text)),
+            (Some(n), _) => format!("line {n} (before the resumed part)"),
         };
-        format!("last acknowledged: {acked}; last executed: {executed}")
+        format!("last acknowledged: {acked}; last executed (a lower bound): {executed}")
+    }
+}
+
+/// The last program line surely executed, shared with a watcher that saves
+/// progress while the stream runs (`None`: unknown).
+#[derive(Debug, Clone, Default)]
+pub struct ExecutedLine(Arc<AtomicUsize>);
+
+impl ExecutedLine {
+    pub fn get(&self) -> Option<usize> {
+        // 0 is unknown, n + 1 is line n.
+        self.0.load(Ordering::Relaxed).checked_sub(1)
+    }
+
+    pub fn set(&self, line: Option<usize>) {
+        self.0.store(line.map_or(0, |n| n.saturating_add(1)), Ordering::Relaxed);
     }
 }
 
@@ -817,6 +948,11 @@ where
         if let Response::Error(code) = answer {
             return Err(Error::Stream(format!("`$$` refused: error:{code} ({})", wire::error_message(code))));
         }
+        // Steps per mm (`$100`…`$109`): the longest step tells which moves
+        // surely make a planner block (see `Book::sure_blocks`).
+        let steps: Vec<f64> = settings.iter().filter(|(n, _)| (100..110).contains(n)).map(|(_, v)| *v).collect();
+        self.link.book.step_mm = (!steps.is_empty() && steps.iter().all(|v| v.is_finite() && *v > 0.0))
+            .then(|| steps.iter().map(|v| 1.0 / v).fold(0.0, f64::max));
         Ok(settings)
     }
 
@@ -888,11 +1024,10 @@ where
         self.expect_ok(&format!("$J={block}")).await
     }
 
-    /// The last program line whose motion the controller has finished, as
-    /// far as its answers and status reports tell (a lower bound), kept up
-    /// to date while a stream runs: for a watcher that saves progress. A
-    /// stream from line `n` starts it at `n - 1`.
-    pub fn executed_line(&self) -> Arc<AtomicUsize> {
+    /// A lower bound on the last program line the controller has executed
+    /// (see `Book`), kept up to date while a stream runs: for a watcher that
+    /// saves progress. A stream from line `n` starts it at `n - 1`.
+    pub fn executed_line(&self) -> ExecutedLine {
         self.link.book.executed_line.clone()
     }
 
@@ -990,10 +1125,9 @@ where
                 )));
             }
         }
-        // A new job: fresh books (the controller's sizes stay known).
-        let executed_line = self.link.book.executed_line.clone();
-        executed_line.store(first_line.saturating_sub(1), Ordering::Relaxed);
-        self.link.book = Book { planner_blocks: self.link.book.planner_blocks, executed_line, ..Book::default() };
+        // A new job: fresh books (what is known of the controller stays).
+        self.link.book = self.link.book.for_stream(first_line);
+        self.link.book.publish();
         let options = self.options.clone();
         let rx_buffer = self.rx_buffer;
         let origin = self.link.origin;
@@ -1004,14 +1138,22 @@ where
         };
         let stream_start = secs(origin);
         // Consecutive status reports showing an idle controller with nothing queued
-        // while lines are unanswered: bytes were lost on the way.
+        // while lines are unanswered (bytes were lost on the way, unless the
+        // oldest of them is a dwell still running), and when the first came.
         let mut idle_with_lines_out = 0;
+        let mut idle_with_lines_out_since = Instant::now();
         let mut next: Option<String> = None;
         let mut next_number = first_line.saturating_sub(1);
         let mut exhausted = false;
         let mut ticker = tokio::time::interval(options.status_interval);
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut last_heard = Instant::now();
+        // Silence is a status request left unanswered: since when the oldest
+        // request sent after the last thing heard went out. Not hearing from a
+        // controller that was not asked (a long dwell or move answers no line)
+        // is no silence.
+        let mut asked_since: Option<Instant> = None;
+        let mut last_tick = Instant::now();
         // The last sign of progress (an answer, or a status report differing
         // from the one before) and that report.
         let mut last_progress = Instant::now();
@@ -1096,6 +1238,7 @@ where
                     // is as gone as a silent one.
                     if !matches!(response, Response::Other(_)) {
                         last_heard = Instant::now();
+                        asked_since = None;
                     }
                     match response {
                         Response::Ok | Response::Error(_) if answered.is_none() => {
@@ -1127,20 +1270,28 @@ where
                                 rx as usize >= rx_buffer && link.book.planner_blocks.is_none_or(|p| blocks as usize >= p)
                             });
                             if s.state == MachineState::Idle && nothing_queued && link.book.lost_before_report() > 0 {
+                                if idle_with_lines_out == 0 {
+                                    idle_with_lines_out_since = Instant::now();
+                                }
                                 idle_with_lines_out += 1;
                             } else {
                                 idle_with_lines_out = 0;
                             }
+                            // Grbl dwells Idle with the `G4` line unanswered (and
+                            // those behind it in its buffer): lost only once the
+                            // dwell, begun by the first such report, had time to end.
+                            let dwell = link.book.fifo.front().map_or(0.0, |(_, text)| dwell_seconds(text));
+                            let dwell_over = idle_with_lines_out_since.elapsed().as_secs_f64() > dwell + DWELL_MARGIN_S;
                             if last_report.as_ref().is_none_or(|r| !same_progress(r, &s)) {
                                 last_progress = Instant::now();
                             }
-                            if idle_with_lines_out >= 2 {
+                            if idle_with_lines_out >= 2 && dwell_over {
                                 fault = Some(format!(
                                     "the controller is idle with nothing queued while {} line(s) are unanswered: bytes were lost on the link",
                                     link.book.fifo.len()));
                             } else if s.state == MachineState::Alarm {
                                 fault = Some("the controller went into alarm".into());
-                            } else if ending && s.state == MachineState::Idle && link.book.report_covers.is_some_and(|c| c >= link.book.sent_total) {
+                            } else if ending && s.state == MachineState::Idle && link.book.report_covers.is_some_and(|(sent, _)| sent >= link.book.sent_total) {
                                 // Idle, asked after every line was sent: done.
                                 out.final_status = Some(s);
                                 break;
@@ -1176,7 +1327,16 @@ where
                     }
                 }
                 _ = ticker.tick() => {
-                    if (ending || !link.book.fifo.is_empty()) && last_heard.elapsed() > options.silence_timeout {
+                    // A tick long after the one before: this process was held up
+                    // (a loaded host, a slow disk on the same thread) and has not
+                    // read what came meanwhile. Judge the silence afresh from the
+                    // request this tick sends.
+                    if last_tick.elapsed() > options.silence_timeout / 2 {
+                        asked_since = None;
+                    }
+                    last_tick = Instant::now();
+                    let unanswered = asked_since.map_or(Duration::ZERO, |t| t.elapsed());
+                    if (ending || !link.book.fifo.is_empty()) && unanswered > options.silence_timeout {
                         fault = Some(format!(
                             "the controller has been silent (no answer, no status report) for {:.1} s with {} line(s) unanswered{}",
                             last_heard.elapsed().as_secs_f64(), link.book.fifo.len(),
@@ -1197,6 +1357,7 @@ where
                     if let Err(e) = link.send_realtime(realtime::STATUS).await {
                         fault = Some(link_failure(e));
                     }
+                    asked_since.get_or_insert_with(Instant::now);
                 }
             }
         }
@@ -1205,7 +1366,7 @@ where
         if let Some(reason) = fault {
             out.final_status = link.safe_stop().await;
             out.last_acked_line = link.book.last_acked;
-            out.last_executed_line = link.book.last_executed;
+            out.last_executed_line = link.book.executed();
             out.stop_reason = Some(format!("{reason} ({})", link.book.progress(describe)));
             out.bytes_sent = link.bytes_sent;
             return Ok(out);
