@@ -653,6 +653,7 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
     });
     let baud = baud.unwrap_or(machine.serial.baud);
     let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.hold_limit = options.hold_limit_for(machine.stop_time_s());
     options.check_mode = check;
     let progress = (!json && std::io::stderr().is_terminal()).then(|| {
         let bar = indicatif::ProgressBar::new(size);

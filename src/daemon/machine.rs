@@ -139,7 +139,8 @@ type Link = Connection<tokio_serial::SerialStream, Box<dyn FnMut(f64, LinkEvent)
 async fn open(daemon: &Arc<Daemon>, port: &str, running: Arc<Mutex<Running>>) -> Result<(Link, Option<String>)> {
     use tokio_serial::SerialPortBuilderExt;
     let io = tokio_serial::new(port, daemon.machine.serial.baud).open_native_async().map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
-    let options = SenderOptions::new(daemon.machine.serial.rx_buffer, daemon.machine.serial.status_hz);
+    let mut options = SenderOptions::new(daemon.machine.serial.rx_buffer, daemon.machine.serial.status_hz);
+    options.hold_limit = options.hold_limit_for(daemon.machine.stop_time_s());
     let on_event: Box<dyn FnMut(f64, LinkEvent) + Send> = {
         let daemon = daemon.clone();
         Box::new(move |t, event| on_link_event(&daemon, &running, t, &event))
