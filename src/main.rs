@@ -686,7 +686,7 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
         "lines_sent": outcome.lines_sent,
         "bytes_sent": outcome.bytes_sent,
         "stream_time_s": outcome.stream_time_s,
-        "link_utilization": if outcome.stream_time_s > 0.0 { outcome.bytes_sent as f64 / (baud as f64 / 10.0 * outcome.stream_time_s) } else { 0.0 },
+        "link_utilization": stream::link_utilization(outcome.bytes_sent, baud, outcome.stream_time_s),
         "errors": outcome.errors,
         "alarms": outcome.alarms,
         "last_acked_line": outcome.last_acked_line,

@@ -514,7 +514,6 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         tracing::error!("job {}: {why}", job.id);
     }
     let ended = super::queue::now();
-    let baud = daemon.machine.serial.baud as f64;
     let record = match &outcome {
         Ok(outcome) => finish_record(outcome, aborted, stopping),
         Err(e) => (JobState::Interrupted, Some(e.to_string()), None),
@@ -537,7 +536,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         j.bytes_sent = bytes;
         if let Ok(o) = &outcome {
             j.stream_time_s = o.stream_time_s;
-            j.link_utilization = (o.stream_time_s > 0.0).then(|| bytes as f64 / (baud / 10.0 * o.stream_time_s));
+            j.link_utilization = (o.stream_time_s > 0.0).then(|| crate::stream::link_utilization(bytes, daemon.machine.serial.baud, o.stream_time_s));
         }
     })?;
     let _ = daemon.store().prune(daemon.machine.service.keep_jobs);
