@@ -70,6 +70,7 @@ fn measure(machine: &MachineConfig, program: &Program, send_response: bool) -> R
     let sim = sim_config(machine, Default::default());
     let setup = run_setup(machine, &sim);
     let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.hold_limit = options.hold_limit_for(machine.stop_time_s());
     options.send_response = send_response;
     let (outcome, log) = stream_into_simulator(program, sim, machine.serial.baud, &options, None)?;
     let figures = sim_figures(&RunLog { setup: Some(setup), ..log });

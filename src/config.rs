@@ -707,6 +707,14 @@ impl MachineConfig {
         }
     }
 
+    /// The longest a stop from full speed takes (s): over the stage and the
+    /// scanner, top speed over deceleration, plus the time the jerk limit
+    /// takes to bring the deceleration in and out.
+    pub fn stop_time_s(&self) -> f64 {
+        let stop = |l: Limits| l.velocity / l.acceleration + if l.jerk > 0.0 { l.acceleration / l.jerk } else { 0.0 };
+        self.scanner_limits().map_or(0.0, stop).max(stop(self.stage_limits()))
+    }
+
     /// Scanner limits with the jump speed as the velocity limit (the scanner's own cap).
     pub fn scanner_limits(&self) -> Option<Limits> {
         self.scanner.as_ref().map(|s| Limits {

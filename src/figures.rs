@@ -58,6 +58,8 @@ pub struct SimFigures {
     pub alarms: Vec<u16>,
     pub lines_sent: usize,
     pub bytes_sent: usize,
+    /// Bytes sent over the nominal character rate (`baud / 10`) from the
+    /// first line sent to the last answer (`stream::link_utilization`).
     pub link_utilization: f64,
     pub planner_starved_s: f64,
     pub max_tcp_deviation_mm: f64,
@@ -171,7 +173,7 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
         }
     }
     let link_utilization = match (first_sent, last_answer) {
-        (Some(a), Some(b)) if b > a => bytes_sent as f64 / (setup.baud as f64 / 10.0 * (b - a)),
+        (Some(a), Some(b)) => crate::stream::link_utilization(bytes_sent, setup.baud, b - a),
         _ => 0.0,
     };
 

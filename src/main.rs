@@ -654,6 +654,7 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
     });
     let baud = baud.unwrap_or(machine.serial.baud);
     let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.hold_limit = options.hold_limit_for(machine.stop_time_s());
     options.check_mode = check;
     let progress = (!json && std::io::stderr().is_terminal()).then(|| {
         let bar = indicatif::ProgressBar::new(size);
@@ -690,7 +691,7 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
         "lines_sent": outcome.lines_sent,
         "bytes_sent": outcome.bytes_sent,
         "stream_time_s": outcome.stream_time_s,
-        "link_utilization": if outcome.stream_time_s > 0.0 { outcome.bytes_sent as f64 / (baud as f64 / 10.0 * outcome.stream_time_s) } else { 0.0 },
+        "link_utilization": stream::link_utilization(outcome.bytes_sent, baud, outcome.stream_time_s),
         "errors": outcome.errors,
         "alarms": outcome.alarms,
         "last_acked_line": outcome.last_acked_line,

@@ -265,6 +265,7 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
     }
 
     let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.hold_limit = options.hold_limit_for(machine.stop_time_s());
     options.expect_start = Some(planned.program.start.clone());
     let streamed = stream_into_simulator(&planned.program, sim, machine.serial.baud, &options, Some(&recorder));
     let (outcome, log) = match streamed {
@@ -356,6 +357,7 @@ pub fn restream(log: &RunLog, machine: &MachineConfig) -> Result<crate::figures:
     let mut sim = sim_config(machine, Faults::default());
     sim.axes = setup.axes.clone();
     let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.hold_limit = options.hold_limit_for(machine.stop_time_s());
     options.expect_start = Some(program.start.clone());
     let (_, again) = stream_into_simulator(&program, sim, setup.baud, &options, None)?;
     Ok(sim_figures(&RunLog { setup: Some(setup), planned: log.planned.clone(), ..again }))

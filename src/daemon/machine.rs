@@ -138,7 +138,8 @@ type Link = Connection<tokio_serial::SerialStream, Box<dyn FnMut(f64, LinkEvent)
 async fn open(daemon: &Arc<Daemon>, port: &str, running: Arc<Mutex<Running>>) -> Result<(Link, Option<String>)> {
     use tokio_serial::SerialPortBuilderExt;
     let io = tokio_serial::new(port, daemon.machine.serial.baud).open_native_async().map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
-    let options = SenderOptions::new(daemon.machine.serial.rx_buffer, daemon.machine.serial.status_hz);
+    let mut options = SenderOptions::new(daemon.machine.serial.rx_buffer, daemon.machine.serial.status_hz);
+    options.hold_limit = options.hold_limit_for(daemon.machine.stop_time_s());
     let on_event: Box<dyn FnMut(f64, LinkEvent) + Send> = {
         let daemon = daemon.clone();
         Box::new(move |t, event| on_link_event(&daemon, &running, t, &event))
@@ -527,7 +528,6 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         tracing::error!("job {}: {why}", job.id);
     }
     let ended = super::queue::now();
-    let baud = daemon.machine.serial.baud as f64;
     let record = match &outcome {
         Ok(outcome) => finish_record(outcome, aborted, stopping),
         Err(e) => (JobState::Interrupted, Some(e.to_string()), None),
@@ -550,7 +550,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         j.bytes_sent = bytes;
         if let Ok(o) = &outcome {
             j.stream_time_s = o.stream_time_s;
-            j.link_utilization = (o.stream_time_s > 0.0).then(|| bytes as f64 / (baud / 10.0 * o.stream_time_s));
+            j.link_utilization = (o.stream_time_s > 0.0).then(|| crate::stream::link_utilization(bytes, daemon.machine.serial.baud, o.stream_time_s));
         }
     })?;
     let _ = daemon.store().prune(daemon.machine.service.keep_jobs);

@@ -89,6 +89,9 @@ pub struct JobRecord {
     pub bytes_sent: usize,
     #[serde(default)]
     pub stream_time_s: f64,
+    /// `bytes_sent` over the nominal character rate (`baud / 10`) for
+    /// `stream_time_s` (`stream::link_utilization`: an AVR's real rate is
+    /// 2.1 % above it, so up to about 1.02 on one).
     #[serde(default)]
     pub link_utilization: Option<f64>,
 }

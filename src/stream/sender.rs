@@ -48,6 +48,10 @@ pub struct SenderOptions {
     /// number and answers have not changed for this long (plus the dwells it
     /// may be in) has stalled.
     pub stall_timeout: Duration,
+    /// How long a safe stop waits for its feed hold to bring the machine to
+    /// rest before it resets anyway (a reset while moving loses the
+    /// position: `ALARM:3`, reported). See [`SenderOptions::hold_limit_for`].
+    pub hold_limit: Duration,
 }
 
 /// Grbl never moves slower than 1 mm/min (`MINIMUM_FEED_RATE`, overrides
@@ -86,9 +90,24 @@ impl SenderOptions {
             check_mode: false,
             send_response: false,
             stall_timeout: STALL_TIMEOUT,
+            hold_limit: HOLD_LIMIT,
         }
     }
+
+    /// The wait for a hold on a machine whose longest stop from full speed
+    /// takes `stop_s` (`MachineConfig::stop_time_s`): twice that (a
+    /// controller's own rates may be lower than the config's, and status
+    /// comes at most every `status_interval`), plus a second, never less
+    /// than [`HOLD_LIMIT`].
+    pub fn hold_limit_for(&self, stop_s: f64) -> Duration {
+        let wait = 2.0 * stop_s.max(0.0) + 1.0 + 2.0 * self.status_interval.as_secs_f64();
+        Duration::from_secs_f64(wait.min(3600.0)).max(HOLD_LIMIT)
+    }
 }
+
+/// The least a safe stop waits for its hold to complete: a stop from the
+/// speed of a desktop machine takes a fraction of a second.
+pub const HOLD_LIMIT: Duration = Duration::from_secs(3);
 
 /// What crossed the link, for the recorder.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -150,6 +169,21 @@ struct Link<R, W, F> {
     bytes_sent: usize,
     /// Every answer is booked here as it is read, whoever reads it.
     book: Book,
+    /// Status requests go out at most this often, whoever asks (Grbl's
+    /// interface document: about 5 Hz at most), and when the last one went.
+    status_interval: Duration,
+    last_status_request: Option<Instant>,
+}
+
+/// How a safe stop went.
+#[derive(Debug, Default)]
+struct SafeStop {
+    /// The state it left the machine in.
+    status: Option<StatusReport>,
+    /// Alarms the controller raised on the way (`ALARM:3` for a reset while moving).
+    alarms: Vec<u16>,
+    /// What went differently from a hold to rest and a reset.
+    note: Option<String>,
 }
 
 /// Why a stream ends when the other end has gone (a read at its end, a write refused).
@@ -218,6 +252,12 @@ where
     }
 
     async fn send_realtime(&mut self, byte: u8) -> Result<()> {
+        if byte == realtime::STATUS {
+            if let Some(last) = self.last_status_request {
+                tokio::time::sleep_until(last + self.status_interval).await;
+            }
+            self.last_status_request = Some(Instant::now());
+        }
         self.write(&[byte]).await?;
         if byte == realtime::STATUS {
             self.book.status_requested();
@@ -328,42 +368,52 @@ where
         Ok(None)
     }
 
-    /// Feed hold until stopped, then soft reset: the laser ends off, nothing queued
-    /// is executed any more. Returns the state it left the machine in.
-    async fn safe_stop(&mut self) -> Option<StatusReport> {
+    /// Feed hold until stopped (up to `hold_limit`), then soft reset: the
+    /// laser ends off, nothing queued is executed any more. Status requests
+    /// meanwhile keep to the status rate (`send_realtime`).
+    async fn safe_stop(&mut self, hold_limit: Duration) -> SafeStop {
+        let mut stop = SafeStop::default();
         if self.send_realtime(realtime::FEED_HOLD).await.is_err() {
-            return None;
+            return stop;
         }
-        let deadline = Instant::now() + Duration::from_secs(3);
-        while Instant::now() < deadline {
-            match self.query_status(Duration::from_millis(500)).await {
+        let deadline = Instant::now() + hold_limit;
+        let mut at_rest = false;
+        while !at_rest && Instant::now() < deadline {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.query_status(left.min(Duration::from_millis(500))).await {
                 Ok(Some(s)) => {
-                    if matches!(
+                    at_rest = matches!(
                         s.state,
-                        MachineState::Hold(0) | MachineState::Idle | MachineState::Alarm
-                    ) {
-                        break;
-                    }
-                    // Not held yet: look again shortly, without flooding it with `?`.
-                    tokio::time::sleep(Duration::from_millis(50)).await;
+                        MachineState::Hold(0) | MachineState::Door(0) | MachineState::Door(1) | MachineState::Idle | MachineState::Alarm
+                    );
                 }
                 Ok(None) => {}
-                Err(Error::Stream(m)) if m == LINK_CLOSED => return None,
+                Err(Error::Stream(m)) if m == LINK_CLOSED => return stop,
                 // Garbage while the machine holds: the reset comes anyway,
                 // after the time a hold takes.
-                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+                Err(_) => {}
             }
         }
-        if self.send_realtime(realtime::SOFT_RESET).await.is_err() {
-            return None;
+        if !at_rest {
+            stop.note = Some(format!(
+                "the feed hold did not bring the machine to rest within {:.1} s, so it was reset while it may still have moved",
+                hold_limit.as_secs_f64()
+            ));
         }
+        if self.send_realtime(realtime::SOFT_RESET).await.is_err() {
+            return stop;
+        }
+        let alarms = &mut stop.alarms;
         let _ = self
-            .wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_)))
+            .wait_for(Duration::from_secs(3), |r| {
+                if let Response::Alarm(code) = r {
+                    alarms.push(*code);
+                }
+                matches!(r, Response::Banner(_))
+            })
             .await;
-        self.query_status(Duration::from_secs(1))
-            .await
-            .ok()
-            .flatten()
+        stop.status = self.query_status(Duration::from_secs(1)).await.ok().flatten();
+        stop
     }
 }
 
@@ -774,6 +824,8 @@ where
             on_event,
             bytes_sent: 0,
             book: Book::default(),
+            status_interval: options.status_interval,
+            last_status_request: None,
         };
         let is_banner = |r: &Response| matches!(r, Response::Banner(_));
         if link
@@ -1364,7 +1416,20 @@ where
         out.stream_time_s = secs(origin) - stream_start;
 
         if let Some(reason) = fault {
-            out.final_status = link.safe_stop().await;
+            let stop = link.safe_stop(options.hold_limit).await;
+            let mut reason = reason;
+            // What the stop itself did to the machine belongs to the report too.
+            if let Some(note) = stop.note {
+                reason = format!("{reason}; {note}");
+            }
+            for code in stop.alarms {
+                out.alarms.push(code);
+                reason = format!("{reason}; the reset raised ALARM:{code} ({})", wire::alarm_message(code));
+            }
+            if stop.status.as_ref().is_some_and(|s| s.state == MachineState::Alarm) {
+                reason = format!("{reason}; the controller is left in alarm: home ($H) or unlock ($X) it before the next job");
+            }
+            out.final_status = stop.status;
             out.last_acked_line = link.book.last_acked;
             out.last_executed_line = link.book.executed();
             out.stop_reason = Some(format!("{reason} ({})", link.book.progress(describe)));
