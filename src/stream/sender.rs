@@ -854,8 +854,8 @@ where
                     Some((_, Response::Error(code), _)) => {
                         return Err(Error::Stream(format!("`$H` refused: error:{code} ({})", wire::error_message(code))));
                     }
-                    // A failed cycle: Grbl resets itself after the alarm and
-                    // never answers the `$H`.
+                    // A failed cycle: Grbl answers the `$H` `ok` after the
+                    // alarm, then resets itself (banner) into Alarm.
                     Some((_, Response::Alarm(code), _)) => {
                         let _ = self.link.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_))).await;
                         return Err(Error::Stream(format!("homing failed: ALARM:{code} ({}); unlock ($X) or home again", wire::alarm_message(code))));
