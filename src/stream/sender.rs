@@ -395,6 +395,9 @@ struct Book {
     /// The controller broke the protocol (garbage, answers to nothing):
     /// what it answers after that is not taken as progress.
     distrusted: bool,
+    /// An `ALARM:` came: the next `ok` answers the line it stopped (a soft
+    /// limit's after the reset, a probe's, a `$H`'s), which did not run.
+    alarm_answer_due: bool,
 }
 
 impl Book {
@@ -430,8 +433,9 @@ impl Book {
                 let (line, text) = self.fifo.pop_front()?;
                 self.answered_total += 1;
                 self.in_flight = self.in_flight.saturating_sub(text.len() + 1);
+                let failed = std::mem::take(&mut self.alarm_answer_due);
                 // The sender's own commands (line 0) are not program lines.
-                if line > 0 && matches!(response, Response::Ok) {
+                if line > 0 && matches!(response, Response::Ok) && !failed {
                     self.acked(line, &text);
                     self.last_acked_text = text.clone();
                 }
@@ -445,7 +449,12 @@ impl Book {
                 self.status(s);
                 None
             }
+            Response::Alarm(_) => {
+                self.alarm_answer_due = true;
+                None
+            }
             Response::Banner(_) => {
+                self.alarm_answer_due = false;
                 self.answered_total = self.sent_total;
                 self.status_requests.clear();
                 self.report_covers = None;
