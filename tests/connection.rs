@@ -40,16 +40,22 @@ fn jog_unlock_hold_resume_override_abort_and_resume_from_a_line() {
             assert_eq!(c.status().await.unwrap().state, MachineState::Idle);
             c.unlock().await.unwrap();
 
-            // Jog out and back; the controller reports Jog meanwhile.
-            c.jog("G91X10F600").await.unwrap();
+            // Jog out and back; the controller reports Jog meanwhile. Soft
+            // limits on (they need homing on): Grbl's machine space is -300..0.
+            let describe = |n: usize, _: &str| format!("line {n}");
+            let settings = ["$22=1", "$20=1"].map(|l| Ok(l.to_string()));
+            assert!(c.stream(settings, &describe, None).await.unwrap().completed);
+            c.jog("G91X-10F600").await.unwrap();
             tokio::time::sleep(Duration::from_millis(300)).await;
             assert_eq!(c.status().await.unwrap().state, MachineState::Jog);
             tokio::time::sleep(Duration::from_secs(2)).await;
-            assert_eq!(c.status().await.unwrap().mpos[0], 10.0);
-            assert!(c.jog("G90X-5F600").await.is_err(), "beyond travel: error 15");
+            assert_eq!(c.status().await.unwrap().mpos[0], -10.0);
+            assert!(c.jog("G90X5F600").await.is_err(), "beyond travel: error 15");
             c.jog("G90X0F600").await.unwrap();
             tokio::time::sleep(Duration::from_secs(2)).await;
             assert_eq!(c.status().await.unwrap().mpos[0], 0.0);
+            // The job below is in positive machine coordinates (not homed).
+            assert!(c.stream(["$20=0"].map(|l| Ok(l.to_string())), &describe, None).await.unwrap().completed);
 
             // A job with a hold, an override and a resume: it completes.
             let (tx, mut rx) = mpsc::unbounded_channel();
@@ -139,14 +145,15 @@ fn homing_answers_when_home_fails_at_once_on_an_alarm_and_stops_on_abort() {
         }
         let started = tokio::time::Instant::now();
         c.home(None).await.unwrap();
-        // X's 40 mm (the longest way) at the seek rate ($25 = 500 mm/min): 4.8 s.
+        // X's 41 mm to Grbl's home (-1: the pull-off inside the switch at 0)
+        // at the seek rate ($25 = 500 mm/min): 4.9 s.
         assert!(started.elapsed() > Duration::from_millis(4700), "{:?}", started.elapsed());
         let status = c.status().await.unwrap();
         assert_eq!(status.state, MachineState::Idle);
-        assert!(status.mpos.iter().all(|p| *p == 0.0), "{:?}", status.mpos);
+        assert_eq!(status.mpos, [-1.0, -1.0, 0.0, 0.0], "X and Y homed, the scanner's U and V not");
     });
 
-    // No switch found: the alarm is the answer (Grbl never answers the `$H`).
+    // No switch found: the alarm is the answer (the `ok` after it only ends the cycle).
     let faults = Faults { homing_switch_missing: true, ..Faults::default() };
     with_connection(faults, |mut c| async move {
         assert!(c.stream(setup(), &describe, None).await.unwrap().completed);

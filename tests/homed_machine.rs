@@ -148,3 +148,26 @@ fn the_service_homes_then_runs_a_job_on_a_homed_grbl_within_soft_limits() {
     let replay = laserd::record::read(&rec).unwrap();
     assert_ran_in_bed_coordinates(&replay.log.knots, &state.join("jobs").join(&id).join("program.nc"));
 }
+
+/// A line past the soft limits: Grbl stops with ALARM:2 and answers the
+/// line `ok` only with the reset. `send` stops there, and that `ok` does not
+/// count the line as acknowledged: it never ran.
+#[test]
+fn send_stops_at_a_soft_limit_and_never_counts_the_line_acknowledged() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttySOFTLIMIT");
+    let config = cutter_config(dir.path(), &link);
+    let _sim = SimProcess::start(&link, &["--config", config.to_str().unwrap(), "--baud", "1000000"]);
+    write_settings(&link, &GRBL_HOMED);
+    write_settings(&link, &["$H"]);
+    let program = dir.path().join("over.nc");
+    // In bed coordinates: X450 is 50 mm past the 400 mm bed.
+    std::fs::write(&program, "G21G90G94\nG1X10Y10F3000\nG1X20Y20\nG1X450Y20\nG1X30Y30\n").unwrap();
+    let out = laserd(&["send", program.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--config", config.to_str().unwrap(), "--json"], dir.path());
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["alarms"], serde_json::json!([2]), "{report}");
+    assert_eq!(report["last_acked_line"], 3, "{report}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("ALARM:2") && err.contains("over.nc:3"), "{err}");
+}

@@ -374,23 +374,25 @@ fn jog_abort_home_unlock_and_a_job_held_or_aborted_on_its_way_to_its_start() {
     assert_eq!(status, 409, "no job from an alarm: {refused}");
     api.ok(Method::POST, "/unlock", None);
     api.wait_status(Duration::from_secs(3), "unlocked", |s| machine_state(s) == "Idle");
-    // Homing to the end: the call answers when the machine is home.
+    // Homing to the end: the call answers when the machine is home, at
+    // Grbl's home (minus the pull-off, in its negative machine space); from
+    // then on work coordinates are the bed's: its 0 is at machine -300, -300.
     jog("G90 X4 Y3 F6000");
     idle_at(4.0, 3.0);
     assert_eq!(api.ok(Method::POST, "/home", None)["done"], "homed");
-    let home = idle_at(0.0, 0.0);
-    assert!(position(&home).iter().all(|p| p.abs() < 1e-3), "{home}");
+    let home = idle_at(-1.0, -1.0);
+    assert!(position(&home)[2..].iter().all(|p| p.abs() < 1e-3), "the scanner is not homed: {home}");
 
-    // A job starts at the origin: from elsewhere it is jogged there first. A
-    // pause on the way cancels the jog; the resume goes on and runs the job.
+    // A job starts at the bed's origin: from elsewhere it is jogged there
+    // first. A pause on the way cancels the jog; the resume goes on and runs the job.
     jog("G90 X290 Y290 F30000");
-    idle_at(290.0, 290.0);
+    idle_at(-10.0, -10.0);
     api.ok(Method::POST, "/start", Some(serde_json::json!({ "id": job })));
     api.ok(Method::POST, "/pause", None);
     let held = api.wait_status(Duration::from_secs(3), "held on the way", |s| s["job"]["state"] == "paused" && machine_state(s) == "Idle");
     assert_eq!(held["job"]["line"], 0, "no program line sent yet: {held}");
     let x = position(&held)[0];
-    assert!(x > 0.0 && x < 290.0, "stopped on the way: {held}");
+    assert!(x > -300.0 && x < -10.0, "stopped on the way: {held}");
     std::thread::sleep(Duration::from_millis(300));
     assert_eq!(position(&api.status()), position(&held), "standing still while paused");
     assert_eq!(api.status()["machine"]["laser"].as_f64(), Some(0.0));
@@ -402,13 +404,13 @@ fn jog_abort_home_unlock_and_a_job_held_or_aborted_on_its_way_to_its_start() {
     let second = api.submit(&sample("one-field.svg"));
     api.wait_job(&second, "queued", Duration::from_secs(60));
     jog("G90 X290 Y290 F30000");
-    idle_at(290.0, 290.0);
+    idle_at(-10.0, -10.0);
     api.ok(Method::POST, "/start", None);
     api.ok(Method::POST, "/abort", None);
     let aborted = api.wait_job(&second, "aborted", Duration::from_secs(5));
     assert_eq!(aborted["last_executed_line"], 0, "{aborted}");
     let stopped = api.wait_status(Duration::from_secs(3), "Idle, no job", |s| machine_state(s) == "Idle" && s["job"].is_null());
-    assert!(position(&stopped)[0] > 0.0, "stopped on the way: {stopped}");
+    assert!(position(&stopped)[0] > -300.0, "stopped on the way: {stopped}");
     assert_eq!(stopped["machine"]["laser"].as_f64(), Some(0.0));
 
     std::thread::sleep(Duration::from_millis(200));

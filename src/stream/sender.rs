@@ -492,6 +492,9 @@ struct Book {
     /// The controller broke the protocol (garbage, answers to nothing):
     /// what it answers after that is not taken as progress.
     distrusted: bool,
+    /// An `ALARM:` came: the next `ok` answers the line it stopped (a soft
+    /// limit's after the reset, a probe's, a `$H`'s), which did not run.
+    alarm_answer_due: bool,
 }
 
 /// The blocks a controller may have cut into its step-segment buffer and
@@ -563,8 +566,9 @@ impl Book {
                 let (line, text) = self.fifo.pop_front()?;
                 self.answered_total += 1;
                 self.in_flight = self.in_flight.saturating_sub(text.len() + 1);
+                let failed = std::mem::take(&mut self.alarm_answer_due);
                 // The sender's own commands (line 0) are not program lines.
-                if line > 0 && matches!(response, Response::Ok) {
+                if line > 0 && matches!(response, Response::Ok) && !failed {
                     self.acked(line, &text);
                     self.last_acked_text = text.clone();
                 }
@@ -578,7 +582,12 @@ impl Book {
                 self.status(s);
                 None
             }
+            Response::Alarm(_) => {
+                self.alarm_answer_due = true;
+                None
+            }
             Response::Banner(banner) => {
+                self.alarm_answer_due = false;
                 self.segment_blocks = segment_run_ahead(banner);
                 self.answered_total = self.sent_total;
                 self.status_requests.clear();
@@ -1042,8 +1051,8 @@ where
                     Some((_, Response::Error(code), _)) => {
                         return Err(Error::Stream(format!("`$H` refused: error:{code} ({})", wire::error_message(code))));
                     }
-                    // A failed cycle: Grbl resets itself after the alarm and
-                    // never answers the `$H`.
+                    // A failed cycle: Grbl answers the `$H` `ok` after the
+                    // alarm, then resets itself (banner) into Alarm.
                     Some((_, Response::Alarm(code), _)) => {
                         let _ = self.link.wait_for(Duration::from_secs(3), |r| matches!(r, Response::Banner(_))).await;
                         return Err(Error::Stream(format!("homing failed: ALARM:{code} ({}); unlock ($X) or home again", wire::alarm_message(code))));
