@@ -64,8 +64,9 @@ impl PlanReport {
             "{}: {} geometries{}, planner {}, mode {}\n",
             self.job, self.geometries, fields, self.planner, self.mode
         ));
+        let precedence = self.precedence_violations.map_or("unknown".to_string(), |n| n.to_string());
         s.push_str(&format!(
-            "  marking {:.1} mm, idle stroke {:.1} mm, planned in {:.3} s\n",
+            "  marking {:.1} mm, idle stroke {:.1} mm, planned in {:.3} s, precedence_violations {precedence}\n",
             self.mark_length_mm, self.idle_stroke_mm, self.plan_time_s
         ));
         s.push_str(&format!(
