@@ -1,5 +1,6 @@
 //! The cutting planner end to end: a generated sheet of nested parts written
-//! as SVG, imported as any job, planned with `--planner ecp` and dry-run on
+//! as SVG, imported as any job, planned with `--planner ecp` (and `auto`, the
+//! default, which takes it for layers that pierce) and dry-run on
 //! the shipped flatbed cutter (every cut pierced).
 
 use std::path::{Path, PathBuf};
