@@ -220,7 +220,7 @@ pub fn flatbed_for(machine: &MachineConfig, width: f64, height: f64) -> MachineC
 }
 
 pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_limit_s: f64, svg_out: Option<&std::path::Path>) -> Result<SheetBench> {
-    use crate::plan::cutting::{cutting_model, plan_cutting, sequence_precedence_violations};
+    use crate::plan::cutting::{cutting_model, plan_cutting, whole_geometry_violations};
     use crate::plan::ecp::{checker, construct, sheet};
     use crate::plan::{PathGroup, PlanContext, PlannedPath, Planner, Sequence};
     if !(time_limit_s.is_finite() && time_limit_s > 0.0) {
@@ -255,7 +255,8 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
     let nearest = timed(&mut || {
         let sequence = crate::plan::nearest::NearestNeighbour.plan(&job, &ctx)?;
         let model = cutting_model(&job, ctx.start, &machine.cutting)?;
-        let violations = sequence_precedence_violations(&model, &sequence);
+        // Every contour of the sheet is cut through, whatever the config's layers.
+        let violations = whole_geometry_violations(&model, &sequence, &vec![true; job.geometries.len()]).len();
         Ok((sequence, violations))
     })?;
     let constructed = |build: fn(&crate::plan::ecp::Instance) -> Vec<crate::plan::ecp::Cut>| {
@@ -274,7 +275,7 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
     let construction = constructed(construct::insertion)?;
     let ecp = timed(&mut || {
         let plan = plan_cutting(&job, &ctx)?;
-        Ok((plan.sequence, plan.precedence_violations))
+        Ok((plan.sequence, plan.broken_rules.len()))
     })?;
     let inst = &model.instance;
     Ok(SheetBench {

@@ -35,8 +35,15 @@ struct JobArgs {
     /// Machine config (default: the shipped config/laserd.toml).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// auto (the default): the cutting planner ecp for layers that pierce,
+    /// the galvo planner hha for marking layers, marking first; or one of
+    /// ecp, hha, hga, nearest for the whole job.
     #[arg(long, default_value = "auto")]
     planner: PlannerKind,
+    /// Plan, write and run an order that cuts after a part has fallen out
+    /// (refused otherwise).
+    #[arg(long)]
+    allow_precedence_violations: bool,
     /// on-the-fly, step-and-scan or stage-only (default: on-the-fly with a scanner, else stage-only).
     #[arg(long)]
     mode: Option<Mode>,
@@ -180,6 +187,8 @@ enum Command {
         program: PathBuf,
         #[arg(long)]
         result: PathBuf,
+        #[arg(long)]
+        allow_precedence_violations: bool,
     },
     /// Talk to a running `laserd serve` (docs/api.md lists the calls).
     Ctl {
@@ -396,6 +405,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
         Command::DryRun { job, record, motion, json } => {
             let (mut machine, planned) = job.plan()?;
             machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
+            planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations")?;
             let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
             let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
             if json {
@@ -411,6 +421,9 @@ fn run_command(command: Command) -> Result<ExitCode> {
         }
         Command::Plan { job, output, plot, json } => {
             let (machine, planned) = job.plan()?;
+            // A refused order is reported (and drawn) but not written as a program.
+            let refused = planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations");
+            let output = output.filter(|_| refused.is_ok());
             if let Some(out) = &output {
                 std::fs::write(out, planned.program.to_gcode())
                     .map_err(|e| Error::Io(format!("{}: cannot write: {e}", out.display())))?;
@@ -427,6 +440,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
                     println!("  program written to {}", out.display());
                 }
             }
+            refused?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Send { file, port, baud, config, check, json } => send(&file, &port, baud, config.as_deref(), check, json),
@@ -602,8 +616,8 @@ fn run_command(command: Command) -> Result<ExitCode> {
             laserd::daemon::serve(options)?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::PlanJob { source, name, program, result } => {
-            laserd::daemon::intake::plan_job_child(&source, &name, &program, &result)?;
+        Command::PlanJob { source, name, program, result, allow_precedence_violations } => {
+            laserd::daemon::intake::plan_job_child(&source, &name, &program, &result, allow_precedence_violations)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Ctl { socket, which } => {

@@ -21,10 +21,12 @@ pub struct PlanReport {
     pub idle_stroke_mm: f64,
     pub plan_time_s: f64,
     /// Cuts after the part they belong to has fallen out: by the independent
-    /// checker on the cutting planner's route, or by whole geometries (an inner
-    /// contour finished at or after its outer one) for other planners on jobs
-    /// that cut through (a layer that pierces); 0 for marking jobs, where
-    /// nothing falls out. `null` when the job's topology cannot be built.
+    /// checker on the cutting planner's route, or by whole geometries (a
+    /// geometry finished at or after the nearest contour around it on a layer
+    /// that pierces) for other planners and for `auto`'s marks; 0 for marking
+    /// jobs, where nothing falls out. `null` when the job's topology cannot
+    /// be built. `plan`, `dry-run` and the service refuse an order with any
+    /// unless overridden.
     pub precedence_violations: Option<u64>,
     pub trajectory_time_s: f64,
     pub lower_bound_s: f64,
@@ -64,8 +66,9 @@ impl PlanReport {
             "{}: {} geometries{}, planner {}, mode {}\n",
             self.job, self.geometries, fields, self.planner, self.mode
         ));
+        let precedence = self.precedence_violations.map_or("unknown".to_string(), |n| n.to_string());
         s.push_str(&format!(
-            "  marking {:.1} mm, idle stroke {:.1} mm, planned in {:.3} s\n",
+            "  marking {:.1} mm, idle stroke {:.1} mm, planned in {:.3} s, precedence_violations {precedence}\n",
             self.mark_length_mm, self.idle_stroke_mm, self.plan_time_s
         ));
         s.push_str(&format!(

@@ -16,7 +16,8 @@ use crate::import::import_job;
 use crate::job::{Job, Point};
 use crate::motion::{self, Mode, Trajectory};
 use crate::plan::split::{check_fits, split_at_field_borders};
-use crate::plan::{planner, PlanContext, PlannerKind, Sequence};
+use crate::plan::cutting::describe;
+use crate::plan::{plan_job, PlanContext, PlannerKind, Sequence};
 use crate::program::{self, Program};
 use crate::record::{Recorder, Recording, TOPIC_JOB, TOPIC_PLAN_LINES, TOPIC_REPORT, TOPIC_SETUP};
 use crate::report::PlanReport;
@@ -34,6 +35,9 @@ pub struct Planned {
     pub trajectory: Trajectory,
     pub program: Program,
     pub report: PlanReport,
+    /// The precedence rules the order breaks, in words (`None`: unknown,
+    /// the job's topology could not be built).
+    pub broken_rules: Option<Vec<String>>,
 }
 
 pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: Option<Mode>) -> Result<Planned> {
@@ -54,28 +58,12 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         }
         None => job,
     };
-    let planner = planner(kind);
     let started = WallInstant::now();
     let ctx = PlanContext { machine: &planning_machine, mode, start: job_start() };
-    // The cutting planner counts broken rules on its route with the
-    // independent checker; any other order is judged by whole geometries.
-    let (sequence, precedence_violations) = if kind == PlannerKind::Ecp {
-        let cutting = crate::plan::cutting::plan_cutting(&job, &ctx)?;
-        (cutting.sequence, Some(cutting.precedence_violations as u64))
-    } else {
-        (planner.plan(&job, &ctx)?, None)
-    };
+    let outcome = plan_job(kind, &job, &ctx)?;
     let plan_time_s = started.elapsed().as_secs_f64();
-    // Parts fall out only where the laser cuts through, i.e. on layers that
-    // pierce; a marking job has nothing to fall out.
-    let cuts_through = job.geometries.iter().any(|g| machine.pierce(&job.processes[g.process].layer).time > 0.0);
-    let precedence_violations = precedence_violations.or_else(|| {
-        if !cuts_through {
-            return Some(0);
-        }
-        let model = crate::plan::cutting::cutting_model(&job, ctx.start, &machine.cutting).ok()?;
-        Some(crate::plan::cutting::sequence_precedence_violations(&model, &sequence) as u64)
-    });
+    let sequence = outcome.sequence;
+    let broken_rules: Option<Vec<String>> = outcome.broken_rules.map(|rules| rules.iter().map(|r| describe(&job, r)).collect());
     let started = WallInstant::now();
     let (trajectory, program, link_slowdown) = motion_for_link(&job, &sequence, machine, mode)?;
     let motion_time_s = started.elapsed().as_secs_f64();
@@ -86,7 +74,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let lines_per_s = |baud: f64| baud / 10.0 / mean_line;
     let report = PlanReport {
         job: job_path.display().to_string(),
-        planner: planner.name().to_string(),
+        planner: outcome.planner,
         mode: mode.as_str().to_string(),
         geometries: job.geometries.len(),
         scan_fields: sequence.scan_fields(),
@@ -94,7 +82,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         mark_length_mm: job.mark_length(),
         idle_stroke_mm: sequence.idle_stroke(),
         plan_time_s,
-        precedence_violations,
+        precedence_violations: broken_rules.as_ref().map(|r| r.len() as u64),
         trajectory_time_s: trajectory.job_time(),
         lower_bound_s,
         program_lines: program.lines.len(),
@@ -107,7 +95,28 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         sim: None,
         recording: None,
     };
-    Ok(Planned { job, sequence, trajectory, program, report })
+    Ok(Planned { job, sequence, trajectory, program, report, broken_rules })
+}
+
+impl Planned {
+    /// Refuses a plan that breaks precedence rules (a cut after its part has
+    /// fallen out), unless `allowed`: the error names how many and the first
+    /// few, and how to run it anyway (`override_with`: the flag or field).
+    pub fn check_precedence(&self, allowed: bool, override_with: &str) -> Result<()> {
+        let rules = self.broken_rules.as_deref().unwrap_or_default();
+        if allowed || rules.is_empty() {
+            return Ok(());
+        }
+        const SHOWN: usize = 3;
+        let more = if rules.len() > SHOWN { format!(", and {} more", rules.len() - SHOWN) } else { String::new() };
+        Err(Error::Plan(format!(
+            "{}: the plan ({}) has {} precedence violation(s), cuts after their part has fallen out: {}{more}; plan with --planner auto or ecp, or override with {override_with}",
+            self.report.job,
+            self.report.planner,
+            rules.len(),
+            rules[..rules.len().min(SHOWN)].join("; "),
+        )))
+    }
 }
 
 /// The trajectory and program of `sequence`, planned so that the controller

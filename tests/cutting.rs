@@ -1,8 +1,10 @@
 //! The cutting planner end to end: a generated sheet of nested parts written
-//! as SVG, imported as any job, planned with `--planner ecp` and dry-run on
+//! as SVG, imported as any job, planned with `--planner ecp` (and `auto`, the
+//! default, which takes it for layers that pierce) and dry-run on
 //! the shipped flatbed cutter (every cut pierced).
 
 use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 
 use laserd::config::MachineConfig;
 use laserd::plan::ecp::sheet;
@@ -86,4 +88,59 @@ fn bad_cutting_settings_name_the_setting() {
         let err = MachineConfig::parse(&text.replace(from, to), "bad.toml").unwrap_err().to_string();
         assert!(err.contains(name), "{err}");
     }
+}
+
+fn laserd(args: &[&str]) -> Output {
+    let dir = tempfile::tempdir().unwrap();
+    Command::new(env!("CARGO_BIN_EXE_laserd")).args(args).current_dir(dir.path()).output().expect("laserd runs")
+}
+
+fn cutter() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml").display().to_string()
+}
+
+#[test]
+fn plan_without_a_planner_cuts_the_nested_sheet_keeping_every_rule_and_says_so() {
+    let job = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/nested-sheet.svg").display().to_string();
+    let out = laserd(&["plan", &job, "--config", &cutter(), "--time-limit", "2", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["planner"], "ecp", "the sheet's layer pierces: {report}");
+    assert_eq!(report["precedence_violations"], 0);
+    let out = laserd(&["plan", &job, "--config", &cutter(), "--time-limit", "2"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains("planner ecp") && text.contains("precedence_violations 0"), "{text}");
+}
+
+#[test]
+fn an_order_that_cuts_after_a_part_has_fallen_is_refused_unless_overridden() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = sheet_svg(dir.path(), 120, 3);
+    let job = job.to_str().unwrap();
+    let program = dir.path().join("sheet.nc");
+    let recording = dir.path().join("sheet.mcap");
+    let broken = |out: &Output| -> u64 {
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && !err.contains("panicked"), "refused: {err}");
+        let count: u64 = err.split(" precedence violation(s)").next().unwrap().rsplit(' ').next().unwrap().parse().expect("the count");
+        assert!(count > 0 && err.contains(" cut after ") && err.contains("--allow-precedence-violations"), "{err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        count
+    };
+    // plan: reported (the count in the text), not written as a program.
+    let out = laserd(&["plan", job, "--config", &cutter(), "--planner", "nearest", "-o", program.to_str().unwrap()]);
+    let count = broken(&out);
+    assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("precedence_violations {count}")));
+    assert!(!program.exists());
+    let out = laserd(&["plan", job, "--config", &cutter(), "--planner", "nearest", "-o", program.to_str().unwrap(), "--allow-precedence-violations"]);
+    assert!(out.status.success() && program.exists(), "{}", String::from_utf8_lossy(&out.stderr));
+    // dry-run: refused before anything is streamed or recorded.
+    let out = laserd(&["dry-run", job, "--config", &cutter(), "--planner", "nearest", "--record", recording.to_str().unwrap()]);
+    assert_eq!(broken(&out), count);
+    assert!(!recording.exists() && out.stdout.is_empty());
+    let out = laserd(&["dry-run", job, "--config", &cutter(), "--planner", "nearest", "--record", recording.to_str().unwrap(), "--allow-precedence-violations", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["precedence_violations"], count);
+    assert!(report["sim"]["job_time_s"].as_f64().unwrap() > 0.0 && recording.exists());
 }

@@ -421,3 +421,30 @@ fn jog_abort_home_unlock_and_a_job_held_or_aborted_on_its_way_to_its_start() {
     assert!(events.iter().any(|(k, v)| k == "status" && v["machine"]["state"] == "Home"), "the homing cycle was shown");
     assert!(service.terminate().success());
 }
+
+#[test]
+fn the_service_plans_a_cut_sheet_keeping_every_rule_and_records_the_count_and_the_override() {
+    let dir = tempfile::tempdir().unwrap();
+    // The shipped cutter, no controller: planning needs none.
+    let config = dir.path().join("cutter.toml");
+    std::fs::copy(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml"), &config).unwrap();
+    set_key(&config, "serial", "port", &format!("{:?}", dir.path().join("ttyNONE").to_str().unwrap()));
+    set_key(&config, "cutting", "time_limit", "2.0");
+    let service = Service::start(&config, &dir.path().join("state"), &dir.path().join("api.sock"));
+    let api = Api::new(&service.socket);
+    let id = api.submit(&sample("nested-sheet.svg"));
+    let job = api.wait_job(&id, "queued", Duration::from_secs(60));
+    assert_eq!(job["precedence_violations"], 0, "{job}");
+    assert_eq!(job["allow_precedence_violations"], false, "{job}");
+    // The override is the submission's, kept in its record.
+    let bytes = std::fs::read(sample("nested-sheet.svg")).unwrap();
+    let answer = api
+        .runtime
+        .block_on(client::request(&service.socket, Method::POST, "/jobs?name=again.svg&allow_precedence_violations=true", Some(("application/octet-stream", bytes))))
+        .unwrap();
+    assert_eq!(answer.status, 202);
+    let again: Value = serde_json::from_slice(&answer.body).unwrap();
+    assert_eq!(again["allow_precedence_violations"], true, "{again}");
+    let again = api.wait_job(again["id"].as_str().unwrap(), "queued", Duration::from_secs(60));
+    assert_eq!(again["precedence_violations"], 0, "{again}");
+}

@@ -187,7 +187,7 @@ fn a_refused_resume_changes_nothing() {
     let id = {
         // A job cut short at line 1 of 3, as a restart finds it.
         let mut store = laserd::daemon::queue::Store::open(&state).unwrap();
-        let id = store.add("part.nc", b"G21 G90\nG1 X1 F600\nG1 X2\n").unwrap().id;
+        let id = store.add("part.nc", b"G21 G90\nG1 X1 F600\nG1 X2\n", false).unwrap().id;
         std::fs::write(store.program_path(&id), "G21 G90\nG1 X1 F600\nG1 X2\n").unwrap();
         store
             .update(&id, |j| {

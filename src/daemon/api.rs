@@ -107,6 +107,9 @@ async fn get_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> 
 struct SubmitQuery {
     /// The file's name, for an upload (its extension says how to read it).
     name: Option<String>,
+    /// Plan and run an order that cuts after a part has fallen out.
+    #[serde(default)]
+    allow_precedence_violations: bool,
 }
 
 /// The JSON body of `POST /jobs` (submit by path). Public for the fuzz targets.
@@ -114,6 +117,9 @@ struct SubmitQuery {
 pub struct SubmitPath {
     /// A file on the machine PC that the service may read.
     pub path: String,
+    /// Plan and run an order that cuts after a part has fallen out.
+    #[serde(default)]
+    pub allow_precedence_violations: bool,
 }
 
 /// `POST /jobs?name=part.svg` with the file as the body, or `POST /jobs` with
@@ -121,17 +127,18 @@ pub struct SubmitPath {
 async fn submit(State(d): State<Arc<Daemon>>, Query(q): Query<SubmitQuery>, headers: HeaderMap, body: Bytes) -> ApiResult<impl IntoResponse> {
     let is_json = headers.get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).is_some_and(|v| v.starts_with("application/json"));
     let job = if is_json {
-        let SubmitPath { path } = serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"path\": \"...\"}}: {e}")))?;
+        let SubmitPath { path, allow_precedence_violations } =
+            serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"path\": \"...\"}}: {e}")))?;
         let service = &d.machine.service;
         let (folders, max) = (service.job_folders.clone(), d.machine.import.max_file_bytes());
         let (name, source) = tokio::task::spawn_blocking(move || super::intake::read_by_path(&path, &folders, max)).await.map_err(|e| Error::Io(e.to_string()))??;
-        d.submit(&name, &source)?
+        d.submit(&name, &source, allow_precedence_violations)?
     } else {
         let name = q.name.ok_or_else(|| Error::Config("an upload needs ?name=<file name> (its extension says how to read it)".into()))?;
         if body.is_empty() {
             return Err(Error::Config(format!("{name}: empty upload")).into());
         }
-        d.submit(&name, &body)?
+        d.submit(&name, &body, q.allow_precedence_violations)?
     };
     Ok((StatusCode::ACCEPTED, Json(job)))
 }

@@ -24,6 +24,10 @@ pub enum CtlCommand {
         /// The service reads the file where it is instead of an upload.
         #[arg(long)]
         path: bool,
+        /// Plan and run an order that cuts after a part has fallen out
+        /// (refused otherwise).
+        #[arg(long)]
+        allow_precedence_violations: bool,
     },
     /// Remove a job that is not running (with its program and recording).
     Remove { id: String },
@@ -87,15 +91,16 @@ async fn run_async(socket: &Path, command: CtlCommand) -> Result<()> {
         CtlCommand::Status => call(socket, Method::GET, "/status", None).await?,
         CtlCommand::Jobs => call(socket, Method::GET, "/jobs", None).await?,
         CtlCommand::Job { id } => call(socket, Method::GET, &format!("/jobs/{id}"), None).await?,
-        CtlCommand::Submit { file, path: true } => {
+        CtlCommand::Submit { file, path: true, allow_precedence_violations } => {
             let absolute = std::fs::canonicalize(&file).map_err(|e| Error::Io(format!("{}: {e}", file.display())))?;
-            call(socket, Method::POST, "/jobs", json(serde_json::json!({ "path": absolute }))).await?
+            call(socket, Method::POST, "/jobs", json(serde_json::json!({ "path": absolute, "allow_precedence_violations": allow_precedence_violations }))).await?
         }
-        CtlCommand::Submit { file, path: false } => {
+        CtlCommand::Submit { file, path: false, allow_precedence_violations } => {
             let bytes = std::fs::read(&file).map_err(|e| Error::Io(format!("{}: cannot read: {e}", file.display())))?;
             let name = file.file_name().and_then(|n| n.to_str()).ok_or_else(|| Error::Io(format!("{}: no file name", file.display())))?;
             let query: String = name.bytes().map(|b| if b.is_ascii_alphanumeric() || b"-._~".contains(&b) { (b as char).to_string() } else { format!("%{b:02X}") }).collect();
-            call(socket, Method::POST, &format!("/jobs?name={query}"), Some(("application/octet-stream", bytes))).await?
+            let allow = if allow_precedence_violations { "&allow_precedence_violations=true" } else { "" };
+            call(socket, Method::POST, &format!("/jobs?name={query}{allow}"), Some(("application/octet-stream", bytes))).await?
         }
         CtlCommand::Remove { id } => call(socket, Method::DELETE, &format!("/jobs/{id}"), None).await?,
         CtlCommand::Move { id, position } => call(socket, Method::POST, &format!("/jobs/{id}/move"), json(serde_json::json!({ "position": position }))).await?,

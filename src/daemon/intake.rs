@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use crate::config::MachineConfig;
+use crate::plan::PlannerKind;
 use crate::error::{Error, Result};
 
 /// How a job file is read.
@@ -144,6 +145,9 @@ pub struct PlanResult {
     pub lines: usize,
     pub planned_time_s: Option<f64>,
     pub start: Option<Vec<f64>>,
+    /// Cuts after their part has fallen out, in the planned order.
+    #[serde(default)]
+    pub precedence_violations: Option<u64>,
     /// Set when the job cannot run: why.
     pub error: Option<String>,
 }
@@ -151,11 +155,11 @@ pub struct PlanResult {
 /// The child's side (`laserd plan-job`): plans or checks `source`, writes the
 /// program to `program` and the result as JSON to `result`. The config comes
 /// as text on standard input: the service's, as it was loaded.
-pub fn plan_job_child(source: &Path, name: &str, program: &Path, result: &Path) -> Result<()> {
+pub fn plan_job_child(source: &Path, name: &str, program: &Path, result: &Path, allow_precedence_violations: bool) -> Result<()> {
     let mut config = String::new();
     std::io::stdin().take(1 << 20).read_to_string(&mut config).map_err(|e| Error::Config(format!("standard input: {e}")))?;
     let machine = MachineConfig::parse(&config, "the service's config")?;
-    let answer = match plan_or_check(source, name, program, &machine) {
+    let answer = match plan_or_check(source, name, program, &machine, PlannerKind::Auto, allow_precedence_violations) {
         Ok(answer) => answer,
         Err(e) => PlanResult { error: Some(e.to_string()), ..Default::default() },
     };
@@ -163,7 +167,11 @@ pub fn plan_job_child(source: &Path, name: &str, program: &Path, result: &Path) 
     super::queue::write_atomic(result, &text)
 }
 
-fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineConfig) -> Result<PlanResult> {
+/// Plans an SVG job with `planner` (the service's is `auto`), refusing an
+/// order with precedence violations unless `allow_precedence_violations`:
+/// the answer then carries the count and the error, and no program is
+/// written. G-code is checked as the controller parses it.
+fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineConfig, planner: PlannerKind, allow_precedence_violations: bool) -> Result<PlanResult> {
     let bytes = std::fs::read(source).map_err(|e| Error::Io(format!("{name}: cannot read: {e}")))?;
     match JobKind::of(name, &bytes)? {
         JobKind::Gcode => {
@@ -173,13 +181,19 @@ fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineCon
             Ok(PlanResult { lines, ..Default::default() })
         }
         JobKind::Svg => {
-            let planned = crate::run::plan(source, machine, crate::plan::PlannerKind::Auto, None)
-                .map_err(|e| Error::Plan(e.to_string().replace(&source.display().to_string(), name)))?;
+            let named = |e: Error| Error::Plan(e.to_string().replace(&source.display().to_string(), name));
+            let planned = crate::run::plan(source, machine, planner, None).map_err(named)?;
+            let precedence_violations = planned.report.precedence_violations;
+            if let Err(refused) = planned.check_precedence(allow_precedence_violations, "the submission's allow_precedence_violations") {
+                let why = refused.to_string().replace(&source.display().to_string(), name);
+                return Ok(PlanResult { precedence_violations, error: Some(why), ..Default::default() });
+            }
             super::queue::write_atomic(program, planned.program.to_gcode().as_bytes())?;
             Ok(PlanResult {
                 lines: planned.program.lines.len(),
                 planned_time_s: Some(planned.report.trajectory_time_s),
                 start: Some(planned.program.start.clone()),
+                precedence_violations,
                 error: None,
             })
         }
@@ -193,8 +207,18 @@ pub struct PlanLimits {
 }
 
 /// Plans a job in a child process (this program's `plan-job`), under
-/// `limits`; the child is killed when `cancelled` says so.
-pub fn plan_in_child(config_text: &str, source: &Path, name: &str, program: &Path, limits: &PlanLimits, cancelled: &dyn Fn() -> bool) -> Result<PlanResult> {
+/// `limits`; the child is killed when `cancelled` says so. An answer with
+/// an `error` is a job planned but refused (its figures are kept); `Err`,
+/// one that could not be planned.
+pub fn plan_in_child(
+    config_text: &str,
+    source: &Path,
+    name: &str,
+    program: &Path,
+    allow_precedence_violations: bool,
+    limits: &PlanLimits,
+    cancelled: &dyn Fn() -> bool,
+) -> Result<PlanResult> {
     let exe = std::env::current_exe().map_err(|e| Error::Io(format!("cannot find laserd's own program to plan with: {e}")))?;
     let result = program.with_file_name("plan-result.json");
     let _ = std::fs::remove_file(&result);
@@ -208,6 +232,7 @@ pub fn plan_in_child(config_text: &str, source: &Path, name: &str, program: &Pat
         .arg(program)
         .arg("--result")
         .arg(&result)
+        .args(allow_precedence_violations.then_some("--allow-precedence-violations"))
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::inherit());
@@ -253,10 +278,7 @@ pub fn plan_in_child(config_text: &str, source: &Path, name: &str, program: &Pat
     });
     let _ = std::fs::remove_file(&result);
     match (answer, status.code(), status.signal()) {
-        (Some(answer), Some(0), _) => match answer.error {
-            Some(why) => Err(Error::Plan(why)),
-            None => Ok(answer),
-        },
+        (Some(answer), Some(0), _) => Ok(answer),
         (_, _, Some(signal)) if signal == nix::libc::SIGABRT || signal == nix::libc::SIGSEGV || signal == nix::libc::SIGKILL => Err(Error::Plan(format!(
             "{name}: planning ran out of memory or crashed (signal {signal}; [service] plan_memory_mb = {})",
             memory / (1 << 20)
@@ -317,6 +339,33 @@ mod tests {
         let err = read(&jobs.join("fifo.nc"), &folders, 1000).unwrap_err().to_string();
         assert!(err.contains("not a regular file") && started.elapsed() < Duration::from_secs(2), "{err}");
         assert!(matches!(read(&part, &folders, 3), Err(Error::TooLarge(_))));
+    }
+
+    #[test]
+    fn an_order_with_precedence_violations_is_refused_unless_the_submission_allows_it() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut machine = MachineConfig::load(Some(&root.join("config/flatbed-cutter.toml"))).unwrap();
+        machine.cutting.time_limit = 1.0;
+        let dir = tempfile::tempdir().unwrap();
+        let source = dir.path().join("source.svg");
+        std::fs::copy(root.join("samples/nested-sheet.svg"), &source).unwrap();
+        let program = dir.path().join("program.nc");
+        // The galvo planner alone cuts holes after their parts: refused,
+        // with the count and the first rules named after the job, no program.
+        let refused = plan_or_check(&source, "sheet.svg", &program, &machine, PlannerKind::Hha, false).unwrap();
+        let count = refused.precedence_violations.unwrap();
+        let why = refused.error.unwrap();
+        assert!(count > 0);
+        assert!(why.starts_with("plan: sheet.svg: ") && why.contains(&format!("{count} precedence violation(s)")) && why.contains(" subpath 1 cut after path #"), "{why}");
+        assert!(why.contains("allow_precedence_violations"), "says how to override: {why}");
+        assert!(!program.exists());
+        let allowed = plan_or_check(&source, "sheet.svg", &program, &machine, PlannerKind::Hha, true).unwrap();
+        // (The galvo planner's search is capped in time: its count may differ.)
+        assert!(allowed.precedence_violations.unwrap() > 0 && allowed.error.is_none(), "{allowed:?}");
+        assert!(std::fs::read_to_string(&program).unwrap().lines().count() == allowed.lines);
+        // The service's planner keeps every rule.
+        let auto = plan_or_check(&source, "sheet.svg", &program, &machine, PlannerKind::Auto, false).unwrap();
+        assert_eq!((auto.precedence_violations, auto.error), (Some(0), None));
     }
 
     #[test]

@@ -185,7 +185,9 @@ impl Daemon {
 
     /// Accepts a job file: checks its size and that it is what its name
     /// says, stores it and hands it to the planning thread.
-    pub fn submit(&self, name: &str, source: &[u8]) -> Result<JobRecord> {
+    /// `allow_precedence_violations`: plan an order that cuts after a part
+    /// has fallen out instead of refusing it.
+    pub fn submit(&self, name: &str, source: &[u8], allow_precedence_violations: bool) -> Result<JobRecord> {
         if name.is_empty() || name.len() > 255 || name.contains('/') || name.chars().any(char::is_control) {
             return Err(Error::Config(format!("job name {:?}: give a plain file name such as part.svg", name.chars().take(80).collect::<String>())));
         }
@@ -194,7 +196,7 @@ impl Daemon {
             return Err(Error::TooLarge(format!("{name}: {} bytes, more than the {max} a job file may have ([import] max_file_mb)", source.len())));
         }
         intake::JobKind::of(name, source)?;
-        let job = self.store().add(name, source)?;
+        let job = self.store().add(name, source, allow_precedence_violations)?;
         self.job_changed(&job);
         self.planning.send(job.id.clone()).map_err(|_| Error::Io("the planning thread has stopped".into()))?;
         Ok(job)
@@ -205,10 +207,10 @@ impl Daemon {
 /// `program.nc` in a process of its own, bounded in time and memory, then
 /// queues it; a job that cannot be planned fails with the planner's message.
 fn plan_job(daemon: &Daemon, id: &str) {
-    let (source, program_path, name) = {
+    let (source, program_path, name, allow) = {
         let store = daemon.store();
         match (store.source_path(id), store.get(id)) {
-            (Some(source), Some(job)) if job.state == JobState::Planning => (source, store.program_path(id), job.name.clone()),
+            (Some(source), Some(job)) if job.state == JobState::Planning => (source, store.program_path(id), job.name.clone(), job.allow_precedence_violations),
             _ => return,
         }
     };
@@ -216,14 +218,24 @@ fn plan_job(daemon: &Daemon, id: &str) {
     *daemon.planning_now.lock().unwrap_or_else(|e| e.into_inner()) = Some((id.to_string(), cancel.clone()));
     let service = &daemon.machine.service;
     let limits = intake::PlanLimits { timeout: std::time::Duration::from_secs_f64(service.plan_timeout), memory_bytes: (service.plan_memory_mb * (1u64 << 20) as f64) as u64 };
-    let planned = intake::plan_in_child(&daemon.config_text, &source, &name, &program_path, &limits, &|| cancel.load(Ordering::Relaxed));
+    let planned = intake::plan_in_child(&daemon.config_text, &source, &name, &program_path, allow, &limits, &|| cancel.load(Ordering::Relaxed));
     *daemon.planning_now.lock().unwrap_or_else(|e| e.into_inner()) = None;
     let result = daemon.update_job(id, |j| match &planned {
         Ok(plan) => {
-            j.state = JobState::Queued;
-            j.lines_total = plan.lines;
-            j.planned_time_s = plan.planned_time_s;
-            j.start = plan.start.clone();
+            j.precedence_violations = plan.precedence_violations;
+            match &plan.error {
+                None => {
+                    j.state = JobState::Queued;
+                    j.lines_total = plan.lines;
+                    j.planned_time_s = plan.planned_time_s;
+                    j.start = plan.start.clone();
+                }
+                // Planned, but refused (an order with precedence violations).
+                Some(why) => {
+                    j.state = JobState::Failed;
+                    j.message = Some(why.clone());
+                }
+            }
         }
         Err(e) => {
             j.state = JobState::Failed;

@@ -73,6 +73,14 @@ pub struct JobRecord {
     pub last_executed_line: Option<usize>,
     /// Planned machine time of the program (s), for the ETA.
     pub planned_time_s: Option<f64>,
+    /// Cuts after their part has fallen out, in the planned order (0 for
+    /// marking); `None` until planned, and for G-code submitted as it is.
+    #[serde(default)]
+    pub precedence_violations: Option<u64>,
+    /// The submitter's override: plan and run an order with precedence
+    /// violations instead of refusing it.
+    #[serde(default)]
+    pub allow_precedence_violations: bool,
     /// Axis positions the planned program starts from (the machine is
     /// brought there first); `None` for G-code submitted as it is.
     #[serde(default)]
@@ -236,9 +244,9 @@ impl Store {
 
     /// Accepts a job: stores its source and its record (state `Planning`), and
     /// puts it at the end of the queue.
-    pub fn add(&mut self, name: &str, source: &[u8]) -> Result<JobRecord> {
+    pub fn add(&mut self, name: &str, source: &[u8], allow_precedence_violations: bool) -> Result<JobRecord> {
         let id = format!("j{:06}", self.next_id);
-        let stored = self.add_as(&id, name, source);
+        let stored = self.add_as(&id, name, source, allow_precedence_violations);
         if let Err(e) = &stored {
             // Nothing of a job the disk could not take is kept.
             let _ = std::fs::remove_dir_all(self.job_dir(&id));
@@ -248,7 +256,7 @@ impl Store {
         stored
     }
 
-    fn add_as(&mut self, id: &str, name: &str, source: &[u8]) -> Result<JobRecord> {
+    fn add_as(&mut self, id: &str, name: &str, source: &[u8], allow_precedence_violations: bool) -> Result<JobRecord> {
         // The id is spent before anything of the job is written: a job
         // deleted later never lends its id to another.
         write_atomic(&self.dir.join(NEXT_ID_FILE), format!("{}\n", self.next_id + 1).as_bytes())?;
@@ -267,6 +275,8 @@ impl Store {
             last_acked_line: 0,
             last_executed_line: Some(0),
             planned_time_s: None,
+            precedence_violations: None,
+            allow_precedence_violations,
             start: None,
             message: None,
             warnings: Vec::new(),
@@ -522,9 +532,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let (a, b, c) = {
             let mut store = Store::open(dir.path()).unwrap();
-            let a = store.add("a.svg", b"<svg/>").unwrap().id;
-            let b = store.add("b.nc", b"G1X1\n").unwrap().id;
-            let c = store.add("c.dxf", b"0\nEOF\n").unwrap().id;
+            let a = store.add("a.svg", b"<svg/>", false).unwrap().id;
+            let b = store.add("b.nc", b"G1X1\n", false).unwrap().id;
+            let c = store.add("c.dxf", b"0\nEOF\n", false).unwrap().id;
             for id in [&a, &b, &c] {
                 store.update(id, |j| j.state = JobState::Queued).unwrap();
             }
@@ -548,7 +558,7 @@ mod tests {
         assert!(store.source_path(&c).unwrap().ends_with("source.dxf"));
         // New ids never reuse old ones.
         let mut store = store;
-        let d = store.add("d.svg", b"<svg/>").unwrap();
+        let d = store.add("d.svg", b"<svg/>", false).unwrap();
         assert!(d.id > c, "{} after {c}", d.id);
     }
 
@@ -556,7 +566,7 @@ mod tests {
     fn running_jobs_cannot_be_removed_and_old_finished_jobs_are_pruned() {
         let dir = tempfile::tempdir().unwrap();
         let mut store = Store::open(dir.path()).unwrap();
-        let ids: Vec<String> = (0..5).map(|k| store.add(&format!("{k}.nc"), b"G0X0\n").unwrap().id).collect();
+        let ids: Vec<String> = (0..5).map(|k| store.add(&format!("{k}.nc"), b"G0X0\n", false).unwrap().id).collect();
         store.update(&ids[0], |j| j.state = JobState::Running).unwrap();
         assert!(matches!(store.remove(&ids[0]), Err(Error::Conflict(_))));
         assert!(matches!(store.remove("j999999"), Err(Error::NotFound(_))));
@@ -575,13 +585,13 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let newest = {
             let mut store = Store::open(dir.path()).unwrap();
-            store.add("a.nc", b"G0X0\n").unwrap();
-            let b = store.add("b.nc", b"G0X0\n").unwrap().id;
+            store.add("a.nc", b"G0X0\n", false).unwrap();
+            let b = store.add("b.nc", b"G0X0\n", false).unwrap().id;
             store.remove(&b).unwrap();
             b
         };
         let mut store = Store::open(dir.path()).unwrap();
-        let c = store.add("c.nc", b"G0X0\n").unwrap().id;
+        let c = store.add("c.nc", b"G0X0\n", false).unwrap().id;
         assert!(c > newest, "{c} after the deleted {newest}");
     }
 
@@ -590,8 +600,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let (done, cut) = {
             let mut store = Store::open(dir.path()).unwrap();
-            let done = store.add("done.nc", b"G0X0\n").unwrap().id;
-            let cut = store.add("cut.nc", b"G0X0\n").unwrap().id;
+            let done = store.add("done.nc", b"G0X0\n", false).unwrap().id;
+            let cut = store.add("cut.nc", b"G0X0\n", false).unwrap().id;
             for id in [&done, &cut] {
                 store.update(id, |j| {
                     j.state = JobState::Running;

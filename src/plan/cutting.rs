@@ -13,10 +13,11 @@
 
 use std::time::{Duration, Instant};
 
-use super::ecp::{checker, ils, solve, topology};
+use super::ecp::checker::{self, Violation};
+use super::ecp::{ils, solve, topology};
 use super::fields::centre_within_travel;
-use super::{check_reach, PathGroup, PlanContext, PlannedPath, Planner, Sequence};
-use crate::config::CuttingConfig;
+use super::{check_reach, PathGroup, PlanContext, PlanOutcome, PlannedPath, Planner, Sequence};
+use crate::config::{CuttingConfig, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{bounds_of, Job, Point};
 use crate::motion::Mode;
@@ -27,8 +28,15 @@ pub struct Ecp;
 #[derive(Debug, Clone)]
 pub struct CuttingPlan {
     pub sequence: Sequence,
-    /// Rules the route breaks, by the independent checker (0 unless the search is wrong).
-    pub precedence_violations: usize,
+    /// Rules the route breaks, by the independent checker (none unless the
+    /// search is wrong); contours are the job's geometries.
+    pub broken_rules: Vec<Violation>,
+}
+
+impl CuttingPlan {
+    pub fn outcome(self) -> PlanOutcome {
+        PlanOutcome { sequence: self.sequence, planner: "ecp".into(), broken_rules: Some(self.broken_rules) }
+    }
 }
 
 impl Planner for Ecp {
@@ -69,7 +77,7 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
         };
         solve(inst, settings.search, &options).route
     };
-    let precedence_violations = checker::check(inst, &route).len();
+    let broken_rules = checker::check(inst, &route);
     let polylines = model.polylines(&route);
     let mut paths = Vec::with_capacity(polylines.len());
     for (geometry, points) in polylines {
@@ -85,7 +93,7 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     };
     Ok(CuttingPlan {
         sequence: Sequence { groups },
-        precedence_violations,
+        broken_rules,
     })
 }
 
@@ -126,17 +134,65 @@ fn fields_along(job: &Job, paths: Vec<PlannedPath>, usable_half: f64, travel: (f
         .collect()
 }
 
-/// Inner contours (holes, parts in holes, engravings on parts) whose last cut
-/// comes at or after their outer contour's last cut, for a sequence of whole
-/// geometries (any planner's): the part has fallen out before they were done.
-pub fn sequence_precedence_violations(model: &topology::CuttingModel, sequence: &Sequence) -> usize {
-    let mut closes = vec![None; model.instance.contours.len()];
+/// Whether each geometry of `job` cuts through: its layer pierces. Parts
+/// fall out only where the laser cuts through; a marking layer holds nothing.
+pub fn cuts_through(job: &Job, machine: &MachineConfig) -> Vec<bool> {
+    job.geometries.iter().map(|g| machine.pierce(&job.processes[g.process].layer).active()).collect()
+}
+
+/// The precedence rules a sequence of whole geometries (any planner's)
+/// breaks: a geometry whose last cut comes at or after the last cut of the
+/// nearest contour around it that cuts through (`cuts`), its part having
+/// fallen out by then. A marking contour holds nothing: what lies inside an
+/// engraved frame belongs to the part the frame is on.
+pub fn whole_geometry_violations(model: &topology::CuttingModel, sequence: &Sequence, cuts: &[bool]) -> Vec<Violation> {
+    let mut closes = vec![None; model.outer.len()];
     for (i, p) in sequence.paths().enumerate() {
         if let Some(c) = closes.get_mut(p.geometry) {
             *c = Some(i);
         }
     }
-    model.instance.inner_outer.iter().filter(|&&(inner, outer)| closes[inner] >= closes[outer]).count()
+    let part_around = |mut k: usize| {
+        while let Some(o) = model.outer[k] {
+            if cuts.get(o).copied().unwrap_or(true) {
+                return Some(o);
+            }
+            k = o;
+        }
+        None
+    };
+    (0..model.outer.len())
+        .filter_map(|inner| part_around(inner).map(|outer| (inner, outer)))
+        .filter(|&(inner, outer)| closes[inner] >= closes[outer])
+        .map(|(inner, outer)| Violation::InnerAfterOuter { inner, outer })
+        .collect()
+}
+
+/// The rules a planner's whole-geometry `sequence` of `job` breaks; `None`
+/// when the job's topology cannot be built. A job with nothing that cuts
+/// through breaks none.
+pub fn sequence_violations(job: &Job, sequence: &Sequence, ctx: &PlanContext) -> Option<Vec<Violation>> {
+    let cuts = cuts_through(job, ctx.machine);
+    if !cuts.contains(&true) {
+        return Some(Vec::new());
+    }
+    let model = cutting_model(job, ctx.start, &ctx.machine.cutting).ok()?;
+    Some(whole_geometry_violations(&model, sequence, &cuts))
+}
+
+/// A broken rule in words, its geometries named as the job names them
+/// (without the file name each repeats).
+pub fn describe(job: &Job, rule: &Violation) -> String {
+    let name = |g: usize| match job.geometries.get(g) {
+        Some(g) => g.source.strip_prefix(&format!("{}: ", job.source)).unwrap_or(&g.source).to_string(),
+        None => format!("contour {g}"),
+    };
+    match *rule {
+        Violation::InnerAfterOuter { inner, outer } => format!("{} cut after {} around it", name(inner), name(outer)),
+        Violation::ClosesBoth { contours: (a, b), .. } => format!("a common cut closes both {} and {}", name(a), name(b)),
+        Violation::CutCount { element, times } => format!("cut element {element} {times} times"),
+        Violation::UnknownElement { element } => format!("unknown element {element}"),
+    }
 }
 
 #[cfg(test)]
@@ -194,10 +250,17 @@ mod tests {
             groups: vec![0; 3],
         };
         let seq = |order: &[usize]| Sequence { groups: vec![PathGroup { field_center: None, paths: order.iter().map(|&g| path(g, (0.0, 0.0), (1.0, 0.0))).collect() }] };
-        assert_eq!(sequence_precedence_violations(&model, &seq(&[2, 1, 0])), 0);
-        assert_eq!(sequence_precedence_violations(&model, &seq(&[0, 1, 2])), 2);
+        let all_cut = [true; 3];
+        let broken = |order: &[usize], cuts: &[bool]| whole_geometry_violations(&model, &seq(order), cuts);
+        assert_eq!(broken(&[2, 1, 0], &all_cut), vec![]);
+        assert_eq!(broken(&[0, 1, 2], &all_cut), vec![Violation::InnerAfterOuter { inner: 1, outer: 0 }, Violation::InnerAfterOuter { inner: 2, outer: 1 }]);
         // A second pass of the outer after its inner: closed last, fine.
-        assert_eq!(sequence_precedence_violations(&model, &seq(&[0, 2, 1, 0])), 0);
-        assert_eq!(sequence_precedence_violations(&model, &seq(&[2, 0, 1])), 1);
+        assert_eq!(broken(&[0, 2, 1, 0], &all_cut), vec![]);
+        assert_eq!(broken(&[2, 0, 1], &all_cut).len(), 1);
+        // 1 engraved (it holds nothing): 2 belongs to the part 0 around both.
+        let engraved = [true, false, true];
+        assert_eq!(broken(&[1, 2, 0], &engraved), vec![]);
+        assert_eq!(broken(&[1, 2, 0], &all_cut).len(), 1, "cut through, 1 is a part of its own");
+        assert_eq!(broken(&[0, 1, 2], &engraved), vec![Violation::InnerAfterOuter { inner: 1, outer: 0 }, Violation::InnerAfterOuter { inner: 2, outer: 0 }]);
     }
 }

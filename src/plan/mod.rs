@@ -2,6 +2,7 @@
 //! entered, and (on machines with a scanner, in step-and-scan) which scan field
 //! each belongs to. Input: `Job`; output: `Sequence`.
 
+pub mod auto;
 pub mod cutting;
 pub mod ecp;
 pub mod fields;
@@ -130,15 +131,39 @@ impl FromStr for PlannerKind {
     }
 }
 
-/// The planner `kind` stands for. `auto` is the HHA: fast, and on a machine
-/// without a scanner the same route search over the whole job (cutting jobs
-/// ask for `ecp`, which keeps parts from falling out early).
+/// The planner `kind` stands for (`auto`: see [`auto`]).
 pub fn planner(kind: PlannerKind) -> Box<dyn Planner> {
     match kind {
+        PlannerKind::Auto => Box::new(auto::Auto),
         PlannerKind::Nearest => Box::new(nearest::NearestNeighbour),
         PlannerKind::Ecp => Box::new(cutting::Ecp),
-        PlannerKind::Auto | PlannerKind::Hha => Box::new(galvo::Hha),
+        PlannerKind::Hha => Box::new(galvo::Hha),
         PlannerKind::Hga => Box::new(galvo::Hga),
+    }
+}
+
+/// A planned job: the sequence, the planner(s) that made it, and the
+/// precedence rules it breaks (cuts after their part has fallen out;
+/// `None`: unknown, the job's topology could not be built).
+pub struct PlanOutcome {
+    pub sequence: Sequence,
+    pub planner: String,
+    pub broken_rules: Option<Vec<ecp::checker::Violation>>,
+}
+
+/// Plans `job` with the planner `kind` stands for, and judges its order: the
+/// cutting planner's route by the independent checker, any other planner's
+/// by whole geometries.
+pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
+    match kind {
+        PlannerKind::Auto => auto::plan(job, ctx),
+        PlannerKind::Ecp => Ok(cutting::plan_cutting(job, ctx)?.outcome()),
+        _ => {
+            let planner = planner(kind);
+            let sequence = planner.plan(job, ctx)?;
+            let broken_rules = cutting::sequence_violations(job, &sequence, ctx);
+            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules })
+        }
     }
 }
 

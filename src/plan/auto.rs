@@ -1,0 +1,159 @@
+//! `--planner auto` (the default, and the service's): each layer planned by
+//! the planner made for it.
+//!
+//! * Layers that pierce (cut through: their `pierce_time`, else `[laser]`'s,
+//!   is above 0) go to the cutting planner (`ecp`): no part falls out before
+//!   everything inside it is cut.
+//! * Marking layers go to the galvo planner (`hha`): with a scanner it orders
+//!   scan fields; on a stage-only machine it is the same route search (2-opt,
+//!   Or-opt) over the whole job, which moves less air than `nearest`.
+//! * A job with both is marked first, then cut: a mark on a part is made while
+//!   the sheet still holds the part, never after it has fallen or moved. The
+//!   cuts start where the marking ended.
+
+use super::cutting::{self, cuts_through};
+use super::ecp::checker::Violation;
+use super::{galvo, PathGroup, PlanContext, PlanOutcome, Planner, Sequence};
+use crate::error::Result;
+use crate::job::Job;
+
+pub struct Auto;
+
+impl Planner for Auto {
+    fn name(&self) -> &'static str {
+        "auto"
+    }
+
+    fn plan(&self, job: &Job, ctx: &PlanContext) -> Result<Sequence> {
+        Ok(plan(job, ctx)?.sequence)
+    }
+}
+
+/// The job planned layer kind by layer kind; `planner` names what planned
+/// it: `hha`, `ecp`, or `hha+ecp` (marked, then cut).
+pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
+    let cuts = cuts_through(job, ctx.machine);
+    let (cutting, marking): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| cuts[g]);
+    if cutting.is_empty() {
+        let sequence = galvo::Hha.plan(job, ctx)?;
+        return Ok(PlanOutcome { sequence, planner: "hha".into(), broken_rules: Some(Vec::new()) });
+    }
+    if marking.is_empty() {
+        return Ok(cutting::plan_cutting(job, ctx)?.outcome());
+    }
+    let mut marked = galvo::Hha.plan(&part_of(job, &marking), ctx)?;
+    renumber(&mut marked, &marking);
+    let start = marked.paths().last().map_or(ctx.start, |p| p.end());
+    let cut = cutting::plan_cutting(&part_of(job, &cutting), &PlanContext { machine: ctx.machine, mode: ctx.mode, start })?;
+    let mut cut_sequence = cut.sequence;
+    renumber(&mut cut_sequence, &cutting);
+    // The cutting route's rules, by the checker, in the job's numbering;
+    // then the marks', by whole geometries against the parts around them.
+    let mut broken: Vec<Violation> = cut.broken_rules.into_iter().map(|v| in_job(v, &cutting)).collect();
+    let sequence = joined(marked, cut_sequence);
+    let marks_broken = cutting::sequence_violations(job, &sequence, ctx).map(|all| {
+        all.into_iter().filter(|v| matches!(v, Violation::InnerAfterOuter { inner, .. } if !cuts[*inner])).collect::<Vec<_>>()
+    });
+    let broken_rules = marks_broken.map(|m| {
+        broken.extend(m);
+        broken
+    });
+    Ok(PlanOutcome { sequence, planner: "hha+ecp".into(), broken_rules })
+}
+
+/// The geometries `which` of `job` as a job of their own (the processes
+/// kept, so each geometry keeps its process index).
+fn part_of(job: &Job, which: &[usize]) -> Job {
+    Job { source: job.source.clone(), geometries: which.iter().map(|&g| job.geometries[g].clone()).collect(), processes: job.processes.clone() }
+}
+
+/// A sequence of `part_of(job, which)` in the job's geometry numbering.
+fn renumber(sequence: &mut Sequence, which: &[usize]) {
+    for path in sequence.groups.iter_mut().flat_map(|g| g.paths.iter_mut()) {
+        path.geometry = which[path.geometry];
+    }
+}
+
+/// A rule of a part's route in the job's numbering (contours are geometries).
+fn in_job(rule: Violation, which: &[usize]) -> Violation {
+    match rule {
+        Violation::InnerAfterOuter { inner, outer } => Violation::InnerAfterOuter { inner: which[inner], outer: which[outer] },
+        Violation::ClosesBoth { element, contours: (a, b) } => Violation::ClosesBoth { element, contours: (which[a], which[b]) },
+        other => other,
+    }
+}
+
+/// `first` then `then`; on a stage-only plan (no scan fields) one group.
+fn joined(first: Sequence, then: Sequence) -> Sequence {
+    let mut groups = first.groups;
+    for group in then.groups {
+        match groups.last_mut() {
+            Some(last) if last.field_center.is_none() && group.field_center.is_none() => last.paths.extend(group.paths),
+            _ => groups.push(PathGroup { field_center: group.field_center, paths: group.paths }),
+        }
+    }
+    Sequence { groups }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::MachineConfig;
+    use crate::job::{Geometry, Point, Process};
+    use crate::motion::Mode;
+
+    fn square(x: f64, y: f64, side: f64, process: usize, name: &str) -> Geometry {
+        let points = vec![Point::new(x, y), Point::new(x + side, y), Point::new(x + side, y + side), Point::new(x, y + side)];
+        Geometry { points, closed: true, process, source: format!("t.svg: {name}") }
+    }
+
+    /// A cutting machine's layers: `cut` pierces, `engrave` does not.
+    fn cutter() -> MachineConfig {
+        MachineConfig::load(Some(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml"))).unwrap()
+    }
+
+    fn process(layer: &str) -> Process {
+        Process { layer: layer.into(), speed: 50.0, power: 500.0, passes: 1 }
+    }
+
+    #[test]
+    fn marks_first_with_the_galvo_planner_then_cuts_every_part_after_what_is_inside_it() {
+        let mut machine = cutter();
+        machine.cutting.time_limit = 0.5;
+        // Two plates, each with a hole and an engraved label inside; the
+        // engraved frame around the second plate holds nothing.
+        let geometries = vec![
+            square(10.0, 10.0, 50.0, 0, "plate a"),
+            square(20.0, 20.0, 10.0, 0, "hole a"),
+            square(40.0, 40.0, 5.0, 1, "label a"),
+            square(100.0, 10.0, 50.0, 0, "plate b"),
+            square(110.0, 20.0, 10.0, 0, "hole b"),
+            square(130.0, 40.0, 5.0, 1, "label b"),
+            square(95.0, 5.0, 60.0, 1, "frame b"),
+        ];
+        let job = Job { source: "t.svg".into(), geometries, processes: vec![process("cut"), process("engrave")] };
+        let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin() };
+        let outcome = plan(&job, &ctx).unwrap();
+        assert_eq!(outcome.planner, "hha+ecp");
+        assert_eq!(outcome.broken_rules, Some(vec![]));
+        let order: Vec<usize> = outcome.sequence.paths().map(|p| p.geometry).collect();
+        let marks = order.iter().take_while(|&&g| job.geometries[g].process == 1).count();
+        assert_eq!(marks, 3, "every mark before any cut: {order:?}");
+        let mut seen: Vec<usize> = order.clone();
+        seen.sort();
+        seen.dedup();
+        assert_eq!(seen, (0..7).collect::<Vec<_>>(), "every geometry planned: {order:?}");
+        let last = |g: usize| order.iter().rposition(|&x| x == g).unwrap();
+        assert!(last(1) < last(0) && last(4) < last(3), "holes before their plates: {order:?}");
+        assert_eq!(outcome.sequence.groups.len(), 1, "stage-only: one group");
+
+        // Only marking, only cutting: the one planner, as `--planner` names it.
+        let marking = Job { geometries: job.geometries.iter().filter(|g| g.process == 1).cloned().collect(), ..job.clone() };
+        let outcome = plan(&marking, &ctx).unwrap();
+        assert_eq!((outcome.planner.as_str(), outcome.broken_rules), ("hha", Some(vec![])));
+        assert_eq!(outcome.sequence, galvo::Hha.plan(&marking, &ctx).unwrap(), "the galvo planner's own plan");
+        let cutting = Job { geometries: job.geometries.iter().filter(|g| g.process == 0).cloned().collect(), ..job.clone() };
+        let outcome = plan(&cutting, &ctx).unwrap();
+        assert_eq!((outcome.planner.as_str(), outcome.broken_rules), ("ecp", Some(vec![])));
+    }
+}
