@@ -690,6 +690,13 @@ impl MachineConfig {
         Ok((Self::parse(&text, &path.display().to_string())?, text))
     }
 
+    /// A config that came from elsewhere than a file (a recording's, which
+    /// is untrusted), checked as a file's is; `origin` names it in errors.
+    pub fn checked(self, origin: &str) -> Result<MachineConfig> {
+        self.validate().map_err(|e| Error::Config(format!("{origin}: {e}")))?;
+        Ok(self)
+    }
+
     /// The default machine built into the binary (`config/laserd.toml`).
     pub fn builtin() -> MachineConfig {
         // Checked by the tests (default_config_is_valid_and_has_a_scanner):

@@ -365,13 +365,14 @@ fn main() -> ExitCode {
     }
 }
 
-/// The machine config of a command that has no report to carry it: the
-/// search of `ConfigSearch`, and a line on stderr saying which one was used
-/// unless it is the one given with `--config`.
-fn machine_config(option: Option<&Path>) -> Result<FoundConfig> {
+/// The machine config of a command whose text report does not carry it: the
+/// search of `ConfigSearch`, and in text mode (`json` false) a line on stderr
+/// saying which one was used, unless it is the one given with `--config`.
+fn machine_config(option: Option<&Path>, json: bool) -> Result<FoundConfig> {
     let search = ConfigSearch::new(option);
     let found = search.find()?;
     match &found.source {
+        _ if json => {}
         ConfigSource::Option { .. } => {}
         ConfigSource::Builtin => eprintln!("laserd: machine config: {} (none found at {})", found.source, search.places()),
         other => eprintln!("laserd: machine config: {other}"),
@@ -459,7 +460,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
         Command::Send { file, port, baud, config, check, json } => send(&file, &port, baud, config.as_deref(), check, json),
         Command::Sim { config, pty: _, link, baud, realtime: _, record, motion, flavor, faults } => {
             let faults = parse_faults(&faults)?;
-            let mut machine = machine_config(config.as_deref())?.machine;
+            let mut machine = machine_config(config.as_deref(), false)?.machine;
             machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
             machine.simulator.flavor = flavor.unwrap_or(machine.simulator.flavor);
             sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), faults)
@@ -478,7 +479,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(2) })
         }
         Command::Bench { which: BenchCommand::Sheet { config, elements, seed, time_limit, svg, json } } => {
-            let machine = machine_config(config.as_deref())?.machine;
+            let machine = machine_config(config.as_deref(), json)?.machine;
             let r = laserd::bench::sheet_bench(&machine, elements, seed, time_limit, svg.as_deref())?;
             if json {
                 print_json(&r)?;
@@ -498,7 +499,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(if r.ecp.precedence_violations == 0 { ExitCode::SUCCESS } else { ExitCode::from(2) })
         }
         Command::Bench { which: BenchCommand::Serve { job, config, clients, hz, json } } => {
-            let found = machine_config(config.as_deref())?;
+            let found = machine_config(config.as_deref(), json)?;
             let r = laserd::daemon::bench::serve_bench(&found.machine, &found.text, &job, clients, hz)?;
             if json {
                 print_json(&r)?;
@@ -526,7 +527,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Bench { which: BenchCommand::Motion { jobs, config, mode, repeats, json } } => {
-            let machine = machine_config(config.as_deref())?.machine;
+            let machine = machine_config(config.as_deref(), json)?.machine;
             let r = laserd::bench::motion_bench(&machine, &jobs, mode, repeats)?;
             if json {
                 print_json(&r)?;
@@ -547,7 +548,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Bench { which: BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } } => {
-            let mut machine = machine_config(config.as_deref())?.machine;
+            let mut machine = machine_config(config.as_deref(), json)?.machine;
             if let Some(t) = time_limit {
                 machine.galvo.time_limit = t;
             }
@@ -576,7 +577,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, motion, baud, json } } => {
-            let mut machine = machine_config(config.as_deref())?.machine;
+            let mut machine = machine_config(config.as_deref(), json)?.machine;
             machine.serial.baud = baud;
             machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
             let report = laserd::bench::link_bench(&machine, blocks, block_ms / 1000.0)?;
@@ -624,7 +625,10 @@ fn run_command(command: Command) -> Result<ExitCode> {
         }
         Command::Serve { config, state_dir, socket } => {
             let found = ConfigSearch::new(config.as_deref()).find_file()?;
-            tracing::info!("machine config: {}", found.source);
+            // As the other commands: said unless named with --config.
+            if !matches!(found.source, ConfigSource::Option { .. }) {
+                tracing::info!("machine config: {}", found.source);
+            }
             let config = found.source.path().map(Path::to_path_buf);
             let options = laserd::daemon::ServeOptions::from_env(config, state_dir, socket, &found.machine);
             laserd::daemon::serve(options)?;
@@ -655,7 +659,10 @@ fn run_command(command: Command) -> Result<ExitCode> {
                         let note = differs.then(|| format!("the machine of --config {} is not the recording's", path.display()));
                         (machine, format!("{} (--config)", path.display()), note)
                     }
-                    (None, Some(recorded)) => (recorded, "the recording's".to_string(), None),
+                    (None, Some(recorded)) => {
+                        let machine = recorded.checked(&format!("{}: the recorded machine", recording.display()))?;
+                        (machine, "the recording's".to_string(), None)
+                    }
                     (None, None) => {
                         let found = ConfigSearch::new(None).find()?;
                         let note = format!("the recording does not hold its machine; re-simulated on {}", found.source);
@@ -690,7 +697,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
 
 fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check: bool, json: bool) -> Result<ExitCode> {
     use std::io::IsTerminal;
-    let FoundConfig { machine, source, .. } = machine_config(config)?;
+    let FoundConfig { machine, source, .. } = machine_config(config, json)?;
     let shown = file.display().to_string();
     let opened = std::fs::File::open(file).map_err(|e| Error::Io(format!("{shown}: cannot read: {e}")))?;
     let size = opened.metadata().map(|m| m.len()).unwrap_or(0);

@@ -553,3 +553,25 @@ fn replay_to_sim_runs_the_recordings_machine_and_says_what_differs() {
     }
     assert_eq!(out.status.code(), Some(if replayed["same"] == true { 0 } else { 3 }));
 }
+
+/// A recording is untrusted: the machine it holds is checked as a config
+/// file is before `replay --to-sim` runs it, the setting named.
+#[test]
+fn replay_to_sim_refuses_a_recorded_machine_out_of_range() {
+    use laserd::record::{Recording, TOPIC_LINK, TOPIC_SETUP};
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("hostile.mcap");
+    let mut machine = laserd::config::MachineConfig::builtin();
+    machine.serial.rx_buffer = 0;
+    machine.simulator.planner_blocks = 1 << 40;
+    let sim = laserd::run::sim_config(&machine, Default::default());
+    let setup = laserd::run::run_setup(&machine, &sim);
+    let recording = Recording::create(&rec).unwrap();
+    let recorder = recording.recorder();
+    recorder.write(TOPIC_SETUP, 0.0, &setup);
+    recorder.write(TOPIC_LINK, 0.1, &laserd::record::LinkMessage { t: 0.1, event: laserd::stream::LinkEvent::Sent { line: 1, text: "G4P0.1".into() } });
+    drop(recorder);
+    recording.finish().unwrap();
+    let out = laserd(&["replay", rec.to_str().unwrap(), "--to-sim"], dir.path());
+    assert_clean_error(&out, "hostile.mcap: the recorded machine: serial.rx_buffer: must be between");
+}
