@@ -95,8 +95,136 @@ pub const DIRECTION_WEIGHT: Range<f64> = Range { lo: 0.0, hi: 1000.0, unit: "" }
 /// How often a layer is marked: each pass is a copy of its geometry in the plan.
 pub const PASSES: Range<u32> = Range { lo: 1, hi: 1000, unit: "passes" };
 
-/// The default machine, shipped in the repository.
+/// The default machine, shipped in the repository (for tests and tools run
+/// in the checkout; an installed binary carries it as `DEFAULT_CONFIG_TEXT`).
 pub const DEFAULT_CONFIG_PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/laserd.toml");
+/// The default machine, built into the binary: the last place the config
+/// search looks, so that an installed `laserd` works with no file at all.
+pub const DEFAULT_CONFIG_TEXT: &str = include_str!("../config/laserd.toml");
+/// The machine PC's config, the service's (systemd/laserd.service).
+pub const SYSTEM_CONFIG_PATH: &str = "/etc/laserd/laserd.toml";
+/// The environment variable naming a config file.
+pub const CONFIG_ENV: &str = "LASERD_CONFIG";
+
+/// Where a command's machine config came from (reports carry it as `config`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "from", rename_all = "snake_case")]
+pub enum ConfigSource {
+    /// `--config FILE`.
+    Option { path: PathBuf },
+    /// `$LASERD_CONFIG`.
+    Env { path: PathBuf },
+    /// `/etc/laserd/laserd.toml`.
+    System { path: PathBuf },
+    /// `laserd/laserd.toml` in the user's config folder (`$XDG_CONFIG_HOME`, else `~/.config`).
+    User { path: PathBuf },
+    /// The default machine built into the binary (`config/laserd.toml`).
+    Builtin,
+}
+
+impl ConfigSource {
+    /// The file read; `None` for the built-in machine.
+    pub fn path(&self) -> Option<&Path> {
+        match self {
+            ConfigSource::Option { path } | ConfigSource::Env { path } | ConfigSource::System { path } | ConfigSource::User { path } => Some(path),
+            ConfigSource::Builtin => None,
+        }
+    }
+}
+
+impl std::fmt::Display for ConfigSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ConfigSource::Option { path } => write!(f, "{} (--config)", path.display()),
+            ConfigSource::Env { path } => write!(f, "{} (${CONFIG_ENV})", path.display()),
+            ConfigSource::System { path } => write!(f, "{} (system)", path.display()),
+            ConfigSource::User { path } => write!(f, "{} (user)", path.display()),
+            ConfigSource::Builtin => write!(f, "the built-in default machine (config/laserd.toml)"),
+        }
+    }
+}
+
+/// The places a command looks for its machine config, in order: `--config`,
+/// `$LASERD_CONFIG`, the system file, the user's file; the first that is
+/// given (the first two) or exists (the last two) is used, and one that
+/// cannot be read is an error, never skipped. None: the built-in machine.
+#[derive(Debug, Clone)]
+pub struct ConfigSearch {
+    pub option: Option<PathBuf>,
+    pub env: Option<PathBuf>,
+    pub system: PathBuf,
+    pub user: Option<PathBuf>,
+}
+
+/// A config as found: the machine, its text (the service hands it to its
+/// planning processes) and where it came from.
+#[derive(Debug, Clone)]
+pub struct FoundConfig {
+    pub machine: MachineConfig,
+    pub text: String,
+    pub source: ConfigSource,
+}
+
+impl ConfigSearch {
+    /// The search of this process: `--config`, its environment, its user.
+    pub fn new(option: Option<&Path>) -> ConfigSearch {
+        ConfigSearch {
+            option: option.map(Path::to_path_buf),
+            env: std::env::var_os(CONFIG_ENV).filter(|v| !v.is_empty()).map(PathBuf::from),
+            system: PathBuf::from(SYSTEM_CONFIG_PATH),
+            user: dirs::config_dir().map(|d| d.join("laserd").join("laserd.toml")),
+        }
+    }
+
+    /// The file to read and where it came from; `None`: no file, the built-in machine.
+    fn locate(&self) -> Option<(PathBuf, ConfigSource)> {
+        if let Some(path) = &self.option {
+            return Some((path.clone(), ConfigSource::Option { path: path.clone() }));
+        }
+        if let Some(path) = &self.env {
+            return Some((path.clone(), ConfigSource::Env { path: path.clone() }));
+        }
+        // A file that exists but cannot be read (permissions) is chosen, so
+        // that reading it fails by name rather than another machine running.
+        let exists = |p: &Path| p.symlink_metadata().is_ok();
+        if exists(&self.system) {
+            return Some((self.system.clone(), ConfigSource::System { path: self.system.clone() }));
+        }
+        self.user.as_ref().filter(|p| exists(p)).map(|p| (p.clone(), ConfigSource::User { path: p.clone() }))
+    }
+
+    /// Reads and validates the config found; the built-in machine when no file is.
+    pub fn find(&self) -> Result<FoundConfig> {
+        match self.locate() {
+            Some((path, source)) => {
+                let (machine, text) = MachineConfig::load_with_text(Some(&path))?;
+                Ok(FoundConfig { machine, text, source })
+            }
+            None => Ok(FoundConfig { machine: MachineConfig::builtin(), text: DEFAULT_CONFIG_TEXT.to_string(), source: ConfigSource::Builtin }),
+        }
+    }
+
+    /// The config file found, for the service: it drives a real machine, so
+    /// the built-in example machine is no fallback (its port, travel and
+    /// limits are not this machine's).
+    pub fn find_file(&self) -> Result<FoundConfig> {
+        if self.locate().is_none() {
+            return Err(Error::Config(format!(
+                "no machine config: no --config, and none at {}; install one at {} \
+                 (config/laserd.toml with [serial] port set to the controller's device)",
+                self.places(),
+                self.system.display()
+            )));
+        }
+        self.find()
+    }
+
+    /// The places searched when `--config` is not given, for messages.
+    pub fn places(&self) -> String {
+        let user = self.user.as_ref().map(|p| format!(", {}", p.display())).unwrap_or_default();
+        format!("${CONFIG_ENV}, {}{user}", self.system.display())
+    }
+}
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
@@ -545,18 +673,36 @@ impl Limits {
 }
 
 impl MachineConfig {
-    /// Reads and validates a config file; `None` reads the shipped default machine.
+    /// Reads and validates a config file; `None` is the built-in default
+    /// machine (no search: commands find theirs with `ConfigSearch`).
     pub fn load(path: Option<&Path>) -> Result<MachineConfig> {
-        Self::load_with_text(path).map(|(config, _)| config)
+        match path {
+            Some(path) => Self::load_with_text(Some(path)).map(|(config, _)| config),
+            None => Ok(Self::builtin()),
+        }
     }
 
     /// The config and its text as read (the service hands the same text to
-    /// its planning processes).
+    /// its planning processes); `None` is the built-in default machine.
     pub fn load_with_text(path: Option<&Path>) -> Result<(MachineConfig, String)> {
-        let path: PathBuf = path.map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from(DEFAULT_CONFIG_PATH));
-        let text = std::fs::read_to_string(&path)
+        let Some(path) = path else { return Ok((Self::builtin(), DEFAULT_CONFIG_TEXT.to_string())) };
+        let text = std::fs::read_to_string(path)
             .map_err(|e| Error::Config(format!("{}: cannot read: {e}", path.display())))?;
         Ok((Self::parse(&text, &path.display().to_string())?, text))
+    }
+
+    /// A config that came from elsewhere than a file (a recording's, which
+    /// is untrusted), checked as a file's is; `origin` names it in errors.
+    pub fn checked(self, origin: &str) -> Result<MachineConfig> {
+        self.validate().map_err(|e| Error::Config(format!("{origin}: {e}")))?;
+        Ok(self)
+    }
+
+    /// The default machine built into the binary (`config/laserd.toml`).
+    pub fn builtin() -> MachineConfig {
+        // Checked by the tests (default_config_is_valid_and_has_a_scanner):
+        // the shipped file always parses.
+        Self::parse(DEFAULT_CONFIG_TEXT, "the built-in config/laserd.toml").expect("the built-in config/laserd.toml is valid")
     }
 
     /// Parses and validates config text; `origin` names the file in error messages.
@@ -572,7 +718,26 @@ impl MachineConfig {
             Error::Config(format!("{origin}: {msg}"))
         })?;
         config.validate().map_err(|e| Error::Config(format!("{origin}: {e}")))?;
+        for warning in config.warnings() {
+            tracing::warn!("{origin}: {warning}");
+        }
         Ok(config)
+    }
+
+    /// Settings that are valid but unlikely on a real machine, each naming
+    /// them: the command goes on, the log says so. A scanner field wider than
+    /// the stage's travel can be planned (the scanner then reaches past the
+    /// travel), but a stage that carries the scanner less far than the lens
+    /// reaches is more often a travel or field in the wrong unit.
+    pub fn warnings(&self) -> Vec<String> {
+        let Some(sc) = &self.scanner else { return vec![] };
+        [("x", sc.field_x, self.stage.travel_x), ("y", sc.field_y, self.stage.travel_y)]
+            .into_iter()
+            .filter(|(_, field, travel)| field > travel)
+            .map(|(axis, field, travel)| {
+                format!("scanner.field_{axis} = {field} mm is larger than stage.travel_{axis} = {travel} mm: is one of them in the wrong unit?")
+            })
+            .collect()
     }
 
     fn validate(&self) -> std::result::Result<(), String> {
@@ -773,6 +938,57 @@ mod tests {
 
     fn default_text() -> String {
         std::fs::read_to_string(DEFAULT_CONFIG_PATH).unwrap()
+    }
+
+    /// The search order: --config, $LASERD_CONFIG, the system file, the
+    /// user's, the built-in machine; a named file that cannot be read is an
+    /// error, not skipped. (Temporary files stand for /etc and the user's folder.)
+    #[test]
+    fn config_search_takes_the_first_place_that_has_a_config() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = |name: &str| {
+            let path = dir.path().join(name);
+            std::fs::write(&path, default_text().replace("travel_x = 300.0", &format!("travel_x = {}.0", 100 + name.len()))).unwrap();
+            path
+        };
+        let mut search = ConfigSearch { option: None, env: None, system: dir.path().join("etc.toml"), user: Some(dir.path().join("user.toml")) };
+        let found = search.find().unwrap();
+        assert_eq!(found.source, ConfigSource::Builtin);
+        assert_eq!(found.machine.stage.travel_x, 300.0);
+        assert!(search.find_file().unwrap_err().to_string().contains("no machine config"));
+        // Places filled from the last searched to the first: each takes over.
+        let user = file("user.toml");
+        assert_eq!(search.find().unwrap().source, ConfigSource::User { path: user });
+        let system = file("etc.toml");
+        assert_eq!(search.find().unwrap().source, ConfigSource::System { path: system });
+        search.env = Some(file("environment.toml"));
+        assert_eq!(search.find().unwrap().source, ConfigSource::Env { path: dir.path().join("environment.toml") });
+        search.option = Some(file("option-given.toml"));
+        let found = search.find().unwrap();
+        assert_eq!(found.source, ConfigSource::Option { path: dir.path().join("option-given.toml") });
+        // The file found is the file read (each has its own travel).
+        assert_eq!(found.machine.stage.travel_x, 117.0);
+        assert!(found.text.contains("travel_x = 117.0"));
+        // Named but missing: an error naming it, not the next place.
+        search.option = None;
+        search.env = Some(dir.path().join("missing.toml"));
+        let err = search.find().unwrap_err().to_string();
+        assert!(err.contains("missing.toml: cannot read"), "{err}");
+    }
+
+    /// Issue 17, point 6: a field larger than the travel is said, naming both settings.
+    #[test]
+    fn a_scanner_field_larger_than_the_travel_is_named() {
+        assert!(MachineConfig::builtin().warnings().is_empty());
+        let text = default_text().replace("travel_y = 300.0", "travel_y = 50.0").replace("field_y = 70.0", "field_y = 120.0");
+        let warnings = MachineConfig::parse(&text, "t.toml").unwrap().warnings();
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(warnings[0].contains("scanner.field_y = 120") && warnings[0].contains("stage.travel_y = 50"), "{warnings:?}");
+    }
+
+    #[test]
+    fn the_built_in_machine_is_the_shipped_file() {
+        assert_eq!(DEFAULT_CONFIG_TEXT, default_text());
     }
 
     #[test]

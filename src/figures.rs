@@ -21,6 +21,21 @@ pub struct RunSetup {
     pub baud: u32,
     /// Half the usable scanner field, when the machine has a scanner (axes 2, 3).
     pub usable_half_field: Option<f64>,
+    /// How far the executed TCP may be from the planned one while marking:
+    /// `program.tolerance` and a unit of the last decimal of each axis.
+    /// Absent in recordings made before it was recorded: not judged then.
+    #[serde(default)]
+    pub tcp_tolerance_mm: Option<f64>,
+    /// The machine the run had (after command-line overrides such as
+    /// `--motion`), so that `replay --to-sim` runs the same machine again.
+    /// Absent in recordings made before it was recorded.
+    #[serde(default)]
+    pub machine: Option<crate::config::MachineConfig>,
+    /// Recorded in real time on the controller's side (`laserd sim
+    /// --record`): its times are the host's and the sender's, and it numbers
+    /// every line the controller received, the sender's own too.
+    #[serde(default)]
+    pub real_time: bool,
 }
 
 /// Per program line: its kind and planned check points (marking lines only).
@@ -71,6 +86,11 @@ pub struct SimFigures {
     /// First limit violation, for the human summary.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub first_violation: Option<String>,
+    /// Every limit the run broke, each once with its worst value: travel,
+    /// scanner field, velocity, acceleration, jerk (per axis), TCP deviation
+    /// while marking, laser state. Empty: the run kept every limit.
+    #[serde(default)]
+    pub limit_breaches: Vec<String>,
 }
 
 /// The program line of each line the controller received, in order (the
@@ -103,17 +123,25 @@ pub fn program_line_of(lines: &[usize], knot: &Knot) -> usize {
     (knot.line as usize).checked_sub(1).and_then(|i| lines.get(i)).copied().unwrap_or(knot.line as usize)
 }
 
-/// Executed blocks of program lines: (line, start knot, end knot).
-fn executed_blocks<'a>(knots: &'a [Knot], lines: &'a [usize]) -> impl Iterator<Item = (usize, &'a Knot, &'a Knot)> {
-    knots
-        .windows(2)
-        .filter(|w| w[1].t > w[0].t && w[0].pos != w[1].pos)
-        .map(move |w| (program_line_of(lines, &w[1]), &w[0], &w[1]))
-        .filter(|(line, _, _)| *line > 0)
+/// Executed blocks of program lines: (line, start knot, end knot). A block
+/// the controller runs in several segments (Grbl's acceleration, cruise and
+/// deceleration) has a knot at each; it is one straight block from the knot
+/// before its first segment to the end of its last.
+fn executed_blocks<'a>(knots: &'a [Knot], lines: &'a [usize]) -> Vec<(usize, &'a Knot, &'a Knot)> {
+    let mut blocks: Vec<(usize, &Knot, &Knot)> = Vec::new();
+    for w in knots.windows(2).filter(|w| w[1].t > w[0].t && w[0].pos != w[1].pos) {
+        let line = program_line_of(lines, &w[1]);
+        match blocks.last_mut() {
+            Some((last, _, end)) if *last == line && w[1].line == end.line && std::ptr::eq(*end, &w[0]) => *end = &w[1],
+            _ => blocks.push((line, &w[0], &w[1])),
+        }
+    }
+    blocks.retain(|(line, _, _)| *line > 0);
+    blocks
 }
 
 pub fn sim_figures(log: &RunLog) -> SimFigures {
-    let setup = log.setup.clone().unwrap_or(RunSetup { axes: vec![], baud: 115_200, usable_half_field: None });
+    let setup = log.setup.clone().unwrap_or(RunSetup { axes: vec![], baud: 115_200, usable_half_field: None, tcp_tolerance_mm: None, machine: None, real_time: false });
 
     let mut checker = LimitChecker::new(&setup.axes);
     for k in &log.knots {
@@ -213,6 +241,18 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
         })
         .fold(0.0, f64::max);
 
+    let mut limit_breaches = breaches(&setup, &limits);
+    if let Some(allowed) = setup.tcp_tolerance_mm.filter(|allowed| max_dev > *allowed) {
+        limit_breaches.push(format!("TCP deviation while marking {max_dev:.4} mm, allowed {allowed:.4} mm (program.tolerance)"));
+    }
+    if laser_state_errors > 0 {
+        limit_breaches.push(format!("laser state: {laser_state_errors} block(s) with the laser on while jumping or off while marking"));
+    }
+    // A violation of no kind above (a position jump in zero time, a malformed knot).
+    if limits.violations > 0 && limit_breaches.is_empty() {
+        limit_breaches.push(limits.first_violation.clone().unwrap_or_else(|| "a limit".into()));
+    }
+
     SimFigures {
         job_time_s,
         limit_violations: limits.violations,
@@ -226,5 +266,32 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
         peak_stage_use,
         laser_state_errors,
         first_violation: limits.first_violation,
+        limit_breaches,
     }
+}
+
+/// The axis limits a run broke, each with its worst value: positions outside
+/// the travel (stage) or the usable field (scanner), and the peak velocity,
+/// acceleration and jerk of each axis over its limit (the limit checker
+/// counts a sample over by more than its relative tolerance, 1e-9).
+fn breaches(setup: &RunSetup, limits: &LimitReport) -> Vec<String> {
+    let mut found = Vec::new();
+    for (i, axis) in setup.axes.iter().enumerate() {
+        let (lo, hi) = limits.peak_position.get(i).copied().unwrap_or((0.0, 0.0));
+        let range = if i < 2 { "travel" } else { "scanner field" };
+        if lo < axis.min - 1e-6 || hi > axis.max + 1e-6 {
+            found.push(format!("{range} of {}: {lo:.3} to {hi:.3} mm, limits {} to {} mm", axis.letter, axis.min, axis.max));
+        }
+        for (what, peaks, limit, unit) in [
+            ("velocity", &limits.peak_velocity_use, axis.max_velocity, "mm/s"),
+            ("acceleration", &limits.peak_acceleration_use, axis.max_acceleration, "mm/s²"),
+            ("jerk", &limits.peak_jerk_use, axis.max_jerk, "mm/s³"),
+        ] {
+            let used = peaks.get(i).copied().unwrap_or(0.0);
+            if used > 1.0 + 1e-9 {
+                found.push(format!("{what} of {}: {used:.2} times its limit of {limit} {unit}", axis.letter));
+            }
+        }
+    }
+    found
 }

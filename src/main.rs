@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use clap::{Parser, Subcommand};
-use laserd::config::{in_range, MachineConfig, BAUD, TIME_LIMIT, TRAVEL};
+use laserd::config::{in_range, ConfigSearch, ConfigSource, FoundConfig, MachineConfig, BAUD, TIME_LIMIT, TRAVEL};
 use laserd::error::{Error, Result};
 use laserd::figures::sim_figures;
 use laserd::motion::Mode;
@@ -32,7 +32,8 @@ struct Cli {
 #[derive(clap::Args)]
 struct JobArgs {
     job: PathBuf,
-    /// Machine config (default: the shipped config/laserd.toml).
+    /// Machine config (default: $LASERD_CONFIG, else /etc/laserd/laserd.toml,
+    /// else ~/.config/laserd/laserd.toml, else the built-in default machine).
     #[arg(long)]
     config: Option<PathBuf>,
     /// auto (the default): the cutting planner ecp for layers that pierce,
@@ -59,7 +60,9 @@ struct JobArgs {
 
 impl JobArgs {
     fn plan(&self) -> Result<(MachineConfig, run::Planned)> {
-        let mut machine = MachineConfig::load(self.config.as_deref())?;
+        // The report says where the config came from (no line on stderr: an
+        // error later stays the one line of the error contract).
+        let FoundConfig { mut machine, source, .. } = ConfigSearch::new(self.config.as_deref()).find()?;
         if let Some(t) = self.time_limit {
             machine.cutting.time_limit = t;
             machine.galvo.time_limit = t;
@@ -67,7 +70,8 @@ impl JobArgs {
         if let Some(seed) = self.seed {
             machine.galvo.seed = seed;
         }
-        let planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
+        let mut planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
+        planned.report.config = Some(source);
         Ok((machine, planned))
     }
 }
@@ -166,7 +170,8 @@ enum Command {
     /// The service: control API on a Unix socket, persistent job queue, the
     /// controller link (run it under systemd: systemd/laserd.service).
     Serve {
-        /// Machine config (default: /etc/laserd/laserd.toml).
+        /// Machine config (default: $LASERD_CONFIG, else /etc/laserd/laserd.toml,
+        /// else ~/.config/laserd/laserd.toml; never the built-in example machine).
         #[arg(long)]
         config: Option<PathBuf>,
         /// Queue and recordings (default: $STATE_DIRECTORY, else /var/lib/laserd).
@@ -370,6 +375,21 @@ fn main() -> ExitCode {
     }
 }
 
+/// The machine config of a command whose text report does not carry it: the
+/// search of `ConfigSearch`, and in text mode (`json` false) a line on stderr
+/// saying which one was used, unless it is the one given with `--config`.
+fn machine_config(option: Option<&Path>, json: bool) -> Result<FoundConfig> {
+    let search = ConfigSearch::new(option);
+    let found = search.find()?;
+    match &found.source {
+        _ if json => {}
+        ConfigSource::Option { .. } => {}
+        ConfigSource::Builtin => eprintln!("laserd: machine config: {} (none found at {})", found.source, search.places()),
+        other => eprintln!("laserd: machine config: {other}"),
+    }
+    Ok(found)
+}
+
 fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
     let text = serde_json::to_string_pretty(value).map_err(|e| Error::Io(e.to_string()))?;
     println!("{text}");
@@ -408,14 +428,23 @@ fn run_command(command: Command) -> Result<ExitCode> {
             planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations")?;
             let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
             let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
+            let breaches = dry.report.sim.as_ref().map(|s| s.limit_breaches.len()).unwrap_or(0);
             if json {
                 print_json(&dry.report)?;
             } else {
                 print!("{}", dry.report.summary());
+                if breaches > 0 && machine.simulator.motion == MotionModel::Grbl {
+                    println!("  (a stock Grbl 1.1 cannot keep a jerk limit: it plans trapezoids, and at a corner its junction deviation $11 changes each axis' velocity at once, beyond its acceleration too)");
+                }
             }
             if let Some(reason) = &dry.outcome.stop_reason {
                 eprintln!("laserd: error: job stopped: {reason}");
                 return Ok(ExitCode::from(2));
+            }
+            // A run that breaks a limit of the machine fails, its report printed.
+            if breaches > 0 {
+                eprintln!("laserd: error: the simulated run broke {breaches} limit(s) of the machine (listed in the report)");
+                return Ok(ExitCode::from(4));
             }
             Ok(ExitCode::SUCCESS)
         }
@@ -446,7 +475,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
         Command::Send { file, port, baud, config, check, json } => send(&file, &port, baud, config.as_deref(), check, json),
         Command::Sim { config, pty: _, link, baud, realtime: _, record, motion, flavor, faults } => {
             let faults = parse_faults(&faults)?;
-            let mut machine = MachineConfig::load(config.as_deref())?;
+            let mut machine = machine_config(config.as_deref(), false)?.machine;
             machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
             machine.simulator.flavor = flavor.unwrap_or(machine.simulator.flavor);
             sim_on_pty(&machine, link.as_deref(), baud.unwrap_or(machine.serial.baud), record.as_deref(), faults)
@@ -465,7 +494,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(2) })
         }
         Command::Bench { which: BenchCommand::Sheet { config, elements, seed, time_limit, svg, json } } => {
-            let machine = MachineConfig::load(config.as_deref())?;
+            let machine = machine_config(config.as_deref(), json)?.machine;
             let r = laserd::bench::sheet_bench(&machine, elements, seed, time_limit, svg.as_deref())?;
             if json {
                 print_json(&r)?;
@@ -485,8 +514,8 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(if r.ecp.precedence_violations == 0 { ExitCode::SUCCESS } else { ExitCode::from(2) })
         }
         Command::Bench { which: BenchCommand::Serve { job, config, clients, hz, json } } => {
-            let machine = MachineConfig::load(config.as_deref())?;
-            let r = laserd::daemon::bench::serve_bench(&machine, config.as_deref(), &job, clients, hz)?;
+            let found = machine_config(config.as_deref(), json)?;
+            let r = laserd::daemon::bench::serve_bench(&found.machine, &found.text, &job, clients, hz)?;
             if json {
                 print_json(&r)?;
             } else {
@@ -513,7 +542,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Bench { which: BenchCommand::Motion { jobs, config, mode, repeats, json } } => {
-            let machine = MachineConfig::load(config.as_deref())?;
+            let machine = machine_config(config.as_deref(), json)?.machine;
             let r = laserd::bench::motion_bench(&machine, &jobs, mode, repeats)?;
             if json {
                 print_json(&r)?;
@@ -534,7 +563,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Bench { which: BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } } => {
-            let mut machine = MachineConfig::load(config.as_deref())?;
+            let mut machine = machine_config(config.as_deref(), json)?.machine;
             if let Some(t) = time_limit {
                 machine.galvo.time_limit = t;
             }
@@ -563,7 +592,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Bench { which: BenchCommand::Link { config, blocks, block_ms, motion, baud, json } } => {
-            let mut machine = MachineConfig::load(config.as_deref())?;
+            let mut machine = machine_config(config.as_deref(), json)?.machine;
             machine.serial.baud = baud;
             machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
             let report = laserd::bench::link_bench(&machine, blocks, block_ms / 1000.0)?;
@@ -610,9 +639,13 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Serve { config, state_dir, socket } => {
-            let config = config.unwrap_or_else(|| PathBuf::from("/etc/laserd/laserd.toml"));
-            let machine = MachineConfig::load(Some(&config))?;
-            let options = laserd::daemon::ServeOptions::from_env(Some(config), state_dir, socket, &machine);
+            let found = ConfigSearch::new(config.as_deref()).find_file()?;
+            // As the other commands: said unless named with --config.
+            if !matches!(found.source, ConfigSource::Option { .. }) {
+                tracing::info!("machine config: {}", found.source);
+            }
+            let config = found.source.path().map(Path::to_path_buf);
+            let options = laserd::daemon::ServeOptions::from_env(config, state_dir, socket, &found.machine);
             laserd::daemon::serve(options)?;
             Ok(ExitCode::SUCCESS)
         }
@@ -631,15 +664,40 @@ fn run_command(command: Command) -> Result<ExitCode> {
                 eprintln!("laserd: warning: {}: recording ends early ({why}); figures cover what it holds", recording.display());
             }
             if to_sim {
-                let machine = MachineConfig::load(config.as_deref())?;
-                let again = laserd::run::restream(&replay.log, &machine)?;
-                let report = serde_json::json!({ "recorded": figures, "re_simulated": again, "same": figures == again });
+                // The recording's own machine, unless another is asked for;
+                // a recording that does not hold it gets the searched one.
+                let recorded = replay.log.setup.as_ref().and_then(|s| s.machine.clone());
+                let (machine, used, note) = match (config.as_deref(), recorded) {
+                    (Some(path), recorded) => {
+                        let machine = MachineConfig::load(Some(path))?;
+                        let differs = recorded.is_some_and(|r| serde_json::to_value(&r).ok() != serde_json::to_value(&machine).ok());
+                        let note = differs.then(|| format!("the machine of --config {} is not the recording's", path.display()));
+                        (machine, format!("{} (--config)", path.display()), note)
+                    }
+                    (None, Some(recorded)) => {
+                        let machine = recorded.checked(&format!("{}: the recorded machine", recording.display()))?;
+                        (machine, "the recording's".to_string(), None)
+                    }
+                    (None, None) => {
+                        let found = ConfigSearch::new(None).find()?;
+                        let note = format!("the recording does not hold its machine; re-simulated on {}", found.source);
+                        (found.machine, found.source.to_string(), Some(note))
+                    }
+                };
+                let (again, again_log) = laserd::run::restream(&replay.log, &machine)?;
+                let differences = laserd::run::replay_differences(&figures, &replay.log, &again, &again_log, note.as_deref());
+                let same = differences.is_empty();
+                let report = serde_json::json!({ "recorded": figures, "re_simulated": again, "same": same, "machine": used, "differences": differences });
                 if json {
                     print_json(&report)?;
                 } else {
                     println!("{}", serde_json::to_string_pretty(&report).unwrap_or_default());
+                    println!("machine: {used}; {}", if same { "the same figures again" } else { "differences:" });
+                    for d in &differences {
+                        println!("  {d}");
+                    }
                 }
-                return Ok(if figures == again { ExitCode::SUCCESS } else { ExitCode::from(3) });
+                return Ok(if same { ExitCode::SUCCESS } else { ExitCode::from(3) });
             }
             if json {
                 print_json(&figures)?;
@@ -654,7 +712,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
 
 fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check: bool, json: bool) -> Result<ExitCode> {
     use std::io::IsTerminal;
-    let machine = MachineConfig::load(config)?;
+    let FoundConfig { machine, source, .. } = machine_config(config, json)?;
     let shown = file.display().to_string();
     let opened = std::fs::File::open(file).map_err(|e| Error::Io(format!("{shown}: cannot read: {e}")))?;
     let size = opened.metadata().map(|m| m.len()).unwrap_or(0);
@@ -711,6 +769,7 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
         "last_acked_line": outcome.last_acked_line,
         "last_executed_line": outcome.last_executed_line,
         "completed": outcome.completed,
+        "config": source,
     });
     if json {
         print_json(&report)?;
@@ -776,7 +835,7 @@ fn sim_on_pty(machine: &MachineConfig, link: Option<&Path>, baud: u32, record: O
     if let Some(e) = sim.flavor_error() {
         return Err(Error::Config(format!("--flavor / [simulator] flavor: {e}")));
     }
-    let setup = run::run_setup(machine, &sim);
+    let setup = laserd::figures::RunSetup { real_time: true, ..run::run_setup(machine, &sim) };
     let device = laserd_sim::pty::open_pty(link).map_err(|e| Error::Io(format!("cannot open a pseudo-terminal: {e}")))?;
     let recording = record.map(Recording::create).transpose()?;
     let recorder = recording.as_ref().map(|r| r.recorder());

@@ -4,6 +4,7 @@
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use crate::config::ConfigSource;
 use crate::figures::SimFigures;
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -51,6 +52,10 @@ pub struct PlanReport {
     /// Only in `dry-run`.
     pub sim: Option<SimFigures>,
     pub recording: Option<String>,
+    /// Where the machine config came from (`plan` and `dry-run`; absent in
+    /// the service's reports, whose config is the service's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub config: Option<ConfigSource>,
 }
 
 impl PlanReport {
@@ -99,9 +104,18 @@ impl PlanReport {
             if let Some(v) = &sim.first_violation {
                 s.push_str(&format!("  first limit violation: {v}\n"));
             }
+            if !sim.limit_breaches.is_empty() {
+                s.push_str(&format!("  LIMITS BROKEN ({}):\n", sim.limit_breaches.len()));
+                for b in &sim.limit_breaches {
+                    s.push_str(&format!("    {b}\n"));
+                }
+            }
         }
         if let Some(r) = &self.recording {
             s.push_str(&format!("  recording: {r}\n"));
+        }
+        if let Some(c) = &self.config {
+            s.push_str(&format!("  machine config: {c}\n"));
         }
         s
     }

@@ -11,7 +11,7 @@ use tokio::sync::watch;
 
 use crate::config::MachineConfig;
 use crate::error::{Error, Result};
-use crate::figures::{sim_figures, PlannedLine, RunLog, RunSetup};
+use crate::figures::{sim_figures, PlannedLine, RunLog, RunSetup, SimFigures};
 use crate::import::import_job;
 use crate::job::{Job, Point};
 use crate::motion::{self, Mode, Trajectory};
@@ -94,6 +94,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         motion_time_s,
         sim: None,
         recording: None,
+        config: None,
     };
     Ok(Planned { job, sequence, trajectory, program, report, broken_rules })
 }
@@ -243,6 +244,11 @@ pub fn run_setup(machine: &MachineConfig, sim: &SimConfig) -> RunSetup {
         axes: sim.axes.clone(),
         baud: machine.serial.baud,
         usable_half_field: machine.scanner.as_ref().map(|s| s.usable_half_field),
+        // A unit of the last decimal of the stage's and the scanner's
+        // coordinates on top of the program's tolerance: their rounding.
+        tcp_tolerance_mm: Some(machine.program.tolerance + 10f64.powi(-(machine.program.decimals as i32)) + 10f64.powi(-(machine.program.scanner_decimals as i32))),
+        machine: Some(machine.clone()),
+        real_time: false,
     }
 }
 
@@ -342,8 +348,9 @@ pub fn stream_into_simulator(
 }
 
 /// Re-streams the program a recording sent into a fresh simulator (with the
-/// recording's axes and baud rate) and measures it again against the same plan.
-pub fn restream(log: &RunLog, machine: &MachineConfig) -> Result<crate::figures::SimFigures> {
+/// recording's axes and baud rate) and measures it again against the same
+/// plan: the figures and what crossed the link and moved.
+pub fn restream(log: &RunLog, machine: &MachineConfig) -> Result<(SimFigures, RunLog)> {
     let setup = log.setup.clone().ok_or_else(|| Error::Record("the recording has no machine setup".into()))?;
     let lines: Vec<program::ProgramLine> = log
         .link
@@ -369,5 +376,39 @@ pub fn restream(log: &RunLog, machine: &MachineConfig) -> Result<crate::figures:
     options.hold_limit = options.hold_limit_for(machine.stop_time_s());
     options.expect_start = Some(program.start.clone());
     let (_, again) = stream_into_simulator(&program, sim, setup.baud, &options, None)?;
-    Ok(sim_figures(&RunLog { setup: Some(setup), planned: log.planned.clone(), ..again }))
+    let again = RunLog { setup: Some(setup), planned: log.planned.clone(), ..again };
+    Ok((sim_figures(&again), again))
+}
+
+/// Each figure a re-simulation gives otherwise than the recording did (beyond
+/// a relative 1e-9), with what explains it where that is known: lines the
+/// re-stream's sender sent of its own, a real-time recording's times, another
+/// machine. None: the same run again.
+pub fn replay_differences(recorded: &SimFigures, recorded_log: &RunLog, again: &SimFigures, again_log: &RunLog, machine_note: Option<&str>) -> Vec<String> {
+    let (Ok(serde_json::Value::Object(a)), Ok(serde_json::Value::Object(b))) = (serde_json::to_value(recorded), serde_json::to_value(again)) else { return vec![] };
+    let own_lines = |log: &RunLog| log.link.iter().filter(|(_, e)| matches!(e, stream::LinkEvent::Sent { line: 0, .. })).count();
+    let extra_lines = own_lines(again_log) as i64 - own_lines(recorded_log) as i64;
+    let real_time = recorded_log.setup.as_ref().is_some_and(|s| s.real_time);
+    let mut differences = Vec::new();
+    for (name, value) in &a {
+        let other = b.get(name).unwrap_or(&serde_json::Value::Null);
+        // Times counted from another origin round differently in the last bits.
+        let close = match (value.as_f64(), other.as_f64()) {
+            (Some(x), Some(y)) => (x - y).abs() <= 1e-9 * x.abs().max(y.abs()) + 1e-12,
+            _ => false,
+        };
+        if value == other || close {
+            continue;
+        }
+        let why = match name.as_str() {
+            "lines_sent" | "bytes_sent" if extra_lines != 0 && real_time => format!(
+                ": the re-stream's sender sent {extra_lines} line(s) of its own (at connect) besides the recorded ones, which hold the recorded sender's own lines already"
+            ),
+            "lines_sent" | "bytes_sent" if extra_lines != 0 => format!(": the re-stream's sender sent {extra_lines} line(s) of its own more than the recorded one"),
+            _ if real_time => ": recorded in real time on a pseudo-terminal (with the sender's and the host's timing); the re-simulation runs in virtual time".to_string(),
+            _ => machine_note.map(|m| format!(": {m}")).unwrap_or_default(),
+        };
+        differences.push(format!("{name}: {value} recorded, {other} re-simulated{why}"));
+    }
+    differences
 }

@@ -7,8 +7,99 @@ use std::process::{Command, Output};
 
 use common::SimProcess;
 
+/// Runs laserd in `dir`; no `$LASERD_CONFIG` and an empty user config folder,
+/// so that the machine is the one the test names (or the built-in one).
 fn laserd(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_laserd")).args(args).current_dir(dir).output().expect("laserd runs")
+    laserd_with_env(args, dir, &[])
+}
+
+fn laserd_with_env(args: &[&str], dir: &Path, env: &[(&str, &Path)]) -> Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_laserd"));
+    command.args(args).current_dir(dir).env_remove("LASERD_CONFIG").env("XDG_CONFIG_HOME", dir.join("no-user-config"));
+    for (name, value) in env {
+        command.env(name, value);
+    }
+    command.output().expect("laserd runs")
+}
+
+/// Issue 17, point 2: an installed binary finds its machine config without
+/// the build checkout: `--config`, then `$LASERD_CONFIG`, then
+/// /etc/laserd/laserd.toml, then the user's config folder ($XDG_CONFIG_HOME,
+/// else ~/.config), then the machine built into the binary; reports say which.
+/// Run from a folder with no config in it. (The real /etc is only read: when
+/// the machine has a system config, it is the one before the user's.)
+#[test]
+fn config_is_found_in_the_search_order_from_any_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let elsewhere = dir.path().join("elsewhere");
+    let home = dir.path().join("home");
+    let xdg = dir.path().join("xdg");
+    std::fs::create_dir_all(&elsewhere).unwrap();
+    let shipped = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/laserd.toml")).unwrap();
+    // Each file is a machine of its own travel, so the report shows which was read.
+    let write = |path: &Path, travel: u32| {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(path, shipped.replace("travel_x = 300.0", &format!("travel_x = {travel}.0"))).unwrap();
+        path.to_path_buf()
+    };
+    let system = Path::new("/etc/laserd/laserd.toml");
+    let has_system = system.exists();
+    let dry_run = |env: &[(&str, &Path)], extra: &[&str]| {
+        let mut args = vec!["plan", "--json"];
+        args.extend_from_slice(extra);
+        let job = sample("one-field.svg");
+        args.push(&job);
+        let out = laserd_with_env(&args, &elsewhere, env);
+        json(&out)["config"].clone()
+    };
+    let no_user = dir.path().join("no-user-config");
+    // Nothing anywhere: the built-in machine (or the system's).
+    let found = dry_run(&[("HOME", &home), ("XDG_CONFIG_HOME", &no_user)], &[]);
+    if has_system {
+        assert_eq!(found["from"], "system", "{found}");
+    } else {
+        assert_eq!(found, serde_json::json!({"from": "builtin"}));
+    }
+    // ~/.config/laserd/laserd.toml without XDG_CONFIG_HOME; $XDG_CONFIG_HOME/laserd/laserd.toml with it.
+    let in_home = write(&home.join(".config/laserd/laserd.toml"), 301);
+    let mut command = Command::new(env!("CARGO_BIN_EXE_laserd"));
+    let job = sample("one-field.svg");
+    let out = command.args(["plan", "--json", &job]).current_dir(&elsewhere).env_remove("LASERD_CONFIG").env_remove("XDG_CONFIG_HOME").env("HOME", &home).output().unwrap();
+    let found = json(&out)["config"].clone();
+    let in_xdg = write(&xdg.join("laserd/laserd.toml"), 302);
+    let found_xdg = dry_run(&[("HOME", &home), ("XDG_CONFIG_HOME", &xdg)], &[]);
+    if !has_system {
+        assert_eq!(found, serde_json::json!({"from": "user", "path": in_home}));
+        assert_eq!(found_xdg, serde_json::json!({"from": "user", "path": in_xdg}));
+    }
+    // $LASERD_CONFIG before the system's and the user's; --config before all.
+    // The named one has no scanner: the plan shows it is the machine used.
+    let named = write(&dir.path().join("named.toml"), 303);
+    let (start, end) = (shipped.find("\n[scanner]").unwrap(), shipped.find("\n[laser]").unwrap());
+    std::fs::write(&named, format!("{}{}", &shipped[..start], &shipped[end..])).unwrap();
+    assert_eq!(dry_run(&[("XDG_CONFIG_HOME", &xdg), ("LASERD_CONFIG", &named)], &[]), serde_json::json!({"from": "env", "path": named}));
+    let given = write(&dir.path().join("given.toml"), 304);
+    let found = dry_run(&[("XDG_CONFIG_HOME", &xdg), ("LASERD_CONFIG", &named)], &["--config", given.to_str().unwrap()]);
+    assert_eq!(found, serde_json::json!({"from": "option", "path": given}));
+    // $LASERD_CONFIG naming a missing file is an error, not the next place.
+    let out = laserd_with_env(&["plan", &job], &elsewhere, &[("LASERD_CONFIG", &dir.path().join("missing.toml"))]);
+    assert_clean_error(&out, "missing.toml: cannot read");
+
+    let out = laserd_with_env(&["dry-run", &job, "--json"], &elsewhere, &[("LASERD_CONFIG", &named)]);
+    let report = json(&out);
+    assert_eq!(report["config"]["from"], "env");
+    assert_eq!(report["mode"], "stage-only", "the machine of $LASERD_CONFIG is the one used");
+    let text = laserd_with_env(&["dry-run", &job], &elsewhere, &[("LASERD_CONFIG", &named)]);
+    assert!(String::from_utf8_lossy(&text.stdout).contains(&format!("machine config: {} ($LASERD_CONFIG)", named.display())), "{}", String::from_utf8_lossy(&text.stdout));
+    // A command without a report says it on stderr.
+    let out = laserd_with_env(&["bench", "link", "--blocks", "50"], &elsewhere, &[("LASERD_CONFIG", &given)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("laserd: machine config: {} ($LASERD_CONFIG)", given.display())), "{}", String::from_utf8_lossy(&out.stderr));
+    // The service never runs the built-in example machine: it needs a file.
+    if !has_system {
+        let out = laserd_with_env(&["serve", "--state-dir", dir.path().join("state").to_str().unwrap()], &elsewhere, &[("HOME", &no_user)]);
+        assert_clean_error(&out, "no machine config");
+    }
 }
 
 fn sample(name: &str) -> String {
@@ -367,4 +458,120 @@ fn ctl_and_serve_fail_cleanly() {
         dir.path(),
     );
     assert_clean_error(&out, "cannot create");
+}
+
+/// Issue 17, point 5: a dry-run that breaks a limit of the machine exits
+/// non-zero (4), lists each broken limit in its text report, and still
+/// prints its JSON report. Under `--motion grbl` (a stock Grbl: trapezoids,
+/// junction deviation) the jerk limits of every axis are broken; the TCP
+/// stays on the path (once counted 5.97 mm off: each of Grbl's segments of
+/// a block was taken for the whole block).
+#[test]
+fn a_dry_run_that_breaks_a_limit_fails_and_names_each_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = laserd(&["dry-run", &sample("one-field.svg"), "--motion", "grbl", "--json"], dir.path());
+    assert_eq!(out.status.code(), Some(4), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("broke"), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("the JSON report still comes");
+    let sim = &report["sim"];
+    let breaches: Vec<&str> = sim["limit_breaches"].as_array().unwrap().iter().map(|b| b.as_str().unwrap()).collect();
+    assert!(sim["limit_violations"].as_u64().unwrap() > 0, "{sim}");
+    for axis in ["X", "Y"] {
+        assert!(breaches.iter().any(|b| b.starts_with(&format!("jerk of {axis}: "))), "{breaches:?}");
+    }
+    assert!(sim["max_tcp_deviation_mm"].as_f64().unwrap() <= 0.0102, "{sim}");
+    assert!(!breaches.iter().any(|b| b.contains("TCP deviation")), "{breaches:?}");
+    let text = laserd(&["dry-run", &sample("one-field.svg"), "--motion", "grbl"], dir.path());
+    assert_eq!(text.status.code(), Some(4));
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(text.contains("LIMITS BROKEN (") && text.contains("jerk of X: "), "{text}");
+    assert!(text.contains("a stock Grbl 1.1 cannot keep a jerk limit"), "{text}");
+    // Within its limits, the same job passes with none listed.
+    let report = json(&laserd(&["dry-run", &sample("one-field.svg"), "--json"], dir.path()));
+    assert_eq!(report["sim"]["limit_breaches"], serde_json::json!([]));
+}
+
+/// Issue 17, point 6: a scanner field larger than the stage's travel is
+/// planned, with a warning naming both settings.
+#[test]
+fn a_scanner_field_larger_than_the_travel_is_said() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/laserd.toml")).unwrap();
+    let cfg = dir.path().join("wide.toml");
+    std::fs::write(&cfg, text.replace("travel_x = 300.0", "travel_x = 60.0")).unwrap();
+    let out = laserd(&["plan", &sample("one-field.svg"), "--config", cfg.to_str().unwrap()], dir.path());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("scanner.field_x = 70 mm is larger than stage.travel_x = 60 mm"), "{err}");
+}
+
+/// Issue 17, point 8: `replay --to-sim` runs the recording's own machine
+/// (here the flatbed cutter run as a stock Grbl, `--motion grbl`, not the
+/// default machine), and says what differs and why when it is not the same run.
+#[test]
+fn replay_to_sim_runs_the_recordings_machine_and_says_what_differs() {
+    let dir = tempfile::tempdir().unwrap();
+    let cutter = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml");
+    let rec = dir.path().join("cut.mcap");
+    let out = laserd(&["dry-run", &sample("one-field.svg"), "--config", cutter.to_str().unwrap(), "--motion", "grbl", "--record", rec.to_str().unwrap(), "--json"], dir.path());
+    assert!(rec.exists(), "{}", String::from_utf8_lossy(&out.stderr));
+    let again = json(&laserd(&["replay", rec.to_str().unwrap(), "--to-sim", "--json"], dir.path()));
+    assert_eq!(again["same"], true, "{again}");
+    assert_eq!(again["machine"], "the recording's");
+    assert_eq!(again["differences"], serde_json::json!([]));
+    // Another machine asked for: the differences, each saying why.
+    let default = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/laserd.toml");
+    let out = laserd(&["replay", rec.to_str().unwrap(), "--to-sim", "--json", "--config", default.to_str().unwrap()], dir.path());
+    assert_eq!(out.status.code(), Some(3));
+    let other: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let differences = other["differences"].as_array().unwrap();
+    assert!(!differences.is_empty(), "{other}");
+    for d in differences {
+        assert!(d.as_str().unwrap().contains("is not the recording's"), "{d}");
+    }
+
+    // A recording made on the controller's side (`laserd sim --record`) of
+    // `laserd send`: every difference of the re-simulation is explained.
+    let nc = dir.path().join("one.nc");
+    let out = laserd(&["plan", &sample("one-field.svg"), "-o", nc.to_str().unwrap()], dir.path());
+    assert!(out.status.success());
+    let link = dir.path().join("tty");
+    let sim_rec = dir.path().join("sim.mcap");
+    let sim = SimProcess::start(&link, &["--record", sim_rec.to_str().unwrap()]);
+    let sent = json(&laserd(&["send", nc.to_str().unwrap(), "--port", link.to_str().unwrap(), "--json"], dir.path()));
+    assert_eq!(sent["completed"], true);
+    sim.terminate();
+    let out = laserd(&["replay", sim_rec.to_str().unwrap(), "--to-sim", "--json"], dir.path());
+    let replayed: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(replayed["machine"], "the recording's");
+    for d in replayed["differences"].as_array().unwrap() {
+        let d = d.as_str().unwrap();
+        let (figure, why) = d.split_once(": ").unwrap();
+        assert!(why.contains("re-simulated: "), "each difference says why: {d}");
+        if figure == "lines_sent" {
+            assert!(d.contains("line(s) of its own"), "{d}");
+        }
+    }
+    assert_eq!(out.status.code(), Some(if replayed["same"] == true { 0 } else { 3 }));
+}
+
+/// A recording is untrusted: the machine it holds is checked as a config
+/// file is before `replay --to-sim` runs it, the setting named.
+#[test]
+fn replay_to_sim_refuses_a_recorded_machine_out_of_range() {
+    use laserd::record::{Recording, TOPIC_LINK, TOPIC_SETUP};
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("hostile.mcap");
+    let mut machine = laserd::config::MachineConfig::builtin();
+    machine.serial.rx_buffer = 0;
+    machine.simulator.planner_blocks = 1 << 40;
+    let sim = laserd::run::sim_config(&machine, Default::default());
+    let setup = laserd::run::run_setup(&machine, &sim);
+    let recording = Recording::create(&rec).unwrap();
+    let recorder = recording.recorder();
+    recorder.write(TOPIC_SETUP, 0.0, &setup);
+    recorder.write(TOPIC_LINK, 0.1, &laserd::record::LinkMessage { t: 0.1, event: laserd::stream::LinkEvent::Sent { line: 1, text: "G4P0.1".into() } });
+    drop(recorder);
+    recording.finish().unwrap();
+    let out = laserd(&["replay", rec.to_str().unwrap(), "--to-sim"], dir.path());
+    assert_clean_error(&out, "hostile.mcap: the recorded machine: serial.rx_buffer: must be between");
 }

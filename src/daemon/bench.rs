@@ -136,7 +136,7 @@ fn controller_polls(recording: &Path) -> Result<(usize, Vec<f64>, usize)> {
     Ok((times.len(), jitter(&times, percentile(&gaps, 0.5)), starved))
 }
 
-pub fn serve_bench(machine: &MachineConfig, config_path: Option<&Path>, job: &Path, clients: usize, client_hz: f64) -> Result<ServeBench> {
+pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clients: usize, client_hz: f64) -> Result<ServeBench> {
     if !(client_hz.is_finite() && client_hz > 0.0 && client_hz <= 1000.0) {
         return Err(Error::Config(format!("bench serve: --hz must be in (0, 1000], got {client_hz}")));
     }
@@ -147,12 +147,8 @@ pub fn serve_bench(machine: &MachineConfig, config_path: Option<&Path>, job: &Pa
     let tty = dir.join("tty");
     // The machine's config with the simulator's device, and a table large
     // enough for the 3000-element sheet that is planned in run 3.
-    let base = match config_path {
-        Some(p) => std::fs::read_to_string(p).map_err(|e| Error::Io(format!("{}: {e}", p.display())))?,
-        None => std::fs::read_to_string(crate::config::DEFAULT_CONFIG_PATH).map_err(|e| Error::Io(format!("{}: {e}", crate::config::DEFAULT_CONFIG_PATH)))?,
-    };
     let params = crate::plan::ecp::sheet::SheetParams::with_target(3000);
-    let text: String = base
+    let text: String = config_text
         .lines()
         .map(|l| {
             if l.starts_with("port = ") {

@@ -32,8 +32,17 @@ const MAX_COORD_MM: f64 = 1e6;
 /// becomes infinite and its path vanishes.
 const MAX_RAW_NUMBER: f64 = 1e9;
 
-/// Attributes that place or shape geometry.
-const GEOMETRY_ATTRIBUTES: [&str; 17] = ["d", "points", "transform", "viewBox", "x", "y", "width", "height", "rx", "ry", "r", "cx", "cy", "x1", "y1", "x2", "y2"];
+/// Attributes that place or shape geometry (markers are drawn as paths too).
+/// usvg reads an unreadable one as absent: 0, or no transform, so each is
+/// checked here first.
+const GEOMETRY_ATTRIBUTES: [&str; 23] = [
+    "d", "points", "transform", "transform-origin", "viewBox", "preserveAspectRatio", "x", "y", "width", "height", "rx", "ry", "r", "cx", "cy",
+    "x1", "y1", "x2", "y2", "refX", "refY", "markerWidth", "markerHeight",
+];
+
+/// Declarations of a `style` attribute that place geometry (usvg takes
+/// these two from CSS as well).
+const GEOMETRY_STYLE: [&str; 2] = ["transform", "transform-origin"];
 
 /// Parses SVG `text` and converts it to a job; `source` names the file in messages.
 /// Nothing outside `text` is read: images by path or URL are refused.
@@ -116,8 +125,13 @@ fn check_raw_geometry(text: &str, source: &str) -> Result<()> {
             "image" => images += 1,
             _ => {}
         }
-        for attr in node.attributes().filter(|a| GEOMETRY_ATTRIBUTES.contains(&a.name())) {
-            let value = attr.value();
+        let attributes = node.attributes().map(|a| (a.name(), a.value()));
+        // `style="transform: …"` is the same transform as the attribute.
+        let styled = node.attribute("style").into_iter().flat_map(|style| style.split(';')).filter_map(|d| d.split_once(':')).map(|(n, v)| (n.trim(), v.trim()));
+        for (attribute, value) in attributes.chain(styled.filter(|(n, _)| GEOMETRY_STYLE.contains(n))) {
+            if !GEOMETRY_ATTRIBUTES.contains(&attribute) {
+                continue;
+            }
             let name = || {
                 let at = doc.text_pos_at(node.range().start);
                 match node.attribute("id") {
@@ -125,8 +139,8 @@ fn check_raw_geometry(text: &str, source: &str) -> Result<()> {
                     None => format!("{} at line {}", node.tag_name().name(), at.row),
                 }
             };
-            let bad = |why: String| Error::Import(format!("{source}: {}: {}: {why}", name(), attr.name()));
-            let numbers = numbers_of(attr.name(), value).map_err(bad)?;
+            let bad = |why: String| Error::Import(format!("{source}: {}: {attribute}=\"{}\": {why}", name(), value.chars().take(40).map(|c| if c.is_control() { ' ' } else { c }).collect::<String>()));
+            let numbers = numbers_of(attribute, value).map_err(bad)?;
             if let Some(n) = numbers.iter().find(|n| !(n.is_finite() && n.abs() <= MAX_RAW_NUMBER)) {
                 return Err(bad(format!("the number {n:e} is out of range (at most {MAX_RAW_NUMBER:e} in magnitude)")));
             }
@@ -143,8 +157,8 @@ fn check_raw_geometry(text: &str, source: &str) -> Result<()> {
 
 /// The numbers of a geometry attribute, read by usvg's own parsers
 /// (svgtypes): path data, a transform's matrix, a list of numbers, a length.
-/// Path data, a transform or a point list usvg would cut short or ignore is
-/// an error; a length it cannot read has no number.
+/// A value usvg would cut short, ignore or read as 0 is an error (a browser
+/// draws the element elsewhere or not at all; a laser must not guess).
 fn numbers_of(attribute: &str, value: &str) -> std::result::Result<Vec<f64>, String> {
     use svgtypes::PathSegment as S;
     match attribute {
@@ -167,7 +181,21 @@ fn numbers_of(attribute: &str, value: &str) -> std::result::Result<Vec<f64>, Str
         }
         "transform" => {
             let t: svgtypes::Transform = value.parse().map_err(|e| format!("unreadable transform ({e})"))?;
+            // usvg replaces a transform that collapses an axis (scale(0)) by
+            // none at all, as tiny-skia judges it (in f32).
+            let collapsed = |a: f64, b: f64| (a.hypot(b) as f32) <= f32::EPSILON;
+            if collapsed(t.a, t.c) || collapsed(t.b, t.d) {
+                return Err("the transform collapses the drawing to a line or a point".into());
+            }
             Ok(vec![t.a, t.b, t.c, t.d, t.e, t.f])
+        }
+        "transform-origin" => {
+            value.parse::<svgtypes::TransformOrigin>().map_err(|e| format!("unreadable transform origin ({e})"))?;
+            Ok(vec![])
+        }
+        "preserveAspectRatio" => {
+            value.parse::<svgtypes::AspectRatio>().map_err(|e| format!("unreadable aspect ratio ({e})"))?;
+            Ok(vec![])
         }
         "points" | "viewBox" => {
             let numbers = svgtypes::NumberListParser::from(value).collect::<std::result::Result<Vec<f64>, _>>();
@@ -177,7 +205,7 @@ fn numbers_of(attribute: &str, value: &str) -> std::result::Result<Vec<f64>, Str
                 _ => Err("unreadable viewBox (four numbers expected)".into()),
             }
         }
-        _ => Ok(value.parse::<svgtypes::Length>().map(|l| vec![l.number]).unwrap_or_default()),
+        _ => value.parse::<svgtypes::Length>().map(|l| vec![l.number]).map_err(|_| "unreadable length (a number with an optional unit expected)".into()),
     }
 }
 
@@ -557,6 +585,32 @@ mod tests {
         // What SVG allows still imports: packed numbers, exponents, flags.
         let job = import(&svg(r#"<path d="M1.5.5L2e1-3.5a1 1 0 01 1 1z" stroke="black"/><polyline points="0,0 1e1,1E1" stroke="black" fill="none"/>"#));
         assert_eq!(job.geometries.len(), 2);
+    }
+
+    /// Issue 17, point 6: a coordinate usvg cannot read it takes as 0 (a
+    /// circle with cx="inf" was marked at cx=0), a transform it cannot use as
+    /// none: each is an error naming the element and the attribute.
+    #[test]
+    fn non_finite_or_unreadable_coordinates_are_errors_naming_the_element() {
+        for (body, element, what) in [
+            (r#"<circle id="c" cx="inf" cy="10" r="5" stroke="black"/>"#, r#"circle 'c' (line 1): cx="inf""#, "unreadable length"),
+            (r#"<circle cx="10" cy="NaN" r="5" stroke="black"/>"#, r#"circle at line 1: cy="NaN""#, "unreadable length"),
+            // Read as infinite or refused by the number parser: either way named.
+            (r#"<rect id="r" x="1" y="1" width="1e999" height="5" stroke="black"/>"#, r#"rect 'r' (line 1): width="1e999""#, ""),
+            (r#"<line id="l" x1="0" y1="0" x2="10 mm" y2="5" stroke="black"/>"#, r#"line 'l' (line 1): x2="10 mm""#, "unreadable length"),
+            (r#"<ellipse id="e" cx="5" cy="5" rx="-inf" ry="2" stroke="black"/>"#, "ellipse 'e'", "unreadable length"),
+            (r#"<g id="s" style="fill:none; transform: scale(inf)"><path d="M 0 0 L 1 1" stroke="black"/></g>"#, r#"g 's' (line 1): transform="scale(inf)""#, "unreadable transform"),
+            (r#"<g id="z" transform="scale(0)"><path d="M 0 0 L 1 1" stroke="black"/></g>"#, "g 'z'", "collapses the drawing"),
+            (r#"<g id="o" transform-origin="left wobble" transform="rotate(5)"><path d="M 0 0 L 1 1" stroke="black"/></g>"#, "g 'o'", "unreadable transform origin"),
+            (r#"<marker id="m" refX="x" markerWidth="3"><path d="M 0 0 L 1 1"/></marker>"#, "marker 'm'", "unreadable length"),
+        ] {
+            let err = import_svg(&svg(body), "n.svg", &config()).unwrap_err().to_string();
+            assert!(err.contains("n.svg") && err.contains(element) && err.contains(what), "{body}: {err}");
+        }
+        // Readable lengths with units, percentages and a style without geometry still import.
+        let job = import(&svg(r#"<circle cx="10" cy="50%" r="5" stroke="black" style="stroke-width: 2"/><rect x=" 1" y="1" width="3" height="3" stroke="black"/>"#));
+        assert_eq!(job.geometries.len(), 2);
+        assert!(close(job.geometries[0].points.iter().map(|p| p.x).fold(f64::MAX, f64::min), 5.0), "the circle reaches from x = 10 - 5 mm");
     }
 
     /// `<image>` is never loaded: not a file (a device, a FIFO that would

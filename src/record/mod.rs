@@ -6,7 +6,8 @@
 //! flushed about once a second, so a run cut short keeps what came before.
 //!
 //! Channels:
-//! - `/run/setup`   machine setup of the run (axes and limits, baud, field)
+//! - `/run/setup`   machine setup of the run (axes and limits, baud, field, the
+//!   machine config as run, whether recorded in real time)
 //! - `/run/job`     job and plan summary
 //! - `/plan/lines`  each program line: kind and planned check points
 //! - `/link`        each line sent and received, each realtime byte, with its time
