@@ -1966,7 +1966,7 @@ mod tests {
     async fn the_line_reader_keeps_at_most_the_cap() {
         let (a, mut b) = tokio::io::duplex(1 << 16);
         let (read_half, _write_half) = tokio::io::split(a);
-        let mut link = Link { reader: BufReader::new(read_half), partial: Vec::new(), skipping: false, writer: tokio::io::sink(), origin: Instant::now(), on_event: |_, _| {}, bytes_sent: 0, book: Book::default() };
+        let mut link = Link { reader: BufReader::new(read_half), partial: Vec::new(), skipping: false, writer: tokio::io::sink(), origin: Instant::now(), on_event: |_, _| {}, bytes_sent: 0, book: Book::default(), status_interval: Duration::from_millis(200), last_status_request: None };
         let mut flood = vec![b'x'; 3 * MAX_CONTROLLER_LINE];
         flood.extend_from_slice(b"\r\nok\r\n");
         b.write_all(&flood).await.unwrap();
