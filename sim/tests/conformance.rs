@@ -339,7 +339,9 @@ fn system_commands() {
     let mut rows: Vec<Row> = vec![
         (xy, &[], &[L("$")], &["[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]", "ok"]),
         (xy, &[L("G1X100F600")], &[L("$$")], &["error:8"]),
-        (xy, &[L("G1X100F600"), HOLD], &[L("$$")], &["error:8"]),
+        // (Right behind the `!`, while the hold brakes: once it has stopped,
+        // Grbl reads no line until `~`.)
+        (xy, &[L("G1X100F600")], &[B(b"!$$\n")], &["error:8"]),
         // $x=value: written values read back (integers truncated, booleans 0/1) and survive a reset.
         (xy, &[], &[L("$110=600.5")], &["ok"]),
         (xy, &[], &[L("$10=abc")], &["error:2"]),
@@ -433,8 +435,8 @@ fn system_commands() {
         (xy, &[], &[L("$RST=x")], &["error:3"]),
         (xy, &[L("G1X100F600")], &[L("$RST=*")], &["error:8"]),
         (xy, &[], &[L("$Q")], &["error:2"]),
-        // [echo:] (a build option): the line after cleaning.
-        (xy, &[ECHO_ON], &[L("g0 x1 (move)"), L("")], &["[echo:G0X1]", "ok", "[echo:]", "ok"]),
+        // [echo: ] (a build option): the line after cleaning.
+        (xy, &[ECHO_ON], &[L("g0 x1 (move)"), L("")], &["[echo: G0X1]", "ok", "[echo: ]", "ok"]),
     ];
     // $$ listings: defaults, written values kept across a reset, $RST=$.
     rows.push((xy, &[], &[L("$$")], leak(listing(&[]))));

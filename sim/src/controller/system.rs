@@ -45,7 +45,7 @@ pub(super) struct Protocol {
     /// The startup lines are to run (after a reset that left no alarm; once a
     /// door open at the reset has been closed and resumed).
     startup_due: bool,
-    /// Echo each received line as `[echo:...]` (a Grbl compile option).
+    /// Echo each received line as `[echo: ...]` (a Grbl compile option).
     echo: bool,
 
     /// Machine inputs. The probe touches the work (`Pn:P`).
@@ -110,7 +110,7 @@ enum Kind {
 }
 
 impl Controller {
-    /// Echo every received line as `[echo:<line after cleaning>]`, as Grbl
+    /// Echo every received line as `[echo: <line after cleaning>]`, as Grbl
     /// built with its echo option does (for debugging a link).
     pub fn set_echo(&mut self, on: bool) {
         self.proto.echo = on;
@@ -118,7 +118,8 @@ impl Controller {
 
     pub(super) fn echo_line(&mut self, text: &str) {
         if self.proto.echo {
-            self.send(&format!("[echo:{text}]"));
+            // (report.c puts a blank after the colon.)
+            self.send(&format!("[echo: {text}]"));
         }
     }
 
