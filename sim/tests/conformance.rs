@@ -677,7 +677,7 @@ fn grbl_1_1h_parser_and_reports() {
         (hal, &[], &[L("G59.1"), L("G59.3"), L("G10L2P8X1")], &["ok", "ok", "ok"]),
         // ...its `$I` (at compatibility level 0) and its banner.
         (hal, &[], &[L("$I")], &[
-            "[VER:1.1f.20250731:]", "[OPT:VNM+,100,1023,3,0]", "[AXS:3:XYZ]", "[NEWOPT:ENUMS,RT+]", "[FIRMWARE:grblHAL]",
+            "[VER:1.1f.20250731:]", "[OPT:VNM+,100,1024,3,0]", "[AXS:3:XYZ]", "[NEWOPT:ENUMS,RT+]", "[FIRMWARE:grblHAL]",
             "[DRIVER:laserd-sim]", concat!("[DRIVER VERSION:", env!("CARGO_PKG_VERSION"), "]"), "ok",
         ]),
         (hal, &[], &[RESET], &["GrblHAL 1.1f ['$' or '$HELP' for help]"]),

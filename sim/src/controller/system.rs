@@ -468,8 +468,8 @@ impl Controller {
                 }
                 Flavor::Grblhal => {
                     // grblHAL's `$I` at its default compatibility level:
-                    // the receive buffer as its reports count it (one byte of
-                    // the ring stays unused), axes and tools in `[OPT:]`, then
+                    // the receive buffer's size (its ring holds one byte less,
+                    // as `Bf:` shows), axes and tools in `[OPT:]`, then
                     // the axes, the extended options (enumerations, printable
                     // realtime characters on), the firmware and the driver.
                     let letters: String = self.cfg.axes.iter().map(|a| a.letter).collect();
@@ -478,7 +478,7 @@ impl Controller {
                     let opt = format!(
                         "[OPT:VNM+,{},{},{},0]",
                         self.cfg.planner_blocks,
-                        self.free_buffers().1 + self.rx.len() as u32,
+                        self.cfg.rx_buffer,
                         letters.len()
                     );
                     self.send(&opt);
