@@ -793,13 +793,13 @@ impl Controller {
             // Undefined extended bytes are discarded, as Grbl does.
         } else if self.cfg.flavor == Flavor::Grblhal && self.hal_skips_line_end(byte) {
             // The second half of a CR LF (or LF CR) pair.
-        } else if self.rx.len() >= self.cfg.rx_buffer {
+        } else if self.rx.len() >= self.rx_capacity() {
             self.stats.rx_overflows += 1;
         } else {
             self.rx.push_back(byte);
             if byte == b'\n' || byte == b'\r' {
                 self.rx_lines += 1;
-            } else if self.rx.len() >= self.cfg.rx_buffer && self.rx_lines == 0 {
+            } else if self.rx.len() >= self.rx_capacity() && self.rx_lines == 0 {
                 let mut lb = self.carry.take().unwrap_or_else(|| self.line_builder());
                 self.rx.drain(..).for_each(|b| lb.push(b));
                 self.carry = Some(lb);
@@ -835,16 +835,20 @@ impl Controller {
         self.send(&format!("error:{code}"));
     }
 
-    /// `Bf:` free planner blocks and receive-buffer bytes (grblHAL's ring
-    /// keeps one byte unused, so an empty 1024-byte buffer reports 1023).
-    /// Blocks already cut into the step-segment buffer are out of the planner.
-    fn free_buffers(&self) -> (u32, u32) {
-        let used = self.planner.len() + usize::from(self.exec.is_some()) - self.prepared_blocks();
-        let ring = match self.cfg.flavor {
+    /// Bytes the receive buffer holds: Grbl's ring has a slot more than its
+    /// size; grblHAL's keeps one unused, so a 1024-byte one holds 1023.
+    fn rx_capacity(&self) -> usize {
+        match self.cfg.flavor {
             Flavor::Grbl => self.cfg.rx_buffer,
             Flavor::Grblhal => self.cfg.rx_buffer.saturating_sub(1),
-        };
-        (self.cfg.planner_blocks.saturating_sub(used) as u32, ring.saturating_sub(self.rx.len()) as u32)
+        }
+    }
+
+    /// `Bf:` free planner blocks and receive-buffer bytes. Blocks already
+    /// cut into the step-segment buffer are out of the planner.
+    fn free_buffers(&self) -> (u32, u32) {
+        let used = self.planner.len() + usize::from(self.exec.is_some()) - self.prepared_blocks();
+        (self.cfg.planner_blocks.saturating_sub(used) as u32, self.rx_capacity().saturating_sub(self.rx.len()) as u32)
     }
 
     /// How many blocks, from the executing one on, have every segment in
@@ -1563,7 +1567,11 @@ impl Controller {
     /// before (the sender counts them in flight until the answer all the same).
     fn drop_rx(&mut self, len: usize, taken: usize) {
         // (Room for another line of the longest yet: the sender was not waiting.)
+<<<<<<< HEAD
         if self.cfg.rx_buffer.saturating_sub(self.rx.len() + taken) < self.longest_line {
+=======
+        if self.rx_capacity().saturating_sub(self.rx.len()) < self.longest_line {
+>>>>>>> h/simproto
             self.last_room_t = self.now;
         }
         self.take_rx(len);

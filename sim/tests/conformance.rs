@@ -349,6 +349,8 @@ fn system_commands() {
     let mut rows: Vec<Row> = vec![
         (xy, &[], &[L("$")], &["[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]", "ok"]),
         (xy, &[L("G1X100F600")], &[L("$$")], &["error:8"]),
+        // (Right behind the `!`, while the hold brakes: once it has stopped,
+        // Grbl reads no line until `~`.)
         (xy, &[L("G1X100F600")], &[B(b"!$$\n")], &["error:8"]),
         // $x=value: written values read back (integers truncated, booleans 0/1) and survive a reset.
         (xy, &[], &[L("$110=600.5")], &["ok"]),
@@ -443,8 +445,8 @@ fn system_commands() {
         (xy, &[], &[L("$RST=x")], &["error:3"]),
         (xy, &[L("G1X100F600")], &[L("$RST=*")], &["error:8"]),
         (xy, &[], &[L("$Q")], &["error:2"]),
-        // [echo:] (a build option): the line after cleaning.
-        (xy, &[ECHO_ON], &[L("g0 x1 (move)"), L("")], &["[echo:G0X1]", "ok", "[echo:]", "ok"]),
+        // [echo: ] (a build option): the line after cleaning.
+        (xy, &[ECHO_ON], &[L("g0 x1 (move)"), L("")], &["[echo: G0X1]", "ok", "[echo: ]", "ok"]),
     ];
     // $$ listings: defaults, written values kept across a reset, $RST=$.
     rows.push((xy, &[], &[L("$$")], leak(listing(&[]))));
@@ -718,7 +720,7 @@ fn grbl_1_1h_parser_and_reports() {
         (hal, &[], &[L("G59.1"), L("G59.3"), L("G10L2P8X1")], &["ok", "ok", "ok"]),
         // ...its `$I` (at compatibility level 0) and its banner.
         (hal, &[], &[L("$I")], &[
-            "[VER:1.1f.20250731:]", "[OPT:VNM+,100,1023,3,0]", "[AXS:3:XYZ]", "[NEWOPT:ENUMS,RT+]", "[FIRMWARE:grblHAL]",
+            "[VER:1.1f.20250731:]", "[OPT:VNM+,100,1024,3,0]", "[AXS:3:XYZ]", "[NEWOPT:ENUMS,RT+]", "[FIRMWARE:grblHAL]",
             "[DRIVER:laserd-sim]", concat!("[DRIVER VERSION:", env!("CARGO_PKG_VERSION"), "]"), "ok",
         ]),
         (hal, &[], &[RESET], &["GrblHAL 1.1f ['$' or '$HELP' for help]"]),

@@ -315,7 +315,7 @@ fn system_commands() {
     s.send("$\n$$\n$I\n$G\n$N\n$X\n$32=1\n");
     s.run_until(1.0);
     let t = s.texts();
-    assert!(t.contains(&"[VER:1.1f.20250731:]") && t.contains(&"[OPT:VNM+,15,127,4,0]") && t.contains(&"[AXS:4:XYUV]"), "{t:?}");
+    assert!(t.contains(&"[VER:1.1f.20250731:]") && t.contains(&"[OPT:VNM+,15,128,4,0]") && t.contains(&"[AXS:4:XYUV]"), "{t:?}");
     assert!(t.contains(&"$32=1") && t.contains(&"$30=1000") && t.contains(&"$113=6000.000") && t.contains(&"$133=300.000"));
     assert!(t.contains(&"[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]"));
     assert!(t.contains(&"$N0=") && t[1].starts_with("[HLP:"));

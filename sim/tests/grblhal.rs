@@ -29,7 +29,7 @@ fn banner_build_info_and_buffers() {
         exchange(&mut s, "$I\n"),
         vec![
             "[VER:1.1f.20250731:]",
-            "[OPT:VNM+,100,1023,8,0]",
+            "[OPT:VNM+,100,1024,8,0]",
             "[AXS:8:XYZABCUV]",
             "[NEWOPT:ENUMS,RT+]",
             "[FIRMWARE:grblHAL]",
@@ -98,6 +98,20 @@ fn the_deeper_planner_takes_100_blocks_before_delaying_an_ok() {
     let oks = s.texts().iter().filter(|l| **l == "ok").count();
     assert_eq!(oks, 100, "100 blocks queued (one executing), the rest wait");
     assert_eq!(s.status().buffer.unwrap().0, 0);
+}
+
+/// grblHAL's 1024-byte ring holds 1023 bytes (`[OPT:]` says 1024, `Bf:` 1023).
+#[test]
+fn the_receive_ring_holds_one_byte_less_than_its_size() {
+    let mut s = Sim::new(hal());
+    s.run_until(0.1);
+    // 1021 bytes held behind a dwell, then 3 more: one too many.
+    s.send("G4P5\n");
+    s.send(&"G21\n".repeat(254));
+    s.send("M5\n");
+    s.run_until(1.0);
+    assert_eq!(s.ctl.stats().rx_overflows, 1);
+    assert_eq!(s.status().buffer, Some((100, 0)));
 }
 
 /// Grbl 1.1h has the axes X, Y and Z and no other: a config with more is a

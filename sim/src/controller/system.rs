@@ -45,7 +45,7 @@ pub(super) struct Protocol {
     /// The startup lines are to run (after a reset that left no alarm; once a
     /// door open at the reset has been closed and resumed).
     startup_due: bool,
-    /// Echo each received line as `[echo:...]` (a Grbl compile option).
+    /// Echo each received line as `[echo: ...]` (a Grbl compile option).
     echo: bool,
 
     /// Machine inputs. The probe touches the work (`Pn:P`).
@@ -110,7 +110,7 @@ enum Kind {
 }
 
 impl Controller {
-    /// Echo every received line as `[echo:<line after cleaning>]`, as Grbl
+    /// Echo every received line as `[echo: <line after cleaning>]`, as Grbl
     /// built with its echo option does (for debugging a link).
     pub fn set_echo(&mut self, on: bool) {
         self.proto.echo = on;
@@ -118,7 +118,8 @@ impl Controller {
 
     pub(super) fn echo_line(&mut self, text: &str) {
         if self.proto.echo {
-            self.send(&format!("[echo:{text}]"));
+            // (report.c puts a blank after the colon.)
+            self.send(&format!("[echo: {text}]"));
         }
     }
 
@@ -470,8 +471,8 @@ impl Controller {
                 }
                 Flavor::Grblhal => {
                     // grblHAL's `$I` at its default compatibility level:
-                    // the receive buffer as its reports count it (one byte of
-                    // the ring stays unused), axes and tools in `[OPT:]`, then
+                    // the receive buffer's size (its ring holds one byte less,
+                    // as `Bf:` shows), axes and tools in `[OPT:]`, then
                     // the axes, the extended options (enumerations, printable
                     // realtime characters on), the firmware and the driver.
                     let letters: String = self.cfg.axes.iter().map(|a| a.letter).collect();
@@ -480,7 +481,7 @@ impl Controller {
                     let opt = format!(
                         "[OPT:VNM+,{},{},{},0]",
                         self.cfg.planner_blocks,
-                        self.free_buffers().1 + self.rx.len() as u32,
+                        self.cfg.rx_buffer,
                         letters.len()
                     );
                     self.send(&opt);
