@@ -448,3 +448,35 @@ fn the_service_plans_a_cut_sheet_keeping_every_rule_and_records_the_count_and_th
     let again = api.wait_job(again["id"].as_str().unwrap(), "queued", Duration::from_secs(60));
     assert_eq!(again["precedence_violations"], 0, "{again}");
 }
+
+/// A service recording carries the motion the controller reported: replayed,
+/// it has knots, and its job time is the job's (the approach to the start
+/// included, as the stream's time is).
+#[test]
+fn a_service_recording_replays_the_motion_the_controller_reported() {
+    let _turn = take_turn();
+    let dir = tempfile::tempdir().unwrap();
+    let (rig, service, api) = Rig::start(dir.path(), "ttyLASER");
+    let id = api.submit(&galvo("SC122C4.svg"));
+    api.wait_job(&id, "queued", Duration::from_secs(60));
+    api.ok(Method::POST, "/start", Some(serde_json::json!({ "id": id })));
+    let done = api.wait_job(&id, "completed", Duration::from_secs(120));
+    let answer = api.runtime.block_on(client::request(&rig.socket, Method::GET, &format!("/jobs/{id}/recording"), None)).unwrap();
+    assert_eq!(answer.status, 200);
+    let path = dir.path().join("job.mcap");
+    std::fs::write(&path, &answer.body).unwrap();
+    let replay = laserd::record::read(&path).unwrap();
+    let knots = &replay.log.knots;
+    let streamed = done["stream_time_s"].as_f64().unwrap();
+    assert!(streamed > 1.0, "{done}");
+    // A knot per status report, at 5 Hz (some may go to the sender's own requests' gaps).
+    assert!(knots.len() as f64 >= 2.5 * streamed, "{} knots in {streamed} s", knots.len());
+    // The machine moved, as far as the job reaches.
+    let reach = knots.iter().flat_map(|k| k.pos.iter().take(2)).fold(0.0f64, |m, p| m.max(p.abs()));
+    assert!(reach > 1.0, "reached {reach} mm");
+    let figures = laserd::figures::sim_figures(&replay.log);
+    // Status reports come at 5 Hz: the first and last a fifth of a second
+    // from the ends at most, and the job runs until its last answer.
+    assert!((figures.job_time_s - streamed).abs() < 0.5 + 0.1 * streamed, "job time {} s, streamed {streamed} s", figures.job_time_s);
+    assert!(service.terminate().success());
+}

@@ -1567,11 +1567,7 @@ impl Controller {
     /// before (the sender counts them in flight until the answer all the same).
     fn drop_rx(&mut self, len: usize, taken: usize) {
         // (Room for another line of the longest yet: the sender was not waiting.)
-<<<<<<< HEAD
-        if self.cfg.rx_buffer.saturating_sub(self.rx.len() + taken) < self.longest_line {
-=======
-        if self.rx_capacity().saturating_sub(self.rx.len()) < self.longest_line {
->>>>>>> h/simproto
+        if self.rx_capacity().saturating_sub(self.rx.len() + taken) < self.longest_line {
             self.last_room_t = self.now;
         }
         self.take_rx(len);

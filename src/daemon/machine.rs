@@ -401,7 +401,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
             job: Some(job.id.clone()),
             lines_total: job.lines_total,
             planned_time_s: job.planned_time_s,
-            recorder: Some(recording.recorder()),
+            recorder: Some(recording.recorder().with_reported_motion()),
             ..Default::default()
         };
     }

@@ -12,9 +12,11 @@
 //! - `/plan/lines`  each program line: kind and planned check points
 //! - `/link`        each line sent and received, each realtime byte, with its time
 //! - `/status`      parsed status reports
-//! - `/sim/axes`    the simulated machine's executed motion: axis positions, TCP
-//!   and laser power at every block boundary (motion is linear in between), and
-//!   where the laser changes while the machine stands still (a pierce)
+//! - `/sim/axes`    the executed motion: axis positions, TCP and laser power.
+//!   Of the simulator in a dry-run: at every block boundary (motion is linear
+//!   in between), and where the laser changes while the machine stands still
+//!   (a pierce). Of a controller on a link (the service): at each of its
+//!   status reports, as it reported it (`ReportedMotion`)
 //! - `/run/report`  the final report
 
 use std::collections::{BTreeMap, HashSet};
@@ -113,6 +115,33 @@ struct Envelope {
 pub struct Recorder {
     tx: Sender<Envelope>,
     registered: Arc<Mutex<HashSet<&'static str>>>,
+    /// Knots from the controller's status reports (a link, not the simulator).
+    reported: Option<Arc<Mutex<ReportedMotion>>>,
+}
+
+/// The executed motion as a controller reports it: a knot at each status
+/// report, at the time it came, at the machine position it gives (`WPos`
+/// plus the last `WCO` when it reports work positions), with its laser S.
+/// A report does not say which block runs: the knots' line is 0.
+#[derive(Debug, Default)]
+pub struct ReportedMotion {
+    wco: Option<Vec<f64>>,
+}
+
+impl ReportedMotion {
+    /// The knot of a report; `None` while the machine position is unknown
+    /// (work positions before any `WCO`) or not a number.
+    pub fn knot(&mut self, t: f64, report: &StatusReport) -> Option<Knot> {
+        if let Some(wco) = &report.wco {
+            self.wco = Some(wco.clone());
+        }
+        let pos: Vec<f64> = match (&report.wpos, &self.wco) {
+            (Some(wpos), Some(wco)) if report.mpos.is_empty() => wpos.iter().zip(wco).map(|(p, o)| p + o).collect(),
+            _ => report.mpos.clone(),
+        };
+        (!pos.is_empty() && pos.iter().all(|p| p.is_finite()))
+            .then(|| Knot { t, pos, power: report.spindle.filter(|s| s.is_finite()).unwrap_or(0.0), line: 0 })
+    }
 }
 
 /// Owns the writer thread; `finish` closes the file properly.
@@ -174,7 +203,7 @@ impl Recording {
                 Ok(())
             })
             .map_err(|e| Error::Record(format!("cannot start the recorder thread: {e}")))?;
-        let recorder = Recorder { tx, registered: Arc::new(Mutex::new(HashSet::new())) };
+        let recorder = Recorder { tx, registered: Arc::new(Mutex::new(HashSet::new())), reported: None };
         Ok(Recording { path: path.to_path_buf(), recorder: Some(recorder), thread: Some(thread) })
     }
 
@@ -224,10 +253,21 @@ impl Recorder {
         let _ = self.tx.send(Envelope { topic, schema, t, data });
     }
 
+    /// A recorder that also takes the controller's status reports as the
+    /// executed motion (for a controller on a link, whose knots nobody else
+    /// records).
+    pub fn with_reported_motion(self) -> Recorder {
+        Recorder { reported: Some(Arc::default()), ..self }
+    }
+
     pub fn link_event(&self, t: f64, event: &LinkEvent) {
         self.write(TOPIC_LINK, t, &LinkMessage { t, event: event.clone() });
         if let LinkEvent::Received { text } = event {
             if let Response::Status(status) = Response::parse(text) {
+                if let Some(reported) = &self.reported {
+                    let knot = reported.lock().unwrap_or_else(|p| p.into_inner()).knot(t, &status);
+                    self.knots(knot.as_slice());
+                }
                 self.write(TOPIC_STATUS, t, &StatusMessage { t, status });
             }
         }
@@ -475,5 +515,25 @@ mod tests {
         message_body.extend(b"{}");
         assert_eq!(message(&message_body), Ok((7, &b"{}"[..])));
         assert!(message(&message_body[..21]).is_err());
+    }
+}
+
+#[cfg(test)]
+mod reported_motion_tests {
+    use super::ReportedMotion;
+    use laserd_sim::wire::StatusReport;
+
+    #[test]
+    fn a_report_is_a_knot_at_its_machine_position() {
+        let mut motion = ReportedMotion::default();
+        let report = |text: &str| StatusReport::parse(text).unwrap();
+        let k = motion.knot(1.5, &report("<Run|MPos:1.000,2.000,0.000|FS:600,250>")).unwrap();
+        assert_eq!((k.t, k.pos.clone(), k.power, k.line), (1.5, vec![1.0, 2.0, 0.0], 250.0, 0));
+        // Work positions: unknown until a WCO came, then WPos + WCO.
+        assert!(motion.knot(2.0, &report("<Run|WPos:1.000,2.000,0.000|FS:600,0>")).is_none());
+        let k = motion.knot(2.2, &report("<Run|WPos:1.000,2.000,0.000|FS:600,0|WCO:10.000,0.000,0.000>")).unwrap();
+        assert_eq!(k.pos, vec![11.0, 2.0, 0.0]);
+        let k = motion.knot(2.4, &report("<Idle|WPos:2.000,2.000,0.000|FS:0,0>")).unwrap();
+        assert_eq!(k.pos, vec![12.0, 2.0, 0.0]);
     }
 }

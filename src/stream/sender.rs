@@ -251,11 +251,26 @@ where
         .ok_or_else(|| Error::Stream(format!("no answer to `{text}` within {} s", limit.as_secs_f64())))
     }
 
+    /// A status request once the status interval since the last one has
+    /// passed (it waits for that): no caller asks faster than the status rate.
+    async fn request_status(&mut self) -> Result<()> {
+        if let Some(last) = self.last_status_request {
+            tokio::time::sleep_until(last + self.status_interval).await;
+        }
+        self.send_realtime(realtime::STATUS).await
+    }
+
+    /// A status request if one is due (the streaming loop's ticks, which
+    /// must not wait: the answers they would not read meanwhile are its work).
+    async fn request_status_if_due(&mut self) -> Result<()> {
+        match self.last_status_request {
+            Some(last) if last + self.status_interval > Instant::now() => Ok(()),
+            _ => self.send_realtime(realtime::STATUS).await,
+        }
+    }
+
     async fn send_realtime(&mut self, byte: u8) -> Result<()> {
         if byte == realtime::STATUS {
-            if let Some(last) = self.last_status_request {
-                tokio::time::sleep_until(last + self.status_interval).await;
-            }
             self.last_status_request = Some(Instant::now());
         }
         self.write(&[byte]).await?;
@@ -355,7 +370,7 @@ where
     async fn query_status(&mut self, limit: Duration) -> Result<Option<StatusReport>> {
         let deadline = Instant::now() + limit;
         while Instant::now() < deadline {
-            self.send_realtime(realtime::STATUS).await?;
+            self.request_status().await?;
             if let Some(Response::Status(s)) = self
                 .wait_for(Duration::from_millis(250), |r| {
                     matches!(r, Response::Status(_))
@@ -1415,7 +1430,7 @@ where
                             if dwells > 0.0 { format!(" (dwells included: {dwells:.1} s)") } else { String::new() }));
                         break;
                     }
-                    if let Err(e) = link.send_realtime(realtime::STATUS).await {
+                    if let Err(e) = link.request_status_if_due().await {
                         fault = Some(link_failure(e));
                     }
                     asked_since.get_or_insert_with(Instant::now);
