@@ -738,6 +738,11 @@ where
         Ok(status)
     }
 
+    /// The work coordinate offset last known (machine − work position).
+    pub fn work_offset(&self) -> Option<&[f64]> {
+        self.wco.as_deref()
+    }
+
     /// The work position (program coordinates) of a status report: `WPos:`
     /// as reported, or `MPos:` less the last work coordinate offset known.
     pub fn work_position(&self, status: &StatusReport) -> Vec<f64> {
