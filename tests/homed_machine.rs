@@ -196,3 +196,22 @@ fn send_stops_at_a_soft_limit_and_never_counts_the_line_acknowledged() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("ALARM:2") && err.contains("over.nc:3"), "{err}");
 }
+
+/// A controller left in alarm by a failed homing cycle: `send` says to home
+/// or unlock it, before it writes anything.
+#[test]
+fn send_to_a_controller_in_alarm_says_to_home_or_unlock_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyALARMED");
+    let config = cutter_config(dir.path(), &link);
+    let _sim = SimProcess::start(&link, &["--config", config.to_str().unwrap(), "--baud", "1000000", "--fault", "homing-switch-missing"]);
+    write_settings(&link, &GRBL_HOMED);
+    // ALARM:9, then the `$H` answered `ok`, then Grbl's own reset into Alarm.
+    write_settings(&link, &["$H"]);
+    let program = dir.path().join("job.nc");
+    std::fs::write(&program, "G21G90G94\nG1X10Y10F3000\n").unwrap();
+    let out = laserd(&["send", program.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--config", config.to_str().unwrap()], dir.path());
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("in alarm: home ($H) or unlock ($X) it first"), "{err}");
+}

@@ -66,6 +66,9 @@ pub const MAX_CONTROLLER_LINE: usize = 4096;
 /// far more than any planner holds (Grbl 15 to 35 blocks, grblHAL hundreds).
 const MAX_PENDING_MOTION: usize = 4096;
 
+/// Why nothing is streamed to a controller in alarm.
+const IN_ALARM: &str = "the controller is in alarm: home ($H) or unlock ($X) it first";
+
 /// How many characters of a G-code line a message quotes.
 const QUOTE_CHARS: usize = 80;
 
@@ -759,6 +762,10 @@ where
     /// is the config's stage travel (X, Y). Returns the origin (machine X, Y
     /// of the bed's 0).
     pub async fn use_program_frame(&mut self, travel: [f64; 2]) -> Result<[f64; 2]> {
+        // G10 and G54 are G-code: refused in alarm (error:9).
+        if self.status().await?.state == MachineState::Alarm {
+            return Err(Error::Stream(IN_ALARM.into()));
+        }
         let settings = self.settings().await?;
         let origin = super::frame::program_origin(&settings, &self.build_codes, travel)?;
         let mut g54 = self.work_origin().await?;
@@ -975,9 +982,7 @@ where
             None => self.status().await?,
         };
         if matches!(status.state, MachineState::Alarm) {
-            return Err(Error::Stream(
-                "the controller is in alarm: home ($H) or unlock ($X) it first".into(),
-            ));
+            return Err(Error::Stream(IN_ALARM.into()));
         }
         if let (MachineState::Idle, Some((blocks, 0))) = (&status.state, status.buffer) {
             return Err(Error::Stream(format!(
