@@ -113,7 +113,7 @@ fn send_runs_a_planned_program_on_a_homed_grbl_within_soft_limits() {
 }
 
 #[test]
-fn the_service_homes_then_runs_a_job_on_a_homed_grbl_within_soft_limits() {
+fn the_service_homes_then_runs_and_resumes_a_job_on_a_homed_grbl_within_soft_limits() {
     let _turn = take_turn();
     let dir = tempfile::tempdir().unwrap();
     let tty = dir.path().join("ttyHOMEDSERVE");
@@ -142,11 +142,36 @@ fn the_service_homes_then_runs_a_job_on_a_homed_grbl_within_soft_limits() {
     assert_eq!(done["last_executed_line"], done["lines_total"], "{done}");
     let s = api.status();
     assert_eq!(machine_state(&s), "Idle", "no alarm: {s}");
+    let program = state.join("jobs").join(&id).join("program.nc");
+    // The job's recording gives the travel in the machine coordinates the
+    // controller reports: the bed from its origin on.
+    let recorded = laserd::record::read(&state.join("jobs").join(&id).join("recording.mcap")).unwrap();
+    let axes = recorded.log.setup.expect("the recording's setup").axes;
+    assert_eq!([axes[0].min, axes[0].max, axes[1].min, axes[1].max], [ORIGIN[0], 0.0, ORIGIN[1], 0.0]);
+    let end = *program_points(&program).last().unwrap();
+    let at_end = |s: &serde_json::Value| (0..2).all(|i| (position(s)[i] - (end[i] + ORIGIN[i])).abs() < 2e-3);
+    assert!(at_end(&s), "the job ends at its bed position {end:?}: {s}");
+
+    // The same job stopped half way by a service stop, then resumed by the
+    // service started again: it runs on in bed coordinates to the same end.
+    let again = api.submit(&sheet(dir.path()));
+    let total = api.wait_job(&again, "queued", Duration::from_secs(60))["lines_total"].as_u64().unwrap();
+    api.ok(Method::POST, "/start", Some(serde_json::json!({ "id": again })));
+    api.wait_status(Duration::from_secs(20), "half sent", |s| s["job"]["line"].as_u64().unwrap_or(0) > total / 2);
+    assert!(service.terminate().success());
+    let service = Service::start(&config, &state, &socket);
+    let api = Api::new(&socket);
+    api.wait_status(Duration::from_secs(10), "reconnected", |s| machine_state(s) == "Idle");
+    assert_eq!(api.job(&again)["state"], "interrupted");
+    api.ok(Method::POST, &format!("/jobs/{again}/resume"), Some(serde_json::json!({ "confirm": true })));
+    api.wait_job(&again, "completed", Duration::from_secs(60));
+    let s = api.status();
+    assert!(at_end(&s), "the resumed job ends at its bed position {end:?}: {s}");
 
     drop(service);
     assert!(sim.terminate().success());
     let replay = laserd::record::read(&rec).unwrap();
-    assert_ran_in_bed_coordinates(&replay.log.knots, &state.join("jobs").join(&id).join("program.nc"));
+    assert_ran_in_bed_coordinates(&replay.log.knots, &program);
 }
 
 /// A line past the soft limits: Grbl stops with ALARM:2 and answers the
@@ -170,4 +195,23 @@ fn send_stops_at_a_soft_limit_and_never_counts_the_line_acknowledged() {
     assert_eq!(report["last_acked_line"], 3, "{report}");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("ALARM:2") && err.contains("over.nc:3"), "{err}");
+}
+
+/// A controller left in alarm by a failed homing cycle: `send` says to home
+/// or unlock it, before it writes anything.
+#[test]
+fn send_to_a_controller_in_alarm_says_to_home_or_unlock_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyALARMED");
+    let config = cutter_config(dir.path(), &link);
+    let _sim = SimProcess::start(&link, &["--config", config.to_str().unwrap(), "--baud", "1000000", "--fault", "homing-switch-missing"]);
+    write_settings(&link, &GRBL_HOMED);
+    // ALARM:9, then the `$H` answered `ok`, then Grbl's own reset into Alarm.
+    write_settings(&link, &["$H"]);
+    let program = dir.path().join("job.nc");
+    std::fs::write(&program, "G21G90G94\nG1X10Y10F3000\n").unwrap();
+    let out = laserd(&["send", program.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--config", config.to_str().unwrap()], dir.path());
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("in alarm: home ($H) or unlock ($X) it first"), "{err}");
 }

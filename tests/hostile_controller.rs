@@ -91,11 +91,19 @@ impl Peer {
                 }
                 b'\n' => {
                     let text = String::from_utf8_lossy(&std::mem::take(&mut self.line)).to_string();
-                    if text == "$I" {
-                        self.write(b"[VER:1.1h:]\r\n[OPT:V,15,128]\r\nok\r\n");
-                    } else {
-                        self.queued.push(text);
-                    }
+                    // The sender's own commands before the job (build info,
+                    // then the work coordinates: settings, offsets, G54) are
+                    // answered at once, as an idle Grbl not homed would.
+                    match text.as_str() {
+                        "$I" => self.write(b"[VER:1.1h:]\r\n[OPT:V,15,128]\r\nok\r\n"),
+                        "$$" => self.write(b"$22=0\r\n$23=0\r\nok\r\n"),
+                        "$#" => self.write(b"[G54:0.000,0.000,0.000]\r\n[G92:0.000,0.000,0.000]\r\nok\r\n"),
+                        "G54G92.1" => self.write(b"ok\r\n"),
+                        _ => {
+                            self.queued.push(text);
+                            true
+                        }
+                    };
                 }
                 b if !(0x20..0x7f).contains(&b) || b == b'!' || b == b'~' => {}
                 b => self.line.push(b),

@@ -767,6 +767,9 @@ fn homing_and_soft_limits() {
         (xy, &[L("$22=1"), L("$20=1"), L("G0X1"), Q, L("G0X-1")], &[RESET], &["ok", BANNER, UNLOCK]),
         (xy, &[L("$22=1"), L("$20=1"), L("G0X-100"), Wait(0.1)], &[L("G0X5"), Q], &["ALARM:2", "[MSG:Reset to continue]"]),
         (xy, &[L("$22=1"), L("$20=1"), L("G0X-100"), Wait(0.1), L("G0X5")], &[RESET], &["ok", BANNER, UNLOCK]),
+        // Check mode checks soft limits too.
+        (xy, &[L("$22=1"), L("$20=1"), L("$C")], &[L("G0X1")], &["ALARM:2", "[MSG:Reset to continue]"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("$C")], &[L("G0X-1")], &["ok"]),
         // A failed homing cycle: the alarm, the `$H` line's `ok`, then the
         // reset Grbl does itself (banner) into Alarm.
         (pull_off_fails, &[L("$22=1")], &[L("$H"), Wait(0.5)], &["ALARM:8", "ok", BANNER, UNLOCK]),

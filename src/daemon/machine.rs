@@ -393,7 +393,14 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         }
     };
     // The machine's axes and link, as every laserd recording starts.
-    let sim = crate::run::sim_config(&daemon.machine, laserd_sim::controller::Faults::default());
+    let mut sim = crate::run::sim_config(&daemon.machine, laserd_sim::controller::Faults::default());
+    // The controller reports machine positions: the travel lies from the
+    // work origin on (negative on a homed Grbl; see `stream::frame`).
+    if let Some(offset) = connection.work_offset() {
+        for (axis, o) in sim.axes.iter_mut().zip(offset) {
+            (axis.min, axis.max) = (axis.min + o, axis.max + o);
+        }
+    }
     recording.recorder().write(crate::record::TOPIC_SETUP, 0.0, &crate::run::run_setup(&daemon.machine, &sim));
     {
         let mut r = running.lock().unwrap_or_else(|e| e.into_inner());

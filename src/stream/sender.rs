@@ -75,6 +75,9 @@ const MAX_PENDING_MOTION: usize = 4096;
 /// Grbl dwells in steps of 50 ms and a busy host reads late.
 const DWELL_MARGIN_S: f64 = 1.0;
 
+/// Why nothing is streamed to a controller in alarm.
+const IN_ALARM: &str = "the controller is in alarm: home ($H) or unlock ($X) it first";
+
 /// How many characters of a G-code line a message quotes.
 const QUOTE_CHARS: usize = 80;
 
@@ -936,6 +939,11 @@ where
         Ok(status)
     }
 
+    /// The work coordinate offset last known (machine − work position).
+    pub fn work_offset(&self) -> Option<&[f64]> {
+        self.wco.as_deref()
+    }
+
     /// The work position (program coordinates) of a status report: `WPos:`
     /// as reported, or `MPos:` less the last work coordinate offset known.
     pub fn work_position(&self, status: &StatusReport) -> Vec<f64> {
@@ -952,6 +960,10 @@ where
     /// is the config's stage travel (X, Y). Returns the origin (machine X, Y
     /// of the bed's 0).
     pub async fn use_program_frame(&mut self, travel: [f64; 2]) -> Result<[f64; 2]> {
+        // G10 and G54 are G-code: refused in alarm (error:9).
+        if self.status().await?.state == MachineState::Alarm {
+            return Err(Error::Stream(IN_ALARM.into()));
+        }
         let settings = self.settings().await?;
         let origin = super::frame::program_origin(&settings, &self.build_codes, travel)?;
         let mut g54 = self.work_origin().await?;
@@ -1172,9 +1184,7 @@ where
             None => self.status().await?,
         };
         if matches!(status.state, MachineState::Alarm) {
-            return Err(Error::Stream(
-                "the controller is in alarm: home ($H) or unlock ($X) it first".into(),
-            ));
+            return Err(Error::Stream(IN_ALARM.into()));
         }
         if let (MachineState::Idle, Some((blocks, 0))) = (&status.state, status.buffer) {
             return Err(Error::Stream(format!(
