@@ -104,11 +104,13 @@ fn the_deeper_planner_takes_100_blocks_before_delaying_an_ok() {
 #[test]
 fn the_receive_ring_holds_one_byte_less_than_its_size() {
     let mut s = Sim::new(hal());
+    s.send("$10=3\n");
     s.run_until(0.1);
-    // 1021 bytes held behind a dwell, then 3 more: one too many.
+    // A dwell's line leaves the ring while it dwells; 1020 bytes held behind
+    // it, then 4 more: one too many.
     s.send("G4P5\n");
-    s.send(&"G21\n".repeat(254));
-    s.send("M5\n");
+    s.send(&"G21\n".repeat(255));
+    s.send("M05\n");
     s.run_until(1.0);
     assert_eq!(s.ctl.stats().rx_overflows, 1);
     assert_eq!(s.status().buffer, Some((100, 0)));
