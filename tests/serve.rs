@@ -10,7 +10,6 @@ use std::time::{Duration, Instant};
 use common::service::*;
 use common::SimProcess;
 use hyper::Method;
-use laserd::daemon::client;
 use serde_json::Value;
 
 #[test]
@@ -68,10 +67,8 @@ fn a_job_through_the_api_pauses_resumes_completes_and_a_second_is_aborted_half_w
     assert_eq!(idle["machine"]["laser"].as_f64().unwrap(), 0.0);
     // Both recordings download through the API and read back.
     for id in [&first, &second] {
-        let answer = api.runtime.block_on(client::request(&service.socket, Method::GET, &format!("/jobs/{id}/recording"), None)).unwrap();
-        assert_eq!(answer.status, 200);
         let path = dir.path().join(format!("{id}.mcap"));
-        std::fs::write(&path, &answer.body).unwrap();
+        api.recording(id, &path);
         let replay = laserd::record::read(&path).unwrap();
         assert!(replay.truncated.is_none(), "{id}: a whole recording");
         assert!(replay.log.link.len() > 100, "{id}: the link traffic is in it");
@@ -123,10 +120,8 @@ fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_reco
     std::thread::sleep(Duration::from_millis(500));
     assert!(api.status()["job"].is_null(), "nothing runs on its own after a restart");
     // The recording up to the kill reads back.
-    let answer = api.runtime.block_on(client::request(&rig.socket, Method::GET, &format!("/jobs/{id}/recording"), None)).unwrap();
-    assert_eq!(answer.status, 200);
     let path = dir.path().join("cut.mcap");
-    std::fs::write(&path, &answer.body).unwrap();
+    api.recording(&id, &path);
     let replay = laserd::record::read(&path).expect("a recording cut by the kill reads");
     assert!(replay.log.link.len() > 50, "link traffic up to the kill: {}", replay.log.link.len());
 
@@ -456,15 +451,13 @@ fn the_service_plans_a_cut_sheet_keeping_every_rule_and_records_the_count_and_th
 fn a_service_recording_replays_the_motion_the_controller_reported() {
     let _turn = take_turn();
     let dir = tempfile::tempdir().unwrap();
-    let (rig, service, api) = Rig::start(dir.path(), "ttyLASER");
+    let (_rig, service, api) = Rig::start(dir.path(), "ttyLASER");
     let id = api.submit(&galvo("SC122C4.svg"));
     api.wait_job(&id, "queued", Duration::from_secs(60));
     api.ok(Method::POST, "/start", Some(serde_json::json!({ "id": id })));
     let done = api.wait_job(&id, "completed", Duration::from_secs(120));
-    let answer = api.runtime.block_on(client::request(&rig.socket, Method::GET, &format!("/jobs/{id}/recording"), None)).unwrap();
-    assert_eq!(answer.status, 200);
     let path = dir.path().join("job.mcap");
-    std::fs::write(&path, &answer.body).unwrap();
+    api.recording(&id, &path);
     let replay = laserd::record::read(&path).unwrap();
     let knots = &replay.log.knots;
     let streamed = done["stream_time_s"].as_f64().unwrap();

@@ -1038,9 +1038,7 @@ impl Controller {
                 self.begin_braking();
             }
             SAFETY_DOOR => self.door_event(),
-            // Only a hold that has come to rest resumes (Grbl ignores `~`
-            // while it still decelerates), a door's once it is closed.
-            CYCLE_START if self.hold && !self.alarm && !self.moving() && !(self.door && self.door_open) => {
+            CYCLE_START if self.may_resume() => {
                 self.restore_spindle();
                 self.hold = false;
                 self.door = false;
@@ -1082,6 +1080,13 @@ impl Controller {
             }
             _ => {}
         }
+    }
+
+    /// Only a hold that has come to rest resumes (Grbl ignores `~` while it
+    /// still decelerates), a door's once it is closed.
+    fn may_resume(&self) -> bool {
+        let door_open = self.door && self.door_open;
+        self.hold && !self.alarm && !self.moving() && !door_open
     }
 
     fn soft_reset(&mut self) {

@@ -121,6 +121,13 @@ impl Api {
         self.ok(Method::GET, "/status", None)
     }
 
+    /// A job's recording, downloaded through the API to `to`.
+    pub fn recording(&self, id: &str, to: &Path) {
+        let answer = self.runtime.block_on(client::request(&self.socket, Method::GET, &format!("/jobs/{id}/recording"), None)).unwrap();
+        assert_eq!(answer.status, 200, "{id}: {}", String::from_utf8_lossy(&answer.body));
+        std::fs::write(to, &answer.body).unwrap();
+    }
+
     pub fn job(&self, id: &str) -> Value {
         self.ok(Method::GET, &format!("/jobs/{id}"), None)
     }
