@@ -391,6 +391,10 @@ enum Step {
     Probed { pos: Vec<f64>, touched: bool, alarm: bool },
     /// `$H` reached home: fail (a fault) or run the startup lines.
     HomingDone,
+    /// A line past the soft limits while a cycle runs: once the hold it
+    /// started has stopped the machine, the critical ALARM:2 (Grbl keeps the
+    /// position so); the line is answered at the reset.
+    SoftLimit,
     /// Send this line (startup line echoes).
     Say(String),
 }
@@ -871,12 +875,7 @@ impl Controller {
             }
             JOG_CANCEL => self.cancel_jog(),
             FEED_HOLD if self.jogging() => self.cancel_jog(),
-            FEED_HOLD if !(self.alarm || self.check_mode || self.sleep || self.hold) => {
-                self.hold = true;
-                self.hold_stops_laser();
-                self.pause_starvation();
-                self.replan_now();
-            }
+            FEED_HOLD if !(self.alarm || self.check_mode || self.sleep || self.hold) => self.start_hold(),
             SAFETY_DOOR if !(self.alarm || self.sleep) => self.open_door(),
             CYCLE_START if self.hold && !self.alarm && !(self.door && self.door_open) => {
                 self.restore_spindle();
@@ -1469,6 +1468,15 @@ impl Controller {
                     self.reset_starvation();
                     self.send("[MSG:Pgm End]");
                 }
+                Step::SoftLimit => {
+                    if self.moving() {
+                        break;
+                    }
+                    self.drop_rx(p.rx_len);
+                    self.soft_limit_alarm();
+                    self.ok_after_reset = true;
+                    return true;
+                }
                 other => match self.protocol_step(other) {
                     StepOutcome::Wait => break,
                     StepOutcome::Done => {}
@@ -1594,6 +1602,14 @@ impl Controller {
 
     fn soft_limit_alarm(&mut self) {
         self.limit_alarm(2);
+    }
+
+    /// Feed hold: the machine brakes to a stop, laser off.
+    fn start_hold(&mut self) {
+        self.hold = true;
+        self.hold_stops_laser();
+        self.pause_starvation();
+        self.replan_now();
     }
 
     /// A critical limit alarm: motion stops where it is, laser off, everything
