@@ -35,6 +35,22 @@ fn cutter_config(dir: &Path, tty: &Path) -> PathBuf {
     path
 }
 
+/// `laserd sim` at 1 Mbaud on the cutter config (`--config` and `args`), set
+/// up as a homed Grbl and sent `$H` (answered `ok` however it ends).
+fn homed_sim(link: &Path, config: &Path, args: &[&str]) -> SimProcess {
+    let mut all = vec!["--config", config.to_str().unwrap(), "--baud", "1000000"];
+    all.extend_from_slice(args);
+    let sim = SimProcess::start(link, &all);
+    write_settings(link, &GRBL_HOMED);
+    write_settings(link, &["$H"]);
+    sim
+}
+
+/// `laserd send FILE` at 1 Mbaud with the cutter config, `--json`.
+fn send(file: &Path, link: &Path, config: &Path, dir: &Path) -> std::process::Output {
+    laserd(&["send", file.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--config", config.to_str().unwrap(), "--json"], dir)
+}
+
 /// Two parts near opposite corners of the bed, cut (pierced) one after the other.
 fn sheet(dir: &Path) -> PathBuf {
     let path = dir.join("sheet.svg");
@@ -91,14 +107,12 @@ fn send_runs_a_planned_program_on_a_homed_grbl_within_soft_limits() {
     let link = dir.path().join("ttyHOMEDSEND");
     let config = cutter_config(dir.path(), &link);
     let rec = dir.path().join("sim.mcap");
-    let sim = SimProcess::start(&link, &["--config", config.to_str().unwrap(), "--baud", "1000000", "--record", rec.to_str().unwrap()]);
-    write_settings(&link, &GRBL_HOMED);
-    write_settings(&link, &["$H"]);
+    let sim = homed_sim(&link, &config, &["--record", rec.to_str().unwrap()]);
 
     let program = dir.path().join("sheet.nc");
     let planned = laserd(&["plan", sheet(dir.path()).to_str().unwrap(), "--config", config.to_str().unwrap(), "-o", program.to_str().unwrap()], dir.path());
     assert!(planned.status.success(), "{}", String::from_utf8_lossy(&planned.stderr));
-    let out = laserd(&["send", program.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--config", config.to_str().unwrap(), "--json"], dir.path());
+    let out = send(&program, &link, &config, dir.path());
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_default();
     assert!(out.status.success(), "{report} {}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(report["completed"], true, "{report}");
@@ -182,13 +196,11 @@ fn send_stops_at_a_soft_limit_and_never_counts_the_line_acknowledged() {
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttySOFTLIMIT");
     let config = cutter_config(dir.path(), &link);
-    let _sim = SimProcess::start(&link, &["--config", config.to_str().unwrap(), "--baud", "1000000"]);
-    write_settings(&link, &GRBL_HOMED);
-    write_settings(&link, &["$H"]);
+    let _sim = homed_sim(&link, &config, &[]);
     let program = dir.path().join("over.nc");
     // In bed coordinates: X450 is 50 mm past the 400 mm bed.
     std::fs::write(&program, "G21G90G94\nG1X10Y10F3000\nG1X20Y20\nG1X450Y20\nG1X30Y30\n").unwrap();
-    let out = laserd(&["send", program.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--config", config.to_str().unwrap(), "--json"], dir.path());
+    let out = send(&program, &link, &config, dir.path());
     assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["alarms"], serde_json::json!([2]), "{report}");
@@ -204,13 +216,11 @@ fn send_to_a_controller_in_alarm_says_to_home_or_unlock_it() {
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttyALARMED");
     let config = cutter_config(dir.path(), &link);
-    let _sim = SimProcess::start(&link, &["--config", config.to_str().unwrap(), "--baud", "1000000", "--fault", "homing-switch-missing"]);
-    write_settings(&link, &GRBL_HOMED);
     // ALARM:9, then the `$H` answered `ok`, then Grbl's own reset into Alarm.
-    write_settings(&link, &["$H"]);
+    let _sim = homed_sim(&link, &config, &["--fault", "homing-switch-missing"]);
     let program = dir.path().join("job.nc");
     std::fs::write(&program, "G21G90G94\nG1X10Y10F3000\n").unwrap();
-    let out = laserd(&["send", program.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000", "--config", config.to_str().unwrap()], dir.path());
+    let out = send(&program, &link, &config, dir.path());
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("in alarm: home ($H) or unlock ($X) it first"), "{err}");

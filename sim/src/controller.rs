@@ -416,6 +416,10 @@ enum Step {
     Probed { pos: Vec<f64>, touched: bool, alarm: bool },
     /// `$H` reached home: fail (a fault) or run the startup lines.
     HomingDone,
+    /// A line past the soft limits while a cycle runs: once the hold it
+    /// started has stopped the machine, the critical ALARM:2 (Grbl keeps the
+    /// position so); the line is answered at the reset.
+    SoftLimit,
     /// Send this line (startup line echoes).
     Say(String),
 }
@@ -1030,13 +1034,7 @@ impl Controller {
             }
             JOG_CANCEL => self.cancel_jog(),
             FEED_HOLD if self.jogging() => self.cancel_jog(),
-            FEED_HOLD if !(self.alarm || self.check_mode || self.sleep || self.hold) => {
-                self.hold = true;
-                self.hold_stops_laser();
-                self.pause_starvation();
-                self.replan_now();
-                self.begin_braking();
-            }
+            FEED_HOLD if !(self.alarm || self.check_mode || self.sleep || self.hold) => self.start_hold(),
             SAFETY_DOOR => self.door_event(),
             CYCLE_START if self.may_resume() => {
                 self.restore_spindle();
@@ -1671,6 +1669,15 @@ impl Controller {
                     self.reset_starvation();
                     self.send("[MSG:Pgm End]");
                 }
+                Step::SoftLimit => {
+                    if self.moving() {
+                        break;
+                    }
+                    self.drop_rx(p.rx_len);
+                    self.soft_limit_alarm();
+                    self.ok_after_reset = true;
+                    return true;
+                }
                 other => match self.protocol_step(other) {
                     StepOutcome::Wait => break,
                     StepOutcome::Done => {}
@@ -1814,6 +1821,15 @@ impl Controller {
 
     fn soft_limit_alarm(&mut self) {
         self.limit_alarm(2);
+    }
+
+    /// Feed hold: the machine brakes to a stop, laser off.
+    fn start_hold(&mut self) {
+        self.hold = true;
+        self.hold_stops_laser();
+        self.pause_starvation();
+        self.replan_now();
+        self.begin_braking();
     }
 
     /// A critical limit alarm: motion stops where it is, laser off, everything

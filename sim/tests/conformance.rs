@@ -88,6 +88,11 @@ fn probe_2mm() -> SimConfig {
     faults(Faults { probe_contact_mm: Some(2.0), ..Default::default() })
 }
 
+/// Grbl's own planner: a feed hold brakes within the acceleration limits.
+fn grbl_motion() -> SimConfig {
+    SimConfig { motion: laserd_sim::controller::MotionModel::Grbl, ..cfg() }
+}
+
 fn switch_missing() -> SimConfig {
     faults(Faults { homing_switch_missing: true, ..Default::default() })
 }
@@ -765,8 +770,13 @@ fn homing_and_soft_limits() {
         (xy, &[L("$22=1"), L("$20=1"), L("$H"), Wait(0.5)], &[L("G0X-301")], &["ALARM:2", "[MSG:Reset to continue]"]),
         (xy, &[L("$22=1"), L("$20=1"), L("G0X1")], &[Q, L("G0X-1"), L("$X"), Wait(1.0)], &[]),
         (xy, &[L("$22=1"), L("$20=1"), L("G0X1"), Q, L("G0X-1")], &[RESET], &["ok", BANNER, UNLOCK]),
-        (xy, &[L("$22=1"), L("$20=1"), L("G0X-100"), Wait(0.1)], &[L("G0X5"), Q], &["ALARM:2", "[MSG:Reset to continue]"]),
-        (xy, &[L("$22=1"), L("$20=1"), L("G0X-100"), Wait(0.1), L("G0X5")], &[RESET], &["ok", BANNER, UNLOCK]),
+        (xy, &[L("$22=1"), L("$20=1"), L("G0X-100"), Wait(0.1)], &[L("G0X5"), Wait(1.5)], &["ALARM:2", "[MSG:Reset to continue]"]),
+        (xy, &[L("$22=1"), L("$20=1"), L("G0X-100"), Wait(0.1), L("G0X5"), Wait(1.5)], &[RESET], &["ok", BANNER, UNLOCK]),
+        // A running cycle is first held to a controlled stop (Grbl's motion
+        // model brakes within its acceleration), still reporting; then the alarm.
+        (grbl_motion, &[L("$10=1"), L("$22=1"), L("$20=1"), Q, Q, L("G1X-100F600"), Wait(0.5), Q], &[B(b"G0X5\n?"), Q], &["<Hold:1|MPos:*|FS:300,0>", "ALARM:2", "[MSG:Reset to continue]"]),
+        (grbl_motion, &[L("$10=1"), L("$22=1"), L("$20=1"), L("G1X-100F600"), Wait(0.5)], &[L("G0X5"), Wait(0.5), Q], &["ALARM:2", "[MSG:Reset to continue]"]),
+        (grbl_motion, &[L("$22=1"), L("$20=1"), L("G1X-100F600"), Wait(0.5), L("G0X5"), Wait(0.5)], &[RESET], &["ok", BANNER, UNLOCK]),
         // Check mode checks soft limits too.
         (xy, &[L("$22=1"), L("$20=1"), L("$C")], &[L("G0X1")], &["ALARM:2", "[MSG:Reset to continue]"]),
         (xy, &[L("$22=1"), L("$20=1"), L("$C")], &[L("G0X-1")], &["ok"]),

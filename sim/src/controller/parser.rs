@@ -4,6 +4,7 @@
 
 use super::{dist, Block, Controller, Flavor, Motion, Spindle, Step, EPS_POS};
 use crate::gcode::split_words;
+use crate::wire::MachineState;
 
 /// Non-modal commands (group 0).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -377,6 +378,11 @@ impl Controller {
 
         // Soft limits, checked on every point before anything is queued.
         if self.soft_limits() && points.iter().any(|p| self.beyond_travel(p)) {
+            if self.state() == MachineState::Run {
+                // Grbl holds a running cycle to a controlled stop first.
+                self.start_hold();
+                return Ok(vec![Step::SoftLimit]);
+            }
             self.soft_limit_alarm();
             return Err(9);
         }
