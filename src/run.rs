@@ -405,6 +405,7 @@ pub fn replay_differences(recorded: &SimFigures, recorded_log: &RunLog, again: &
                 ": the re-stream's sender sent {extra_lines} line(s) of its own (at connect) besides the recorded ones, which hold the recorded sender's own lines already"
             ),
             "lines_sent" | "bytes_sent" if extra_lines != 0 => format!(": the re-stream's sender sent {extra_lines} line(s) of its own more than the recorded one"),
+            "link_utilization" if extra_lines != 0 => ": it counts the bytes sent, which differ (bytes_sent)".to_string(),
             _ if real_time => ": recorded in real time on a pseudo-terminal (with the sender's and the host's timing); the re-simulation runs in virtual time".to_string(),
             _ => machine_note.map(|m| format!(": {m}")).unwrap_or_default(),
         };

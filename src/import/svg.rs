@@ -40,8 +40,8 @@ const GEOMETRY_ATTRIBUTES: [&str; 23] = [
     "x1", "y1", "x2", "y2", "refX", "refY", "markerWidth", "markerHeight",
 ];
 
-/// Declarations of a `style` attribute that place geometry (usvg takes
-/// these two from CSS as well).
+/// CSS properties that place geometry (usvg takes these two from style
+/// sheets and `style` attributes as well as from attributes).
 const GEOMETRY_STYLE: [&str; 2] = ["transform", "transform-origin"];
 
 /// Parses SVG `text` and converts it to a job; `source` names the file in messages.
@@ -126,9 +126,17 @@ fn check_raw_geometry(text: &str, source: &str) -> Result<()> {
             _ => {}
         }
         let attributes = node.attributes().map(|a| (a.name(), a.value()));
-        // `style="transform: …"` is the same transform as the attribute.
-        let styled = node.attribute("style").into_iter().flat_map(|style| style.split(';')).filter_map(|d| d.split_once(':')).map(|(n, v)| (n.trim(), v.trim()));
-        for (attribute, value) in attributes.chain(styled.filter(|(n, _)| GEOMETRY_STYLE.contains(n))) {
+        // `style="transform: …"` and a `<style>` sheet's rules set the same
+        // transform as the attribute, read as usvg reads them.
+        let mut styled: Vec<(&str, &str)> = match node.attribute("style") {
+            Some(style) => simplecss::DeclarationTokenizer::from(style).map(|d| (d.name, d.value)).collect(),
+            None => vec![],
+        };
+        if node.has_tag_name("style") {
+            let sheet = simplecss::StyleSheet::parse(node.text().unwrap_or(""));
+            styled.extend(sheet.rules.iter().flat_map(|r| r.declarations.iter()).map(|d| (d.name, d.value)));
+        }
+        for (attribute, value) in attributes.chain(styled.into_iter().filter(|(n, _)| GEOMETRY_STYLE.contains(n))) {
             if !GEOMETRY_ATTRIBUTES.contains(&attribute) {
                 continue;
             }
@@ -600,6 +608,7 @@ mod tests {
             (r#"<line id="l" x1="0" y1="0" x2="10 mm" y2="5" stroke="black"/>"#, r#"line 'l' (line 1): x2="10 mm""#, "unreadable length"),
             (r#"<ellipse id="e" cx="5" cy="5" rx="-inf" ry="2" stroke="black"/>"#, "ellipse 'e'", "unreadable length"),
             (r#"<g id="s" style="fill:none; transform: scale(inf)"><path d="M 0 0 L 1 1" stroke="black"/></g>"#, r#"g 's' (line 1): transform="scale(inf)""#, "unreadable transform"),
+            (r#"<style>g.far { fill: none; transform: translate(1e999, 0) }</style><g class="far"><path d="M 0 0 L 1 1" stroke="black"/></g>"#, r#"style at line 1: transform="translate(1e999, 0)""#, ""),
             (r#"<g id="z" transform="scale(0)"><path d="M 0 0 L 1 1" stroke="black"/></g>"#, "g 'z'", "collapses the drawing"),
             (r#"<g id="o" transform-origin="left wobble" transform="rotate(5)"><path d="M 0 0 L 1 1" stroke="black"/></g>"#, "g 'o'", "unreadable transform origin"),
             (r#"<marker id="m" refX="x" markerWidth="3"><path d="M 0 0 L 1 1"/></marker>"#, "marker 'm'", "unreadable length"),
