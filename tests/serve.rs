@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use common::service::*;
 use common::SimProcess;
 use hyper::Method;
+use laserd::daemon::client;
 use serde_json::Value;
 
 #[test]

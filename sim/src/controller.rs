@@ -1673,7 +1673,7 @@ impl Controller {
                     if self.moving() {
                         break;
                     }
-                    self.drop_rx(p.rx_len);
+                    self.drop_rx(p.rx_len, p.taken);
                     self.soft_limit_alarm();
                     self.ok_after_reset = true;
                     return true;

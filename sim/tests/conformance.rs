@@ -608,10 +608,6 @@ fn gcode_feedback() {
     check(rows);
 }
 
-fn grbl_motion() -> SimConfig {
-    SimConfig { motion: laserd_sim::MotionModel::Grbl, ..cfg() }
-}
-
 /// Dwells and the buffer state (issue 17, rows 18-20): `$10` defaults to 1
 /// (no `Bf:`); during a `G4` the machine is Idle, the dwell's line is out of
 /// the receive buffer and its `ok` comes at the dwell's end, or before the
