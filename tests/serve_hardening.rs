@@ -193,7 +193,7 @@ fn a_refused_resume_changes_nothing() {
             .update(&id, |j| {
                 j.state = laserd::daemon::queue::JobState::Running;
                 j.lines_total = 3;
-                j.last_executed_line = 1;
+                j.last_executed_line = Some(1);
             })
             .unwrap();
         id
