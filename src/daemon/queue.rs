@@ -450,7 +450,12 @@ impl Progress {
     fn merge_into(&self, job: &mut JobRecord) -> bool {
         let before = job.clone();
         job.last_acked_line = job.last_acked_line.max(self.last_acked_line);
-        job.last_executed_line = job.last_executed_line.max(self.last_executed_line);
+        job.last_executed_line = match (job.last_executed_line, self.last_executed_line) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            // The newer file: lines were answered since that no report showed done.
+            (Some(a), None) if self.last_acked_line > a => None,
+            (a, b) => a.or(b),
+        };
         if self.state.is_final() && matches!(job.state, JobState::Running | JobState::Paused) {
             job.state = self.state;
             job.ended_at = self.ended_at;
