@@ -83,8 +83,8 @@ impl SenderOptions {
         SenderOptions {
             rx_buffer,
             status_interval: Duration::from_secs_f64(1.0 / status_hz),
-            // Three requests at least go unanswered before a controller counts
-            // as silent (see the stream's tick).
+            // At least three status requests go unanswered before a
+            // controller counts as silent.
             silence_timeout: Duration::from_millis(800).max(Duration::from_secs_f64(3.0 / status_hz)),
             expect_start: None,
             check_mode: false,
@@ -1082,10 +1082,12 @@ where
         };
         let stream_start = secs(origin);
         // Consecutive status reports showing an idle controller with nothing queued
-        // while lines are unanswered (bytes were lost on the way, unless the
-        // oldest of them is a dwell still running), and when the first came.
+        // while the same line is the oldest unanswered (bytes were lost on the
+        // way, unless it is a dwell still running), when the first came, and
+        // that line.
         let mut idle_with_lines_out = 0;
         let mut idle_with_lines_out_since = Instant::now();
+        let mut idle_front: Option<usize> = None;
         let mut next: Option<String> = None;
         let mut next_number = first_line.saturating_sub(1);
         let mut exhausted = false;
@@ -1209,9 +1211,12 @@ where
                             let nothing_queued = s.buffer.is_none_or(|(blocks, rx)| {
                                 rx as usize >= rx_buffer && link.book.planner_blocks.is_none_or(|p| blocks as usize >= p)
                             });
+                            let front = link.book.fifo.front().map(|(n, _)| *n);
                             if s.state == MachineState::Idle && nothing_queued && link.book.lost_before_report() > 0 {
-                                if idle_with_lines_out == 0 {
+                                if idle_with_lines_out == 0 || idle_front != front {
+                                    idle_with_lines_out = 0;
                                     idle_with_lines_out_since = Instant::now();
+                                    idle_front = front;
                                 }
                                 idle_with_lines_out += 1;
                             } else {
