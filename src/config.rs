@@ -611,11 +611,15 @@ pub struct SimulatorConfig {
     /// X, Y, Z only, so no scanner) or `grblhal`.
     #[serde(default)]
     pub flavor: laserd_sim::controller::Flavor,
+    /// Settings in the simulated controller's EEPROM at power-up, as
+    /// `[[10, 3]]` (`$10=3`: status reports with `Bf:`); by default Grbl's own.
+    #[serde(default)]
+    pub settings: Vec<(u32, f64)>,
 }
 
 impl Default for SimulatorConfig {
     fn default() -> Self {
-        SimulatorConfig { planner_blocks: 15, motion: Default::default(), flavor: Default::default() }
+        SimulatorConfig { planner_blocks: 15, motion: Default::default(), flavor: Default::default(), settings: Vec::new() }
     }
 }
 

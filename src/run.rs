@@ -235,6 +235,7 @@ pub fn sim_config(machine: &MachineConfig, faults: Faults) -> SimConfig {
         laser_max_s: machine.laser.max_power,
         motion: machine.simulator.motion,
         flavor: machine.simulator.flavor,
+        settings: machine.simulator.settings.clone(),
         faults,
     }
 }
@@ -313,6 +314,7 @@ pub fn stream_into_simulator(
 ) -> Result<(StreamOutcome, RunLog)> {
     let log = RefCell::new(RunLog::default());
     let lines = program.lines.iter().map(|l| Ok(l.text.clone()));
+    let options = &SenderOptions { step_mm: Some(sim.step_mm()), ..options.clone() };
     let describe = |n: usize, _: &str| program.describe_line(n);
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()

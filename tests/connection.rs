@@ -15,7 +15,9 @@ use tokio::sync::{mpsc, watch};
 
 #[test]
 fn jog_unlock_hold_resume_override_abort_and_resume_from_a_line() {
-    let machine = MachineConfig::load(None).unwrap();
+    let mut machine = MachineConfig::load(None).unwrap();
+    // Reports with `Bf:` (`$10=3`): the executed line is known while the job runs.
+    machine.simulator.settings = vec![(10, 3.0)];
     let job = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/one-field.svg");
     let planned = run::plan(&job, &machine, PlannerKind::Nearest, None).unwrap();
     let lines: Vec<String> = planned.program.lines.iter().map(|l| l.text.clone()).collect();
@@ -38,6 +40,8 @@ fn jog_unlock_hold_resume_override_abort_and_resume_from_a_line() {
             .await
             .unwrap();
             assert_eq!(c.status().await.unwrap().state, MachineState::Idle);
+            // The steps per mm: which lines surely make a planner block.
+            c.settings().await.unwrap();
             c.unlock().await.unwrap();
 
             // Jog out and back; the controller reports Jog meanwhile. Soft

@@ -48,7 +48,9 @@ fn first_byte_of(p: &Planned, n: usize) -> u64 {
 }
 
 fn dry_run(faults: Faults) -> (Planned, DryRun, tempfile::TempDir) {
-    let (machine, planned) = planned();
+    let (mut machine, planned) = planned();
+    // Reports with `Bf:` (`$10=3`): the executed line is known while the job runs.
+    machine.simulator.settings = vec![(10, 3.0)];
     let dir = tempfile::tempdir().unwrap();
     let dry = run::dry_run(&planned, &machine, &dir.path().join("fault.mcap"), faults).expect("the run itself completes");
     (planned, dry, dir)
@@ -183,8 +185,9 @@ fn the_last_executed_line_matches_what_the_machine_ran() {
     let n = middle_mark(&p);
     let (_, dry, _) = dry_run(Faults { error_on_line: Some(received(n)), ..Default::default() });
     let ran = executed_lines(&dry).into_iter().max().unwrap();
-    // The hold brakes inside a block: the line the machine was in ran in
-    // part, and the sender counts only the lines before it as executed.
-    let executed = dry.outcome.last_executed_line.unwrap();
-    assert!(executed == ran || executed + 1 == ran, "sender's view {executed} vs the simulator's {ran}");
+    let executed = dry.outcome.last_executed_line.expect("Bf: tells");
+    // A lower bound: never past what ran, and behind it by at most what the
+    // planner (100 blocks on the default grblHAL board) and grblHAL's
+    // step-segment buffer (9) may hold.
+    assert!(executed <= ran && ran - executed <= 109, "sender's view {executed} vs the simulator's {ran}");
 }

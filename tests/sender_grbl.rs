@@ -16,17 +16,9 @@ use tokio::sync::{mpsc, watch};
 const BAUD: u32 = 115_200;
 
 /// Grbl 1.1h as built (X, Y, Z; 128 bytes; 15 blocks), its `$10` set to
-/// `status_mask` before the sender connects (kept like EEPROM through the
-/// reset the sender then asks for).
+/// `status_mask`.
 fn grbl(status_mask: u32, motion: MotionModel) -> Controller {
-    let mut c = Controller::new(SimConfig { motion, ..SimConfig::with_axes("XYZ") });
-    for b in format!("$10={status_mask}\n").bytes() {
-        c.receive(0.0, b);
-    }
-    c.advance(0.01);
-    let said = String::from_utf8_lossy(&c.take_output()).to_string();
-    assert!(said.ends_with("ok\r\n"), "{said}");
-    c
+    Controller::new(SimConfig { motion, settings: vec![(10, status_mask as f64)], ..SimConfig::with_axes("XYZ") })
 }
 
 type Watch = Rc<RefCell<Option<ExecutedLine>>>;

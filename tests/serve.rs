@@ -20,6 +20,8 @@ fn a_job_through_the_api_pauses_resumes_completes_and_a_second_is_aborted_half_w
     let tty = dir.path().join("ttyLASER");
     let sim_rec = dir.path().join("sim.mcap");
     let sim = SimProcess::start(&tty, &["--pty", "--record", sim_rec.to_str().unwrap()]);
+    // Reports with `Bf:`: the executed line is known while a job runs.
+    write_settings(&tty, &["$10=3"]);
     let config = config(dir.path(), &tty);
     let service = Service::start(&config, &dir.path().join("state"), &dir.path().join("api.sock"));
     let api = Api::new(&service.socket);
@@ -103,7 +105,8 @@ fn a_job_through_the_api_pauses_resumes_completes_and_a_second_is_aborted_half_w
 fn after_a_kill_9_mid_job_the_job_is_interrupted_with_its_last_line_and_its_recording_reads() {
     let _turn = take_turn();
     let dir = tempfile::tempdir().unwrap();
-    let (rig, service, api) = Rig::start(dir.path(), "ttyKILL");
+    // Reports with `Bf:`: the executed line is known while a job runs.
+    let (rig, service, api) = Rig::start_with(dir.path(), "ttyKILL", &["$10=3"]);
     let id = api.submit(&sample("marking-300.svg"));
     let queued = api.wait_job(&id, "queued", Duration::from_secs(60));
     let total = queued["lines_total"].as_u64().unwrap();
@@ -212,6 +215,8 @@ fn the_link_comes_back_after_an_unplug_nothing_moves_until_the_operator_resumes_
     let dir = tempfile::tempdir().unwrap();
     let tty = dir.path().join("ttyUSB");
     let sim = SimProcess::start(&tty, &["--pty"]);
+    // Reports with `Bf:`: the executed line is known while a job runs.
+    write_settings(&tty, &["$10=3"]);
     let config = config(dir.path(), &tty);
     let service = Service::start(&config, &dir.path().join("state"), &dir.path().join("api.sock"));
     let api = Api::new(&service.socket);

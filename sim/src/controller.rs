@@ -170,6 +170,11 @@ pub struct SimConfig {
     pub flavor: Flavor,
     #[serde(default)]
     pub faults: Faults,
+    /// Settings in the controller's EEPROM at power-up, `$n=value` as its
+    /// owner wrote them (e.g. `(10, 3.0)`: reports with `Bf:`); one Grbl
+    /// would refuse is left out.
+    #[serde(default)]
+    pub settings: Vec<(u32, f64)>,
 }
 
 /// The firmware the simulated controller is: its banner, build info, line
@@ -207,6 +212,9 @@ pub enum MotionModel {
     Grbl,
 }
 
+/// `$100`…: steps per mm of every axis unless set otherwise.
+pub const STEPS_PER_MM: f64 = 250.0;
+
 impl SimConfig {
     /// Why this config cannot be the firmware it names, if it cannot: Grbl
     /// 1.1h has the axes X, Y and Z and no other (grblHAL has up to 8).
@@ -219,6 +227,15 @@ impl SimConfig {
             Flavor::Grblhal if self.axes.len() > 8 => Some(format!("grblHAL has at most 8 axes, not {}", self.axes.len())),
             _ => None,
         }
+    }
+
+    /// The longest step of any axis (mm), from the steps per mm in force at
+    /// power-up.
+    pub fn step_mm(&self) -> f64 {
+        (0..self.axes.len() as u32)
+            .map(|i| self.settings.iter().rev().find(|(n, v)| *n == 100 + i && v.is_finite() && *v > 0.0).map_or(STEPS_PER_MM, |(_, v)| *v))
+            .map(|steps| 1.0 / steps)
+            .fold(0.0, f64::max)
     }
 
     /// Default config with the given axis letters, e.g. `"XYUV"`.
@@ -240,6 +257,7 @@ impl Default for SimConfig {
             motion: MotionModel::default(),
             flavor: Flavor::default(),
             faults: Faults::default(),
+            settings: Vec::new(),
         }
     }
 }
@@ -592,6 +610,9 @@ impl Controller {
             ramp: None,
             power_up_shift: vec![0.0; n],
         };
+        for (n, v) in c.cfg.settings.clone() {
+            let _ = c.write_setting(n, v);
+        }
         let banner = c.banner();
         c.out.extend_from_slice(format!("\r\n{banner}\r\n").as_bytes());
         c

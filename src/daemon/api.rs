@@ -218,13 +218,7 @@ pub struct ResumeBody {
 /// then it runs on from the line. Only with `"confirm": true`.
 async fn resume_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>, Json(body): Json<ResumeBody>) -> ApiResult<Json<serde_json::Value>> {
     let job = d.store().get(&id).cloned().ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
-    let from = match (body.from, job.last_executed_line) {
-        (Some(from), _) => from,
-        (None, Some(done)) => done + 1,
-        (None, None) => return Err(Error::Conflict(format!(
-            "job {id}: which lines ran is unknown (the controller's status reports do not show its buffers, `$10=3` would): give the line to resume from (\"from\": N)"
-        )).into()),
-    };
+    let from = job.resume_line(body.from)?;
     if !body.confirm {
         return Err(Error::Conflict(format!("resuming job {id} moves the machine to line {from} of {} and runs on from there: repeat with {{\"confirm\": true}}", job.lines_total)).into());
     }

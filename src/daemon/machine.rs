@@ -252,11 +252,7 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                             // refused resume leaves the job as it was.
                             let mut at = 0;
                             let job = take(daemon, Some(&id), JobState::Interrupted, |job| {
-                                at = match (from, job.last_executed_line) {
-                                    (Some(from), _) => from,
-                                    (None, Some(done)) => done + 1,
-                                    (None, None) => return Err(Error::Conflict(format!("job {id}: which lines ran is unknown: give the line to resume from"))),
-                                };
+                                at = job.resume_line(from)?;
                                 if at == 0 || at > job.lines_total {
                                     return Err(Error::Conflict(format!("job {id} has {} lines: cannot resume at line {at}", job.lines_total)));
                                 }

@@ -134,6 +134,22 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+impl JobRecord {
+    /// The line a resume starts at: `from` if given, else the one after the
+    /// last executed line; refused when that is unknown (the controller's
+    /// reports proved nothing of which lines ran).
+    pub fn resume_line(&self, from: Option<usize>) -> Result<usize> {
+        match (from, self.last_executed_line) {
+            (Some(from), _) => Ok(from),
+            (None, Some(done)) => Ok(done + 1),
+            (None, None) => Err(Error::Conflict(format!(
+                "job {}: which of its lines ran is unknown (the controller's status reports do not show its buffers; `$10=3` makes them): give the line to resume from",
+                self.id
+            ))),
+        }
+    }
+}
+
 /// An executed line as messages show it (`unknown` for `None`).
 pub fn shown_line(line: Option<usize>) -> String {
     line.map_or_else(|| "unknown".to_string(), |n| n.to_string())
@@ -447,7 +463,12 @@ impl Progress {
     fn merge_into(&self, job: &mut JobRecord) -> bool {
         let before = job.clone();
         job.last_acked_line = job.last_acked_line.max(self.last_acked_line);
-        job.last_executed_line = job.last_executed_line.max(self.last_executed_line);
+        job.last_executed_line = match (job.last_executed_line, self.last_executed_line) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            // The newer file: lines were answered since that no report showed done.
+            (Some(a), None) if self.last_acked_line > a => None,
+            (a, b) => a.or(b),
+        };
         if self.state.is_final() && matches!(job.state, JobState::Running | JobState::Paused) {
             job.state = self.state;
             job.ended_at = self.ended_at;
@@ -560,6 +581,20 @@ mod tests {
         let mut store = store;
         let d = store.add("d.svg", b"<svg/>", false).unwrap();
         assert!(d.id > c, "{} after {c}", d.id);
+    }
+
+    #[test]
+    fn a_resume_after_an_unknown_executed_line_asks_for_the_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        let mut job = store.add("a.nc", b"G1X1\n").unwrap();
+        job.last_executed_line = Some(41);
+        assert_eq!(job.resume_line(None).unwrap(), 42);
+        assert_eq!(job.resume_line(Some(7)).unwrap(), 7);
+        job.last_executed_line = None;
+        let refused = job.resume_line(None).unwrap_err().to_string();
+        assert!(refused.contains("unknown") && refused.contains("give the line"), "{refused}");
+        assert_eq!(job.resume_line(Some(7)).unwrap(), 7);
     }
 
     #[test]

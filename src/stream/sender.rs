@@ -52,6 +52,10 @@ pub struct SenderOptions {
     /// rest before it resets anyway (a reset while moving loses the
     /// position: `ALARM:3`, reported). See [`SenderOptions::hold_limit_for`].
     pub hold_limit: Duration,
+    /// The longest step of any of the controller's axes (mm), when known
+    /// beforehand (reading `$$` also tells it): which moves surely make a
+    /// planner block, for the executed line.
+    pub step_mm: Option<f64>,
 }
 
 /// Grbl never moves slower than 1 mm/min (`MINIMUM_FEED_RATE`, overrides
@@ -67,9 +71,9 @@ pub const STALL_TIMEOUT: Duration = Duration::from_secs(10);
 /// ten times that and still nothing in memory: anything longer is garbage.
 pub const MAX_CONTROLLER_LINE: usize = 4096;
 
-/// Acknowledged motion lines kept while no status report says they ran:
-/// far more than any planner holds (Grbl 15 to 35 blocks, grblHAL hundreds).
-const MAX_PENDING_MOTION: usize = 4096;
+/// Acknowledged lines kept while no status report says they ran: far more
+/// than any planner holds (Grbl 15 to 35 blocks, grblHAL hundreds).
+const MAX_PENDING_LINES: usize = 4096;
 
 /// Time a dwell may take beyond its `P` before its line counts as lost:
 /// Grbl dwells in steps of 50 ms and a busy host reads late.
@@ -86,14 +90,15 @@ impl SenderOptions {
         SenderOptions {
             rx_buffer,
             status_interval: Duration::from_secs_f64(1.0 / status_hz),
-            // Three requests at least go unanswered before a controller counts
-            // as silent (see the stream's tick).
+            // At least three status requests go unanswered before a
+            // controller counts as silent.
             silence_timeout: Duration::from_millis(800).max(Duration::from_secs_f64(3.0 / status_hz)),
             expect_start: None,
             check_mode: false,
             send_response: false,
             stall_timeout: STALL_TIMEOUT,
             hold_limit: HOLD_LIMIT,
+            step_mm: None,
         }
     }
 
@@ -641,7 +646,7 @@ impl Book {
         // More than any planner holds: a controller that acknowledges without
         // reporting. Bounded memory; the oldest is dropped without being taken
         // for executed (the bound stays low).
-        if self.pending.len() >= MAX_PENDING_MOTION {
+        if self.pending.len() >= MAX_PENDING_LINES {
             self.pending.pop_front();
         }
         self.pending.push_back((line, text.to_string(), blocks));
@@ -847,7 +852,7 @@ where
             origin: Instant::now(),
             on_event,
             bytes_sent: 0,
-            book: Book::default(),
+            book: Book { step_mm: options.step_mm, ..Book::default() },
             status_interval: options.status_interval,
             last_status_request: None,
         };
@@ -1221,10 +1226,12 @@ where
         };
         let stream_start = secs(origin);
         // Consecutive status reports showing an idle controller with nothing queued
-        // while lines are unanswered (bytes were lost on the way, unless the
-        // oldest of them is a dwell still running), and when the first came.
+        // while the same line is the oldest unanswered (bytes were lost on the
+        // way, unless it is a dwell still running), when the first came, and
+        // that line.
         let mut idle_with_lines_out = 0;
         let mut idle_with_lines_out_since = Instant::now();
+        let mut idle_front: Option<usize> = None;
         let mut next: Option<String> = None;
         let mut next_number = first_line.saturating_sub(1);
         let mut exhausted = false;
@@ -1233,12 +1240,9 @@ where
         let first_tick = link.last_status_request.map_or_else(Instant::now, |last| last + options.status_interval);
         let mut ticker = tokio::time::interval_at(first_tick, options.status_interval);
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        // Silence: nothing heard (no answer, no status report, though asked
+        // every tick) for the silence limit, counted while this task listens.
         let mut last_heard = Instant::now();
-        // Silence is a status request left unanswered: since when the oldest
-        // request sent after the last thing heard went out. Not hearing from a
-        // controller that was not asked (a long dwell or move answers no line)
-        // is no silence.
-        let mut asked_since: Option<Instant> = None;
         let mut last_tick = Instant::now();
         // The last sign of progress (an answer, or a status report differing
         // from the one before) and that report.
@@ -1324,7 +1328,6 @@ where
                     // is as gone as a silent one.
                     if !matches!(response, Response::Other(_)) {
                         last_heard = Instant::now();
-                        asked_since = None;
                     }
                     match response {
                         Response::Ok | Response::Error(_) if answered.is_none() => {
@@ -1355,9 +1358,12 @@ where
                             let nothing_queued = s.buffer.is_none_or(|(blocks, rx)| {
                                 rx as usize >= rx_buffer && link.book.planner_blocks.is_none_or(|p| blocks as usize >= p)
                             });
+                            let front = link.book.fifo.front().map(|(n, _)| *n);
                             if s.state == MachineState::Idle && nothing_queued && link.book.lost_before_report() > 0 {
-                                if idle_with_lines_out == 0 {
+                                if idle_with_lines_out == 0 || idle_front != front {
+                                    idle_with_lines_out = 0;
                                     idle_with_lines_out_since = Instant::now();
+                                    idle_front = front;
                                 }
                                 idle_with_lines_out += 1;
                             } else {
@@ -1413,16 +1419,16 @@ where
                     }
                 }
                 _ = ticker.tick() => {
-                    // A tick long after the one before: this process was held up
-                    // (a loaded host, a slow disk on the same thread) and has not
-                    // read what came meanwhile. Judge the silence afresh from the
-                    // request this tick sends.
+                    // A tick long after the one before: this task was held up (a
+                    // loaded host, a slow disk on the same thread), asked nothing
+                    // and read nothing meanwhile. A controller that was not asked
+                    // (a long dwell or move answers no line) is not silent: judge
+                    // afresh from the request this tick sends.
                     if last_tick.elapsed() > options.silence_timeout / 2 {
-                        asked_since = None;
+                        last_heard = Instant::now();
                     }
                     last_tick = Instant::now();
-                    let unanswered = asked_since.map_or(Duration::ZERO, |t| t.elapsed());
-                    if (ending || !link.book.fifo.is_empty()) && unanswered > options.silence_timeout {
+                    if (ending || !link.book.fifo.is_empty()) && last_heard.elapsed() > options.silence_timeout {
                         fault = Some(format!(
                             "the controller has been silent (no answer, no status report) for {:.1} s with {} line(s) unanswered{}",
                             last_heard.elapsed().as_secs_f64(), link.book.fifo.len(),
@@ -1443,7 +1449,6 @@ where
                     if let Err(e) = link.request_status_if_due().await {
                         fault = Some(link_failure(e));
                     }
-                    asked_since.get_or_insert_with(Instant::now);
                 }
             }
         }
@@ -1893,14 +1898,17 @@ mod tests {
         // Every line acknowledged, then `Run` forever with one block queued.
         let peer = scripted(b, |_, _| ok(), |_| "<Run|MPos:1.000,2.000|Bf:14,128|FS:600,0>\r\n".into());
         let start = Instant::now();
-        let (out, realtime_seen) = against(program(10), peer, a).await;
+        let lines: Vec<String> = (0..10).map(|i| format!("G1X{}Y{i}F60000", 10 * i)).collect();
+        let (out, realtime_seen) = against(lines, peer, a).await;
         let out = out.unwrap();
         let reason = out.stop_reason.unwrap();
         assert!(!out.completed);
         assert!(reason.contains("stalled") && reason.contains("Run"), "{reason}");
-        // One block still queued: the line before the last has run.
-        assert_eq!((out.last_acked_line, out.last_executed_line), (10, Some(9)));
-        assert!(reason.contains("last acknowledged: line 10 `") && reason.contains("last executed: line 9 `G1X8.12345"), "{reason}");
+        // One block still queued and up to 5 in Grbl's step-segment buffer
+        // (every line but the first, from an unknown place, makes one): the
+        // lines up to the 6th from the end have surely run.
+        assert_eq!((out.last_acked_line, out.last_executed_line), (10, Some(4)));
+        assert!(reason.contains("last acknowledged: line 10 `") && reason.contains("last executed (a lower bound): line 4 `G1X30Y3F60000`"), "{reason}");
         assert!(start.elapsed() < STALL_TIMEOUT + Duration::from_secs(15), "{:?}", start.elapsed());
         assert!(realtime_seen.contains(&realtime::FEED_HOLD) && realtime_seen.contains(&realtime::SOFT_RESET), "{realtime_seen:?}");
     }
@@ -1961,7 +1969,7 @@ mod tests {
         assert!(!out.completed);
         assert!(reason.contains("protocol error") && reason.contains("more answers than lines sent"), "{reason}");
         // Within the first status interval no report has said what ran.
-        assert!(reason.contains("last executed: "), "{reason}");
+        assert!(reason.contains("last executed (a lower bound): "), "{reason}");
         assert!(realtime_seen.contains(&realtime::FEED_HOLD) && realtime_seen.contains(&realtime::SOFT_RESET), "{realtime_seen:?}");
     }
 
@@ -2015,7 +2023,7 @@ mod tests {
         assert!(reason.contains(LINK_CLOSED), "{reason}");
         assert!(reason.contains("last acknowledged: line 5 `G1X4.12345Y4.54321F60000`"), "{reason}");
         // Within the first status interval no report has said what ran.
-        assert!(reason.contains("last executed: "), "{reason}");
+        assert!(reason.contains("last executed (a lower bound): "), "{reason}");
     }
 
     #[tokio::test(start_paused = true)]

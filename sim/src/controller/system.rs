@@ -634,7 +634,7 @@ impl Controller {
             (32, Bool, 1.0),
         ];
         let n = d.axes.len() as u32;
-        s.extend((0..n).map(|i| (100 + i, Float, 250.0)));
+        s.extend((0..n).map(|i| (100 + i, Float, super::STEPS_PER_MM)));
         s.extend(d.axes.iter().zip(0..).map(|(a, i)| (110 + i, Float, a.max_velocity * 60.0)));
         s.extend(d.axes.iter().zip(0..).map(|(a, i)| (120 + i, Float, a.max_acceleration)));
         s.extend(d.axes.iter().zip(0..).map(|(a, i)| (130 + i, Float, a.max - a.min)));
@@ -675,7 +675,7 @@ impl Controller {
     }
 
     /// Writes setting `n` (`$n=value`), with the effect Grbl gives it.
-    fn write_setting(&mut self, n: u32, v: f64) -> Result<(), u16> {
+    pub(super) fn write_setting(&mut self, n: u32, v: f64) -> Result<(), u16> {
         let Some(kind) = self.settings().iter().find(|(k, _, _)| *k == n).map(|s| s.1) else {
             return Err(3);
         };
