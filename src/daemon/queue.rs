@@ -587,7 +587,7 @@ mod tests {
     fn a_resume_after_an_unknown_executed_line_asks_for_the_line() {
         let dir = tempfile::tempdir().unwrap();
         let mut store = Store::open(dir.path()).unwrap();
-        let mut job = store.add("a.nc", b"G1X1\n").unwrap();
+        let mut job = store.add("a.nc", b"G1X1\n", false).unwrap();
         job.last_executed_line = Some(41);
         assert_eq!(job.resume_line(None).unwrap(), 42);
         assert_eq!(job.resume_line(Some(7)).unwrap(), 7);
