@@ -135,6 +135,9 @@ fn the_service_homes_then_runs_and_resumes_a_job_on_a_homed_grbl_within_soft_lim
     let rec = dir.path().join("sim.mcap");
     let sim = SimProcess::start(&tty, &["--config", config.to_str().unwrap(), "--record", rec.to_str().unwrap()]);
     write_settings(&tty, &GRBL_HOMED);
+    // Reports with `Bf:`: the resume below starts from the executed line
+    // the service kept (without them it is unknown and the resume asks for one).
+    write_settings(&tty, &["$10=3"]);
     let (state, socket) = (dir.path().join("state"), dir.path().join("api.sock"));
     let service = Service::start(&config, &state, &socket);
     let api = Api::new(&socket);

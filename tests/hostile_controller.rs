@@ -19,7 +19,8 @@ use nix::fcntl::{fcntl, FcntlArg, FdFlag, OFlag};
 use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
 
 /// Program lines answered as Grbl would before the peer turns hostile.
-const HONEST_LINES: usize = 12;
+/// (Enough for several status reports, at 5 Hz, to tell what ran before.)
+const HONEST_LINES: usize = 30;
 
 /// What the peer does from program line `HONEST_LINES + 1` on.
 #[derive(Clone, Copy, PartialEq, Debug)]

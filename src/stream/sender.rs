@@ -930,7 +930,13 @@ where
             self.link.book.planner_blocks = Some(blocks as usize);
             // None free at all is not a size but a fault (see `stream_from`).
             if rx > 0 && (rx as usize) < self.rx_buffer {
-                tracing::warn!("the controller's receive buffer is {rx} bytes, less than the configured {}: using {rx}", self.rx_buffer);
+                // A ring buffer keeps one slot unused (grblHAL's 1024-byte one
+                // holds 1023): not worth a warning, only worth counting on.
+                if rx as usize + 1 == self.rx_buffer {
+                    tracing::debug!("the controller's receive buffer holds {rx} bytes: using {rx}");
+                } else {
+                    tracing::warn!("the controller's receive buffer is {rx} bytes, less than the configured {}: using {rx}", self.rx_buffer);
+                }
                 self.rx_buffer = rx as usize;
             }
         }
