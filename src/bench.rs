@@ -105,7 +105,7 @@ pub fn link_bench(machine: &MachineConfig, blocks: usize, block_s: f64) -> Resul
 }
 
 /// `bench ecp`: the cutting planner on a TSPLIB instance made
-/// precedence-constrained (`plan::ecp::tsplib`), against its known optimum.
+/// precedence-constrained (`gen::tsplib`), against its known optimum.
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct EcpBench {
     pub instance: String,
@@ -133,7 +133,8 @@ pub struct EcpBench {
 }
 
 pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_limit_s: f64, search: SearchKind) -> Result<EcpBench> {
-    use crate::plan::ecp::{checker, construct, ils, solve, tsplib};
+    use crate::gen::tsplib;
+    use crate::plan::ecp::{checker, construct, ils, solve};
     if !(time_limit_s.is_finite() && time_limit_s > 0.0) {
         return Err(Error::Config(format!("bench ecp: --time-limit must be a positive number of seconds, got {time_limit_s}")));
     }
@@ -221,7 +222,8 @@ pub fn flatbed_for(machine: &MachineConfig, width: f64, height: f64) -> MachineC
 
 pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_limit_s: f64, svg_out: Option<&std::path::Path>) -> Result<SheetBench> {
     use crate::plan::cutting::{cutting_model, plan_cutting, whole_geometry_violations};
-    use crate::plan::ecp::{checker, construct, sheet};
+    use crate::gen::sheet;
+    use crate::plan::ecp::{checker, construct};
     use crate::plan::{PathGroup, PlanContext, PlannedPath, Planner, Sequence};
     if !(time_limit_s.is_finite() && time_limit_s > 0.0) {
         return Err(Error::Config(format!("bench sheet: --time-limit must be a positive number of seconds, got {time_limit_s}")));

@@ -19,5 +19,6 @@ pub mod record;
 pub mod report;
 pub mod run;
 pub mod stream;
+pub mod gen;
 pub mod bench;
 pub mod daemon;

@@ -341,7 +341,7 @@ enum GenCommand {
         /// letters I, S, W of squares) or mixed (rectangles, circles,
         /// ellipses, polylines, polygons, paths).
         #[arg(long)]
-        family: laserd::plan::galvo::instances::Family,
+        family: laserd::gen::galvo::Family,
         /// Number of geometries (1 to 5000).
         #[arg(long)]
         n: usize,
@@ -622,7 +622,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Gen { which: GenCommand::Galvo { family, n, seed, output } } => {
-            let svg = laserd::plan::galvo::instances::generate(family, n, seed).map_err(|e| Error::Io(format!("gen galvo: {e}")))?;
+            let svg = laserd::gen::galvo::generate(family, n, seed).map_err(|e| Error::Io(format!("gen galvo: {e}")))?;
             match &output {
                 Some(out) => std::fs::write(out, &svg).map_err(|e| Error::Io(format!("{}: cannot write: {e}", out.display())))?,
                 None => {

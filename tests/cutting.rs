@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use laserd::config::MachineConfig;
-use laserd::plan::ecp::sheet;
+use laserd::gen::sheet;
 use laserd::plan::PlannerKind;
 use laserd::run;
 use laserd_sim::controller::Faults;

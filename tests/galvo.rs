@@ -66,7 +66,7 @@ fn check_plan(name: &str, planned: &run::Planned, half: f64) {
 
 #[test]
 fn generated_instances_of_every_family_are_planned_validly_and_beat_nearest_neighbour() {
-    use laserd::plan::galvo::instances::{generate, Family};
+    use laserd::gen::galvo::{generate, Family};
     let machine = machine();
     let half = machine.scanner.as_ref().unwrap().usable_half_field;
     let dir = tempfile::tempdir().unwrap();
@@ -88,7 +88,7 @@ fn generated_instances_of_every_family_are_planned_validly_and_beat_nearest_neig
 
 #[test]
 fn hga_is_never_worse_than_hha_and_keeps_to_its_time_limit() {
-    use laserd::plan::galvo::instances::{generate, Family};
+    use laserd::gen::galvo::{generate, Family};
     let mut machine = machine();
     machine.galvo.time_limit = 2.0;
     let half = machine.scanner.as_ref().unwrap().usable_half_field;

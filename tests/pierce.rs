@@ -226,10 +226,10 @@ fn a_long_cut_job_waits_after_each_pierce_for_the_lines_the_dwell_held_back_and_
     // While the controller dwells, the `G4` and `M4` lines hold its receive
     // buffer, so only a few blocks of the cut are in when the dwell ends.
     let dir = tempfile::tempdir().unwrap();
-    let params = laserd::plan::ecp::sheet::SheetParams::with_target(120);
+    let params = laserd::gen::sheet::SheetParams::with_target(120);
     let job = dir.path().join("sheet.svg");
-    let sheet = laserd::plan::ecp::sheet::generate_sheet(&params, 3);
-    std::fs::write(&job, laserd::plan::ecp::sheet::to_svg(&sheet, &params)).unwrap();
+    let sheet = laserd::gen::sheet::generate_sheet(&params, 3);
+    std::fs::write(&job, laserd::gen::sheet::to_svg(&sheet, &params)).unwrap();
     let (plain_machine, pierce_machine) = (flatbed(false), flatbed(true));
     let plain = run::plan(&job, &plain_machine, PlannerKind::Nearest, None).unwrap();
     let planned = run::plan(&job, &pierce_machine, PlannerKind::Nearest, None).unwrap();

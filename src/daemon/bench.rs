@@ -147,7 +147,7 @@ pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clien
     let tty = dir.join("tty");
     // The machine's config with the simulator's device, and a table large
     // enough for the 3000-element sheet that is planned in run 3.
-    let params = crate::plan::ecp::sheet::SheetParams::with_target(3000);
+    let params = crate::gen::sheet::SheetParams::with_target(3000);
     let text: String = config_text
         .lines()
         .map(|l| {
@@ -168,10 +168,10 @@ pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clien
     MachineConfig::load(Some(&config))?;
     // The big jobs to plan while streaming.
     let sheet = dir.join("sheet-3000.svg");
-    let generated = crate::plan::ecp::sheet::generate_sheet(&params, 1);
-    std::fs::write(&sheet, crate::plan::ecp::sheet::to_svg(&generated, &params)).map_err(|e| Error::Io(e.to_string()))?;
+    let generated = crate::gen::sheet::generate_sheet(&params, 1);
+    std::fs::write(&sheet, crate::gen::sheet::to_svg(&generated, &params)).map_err(|e| Error::Io(e.to_string()))?;
     let galvo = dir.join("galvo-1000.svg");
-    std::fs::write(&galvo, crate::plan::galvo::instances::generate(crate::plan::galvo::instances::Family::Rnd, 1000, 7).map_err(Error::Io)?).map_err(|e| Error::Io(e.to_string()))?;
+    std::fs::write(&galvo, crate::gen::galvo::generate(crate::gen::galvo::Family::Rnd, 1000, 7).map_err(Error::Io)?).map_err(|e| Error::Io(e.to_string()))?;
 
     let mut sim = Command::new(&exe).args(["sim", "--pty", "--config"]).arg(&config).arg("--link").arg(&tty).stdout(Stdio::piped()).spawn().map_err(|e| Error::Io(format!("laserd sim: {e}")))?;
     {

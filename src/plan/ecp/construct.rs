@@ -331,7 +331,7 @@ mod tests {
             let route = contour_order_construction(&inst);
             assert!(check(&inst, &route).is_empty(), "seed {seed}: {:?}", check(&inst, &route));
         }
-        let sheet = crate::plan::ecp::sheet::generate(&crate::plan::ecp::sheet::SheetParams::with_target(400), 1);
+        let sheet = crate::gen::sheet::generate(&crate::gen::sheet::SheetParams::with_target(400), 1);
         let route = contour_order_construction(&sheet);
         assert!(check(&sheet, &route).is_empty());
         // Whole contours: a pierce per contour at most (fewer where cuts run on).

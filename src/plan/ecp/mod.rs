@@ -32,10 +32,8 @@ pub mod construct;
 pub mod exact;
 pub mod ils;
 pub mod moves;
-pub mod sheet;
 pub mod tabu;
 pub mod topology;
-pub mod tsplib;
 
 use std::str::FromStr;
 
@@ -261,11 +259,11 @@ pub(crate) fn small_instances_with_optimum() -> Vec<(u64, Instance, f64)> {
 
 /// a280 made precedence-constrained with `seed`, for the searches' tests.
 #[cfg(test)]
-pub(crate) fn a280(seed: u64) -> tsplib::BenchInstance {
+pub(crate) fn a280(seed: u64) -> crate::gen::tsplib::BenchInstance {
     let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/tsplib");
-    let tsp = tsplib::read_tsp(&dir.join("a280.tsp")).unwrap();
-    let tour = tsplib::read_tour(&dir.join("a280.opt.tour"), 280).unwrap();
-    tsplib::bench_instance(&tsp, &tour, seed)
+    let tsp = crate::gen::tsplib::read_tsp(&dir.join("a280.tsp")).unwrap();
+    let tour = crate::gen::tsplib::read_tour(&dir.join("a280.opt.tour"), 280).unwrap();
+    crate::gen::tsplib::bench_instance(&tsp, &tour, seed)
 }
 
 #[cfg(test)]

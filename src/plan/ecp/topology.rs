@@ -723,7 +723,7 @@ mod tests {
     use crate::config::MachineConfig;
     use crate::job::{Geometry, Process};
     use crate::plan::ecp::checker;
-    use crate::plan::ecp::sheet::{self, SheetParams};
+    use crate::gen::sheet::{self, SheetParams};
 
     fn p(x: f64, y: f64) -> Point {
         Point::new(x, y)

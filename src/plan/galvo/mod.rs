@@ -12,7 +12,6 @@
 
 pub mod hga;
 pub mod hha;
-pub mod instances;
 pub mod route;
 
 use super::fields::{centre_within_travel, cover, Field};

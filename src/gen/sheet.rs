@@ -31,7 +31,7 @@ use nalgebra::Vector2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::{Element, Instance, Metric};
+use crate::plan::ecp::{Element, Instance, Metric};
 use crate::job::Point;
 
 /// What [`generate`] builds.

@@ -15,7 +15,7 @@ use std::path::Path;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 
-use super::{checker, Cut, Element, Instance, Metric};
+use crate::plan::ecp::{checker, Cut, Element, Instance, Metric};
 use crate::error::{Error, Result};
 use crate::job::Point;
 
