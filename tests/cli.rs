@@ -274,7 +274,7 @@ fn replay_of_a_non_recording_is_one_clear_error() {
 fn recording_reads_in_the_reference_python_mcap_library() {
     let have = |py: &str| Command::new("python3").args(["-c", py]).status().map(|s| s.success()).unwrap_or(false);
     // Installed (pinned) by .ci/run; a test installs nothing.
-    assert!(have("import mcap"), "this test needs the reference MCAP reader: `python3 -m pip install mcap==1.6.0 lz4==4.4.5 zstandard==0.25.0` (as .ci/run does)");
+    assert!(have("import mcap"), "this test needs the reference MCAP reader, the Python packages mcap 1.6.0, lz4 4.4.5 and zstandard 0.25.0: .ci/run installs them, pinned");
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("r.mcap");
     let out = laserd(&["dry-run", &sample("one-field.svg"), "--record", rec.to_str().unwrap()], dir.path());

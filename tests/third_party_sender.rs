@@ -141,7 +141,7 @@ fn python_with_timeout(args: &[&str], dir: &Path, limit: Duration) -> (bool, Str
 fn pygrbl_streamer_streams_a_cam_job_to_the_simulator_on_a_pty() {
     let have = |py: &str| Command::new("python3").args(["-c", py]).status().map(|s| s.success()).unwrap_or(false);
     // Installed (pinned) by .ci/run; a test installs nothing.
-    assert!(have("import pygrbl_streamer, serial"), "this test needs the third-party GRBL sender pygrbl-streamer: `python3 -m pip install pygrbl-streamer==1.0.5 pyserial==3.5` (as .ci/run does)");
+    assert!(have("import pygrbl_streamer, serial"), "this test needs the third-party GRBL sender, the Python packages pygrbl-streamer 1.0.5 and pyserial 3.5: .ci/run installs them, pinned");
 
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("ttyGRBL");
