@@ -407,6 +407,21 @@ pub struct ImportConfig {
     /// service or submitted to it by path.
     #[serde(default = "default_max_file_mb")]
     pub max_file_mb: f64,
+    /// Most elements a drawing may grow to once `<use>` and markers repeat
+    /// what they refer to: bounds the time and memory of an import.
+    #[serde(default = "default_max_elements")]
+    pub max_elements: u64,
+    /// Most points of the flattened drawing (and path segments before it).
+    #[serde(default = "default_max_points")]
+    pub max_points: u64,
+}
+
+fn default_max_elements() -> u64 {
+    200_000
+}
+
+fn default_max_points() -> u64 {
+    5_000_000
 }
 
 fn default_max_file_mb() -> f64 {
@@ -415,7 +430,13 @@ fn default_max_file_mb() -> f64 {
 
 impl Default for ImportConfig {
     fn default() -> Self {
-        ImportConfig { tolerance: 0.01, svg_dpi: 96.0, max_file_mb: default_max_file_mb() }
+        ImportConfig {
+            tolerance: 0.01,
+            svg_dpi: 96.0,
+            max_file_mb: default_max_file_mb(),
+            max_elements: default_max_elements(),
+            max_points: default_max_points(),
+        }
     }
 }
 
@@ -816,6 +837,8 @@ impl MachineConfig {
         DIRECTION_WEIGHT.check("galvo.direction_weight_single_field", g.direction_weight_single_field)?;
         TIME_LIMIT.check("galvo.time_limit", g.time_limit)?;
         in_range("import.max_file_mb", self.import.max_file_mb, 0.001, 4096.0, "MB")?;
+        in_range("import.max_elements", self.import.max_elements, 1, 100_000_000, "elements")?;
+        in_range("import.max_points", self.import.max_points, 1_000, 1_000_000_000, "points")?;
         in_range("service.keep_jobs", self.service.keep_jobs, 0, 1_000_000, "jobs")?;
         in_range("service.plan_timeout", self.service.plan_timeout, 1.0, 86_400.0, "s")?;
         in_range("service.plan_memory_mb", self.service.plan_memory_mb, 256.0, 1_048_576.0, "MB")?;

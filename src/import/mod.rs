@@ -9,6 +9,7 @@ use crate::error::{Error, Result};
 use crate::job::Job;
 
 pub mod svg;
+pub mod svg_size;
 
 /// Reads the job file at `path` and converts it with the import settings of `config`.
 ///

@@ -47,7 +47,7 @@ const GEOMETRY_STYLE: [&str; 2] = ["transform", "transform-origin"];
 /// Parses SVG `text` and converts it to a job; `source` names the file in messages.
 /// Nothing outside `text` is read: images by path or URL are refused.
 pub fn import_svg(text: &str, source: &str, config: &MachineConfig) -> Result<Job> {
-    check_raw_geometry(text, source)?;
+    check_raw_geometry(text, source, config)?;
     let options = usvg::Options {
         dpi: config.import.svg_dpi as f32,
         resources_dir: None,
@@ -66,6 +66,7 @@ pub fn import_svg(text: &str, source: &str, config: &MachineConfig) -> Result<Jo
         mm_per_px,
         doc_height_mm: tree.size().height() as f64 * mm_per_px,
         paths_seen: 0,
+        points: 0,
         geometries: Vec::new(),
     };
     importer.walk(tree.root(), &mut Vec::new())?;
@@ -109,15 +110,17 @@ fn parse_error_message(e: &usvg::Error) -> String {
     msg.lines().collect::<Vec<_>>().join(" ")
 }
 
-/// Checks the raw geometry attributes before usvg reads them: numbers out of
+/// Checks the raw document before usvg reads it: what it repeats into
+/// (`svg_size`), and the geometry attributes: numbers out of
 /// any drawing's range, path data or transforms it would cut short or drop
 /// (a browser draws up to the error; a laser must not), each an error naming
 /// the element. Warns of what is not marked: `<text>` (usvg is built without
 /// fonts) and `<image>`.
-fn check_raw_geometry(text: &str, source: &str) -> Result<()> {
+fn check_raw_geometry(text: &str, source: &str, config: &MachineConfig) -> Result<()> {
     let options = usvg::roxmltree::ParsingOptions { allow_dtd: true, ..Default::default() };
     // A document roxmltree cannot read, usvg cannot either: it says why.
     let Ok(doc) = usvg::roxmltree::Document::parse_with_options(text, options) else { return Ok(()) };
+    super::svg_size::check(&doc, source, &config.import)?;
     let (mut texts, mut images) = (0, 0);
     for node in doc.descendants().filter(|n| n.is_element()) {
         match node.tag_name().name() {
@@ -224,6 +227,8 @@ struct Importer<'a> {
     doc_height_mm: f64,
     /// Paths met so far in document order; names paths without an id in messages.
     paths_seen: usize,
+    /// Points flattened so far, against `[import] max_points`.
+    points: u64,
     /// `process` holds the config layer index until `import_svg` renumbers it.
     geometries: Vec<Geometry>,
 }
@@ -263,7 +268,17 @@ impl<'a> Importer<'a> {
         let bez = self.to_machine_mm(path.data(), path.abs_transform(), &name)?;
         let layer = self.layer_for(path, groups);
 
-        for (i, (points, closed)) in flatten(&bez, self.config.import.tolerance).into_iter().enumerate() {
+        let import = &self.config.import;
+        let room = import.max_points.saturating_sub(self.points);
+        let Some(subpaths) = flatten(&bez, import.tolerance, room) else {
+            return Err(Error::Import(format!(
+                "{}: {name}: the drawing flattens to more than [import] max_points = {} points at \
+                 [import] tolerance = {} mm; simplify it or raise the limit",
+                self.source, import.max_points, import.tolerance
+            )));
+        };
+        self.points += subpaths.iter().map(|(p, _)| p.len() as u64).sum::<u64>();
+        for (i, (points, closed)) in subpaths.into_iter().enumerate() {
             if let Some((points, closed)) = clean_polyline(points, closed) {
                 self.geometries.push(Geometry {
                     points,
@@ -328,39 +343,53 @@ impl<'a> Importer<'a> {
     }
 }
 
-/// Flattens a path to polylines within `tolerance`: one (points, closed) per subpath.
-fn flatten(bez: &BezPath, tolerance: f64) -> Vec<(Vec<kurbo::Point>, bool)> {
+/// Flattens a path to polylines within `tolerance`: one (points, closed) per
+/// subpath; `None` past `max_points` (found out within one curve: the rest of
+/// the path is not flattened).
+fn flatten(bez: &BezPath, tolerance: f64, max_points: u64) -> Option<Vec<(Vec<kurbo::Point>, bool)>> {
+    let over = std::cell::Cell::new(false);
+    let mut count = 0u64;
     let mut subpaths: Vec<(Vec<kurbo::Point>, bool)> = Vec::new();
     let mut current: Vec<kurbo::Point> = Vec::new();
     // SVG allows drawing on after a Z without a new M; such a subpath starts where the
     // closed one did.
     let mut start = kurbo::Point::ZERO;
-    kurbo::flatten(bez.iter(), tolerance, |el| match el {
-        PathEl::MoveTo(p) => {
-            if !current.is_empty() {
-                subpaths.push((std::mem::take(&mut current), false));
-            }
-            start = p;
-            current.push(p);
+    kurbo::flatten(bez.iter().take_while(|_| !over.get()), tolerance, |el| {
+        count += 1;
+        if count > max_points {
+            over.set(true);
+            return;
         }
-        PathEl::LineTo(p) => {
-            if current.is_empty() {
-                current.push(start);
+        match el {
+            PathEl::MoveTo(p) => {
+                if !current.is_empty() {
+                    subpaths.push((std::mem::take(&mut current), false));
+                }
+                start = p;
+                current.push(p);
             }
-            current.push(p);
-        }
-        PathEl::ClosePath => {
-            if !current.is_empty() {
-                subpaths.push((std::mem::take(&mut current), true));
+            PathEl::LineTo(p) => {
+                if current.is_empty() {
+                    current.push(start);
+                }
+                current.push(p);
             }
+            PathEl::ClosePath => {
+                if !current.is_empty() {
+                    subpaths.push((std::mem::take(&mut current), true));
+                }
+            }
+            // kurbo::flatten emits only the three above; curves are already lines.
+            PathEl::QuadTo(..) | PathEl::CurveTo(..) => {}
         }
-        // kurbo::flatten emits only the three above; curves are already lines.
-        PathEl::QuadTo(..) | PathEl::CurveTo(..) => {}
     });
+    if over.get() {
+        return None;
+    }
     if !current.is_empty() {
         subpaths.push((current, false));
     }
-    subpaths
+    Some(subpaths)
 }
 
 /// Removes repeated points and a repeated start point at the end (which closes the
