@@ -11,9 +11,10 @@
 //!   faults), and the sanitizing of a config;
 //! * `lines.rs`: line bytes from the wire, the receive buffer, each line's
 //!   steps up to its `ok`;
-//! * `parser.rs`: G-code blocks and `$J=` jogs;
-//! * `system.rs`: `$` commands, settings and EEPROM, homing, probing,
-//!   feedback messages and the report's `Pn:`/`A:`/`WCO:` fields;
+//! * `parser.rs`: G-code blocks and `$J=` jogs; `arc.rs`: arcs cut into chords;
+//! * `system.rs`: `$` commands, EEPROM (offsets, stored positions, startup
+//!   lines), homing, probing, feedback messages and the report's
+//!   `Pn:`/`A:`/`WCO:` fields; `settings.rs`: the `$n` settings;
 //! * `realtime.rs`: realtime bytes (`?`, `!`, `~`, door, jog cancel, overrides);
 //! * `report.rs`: status reports and the `Bf:` buffer counts;
 //! * `reset.rs`: soft and hardware resets, critical limit alarms;
@@ -30,6 +31,7 @@ use crate::gcode::LineBuilder;
 use crate::planner::Kinematics;
 use crate::wire::{MachineState, BANNER, BANNER_HAL};
 
+mod arc;
 mod config;
 mod hold;
 mod laser;
@@ -39,6 +41,7 @@ mod parser;
 mod realtime;
 mod report;
 mod reset;
+mod settings;
 mod system;
 
 pub use config::{AxisConfig, Faults, Flavor, MotionModel, SimConfig, GRBL_AXES, STEPS_PER_MM};
