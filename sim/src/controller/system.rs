@@ -1,9 +1,8 @@
 //! The protocol side of the controller apart from G-code (reference §3–§8):
 //! `$` system commands (the settings themselves are in `settings.rs`), what
-//! Grbl keeps in EEPROM (work offsets,
-//! G28/G30 positions, startup lines, build info), feedback messages, the
-//! status report's `Pn:`/`A:`/`WCO:` contents, the spindle stop override,
-//! probing results and homing outcomes.
+//! Grbl keeps in EEPROM (work offsets, G28/G30 positions, startup lines,
+//! build info), feedback messages, the status report's `Pn:`/`A:`/`WCO:`
+//! contents, the spindle stop override, probing results and homing outcomes.
 
 use super::{AfterOk, Block, Controller, Flavor, Motion, Pending, SimConfig, Spindle, Step};
 use super::settings::{parse_value, Kind};
