@@ -1,0 +1,302 @@
+//! `bench`: the benchmarks, each with a report (text, or JSON with --json).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use laserd::config::in_range;
+use laserd::error::{Error, Result};
+use laserd::motion::Mode;
+use laserd::plan::ecp::SearchKind;
+use laserd::plan::PlannerKind;
+use laserd_sim::controller::MotionModel;
+
+use super::common::{check_baud, check_time_limit, exit, machine_config, print_json};
+
+#[derive(clap::Subcommand)]
+pub enum BenchCommand {
+    /// The service under load: `laserd sim --pty` and `laserd serve` as child
+    /// processes, one job streamed quiet, with polling clients, and while the
+    /// service plans a 1000-geometry galvo job and a 3000-element sheet.
+    Serve {
+        /// The job streamed (default: samples/marking-300.svg).
+        #[arg(long, default_value = "samples/marking-300.svg")]
+        job: PathBuf,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Clients polling the status during the second run, and how often each polls (Hz).
+        #[arg(long, default_value_t = 100)]
+        clients: usize,
+        #[arg(long, default_value_t = 10.0)]
+        hz: f64,
+        #[arg(long)]
+        json: bool,
+    },
+    /// The cutting planner's search on a TSPLIB instance made
+    /// precedence-constrained, against the instance's known optimum.
+    Ecp {
+        #[arg(long)]
+        tsp: PathBuf,
+        #[arg(long)]
+        tour: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Seconds the search may run.
+        #[arg(long, default_value_t = 10.0)]
+        time_limit: f64,
+        /// `ils` (iterated local search, the default) or `tabu` (seed 001's).
+        #[arg(long, default_value = "ils")]
+        search: SearchKind,
+        #[arg(long)]
+        json: bool,
+    },
+    /// The cutting planner on a generated sheet of nested parts (SVG through
+    /// the importer), against the nearest-neighbour baseline and seed 001's
+    /// construction alone.
+    Sheet {
+        /// Machine config; the bench cuts on it as a flatbed whose travel covers the sheet.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Elements (lines and arcs) the sheet should have (it gets up to 5 % more).
+        #[arg(long, default_value_t = 3000)]
+        elements: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Seconds the search may run.
+        #[arg(long, default_value_t = 30.0)]
+        time_limit: f64,
+        /// Also write the sheet here as SVG (to plan or dry-run it as a job).
+        #[arg(long)]
+        svg: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// The galvo planners on the 12 cases of seed 003's families against the
+    /// reference reimplementation's figures (`reference.json` in the folder).
+    Galvo {
+        /// Machine config; its scanner's whole field is used (the benchmark's 70 x 70 mm).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Folder with the cases' SVGs and reference.json.
+        #[arg(long, default_value = "tests/data/galvo")]
+        dir: PathBuf,
+        #[arg(long, default_value = "hha")]
+        planner: PlannerKind,
+        /// Planner seeds 1 to this.
+        #[arg(long, default_value_t = 5)]
+        seeds: u64,
+        /// HGA's time limit per run (default: the config's [galvo] time_limit).
+        #[arg(long)]
+        time_limit: Option<f64>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Compute time of the trajectory, the split and the program against the
+    /// machine time they produce (planning excluded).
+    Motion {
+        /// Job files (SVG).
+        jobs: Vec<PathBuf>,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long)]
+        mode: Option<Mode>,
+        /// Runs per job; the median counts.
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+        #[arg(long)]
+        json: bool,
+    },
+    /// How well the sender uses the serial link: character counting against
+    /// send-response streaming, on a synthetic program of short 4-axis blocks.
+    Link {
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long, default_value_t = 20_000)]
+        blocks: usize,
+        /// Duration of each block in milliseconds.
+        #[arg(long, default_value_t = 1.0)]
+        block_ms: f64,
+        /// How the simulated controller executes blocks (default: the config's).
+        #[arg(long)]
+        motion: Option<MotionModel>,
+        /// Link speed (default: 115200, the classic GRBL serial link).
+        #[arg(long, default_value_t = 115_200)]
+        baud: u32,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// Every numeric flag within its range (the config's, where the flag stands
+/// for a setting), before anything runs.
+fn check_flags(command: &BenchCommand) -> Result<()> {
+    match command {
+        BenchCommand::Serve { clients, hz, .. } => in_range("--clients", *clients, 1, 10_000, "clients").and(in_range("--hz", *hz, 0.1, 1000.0, "Hz")),
+        BenchCommand::Ecp { time_limit: t, .. } => check_time_limit(Some(*t)),
+        BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(check_time_limit(Some(*t))),
+        BenchCommand::Galvo { seeds, time_limit: t, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds").and(check_time_limit(*t)),
+        BenchCommand::Motion { repeats, .. } => in_range("--repeats", *repeats, 1, 1000, "runs"),
+        BenchCommand::Link { blocks, block_ms, baud: b, .. } => in_range("--blocks", *blocks, 1, 1_000_000, "blocks")
+            .and(in_range("--block-ms", *block_ms, 0.01, 1000.0, "ms"))
+            .and(check_baud(Some(*b))),
+    }
+    .map_err(Error::Config)
+}
+
+pub fn run(command: BenchCommand) -> Result<ExitCode> {
+    check_flags(&command)?;
+    match command {
+        BenchCommand::Ecp { tsp, tour, seed, time_limit, search, json } => ecp_bench(tsp, tour, seed, time_limit, search, json),
+        BenchCommand::Sheet { config, elements, seed, time_limit, svg, json } => sheet_bench(config, elements, seed, time_limit, svg, json),
+        BenchCommand::Serve { job, config, clients, hz, json } => serve_bench(job, config, clients, hz, json),
+        BenchCommand::Motion { jobs, config, mode, repeats, json } => motion_bench(jobs, config, mode, repeats, json),
+        BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } => galvo_bench(config, dir, planner, seeds, time_limit, json),
+        BenchCommand::Link { config, blocks, block_ms, motion, baud, json } => link_bench(config, blocks, block_ms, motion, baud, json),
+    }
+}
+
+fn ecp_bench(tsp: PathBuf, tour: PathBuf, seed: u64, time_limit: f64, search: SearchKind, json: bool) -> Result<ExitCode> {
+    let report = laserd::bench::ecp_bench(&tsp, &tour, seed, time_limit, search)?;
+    if json {
+        print_json(&report)?;
+    } else {
+        println!(
+            "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {:.2} s of {} s, {} iterations ({}, {} threads), feasible: {}",
+            report.instance, report.elements, report.contours, report.precedences, report.inner_outer, report.common_cuts,
+            report.optimum, report.construction, report.best, report.gap * 100.0, report.time_to_best_s, report.time_limit_s, report.iterations, report.search, report.threads, report.feasible
+        );
+    }
+    Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(exit::STOPPED) })
+}
+
+fn sheet_bench(config: Option<PathBuf>, elements: usize, seed: u64, time_limit: f64, svg: Option<PathBuf>, json: bool) -> Result<ExitCode> {
+    let machine = machine_config(config.as_deref(), json)?.machine;
+    let r = laserd::bench::sheet_bench(&machine, elements, seed, time_limit, svg.as_deref())?;
+    if json {
+        print_json(&r)?;
+    } else {
+        println!(
+            "sheet {} x {} mm, seed {}: {} geometries, {} elements, {} contours, {} inner/outer, {} common cuts; pierce cost {} mm",
+            r.width_mm, r.height_mm, r.seed, r.geometries, r.elements, r.contours, r.inner_outer, r.common_cuts, r.pierce_cost_mm
+        );
+        for (name, o) in [("nearest", &r.nearest), ("IB + dir-opt", &r.construction), ("COB + dir-opt", &r.contour_order), ("ecp", &r.ecp)] {
+            println!(
+                "  {name:<13} air {:>10.1} mm, {:>5} pierces, {:>4} precedence violations, planned in {:.2} s",
+                o.air_mm, o.pierces, o.precedence_violations, o.plan_time_s
+            );
+        }
+        println!("  ecp air / nearest {:.3}, / IB + dir-opt {:.3}", r.air_vs_nearest, r.air_vs_construction);
+    }
+    Ok(if r.ecp.precedence_violations == 0 { ExitCode::SUCCESS } else { ExitCode::from(exit::STOPPED) })
+}
+
+fn serve_bench(job: PathBuf, config: Option<PathBuf>, clients: usize, hz: f64, json: bool) -> Result<ExitCode> {
+    let found = machine_config(config.as_deref(), json)?;
+    let r = laserd::daemon::bench::serve_bench(&found.machine, &found.text, &job, clients, hz)?;
+    if json {
+        print_json(&r)?;
+    } else {
+        println!("laserd serve, job {}", r.job);
+        for run in &r.runs {
+            println!(
+                "  {:<9} link utilization {:.4}  streamed {:.2} s  status at 10 Hz: {} answers, interval jitter p50 {:.2} ms p99 {:.2} ms max {:.2} ms  controller `?`: {} (jitter p99 {:.2} ms, {} found it starved)  load clients' answers {}",
+                run.name,
+                run.link_utilization,
+                run.stream_time_s,
+                run.api_polls,
+                run.api_poll_jitter_p50_ms,
+                run.api_poll_jitter_p99_ms,
+                run.api_poll_jitter_max_ms,
+                run.controller_polls,
+                run.controller_poll_jitter_p99_ms,
+                run.starved_reports,
+                run.api_requests
+            );
+        }
+        println!("  utilization with {} clients at {} Hz / quiet: {:.4}", r.clients, r.client_hz, r.utilization_ratio_polling);
+        println!("  utilization while planning (done in {:.1} s) / quiet: {:.4}", r.planning_s, r.utilization_ratio_planning);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn motion_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, mode: Option<Mode>, repeats: usize, json: bool) -> Result<ExitCode> {
+    let machine = machine_config(config.as_deref(), json)?.machine;
+    let r = laserd::bench::motion_bench(&machine, &jobs, mode, repeats)?;
+    if json {
+        print_json(&r)?;
+    } else {
+        println!("trajectory + split + program, {} mode, median of {} runs", r.mode, r.repeats);
+        for c in &r.jobs {
+            println!(
+                "  {:<40} {:>5} geometries  machine {:>8.3} s  computed in {:>7.4} s  ({:.3} %)",
+                c.job,
+                c.geometries,
+                c.machine_time_s,
+                c.motion_time_s,
+                c.share * 100.0
+            );
+        }
+        println!("  worst {:.3} %, all jobs {:.3} % of their machine time", r.worst_share * 100.0, r.total_share * 100.0);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn galvo_bench(config: Option<PathBuf>, dir: PathBuf, planner: PlannerKind, seeds: u64, time_limit: Option<f64>, json: bool) -> Result<ExitCode> {
+    let mut machine = machine_config(config.as_deref(), json)?.machine;
+    if let Some(t) = time_limit {
+        machine.galvo.time_limit = t;
+    }
+    let seeds: Vec<u64> = (1..=seeds).collect();
+    let r = laserd::bench::galvo_bench(&machine, &dir, planner, &seeds)?;
+    if json {
+        print_json(&r)?;
+    } else {
+        println!("{} on {} cases, seeds 1-{}: idle stroke and plan time against the reference (median / worst)", r.planner, r.cases.len(), seeds.len());
+        for c in &r.cases {
+            println!(
+                "  {:<10} {:>5} geometries  fields {:>3} (ref {:>5.1})  idle {:.3} / {:.3}  time {:.3} / {:.3}  stage reversals {}",
+                c.case,
+                c.geometries,
+                c.scan_fields.iter().max().unwrap_or(&0),
+                c.reference_fields,
+                c.idle_ratio_median,
+                c.idle_ratio_worst,
+                c.time_ratio_median,
+                c.time_ratio_worst,
+                c.stage_reversals.iter().max().unwrap_or(&0)
+            );
+        }
+        println!("  fields in all {} against the reference's {:.1} ({:.3})", r.fields_total, r.reference_fields_total, r.fields_total as f64 / r.reference_fields_total);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn link_bench(config: Option<PathBuf>, blocks: usize, block_ms: f64, motion: Option<MotionModel>, baud: u32, json: bool) -> Result<ExitCode> {
+    let mut machine = machine_config(config.as_deref(), json)?.machine;
+    machine.serial.baud = baud;
+    machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
+    let report = laserd::bench::link_bench(&machine, blocks, block_ms / 1000.0)?;
+    if json {
+        print_json(&report)?;
+    } else {
+        let show = |name: &str, f: &laserd::bench::StreamFigures| {
+            println!(
+                "  {name:<18} stream {:>8.2} s, link {:>5.1} %, planner starved {:.3} s",
+                f.stream_time_s,
+                f.link_utilization * 100.0,
+                f.planner_starved_s
+            )
+        };
+        println!(
+            "{} blocks of {:.3} ms, line time {:.3} ms at {} baud, {}-byte receive buffer:",
+            report.blocks,
+            report.block_s * 1000.0,
+            report.line_time_s * 1000.0,
+            report.baud,
+            report.rx_buffer
+        );
+        show("character counting", &report.character_counting);
+        show("send-response", &report.send_response);
+        println!("  character counting is {:.2}x faster", report.speedup);
+    }
+    Ok(ExitCode::SUCCESS)
+}

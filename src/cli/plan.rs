@@ -1,0 +1,144 @@
+//! `plan` and `dry-run`: plan a job; write its program and picture, or run it
+//! in the built-in simulator.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use laserd::config::{ConfigSearch, FoundConfig, MachineConfig};
+use laserd::error::{Error, Result};
+use laserd::motion::Mode;
+use laserd::plan::PlannerKind;
+use laserd::run;
+use laserd_sim::controller::{Faults, MotionModel};
+
+use super::common::{check_time_limit, exit, print_json, write_file};
+
+/// What `plan` and `dry-run` share: the job and how to plan it.
+#[derive(clap::Args)]
+pub struct JobArgs {
+    job: PathBuf,
+    /// Machine config (default: $LASERD_CONFIG, else /etc/laserd/laserd.toml,
+    /// else ~/.config/laserd/laserd.toml, else the built-in default machine).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// auto (the default): the cutting planner ecp for layers that pierce,
+    /// the galvo planner hha for marking layers, marking first; or one of
+    /// ecp, hha, hga, nearest for the whole job.
+    #[arg(long, default_value = "auto")]
+    planner: PlannerKind,
+    /// Plan, write and run an order that cuts after a part has fallen out
+    /// (refused otherwise).
+    #[arg(long)]
+    allow_precedence_violations: bool,
+    /// on-the-fly, step-and-scan or stage-only (default: on-the-fly with a scanner, else stage-only).
+    #[arg(long)]
+    mode: Option<Mode>,
+    /// Planning time limit in seconds for the search planners ecp and hga
+    /// (default: the config's [cutting] or [galvo] time_limit; nearest and
+    /// hha ignore it).
+    #[arg(long)]
+    time_limit: Option<f64>,
+    /// Seed of the galvo planners' random choices (default: the config's [galvo] seed).
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+impl JobArgs {
+    fn plan(&self) -> Result<(MachineConfig, run::Planned)> {
+        check_time_limit(self.time_limit).map_err(Error::Config)?;
+        // The report says where the config came from (no line on stderr: an
+        // error later stays the one line of the error contract).
+        let FoundConfig { mut machine, source, .. } = ConfigSearch::new(self.config.as_deref()).find()?;
+        if let Some(t) = self.time_limit {
+            machine.cutting.time_limit = t;
+            machine.galvo.time_limit = t;
+        }
+        if let Some(seed) = self.seed {
+            machine.galvo.seed = seed;
+        }
+        let mut planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
+        planned.report.config = Some(source);
+        Ok((machine, planned))
+    }
+}
+
+#[derive(clap::Args)]
+pub struct DryRunArgs {
+    #[command(flatten)]
+    job: JobArgs,
+    /// MCAP recording of the run (default: <job stem>.mcap here).
+    #[arg(long)]
+    record: Option<PathBuf>,
+    /// How the simulated controller executes blocks (default: the config's
+    /// [simulator] motion): timed, or grbl (Grbl 1.1's planner).
+    #[arg(long)]
+    motion: Option<MotionModel>,
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn dry_run(args: DryRunArgs) -> Result<ExitCode> {
+    let DryRunArgs { job, record, motion, json } = args;
+    let (mut machine, planned) = job.plan()?;
+    machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
+    planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations")?;
+    let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
+    let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
+    let breaches = dry.report.sim.as_ref().map(|s| s.limit_breaches.len()).unwrap_or(0);
+    if json {
+        print_json(&dry.report)?;
+    } else {
+        print!("{}", dry.report.summary());
+        if breaches > 0 && machine.simulator.motion == MotionModel::Grbl {
+            println!("  (a stock Grbl 1.1 cannot keep a jerk limit: it plans trapezoids, and at a corner its junction deviation $11 changes each axis' velocity at once, beyond its acceleration too)");
+        }
+    }
+    if let Some(reason) = &dry.outcome.stop_reason {
+        eprintln!("laserd: error: job stopped: {reason}");
+        return Ok(ExitCode::from(exit::STOPPED));
+    }
+    // A run that breaks a limit of the machine fails, its report printed.
+    if breaches > 0 {
+        eprintln!("laserd: error: the simulated run broke {breaches} limit(s) of the machine (listed in the report)");
+        return Ok(ExitCode::from(exit::LIMIT_BROKEN));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+#[derive(clap::Args)]
+pub struct PlanArgs {
+    #[command(flatten)]
+    job: JobArgs,
+    #[arg(short = 'o', long = "output")]
+    output: Option<PathBuf>,
+    /// Draw the plan as SVG: geometries, scan fields, TCP path (marking and
+    /// jumps), stage path, and the scanner's field use over time.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn plan(args: PlanArgs) -> Result<ExitCode> {
+    let PlanArgs { job, output, plot, json } = args;
+    let (machine, planned) = job.plan()?;
+    // A refused order is reported (and drawn) but not written as a program.
+    let refused = planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations");
+    let output = output.filter(|_| refused.is_ok());
+    if let Some(out) = &output {
+        write_file(out, planned.program.to_gcode())?;
+    }
+    if let Some(out) = &plot {
+        write_file(out, laserd::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, &machine))?;
+    }
+    if json {
+        print_json(&planned.report)?;
+    } else {
+        print!("{}", planned.report.summary());
+        if let Some(out) = output {
+            println!("  program written to {}", out.display());
+        }
+    }
+    refused?;
+    Ok(ExitCode::SUCCESS)
+}

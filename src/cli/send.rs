@@ -1,0 +1,114 @@
+//! `send`: stream an existing G-code file to a controller.
+
+use std::cell::Cell;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use laserd::config::FoundConfig;
+use laserd::error::{Error, Result};
+use laserd::stream::{self, LinkEvent, SenderOptions};
+
+use super::common::{check_baud, exit, machine_config, print_json};
+
+#[derive(clap::Args)]
+pub struct SendArgs {
+    file: PathBuf,
+    #[arg(long)]
+    port: String,
+    #[arg(long)]
+    baud: Option<u32>,
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Validate only, in the controller's check mode ($C): nothing moves,
+    /// every rejected line is reported.
+    #[arg(long)]
+    check: bool,
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: SendArgs) -> Result<ExitCode> {
+    check_baud(args.baud).map_err(Error::Config)?;
+    send(&args.file, &args.port, args.baud, args.config.as_deref(), args.check, args.json)
+}
+
+fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check: bool, json: bool) -> Result<ExitCode> {
+    let FoundConfig { machine, source, .. } = machine_config(config, json)?;
+    let shown = file.display().to_string();
+    let opened = std::fs::File::open(file).map_err(|e| Error::Io(format!("{shown}: cannot read: {e}")))?;
+    let size = opened.metadata().map(|m| m.len()).unwrap_or(0);
+    // Read as the controller takes lines: memory stays constant whatever the size.
+    // Bytes read so far drive the progress bar (comments never reach the link).
+    let read = Cell::new(0u64);
+    let lines = stream::FileLines::new(std::io::BufReader::new(opened), &shown).inspect(|l| {
+        if let Ok(l) = l {
+            read.set(read.get() + l.len() as u64 + 1);
+        }
+    });
+    let baud = baud.unwrap_or(machine.serial.baud);
+    let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.hold_limit = options.hold_limit_for(machine.stop_time_s());
+    options.check_mode = check;
+    let progress = (!json && std::io::stderr().is_terminal()).then(|| {
+        let bar = indicatif::ProgressBar::new(size);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {percent:>3}% {bytes}/{total_bytes} line {msg} eta {eta}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar
+    });
+    let runtime = tokio::runtime::Runtime::new().map_err(|e| Error::Io(e.to_string()))?;
+    let outcome = runtime.block_on(async {
+        use tokio_serial::SerialPortBuilderExt;
+        let io = tokio_serial::new(port, baud)
+            .open_native_async()
+            .map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
+        let describe = |n: usize, text: &str| format!("{shown}:{n} `{text}`");
+        let mut connection = stream::Connection::open(io, &options, |_, event| {
+            if let (Some(bar), LinkEvent::Sent { line, .. }) = (&progress, &event) {
+                bar.set_position(read.get());
+                bar.set_message(line.to_string());
+            }
+        })
+        .await?;
+        // laserd's programs are in bed coordinates: the controller's work
+        // coordinates are made those first (G54 from its homing settings).
+        connection.use_program_frame([machine.stage.travel_x, machine.stage.travel_y]).await?;
+        connection.stream(lines, &describe, None).await
+    })?;
+    if let Some(bar) = progress {
+        bar.finish_and_clear();
+    }
+    let report = serde_json::json!({
+        "file": shown,
+        "lines_sent": outcome.lines_sent,
+        "bytes_sent": outcome.bytes_sent,
+        "stream_time_s": outcome.stream_time_s,
+        "link_utilization": stream::link_utilization(outcome.bytes_sent, baud, outcome.stream_time_s),
+        "errors": outcome.errors,
+        "alarms": outcome.alarms,
+        "last_acked_line": outcome.last_acked_line,
+        "last_executed_line": outcome.last_executed_line,
+        "completed": outcome.completed,
+        "config": source,
+    });
+    if json {
+        print_json(&report)?;
+    } else {
+        println!(
+            "{shown}: {} lines, {} bytes in {:.2} s{}{}",
+            outcome.lines_sent,
+            outcome.bytes_sent,
+            outcome.stream_time_s,
+            if check { " (check mode)" } else { "" },
+            if outcome.completed { ", completed" } else { "" }
+        );
+    }
+    if let Some(reason) = outcome.stop_reason {
+        eprintln!("laserd: error: job stopped: {reason}");
+        return Ok(ExitCode::from(exit::STOPPED));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
