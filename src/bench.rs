@@ -246,7 +246,7 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
     if svg_out.is_none() {
         let _ = std::fs::remove_file(&path);
     }
-    let ctx = PlanContext { machine: &machine, mode: crate::motion::Mode::StageOnly, start: crate::run::job_start() };
+    let ctx = PlanContext { machine: &machine, mode: crate::mode::Mode::StageOnly, start: crate::run::job_start() };
     let timed = |f: &mut dyn FnMut() -> Result<(Sequence, usize)>| -> Result<SheetOrder> {
         let started = std::time::Instant::now();
         let (sequence, precedence_violations) = f()?;
@@ -372,7 +372,7 @@ pub fn galvo_bench(machine: &MachineConfig, dir: &std::path::Path, kind: crate::
         };
         for &seed in seeds {
             machine.galvo.seed = seed;
-            let ctx = PlanContext { machine: &machine, mode: crate::motion::Mode::StepAndScan, start: crate::run::job_start() };
+            let ctx = PlanContext { machine: &machine, mode: crate::mode::Mode::StepAndScan, start: crate::run::job_start() };
             let started = std::time::Instant::now();
             let sequence = planner(kind).plan(&job, &ctx)?;
             out.plan_time_s.push(started.elapsed().as_secs_f64());
@@ -415,11 +415,11 @@ pub struct MotionCase {
 
 /// Plans each job once (the planner is not timed here), then builds the
 /// trajectory and the program `repeats` times and keeps the median time.
-pub fn motion_bench(machine: &MachineConfig, jobs: &[std::path::PathBuf], mode: Option<crate::motion::Mode>, repeats: usize) -> Result<MotionBench> {
+pub fn motion_bench(machine: &MachineConfig, jobs: &[std::path::PathBuf], mode: Option<crate::mode::Mode>, repeats: usize) -> Result<MotionBench> {
     if jobs.is_empty() || repeats == 0 {
         return Err(Error::Config("bench motion: give at least one job and one repeat".into()));
     }
-    let mode = mode.unwrap_or_else(|| crate::motion::Mode::default_for(machine));
+    let mode = mode.unwrap_or_else(|| crate::mode::Mode::default_for(machine));
     let mut cases = Vec::new();
     for path in jobs {
         let planned = crate::run::plan(path, machine, crate::plan::PlannerKind::Auto, Some(mode))?;

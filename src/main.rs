@@ -10,7 +10,7 @@ use clap::{Parser, Subcommand};
 use laserd::config::{in_range, ConfigSearch, ConfigSource, FoundConfig, MachineConfig, BAUD, TIME_LIMIT, TRAVEL};
 use laserd::error::{Error, Result};
 use laserd::figures::sim_figures;
-use laserd::motion::Mode;
+use laserd::mode::Mode;
 use laserd::plan::PlannerKind;
 use laserd::record::{self, Recording, TOPIC_SETUP};
 use laserd::run;

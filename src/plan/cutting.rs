@@ -20,7 +20,7 @@ use super::{check_reach, PathGroup, PlanContext, PlanOutcome, PlannedPath, Plann
 use crate::config::{CuttingConfig, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{bounds_of, Job, Point};
-use crate::motion::Mode;
+use crate::mode::Mode;
 
 pub struct Ecp;
 
