@@ -12,7 +12,7 @@ use crate::figures::{sim_figures, RunLog};
 use crate::program::{format_number, LineKind, Program, ProgramLine};
 use crate::run::{run_setup, sim_config, stream_into_simulator};
 use crate::stream::SenderOptions;
-use crate::plan::ecp::SearchKind;
+use crate::config::SearchKind;
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct StreamFigures {

@@ -251,7 +251,7 @@ enum BenchCommand {
         time_limit: f64,
         /// `ils` (iterated local search, the default) or `tabu` (seed 001's).
         #[arg(long, default_value = "ils")]
-        search: laserd::plan::ecp::SearchKind,
+        search: laserd::config::SearchKind,
         #[arg(long)]
         json: bool,
     },

@@ -35,39 +35,8 @@ pub mod moves;
 pub mod tabu;
 pub mod topology;
 
-use std::str::FromStr;
-
+use crate::config::SearchKind;
 use crate::job::Point;
-
-/// Which search improves the construction.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum SearchKind {
-    /// Iterated local search with relaxed starts ([`ils`]), the default.
-    #[default]
-    Ils,
-    /// Seed 001's tabu search ([`tabu`]), the reference.
-    Tabu,
-}
-
-impl FromStr for SearchKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "ils" => Ok(SearchKind::Ils),
-            "tabu" => Ok(SearchKind::Tabu),
-            _ => Err(format!("unknown search '{s}' (available: ils, tabu)")),
-        }
-    }
-}
-
-impl SearchKind {
-    pub fn name(self) -> &'static str {
-        match self {
-            SearchKind::Ils => "ils",
-            SearchKind::Tabu => "tabu",
-        }
-    }
-}
 
 /// The best route `kind` finds within the options' time limit, on every core
 /// the options allow.
