@@ -221,7 +221,7 @@ pub fn flatbed_for(machine: &MachineConfig, width: f64, height: f64) -> MachineC
 }
 
 pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_limit_s: f64, svg_out: Option<&std::path::Path>) -> Result<SheetBench> {
-    use crate::plan::cutting::{cutting_model, plan_cutting, whole_geometry_violations};
+    use crate::plan::cutting::{cutting_model, plan_cutting, topology, whole_geometry_violations};
     use crate::gen::sheet;
     use crate::plan::ecp::{checker, construct};
     use crate::plan::{PathGroup, PlanContext, PlannedPath, Planner, Sequence};
@@ -256,9 +256,9 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
     let model = cutting_model(&job, ctx.start, &machine.cutting)?;
     let nearest = timed(&mut || {
         let sequence = crate::plan::nearest::NearestNeighbour.plan(&job, &ctx)?;
-        let model = cutting_model(&job, ctx.start, &machine.cutting)?;
+        let topology = topology(&job, &machine.cutting)?;
         // Every contour of the sheet is cut through, whatever the config's layers.
-        let violations = whole_geometry_violations(&model, &sequence, &vec![true; job.geometries.len()]).len();
+        let violations = whole_geometry_violations(&topology, &sequence, &vec![true; job.geometries.len()]).len();
         Ok((sequence, violations))
     })?;
     let constructed = |build: fn(&crate::plan::ecp::Instance) -> Vec<crate::plan::ecp::Cut>| {

@@ -9,6 +9,7 @@ pub mod config;
 pub mod error;
 pub mod job;
 pub mod mode;
+pub mod topology;
 pub mod import;
 pub mod motion;
 pub mod parallel;
