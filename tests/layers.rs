@@ -110,7 +110,7 @@ fn crate_references(source: &str) -> Vec<(usize, String)> {
                 continue;
             }
             let Some(at) = rest.find("crate::") else { break };
-            // `laserd_sim::crate::`-like tails do not exist; but `foo_crate::` is another path.
+            // `my_crate::` is another path, not this crate.
             let before = rest[..at].chars().next_back();
             rest = &rest[at + "crate::".len()..];
             if before.is_some_and(|c| c.is_alphanumeric() || c == '_') {

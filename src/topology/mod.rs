@@ -153,12 +153,12 @@ impl Topology {
         common_cuts::weld(&mut chains, tol);
         let partners = common_cuts::match_common_cuts(&chains);
         let (elements, contours) = contours::elements(&chains, &partners, angle.to_radians().cos());
-        let common_cuts = common_cuts(&contours, elements.len());
+        let shared = common_cuts::common_cuts(&contours, elements.len());
         let outer = containment::containment(&chains, tol);
         let levels = containment::levels(&outer);
-        let ranks = common_cuts::ranks(&contours, elements.len(), &common_cuts);
-        let groups = groups(contours.len(), &inner_outer(&outer), &common_cuts);
-        Ok(Topology { elements, contours, common_cuts, outer, levels, ranks, groups })
+        let ranks = common_cuts::ranks(&contours, elements.len(), &shared);
+        let groups = groups(contours.len(), &inner_outer(&outer), &shared);
+        Ok(Topology { elements, contours, common_cuts: shared, outer, levels, ranks, groups })
     }
 
     /// Every (inner, outer) pair of the containment tree, by inner contour.
