@@ -12,7 +12,7 @@ use crate::figures::{sim_figures, RunLog};
 use crate::program::{format_number, LineKind, Program, ProgramLine};
 use crate::run::{run_setup, sim_config, stream_into_simulator};
 use crate::stream::SenderOptions;
-use crate::plan::ecp::SearchKind;
+use crate::config::SearchKind;
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct StreamFigures {
@@ -221,7 +221,7 @@ pub fn flatbed_for(machine: &MachineConfig, width: f64, height: f64) -> MachineC
 }
 
 pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_limit_s: f64, svg_out: Option<&std::path::Path>) -> Result<SheetBench> {
-    use crate::plan::cutting::{cutting_model, plan_cutting, whole_geometry_violations};
+    use crate::plan::cutting::{cutting_model, plan_cutting, topology, whole_geometry_violations};
     use crate::gen::sheet;
     use crate::plan::ecp::{checker, construct};
     use crate::plan::{PathGroup, PlanContext, PlannedPath, Planner, Sequence};
@@ -246,7 +246,7 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
     if svg_out.is_none() {
         let _ = std::fs::remove_file(&path);
     }
-    let ctx = PlanContext { machine: &machine, mode: crate::motion::Mode::StageOnly, start: crate::run::job_start() };
+    let ctx = PlanContext { machine: &machine, mode: crate::mode::Mode::StageOnly, start: crate::run::job_start() };
     let timed = |f: &mut dyn FnMut() -> Result<(Sequence, usize)>| -> Result<SheetOrder> {
         let started = std::time::Instant::now();
         let (sequence, precedence_violations) = f()?;
@@ -256,9 +256,9 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
     let model = cutting_model(&job, ctx.start, &machine.cutting)?;
     let nearest = timed(&mut || {
         let sequence = crate::plan::nearest::NearestNeighbour.plan(&job, &ctx)?;
-        let model = cutting_model(&job, ctx.start, &machine.cutting)?;
+        let topology = topology(&job, &machine.cutting)?;
         // Every contour of the sheet is cut through, whatever the config's layers.
-        let violations = whole_geometry_violations(&model, &sequence, &vec![true; job.geometries.len()]).len();
+        let violations = whole_geometry_violations(&topology, &sequence, &vec![true; job.geometries.len()]).len();
         Ok((sequence, violations))
     })?;
     let constructed = |build: fn(&crate::plan::ecp::Instance) -> Vec<crate::plan::ecp::Cut>| {
@@ -372,7 +372,7 @@ pub fn galvo_bench(machine: &MachineConfig, dir: &std::path::Path, kind: crate::
         };
         for &seed in seeds {
             machine.galvo.seed = seed;
-            let ctx = PlanContext { machine: &machine, mode: crate::motion::Mode::StepAndScan, start: crate::run::job_start() };
+            let ctx = PlanContext { machine: &machine, mode: crate::mode::Mode::StepAndScan, start: crate::run::job_start() };
             let started = std::time::Instant::now();
             let sequence = planner(kind).plan(&job, &ctx)?;
             out.plan_time_s.push(started.elapsed().as_secs_f64());
@@ -415,11 +415,11 @@ pub struct MotionCase {
 
 /// Plans each job once (the planner is not timed here), then builds the
 /// trajectory and the program `repeats` times and keeps the median time.
-pub fn motion_bench(machine: &MachineConfig, jobs: &[std::path::PathBuf], mode: Option<crate::motion::Mode>, repeats: usize) -> Result<MotionBench> {
+pub fn motion_bench(machine: &MachineConfig, jobs: &[std::path::PathBuf], mode: Option<crate::mode::Mode>, repeats: usize) -> Result<MotionBench> {
     if jobs.is_empty() || repeats == 0 {
         return Err(Error::Config("bench motion: give at least one job and one repeat".into()));
     }
-    let mode = mode.unwrap_or_else(|| crate::motion::Mode::default_for(machine));
+    let mode = mode.unwrap_or_else(|| crate::mode::Mode::default_for(machine));
     let mut cases = Vec::new();
     for path in jobs {
         let planned = crate::run::plan(path, machine, crate::plan::PlannerKind::Auto, Some(mode))?;

@@ -4,6 +4,7 @@
 //! can fix a bad value without reading code.
 
 use std::path::{Path, PathBuf};
+use std::str::FromStr;
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -468,7 +469,37 @@ pub struct CuttingConfig {
     /// "ils" (iterated local search, the default) or "tabu" (seed 001's).
     #[serde(default, with = "search_kind")]
     #[schemars(with = "String")]
-    pub search: crate::plan::ecp::SearchKind,
+    pub search: SearchKind,
+}
+
+/// Which search improves the cutting planner's construction (`[cutting] search`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SearchKind {
+    /// Iterated local search with relaxed starts (`plan::ecp::ils`), the default.
+    #[default]
+    Ils,
+    /// Seed 001's tabu search (`plan::ecp::tabu`), the reference.
+    Tabu,
+}
+
+impl FromStr for SearchKind {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "ils" => Ok(SearchKind::Ils),
+            "tabu" => Ok(SearchKind::Tabu),
+            _ => Err(format!("unknown search '{s}' (available: ils, tabu)")),
+        }
+    }
+}
+
+impl SearchKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            SearchKind::Ils => "ils",
+            SearchKind::Tabu => "tabu",
+        }
+    }
 }
 
 /// The galvo planners (`--planner hha`, `--planner hga`).
@@ -539,7 +570,7 @@ impl Default for CuttingConfig {
 }
 
 mod search_kind {
-    use crate::plan::ecp::SearchKind;
+    use super::SearchKind;
     use serde::{Deserialize, Deserializer, Serializer};
 
     pub fn serialize<S: Serializer>(kind: &SearchKind, s: S) -> Result<S::Ok, S::Error> {

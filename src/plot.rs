@@ -196,7 +196,7 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::motion::Mode;
+    use crate::mode::Mode;
     use crate::plan::{planner, PlanContext, PlannerKind};
 
     #[test]

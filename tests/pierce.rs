@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use laserd::motion::Mode;
+use laserd::mode::Mode;
 use laserd::config::{MachineConfig, DEFAULT_CONFIG_PATH};
 use laserd::figures::{program_line_of, program_lines};
 use laserd::plan::PlannerKind;

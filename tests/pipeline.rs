@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use common::SimProcess;
 
-use laserd::motion::Mode;
+use laserd::mode::Mode;
 use laserd::config::MachineConfig;
 use laserd::figures::{sim_figures, PlannedLine};
 use laserd::plan::PlannerKind;

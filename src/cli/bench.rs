@@ -5,8 +5,8 @@ use std::process::ExitCode;
 
 use laserd::config::in_range;
 use laserd::error::{Error, Result};
-use laserd::motion::Mode;
-use laserd::plan::ecp::SearchKind;
+use laserd::mode::Mode;
+use laserd::config::SearchKind;
 use laserd::plan::PlannerKind;
 use laserd_sim::controller::MotionModel;
 

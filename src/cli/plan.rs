@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use laserd::config::{ConfigSearch, FoundConfig, MachineConfig};
 use laserd::error::{Error, Result};
-use laserd::motion::Mode;
+use laserd::mode::Mode;
 use laserd::plan::PlannerKind;
 use laserd::run;
 use laserd_sim::controller::{Faults, MotionModel};

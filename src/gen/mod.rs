@@ -5,3 +5,5 @@
 pub mod galvo;
 pub mod sheet;
 pub mod tsplib;
+#[cfg(test)]
+mod tests;

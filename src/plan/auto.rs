@@ -100,7 +100,7 @@ mod tests {
     use super::*;
     use crate::config::MachineConfig;
     use crate::job::{Geometry, Point, Process};
-    use crate::motion::Mode;
+    use crate::mode::Mode;
 
     fn square(x: f64, y: f64, side: f64, process: usize, name: &str) -> Geometry {
         let points = vec![Point::new(x, y), Point::new(x + side, y), Point::new(x + side, y + side), Point::new(x, y + side)];

@@ -1,5 +1,5 @@
 //! The cutting planner (`--planner ecp`): the job's topology as an End-point
-//! Cutting Problem ([`super::ecp::topology`]), searched ([`super::ecp::solve`])
+//! Cutting Problem ([`super::ecp::model`]), searched ([`super::ecp::solve`])
 //! for the shortest air moves plus pierces that keep every precedence rule,
 //! and the route turned back into paths to mark. A path is what is cut from
 //! one pierce to the next: a whole contour, a piece of one (a contour left and
@@ -14,13 +14,15 @@
 use std::time::{Duration, Instant};
 
 use super::ecp::checker::{self, Violation};
-use super::ecp::{ils, solve, topology};
+use super::ecp::model::CuttingModel;
+use super::ecp::{ils, solve};
 use super::fields::centre_within_travel;
 use super::{check_reach, PathGroup, PlanContext, PlanOutcome, PlannedPath, Planner, Sequence};
 use crate::config::{CuttingConfig, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{bounds_of, Job, Point};
-use crate::motion::Mode;
+use crate::topology::{Topology, TopologyOptions};
+use crate::mode::Mode;
 
 pub struct Ecp;
 
@@ -49,12 +51,15 @@ impl Planner for Ecp {
     }
 }
 
+/// The job's topology, with this machine's settings.
+pub fn topology(job: &Job, settings: &CuttingConfig) -> Result<Topology> {
+    let options = TopologyOptions { common_cut_tolerance_mm: settings.common_cut_tolerance, corner_angle_deg: settings.corner_angle };
+    Topology::build(job, &options)
+}
+
 /// The job as a cutting instance, with this machine's settings.
-pub fn cutting_model(job: &Job, start: Point, settings: &CuttingConfig) -> Result<topology::CuttingModel> {
-    let options = topology::TopologyOptions { common_cut_tolerance_mm: settings.common_cut_tolerance, corner_angle_deg: settings.corner_angle };
-    let mut model = topology::build(job, start, &options)?;
-    model.instance.pierce_cost = settings.pierce_cost;
-    Ok(model)
+pub fn cutting_model(job: &Job, start: Point, settings: &CuttingConfig) -> Result<CuttingModel> {
+    Ok(CuttingModel::new(topology(job, settings)?, start, settings.pierce_cost))
 }
 
 pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
@@ -145,15 +150,15 @@ pub fn cuts_through(job: &Job, machine: &MachineConfig) -> Vec<bool> {
 /// nearest contour around it that cuts through (`cuts`), its part having
 /// fallen out by then. A marking contour holds nothing: what lies inside an
 /// engraved frame belongs to the part the frame is on.
-pub fn whole_geometry_violations(model: &topology::CuttingModel, sequence: &Sequence, cuts: &[bool]) -> Vec<Violation> {
-    let mut closes = vec![None; model.outer.len()];
+pub fn whole_geometry_violations(topology: &Topology, sequence: &Sequence, cuts: &[bool]) -> Vec<Violation> {
+    let mut closes = vec![None; topology.outer.len()];
     for (i, p) in sequence.paths().enumerate() {
         if let Some(c) = closes.get_mut(p.geometry) {
             *c = Some(i);
         }
     }
     let part_around = |mut k: usize| {
-        while let Some(o) = model.outer[k] {
+        while let Some(o) = topology.outer[k] {
             if cuts.get(o).copied().unwrap_or(true) {
                 return Some(o);
             }
@@ -161,7 +166,7 @@ pub fn whole_geometry_violations(model: &topology::CuttingModel, sequence: &Sequ
         }
         None
     };
-    (0..model.outer.len())
+    (0..topology.outer.len())
         .filter_map(|inner| part_around(inner).map(|outer| (inner, outer)))
         .filter(|&(inner, outer)| closes[inner] >= closes[outer])
         .map(|(inner, outer)| Violation::InnerAfterOuter { inner, outer })
@@ -176,8 +181,8 @@ pub fn sequence_violations(job: &Job, sequence: &Sequence, ctx: &PlanContext) ->
     if !cuts.contains(&true) {
         return Some(Vec::new());
     }
-    let model = cutting_model(job, ctx.start, &ctx.machine.cutting).ok()?;
-    Some(whole_geometry_violations(&model, sequence, &cuts))
+    let topology = topology(job, &ctx.machine.cutting).ok()?;
+    Some(whole_geometry_violations(&topology, sequence, &cuts))
 }
 
 /// A broken rule in words, its geometries named as the job names them
@@ -232,18 +237,11 @@ mod tests {
 
     #[test]
     fn whole_geometry_orders_are_judged_by_their_closing_paths() {
-        use crate::plan::ecp::{Element, Instance, Metric};
-        let model = topology::CuttingModel {
-            instance: Instance {
-                elements: vec![Element { a: Point::origin(), b: Point::origin() }; 3],
-                contours: vec![vec![0], vec![1], vec![2]],
-                // 1 inside 0, 2 inside 1.
-                inner_outer: vec![(1, 0), (2, 1)],
-                depot: Point::origin(),
-                metric: Metric::Euclidean,
-                pierce_cost: 0.0,
-            },
-            pieces: Vec::new(),
+        let model = Topology {
+            elements: Vec::new(),
+            contours: vec![vec![0], vec![1], vec![2]],
+            common_cuts: Vec::new(),
+            // 1 inside 0, 2 inside 1.
             outer: vec![None, Some(0), Some(1)],
             levels: vec![0, 1, 2],
             ranks: vec![0; 3],

@@ -15,7 +15,7 @@ use std::str::FromStr;
 use crate::config::MachineConfig;
 use crate::error::{Error, Result};
 use crate::job::{Job, Point};
-use crate::motion::Mode;
+use crate::mode::Mode;
 
 /// One geometry as it will be marked: its vertices in marking order. A closed
 /// geometry starts at its entry vertex and repeats it at the end.

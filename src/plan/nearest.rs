@@ -8,7 +8,7 @@ use super::fields::{cover, Field};
 use super::{check_reach, PathGroup, PlanContext, PlannedPath, Planner, Sequence};
 use crate::error::Result;
 use crate::job::{Geometry, Job, Point};
-use crate::motion::Mode;
+use crate::mode::Mode;
 
 pub struct NearestNeighbour;
 

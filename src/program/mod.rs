@@ -599,7 +599,8 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
 mod tests {
     use super::*;
     use crate::job::{Geometry, Process};
-    use crate::motion::{build, Mode};
+    use crate::mode::Mode;
+    use crate::motion::build;
     use crate::plan::{nearest::NearestNeighbour, PlanContext, Planner};
 
     fn circle_job() -> Job {

@@ -331,12 +331,6 @@ mod tests {
             let route = contour_order_construction(&inst);
             assert!(check(&inst, &route).is_empty(), "seed {seed}: {:?}", check(&inst, &route));
         }
-        let sheet = crate::gen::sheet::generate(&crate::gen::sheet::SheetParams::with_target(400), 1);
-        let route = contour_order_construction(&sheet);
-        assert!(check(&sheet, &route).is_empty());
-        // Whole contours: a pierce per contour at most (fewer where cuts run on).
-        let pierces = (0..route.len()).filter(|&i| i == 0 || sheet.step(Some(route[i - 1]), route[i]) > 0.0).count();
-        assert!(pierces <= sheet.contours.len(), "{pierces} pierces for {} contours", sheet.contours.len());
     }
 
     #[test]

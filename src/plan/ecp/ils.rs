@@ -734,16 +734,4 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_relaxed_start_is_mended_and_beats_the_construction_on_a280() {
-        let b = crate::plan::ecp::a280(2);
-        let construction = b.instance.cost(&insertion_in_order(&b.instance, None));
-        let options = SearchOptions { threads: 1, ..SearchOptions::new(Duration::from_millis(1500)) };
-        for start in [Start::Relaxed, Start::Insertion] {
-            let found = search_from(&b.instance, start, &options);
-            assert!(check(&b.instance, &found.route).is_empty(), "{start:?}");
-            assert!(found.cost >= b.optimum, "never below the optimum");
-            assert!(found.cost < construction, "{start:?}: {} vs construction {construction}", found.cost);
-        }
-    }
 }

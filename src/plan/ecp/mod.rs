@@ -20,54 +20,20 @@
 //!   feasibility from the moved run's contours;
 //! * [`ils`]: the default search (iterated local search with relaxed starts);
 //! * [`tabu`]: seed 001's tabu search, the reference it is measured against;
-//! * [`sheet`]: nested-part sheets for tests and benchmarks;
-//! * [`tsplib`]: TSPLIB instances turned into precedence-constrained ones for
-//!   `bench ecp`;
-//! * [`topology`]: a job's polylines as an instance (elements split at
-//!   corners, common cuts found where drawn boundaries coincide, containment,
-//!   contour levels, ranks and groups), and a route back to polylines.
+//! * [`model`]: a job's [`Topology`](crate::topology::Topology) as an
+//!   instance, and a route back to polylines.
 
 pub mod checker;
 pub mod construct;
 pub mod exact;
 pub mod ils;
 pub mod moves;
+pub mod model;
 pub mod tabu;
-pub mod topology;
 
-use std::str::FromStr;
-
+use crate::config::SearchKind;
+use crate::topology::CommonCut;
 use crate::job::Point;
-
-/// Which search improves the construction.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum SearchKind {
-    /// Iterated local search with relaxed starts ([`ils`]), the default.
-    #[default]
-    Ils,
-    /// Seed 001's tabu search ([`tabu`]), the reference.
-    Tabu,
-}
-
-impl FromStr for SearchKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "ils" => Ok(SearchKind::Ils),
-            "tabu" => Ok(SearchKind::Tabu),
-            _ => Err(format!("unknown search '{s}' (available: ils, tabu)")),
-        }
-    }
-}
-
-impl SearchKind {
-    pub fn name(self) -> &'static str {
-        match self {
-            SearchKind::Ils => "ils",
-            SearchKind::Tabu => "tabu",
-        }
-    }
-}
 
 /// The best route `kind` finds within the options' time limit, on every core
 /// the options allow.
@@ -121,13 +87,6 @@ pub struct Instance {
 pub struct Cut {
     pub element: usize,
     pub reversed: bool,
-}
-
-/// An element shared by two contours.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct CommonCut {
-    pub element: usize,
-    pub contours: (usize, usize),
 }
 
 impl Instance {
@@ -188,18 +147,7 @@ impl Instance {
 
     /// Elements shared by two contours, with the two contours.
     pub fn common_cuts(&self) -> Vec<CommonCut> {
-        let mut owners: Vec<Vec<usize>> = vec![Vec::new(); self.elements.len()];
-        for (k, contour) in self.contours.iter().enumerate() {
-            for &e in contour {
-                owners[e].push(k);
-            }
-        }
-        owners
-            .iter()
-            .enumerate()
-            .filter(|(_, o)| o.len() == 2)
-            .map(|(element, o)| CommonCut { element, contours: (o[0], o[1]) })
-            .collect()
+        crate::topology::common_cuts(&self.contours, self.elements.len())
     }
 
     /// Precedence relations in all: inner/outer pairs plus common cuts.
@@ -255,15 +203,6 @@ pub(crate) fn small_instances_with_optimum() -> Vec<(u64, Instance, f64)> {
         .collect();
     assert!(found.len() >= 20, "only {} feasible instances", found.len());
     found
-}
-
-/// a280 made precedence-constrained with `seed`, for the searches' tests.
-#[cfg(test)]
-pub(crate) fn a280(seed: u64) -> crate::gen::tsplib::BenchInstance {
-    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/tsplib");
-    let tsp = crate::gen::tsplib::read_tsp(&dir.join("a280.tsp")).unwrap();
-    let tour = crate::gen::tsplib::read_tour(&dir.join("a280.opt.tour"), 280).unwrap();
-    crate::gen::tsplib::bench_instance(&tsp, &tour, seed)
 }
 
 #[cfg(test)]

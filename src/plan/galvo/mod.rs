@@ -19,7 +19,7 @@ use super::nearest::path_points;
 use super::{check_reach, PathGroup, PlanContext, PlannedPath, Planner, Sequence};
 use crate::error::Result;
 use crate::job::{bounds_of, Job, Point};
-use crate::motion::Mode;
+use crate::mode::Mode;
 use route::{Route, Stop};
 use std::time::{Duration, Instant};
 
