@@ -48,9 +48,11 @@ struct JobArgs {
     /// on-the-fly, step-and-scan or stage-only (default: on-the-fly with a scanner, else stage-only).
     #[arg(long)]
     mode: Option<Mode>,
-    /// Planning time limit in seconds for the search planners ecp and hga
-    /// (default: the config's [cutting] or [galvo] time_limit; nearest and
-    /// hha ignore it).
+    /// A wall-clock cap in seconds on the searches of ecp, hha and hga
+    /// (default: the config's [cutting] or [galvo] time_limit, none unless
+    /// set). Without one the searches end on their budgets of work and the
+    /// plan is the same whatever the load; a cap that ends one first may
+    /// change it (the report says search_stopped_by: time-limit).
     #[arg(long)]
     time_limit: Option<f64>,
     /// Seed of the galvo planners' random choices (default: the config's [galvo] seed).
@@ -64,8 +66,8 @@ impl JobArgs {
         // error later stays the one line of the error contract).
         let FoundConfig { mut machine, source, .. } = ConfigSearch::new(self.config.as_deref()).find()?;
         if let Some(t) = self.time_limit {
-            machine.cutting.time_limit = t;
-            machine.galvo.time_limit = t;
+            machine.cutting.time_limit = Some(t);
+            machine.galvo.time_limit = Some(t);
         }
         if let Some(seed) = self.seed {
             machine.galvo.seed = seed;
@@ -246,9 +248,9 @@ enum BenchCommand {
         tour: PathBuf,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Seconds the search may run.
-        #[arg(long, default_value_t = 10.0)]
-        time_limit: f64,
+        /// A wall-clock cap in seconds (default: none, the search's budget of work ends it).
+        #[arg(long)]
+        time_limit: Option<f64>,
         /// `ils` (iterated local search, the default) or `tabu` (seed 001's).
         #[arg(long, default_value = "ils")]
         search: laserd::plan::ecp::SearchKind,
@@ -267,9 +269,9 @@ enum BenchCommand {
         elements: usize,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Seconds the search may run.
-        #[arg(long, default_value_t = 30.0)]
-        time_limit: f64,
+        /// A wall-clock cap in seconds (default: none, the search's budget of work ends it).
+        #[arg(long)]
+        time_limit: Option<f64>,
         /// Also write the sheet here as SVG (to plan or dry-run it as a job).
         #[arg(long)]
         svg: Option<PathBuf>,
@@ -290,7 +292,7 @@ enum BenchCommand {
         /// Planner seeds 1 to this.
         #[arg(long, default_value_t = 5)]
         seeds: u64,
-        /// HGA's time limit per run (default: the config's [galvo] time_limit).
+        /// A wall-clock cap per run (default: the config's [galvo] time_limit, none unless set).
         #[arg(long)]
         time_limit: Option<f64>,
         #[arg(long)]
@@ -406,8 +408,8 @@ fn check_flags(command: &Command) -> Result<()> {
         Command::Send { baud: b, .. } | Command::Sim { baud: b, .. } => baud(*b),
         Command::Bench { which } => match which {
             BenchCommand::Serve { clients, hz, .. } => in_range("--clients", *clients, 1, 10_000, "clients").and(in_range("--hz", *hz, 0.1, 1000.0, "Hz")),
-            BenchCommand::Ecp { time_limit: t, .. } => time_limit(Some(*t)),
-            BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(time_limit(Some(*t))),
+            BenchCommand::Ecp { time_limit: t, .. } => time_limit(*t),
+            BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(time_limit(*t)),
             BenchCommand::Galvo { seeds, time_limit: t, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds").and(time_limit(*t)),
             BenchCommand::Motion { repeats, .. } => in_range("--repeats", *repeats, 1, 1000, "runs"),
             BenchCommand::Link { blocks, block_ms, baud: b, .. } => in_range("--blocks", *blocks, 1, 1_000_000, "blocks")
@@ -486,9 +488,9 @@ fn run_command(command: Command) -> Result<ExitCode> {
                 print_json(&report)?;
             } else {
                 println!(
-                    "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {:.2} s of {} s, {} iterations ({}, {} threads), feasible: {}",
+                    "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {:.2} s, search stopped by {}, {} iterations ({}, {} searches on {} threads), feasible: {}",
                     report.instance, report.elements, report.contours, report.precedences, report.inner_outer, report.common_cuts,
-                    report.optimum, report.construction, report.best, report.gap * 100.0, report.time_to_best_s, report.time_limit_s, report.iterations, report.search, report.threads, report.feasible
+                    report.optimum, report.construction, report.best, report.gap * 100.0, report.time_to_best_s, report.search_stopped_by.as_str(), report.iterations, report.search, report.searches, report.threads, report.feasible
                 );
             }
             Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(2) })
@@ -565,7 +567,7 @@ fn run_command(command: Command) -> Result<ExitCode> {
         Command::Bench { which: BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } } => {
             let mut machine = machine_config(config.as_deref(), json)?.machine;
             if let Some(t) = time_limit {
-                machine.galvo.time_limit = t;
+                machine.galvo.time_limit = Some(t);
             }
             let seeds: Vec<u64> = (1..=seeds).collect();
             let r = laserd::bench::galvo_bench(&machine, &dir, planner, &seeds)?;
