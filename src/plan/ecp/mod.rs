@@ -69,8 +69,8 @@ impl SearchKind {
     }
 }
 
-/// The best route `kind` finds with the options' budget (the ILS's kicks
-/// are the tabu search's iterations) and time limit, on the options' threads.
+/// The best route `kind` finds with the options' budget (`kicks`, for the
+/// tabu search its iterations) and time limit, on the options' threads.
 pub fn solve(inst: &Instance, kind: SearchKind, options: &ils::SearchOptions) -> ils::SearchResult {
     match kind {
         SearchKind::Ils => ils::search(inst, options),

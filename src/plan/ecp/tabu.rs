@@ -13,14 +13,14 @@ use crate::plan::stop::{SearchStop, TimeCap};
 use rand::{Rng, SeedableRng};
 
 use super::construct::insertion_in_order;
-use super::ils::{default_kicks, SearchResult, Start};
+use super::ils::{SearchResult, Start};
 use super::moves::{apply, delta, feasible, flip, Move, Neighbours, Rules, Tour};
 use super::{Cut, Instance};
 
 /// Options of the tabu search.
 #[derive(Debug, Clone)]
 pub struct TabuOptions {
-    /// Iterations of each search (the ILS's kick budget for the instance).
+    /// Iterations of each search ([`default_iterations`] of the instance).
     pub iterations: u64,
     /// Iterations a broken link stays tabu (seed 001: elements / 4; at least
     /// 10 here, or small instances cycle).
@@ -40,8 +40,14 @@ pub struct TabuOptions {
 impl TabuOptions {
     pub fn new(inst: &Instance) -> TabuOptions {
         let n = inst.elements.len();
-        TabuOptions { iterations: default_kicks(n), tenure: (n / 4).clamp(10, 50), neighbours: 10, max_stall: 0, kick_after: 100, candidate_list: 24, seed: 1 }
+        TabuOptions { iterations: default_iterations(n), tenure: (n / 4).clamp(10, 50), neighbours: 10, max_stall: 0, kick_after: 100, candidate_list: 24, seed: 1 }
     }
+}
+
+/// Iterations of one search on an instance of `elements` elements: about
+/// what a quiet core made in the ten seconds the search used to be given.
+pub fn default_iterations(elements: usize) -> u64 {
+    (5_000 + 50 * elements as u64).min(20_000)
 }
 
 /// The links a move breaks and makes, between cuts (element and direction;
@@ -295,7 +301,7 @@ mod tests {
         let b = crate::plan::ecp::a280(1);
         let start = construct(&b.instance);
         assert!(check(&b.instance, &start).is_empty());
-        let options = TabuOptions { iterations: 20_000, ..TabuOptions::new(&b.instance) };
+        let options = TabuOptions { iterations: 2_000, ..TabuOptions::new(&b.instance) };
         let found = tabu_search(&b.instance, start.clone(), &options, &TimeCap::none());
         assert!(check(&b.instance, &found.route).is_empty());
         assert!(found.cost < b.instance.cost(&start));
