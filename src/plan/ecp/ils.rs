@@ -724,6 +724,12 @@ pub fn search(inst: &Instance, options: &SearchOptions) -> SearchResult {
         let start = if k % 2 == 0 { Start::Relaxed } else { Start::Insertion };
         search_from(inst, start, &options, &cap)
     });
+    best_of(runs, &cap)
+}
+
+/// The cheapest of independent searches' results (ties to the first), with
+/// the kicks of all and what stopped them.
+pub(super) fn best_of(runs: Vec<SearchResult>, cap: &TimeCap) -> SearchResult {
     let iterations = runs.iter().map(|r| r.iterations).sum();
     let mut best = runs.into_iter().min_by(|a, b| a.cost.total_cmp(&b.cost)).expect("at least one search ran");
     best.iterations = iterations;

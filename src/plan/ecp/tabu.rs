@@ -273,11 +273,7 @@ pub fn parallel_tabu_search(inst: &Instance, start: &[Cut], options: &TabuOption
         let from = if k == 0 { start.to_vec() } else { insertion_in_order(inst, Some(options.seed)) };
         tabu_search(inst, from, &options, &cap)
     });
-    let iterations = runs.iter().map(|r| r.iterations).sum();
-    let mut best = runs.into_iter().min_by(|a, b| a.cost.total_cmp(&b.cost)).expect("at least one search ran");
-    best.iterations = iterations;
-    best.stopped_by = cap.stop();
-    best
+    super::ils::best_of(runs, &cap)
 }
 
 #[cfg(test)]
