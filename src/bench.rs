@@ -13,6 +13,7 @@ use crate::program::{format_number, LineKind, Program, ProgramLine};
 use crate::run::{run_setup, sim_config, stream_into_simulator};
 use crate::stream::SenderOptions;
 use crate::config::SearchKind;
+use crate::plan::stop::SearchStop;
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct StreamFigures {
@@ -121,29 +122,31 @@ pub struct EcpBench {
     pub best: f64,
     pub gap: f64,
     pub time_to_best_s: f64,
-    pub time_limit_s: f64,
-    /// Kicks of the iterated search (or tabu iterations), over all threads.
+    /// The cap `--time-limit` set (`null`: none, the budget alone ends the search).
+    pub time_limit_s: Option<f64>,
+    /// `budget` or `time-limit`: what ended the search.
+    pub search_stopped_by: SearchStop,
+    /// Kicks of the iterated search (or tabu iterations), over all searches.
     pub iterations: u64,
     /// `ils` (the default) or `tabu` (seed 001's, the reference).
     pub search: String,
-    /// Searches run side by side.
+    /// Independent searches (a fixed number) and the threads they ran on.
+    pub searches: usize,
     pub threads: usize,
     /// Checked by the independent checker, not by the search.
     pub feasible: bool,
 }
 
-pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_limit_s: f64, search: SearchKind) -> Result<EcpBench> {
+pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_limit_s: Option<f64>, search: SearchKind) -> Result<EcpBench> {
     use crate::gen::tsplib;
     use crate::plan::ecp::{checker, construct, ils, solve};
-    if !(time_limit_s.is_finite() && time_limit_s > 0.0) {
-        return Err(Error::Config(format!("bench ecp: --time-limit must be a positive number of seconds, got {time_limit_s}")));
-    }
+    let time_limit = positive_seconds("bench ecp", time_limit_s)?;
     let problem = tsplib::read_tsp(tsp)?;
     let order = tsplib::read_tour(tour, problem.cities.len())?;
     let bench = tsplib::bench_instance(&problem, &order, seed);
     let inst = &bench.instance;
     let construction = inst.cost(&construct::insertion(inst));
-    let options = ils::SearchOptions { seed, ..ils::SearchOptions::new(std::time::Duration::from_secs_f64(time_limit_s)) };
+    let options = ils::SearchOptions { seed, time_limit, threads: crate::parallel::threads()?, ..ils::SearchOptions::new() };
     let found = solve(inst, search, &options);
     // The checker also counts every element cut exactly once.
     let feasible = checker::check(inst, &found.route).is_empty();
@@ -161,11 +164,22 @@ pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_
         gap: best / bench.optimum - 1.0,
         time_to_best_s: found.time_to_best.as_secs_f64(),
         time_limit_s,
+        search_stopped_by: found.stopped_by,
         iterations: found.iterations,
         search: search.name().to_string(),
+        searches: options.searches,
         threads: options.threads,
         feasible,
     })
+}
+
+/// `limit` as a time limit, refused unless a positive number of seconds.
+fn positive_seconds(bench: &str, limit: Option<f64>) -> Result<Option<std::time::Duration>> {
+    match limit {
+        None => Ok(None),
+        Some(s) if s.is_finite() && s > 0.0 => Ok(Some(std::time::Duration::from_secs_f64(s))),
+        Some(s) => Err(Error::Config(format!("{bench}: --time-limit must be a positive number of seconds, got {s}"))),
+    }
 }
 
 /// One way of ordering a sheet's cuts, measured as the machine would cut it.
@@ -197,7 +211,10 @@ pub struct SheetBench {
     pub common_cuts: usize,
     /// Pierce cost the planners weigh against air, mm.
     pub pierce_cost_mm: f64,
-    pub time_limit_s: f64,
+    /// The cap `--time-limit` set (`null`: none).
+    pub time_limit_s: Option<f64>,
+    /// `budget` or `time-limit`: what ended ecp's search.
+    pub search_stopped_by: SearchStop,
     pub nearest: SheetOrder,
     /// Seed 001's insertion construction (IB) + dir-opt, and its contour-order one (COB) + dir-opt.
     pub construction: SheetOrder,
@@ -220,14 +237,12 @@ pub fn flatbed_for(machine: &MachineConfig, width: f64, height: f64) -> MachineC
     m
 }
 
-pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_limit_s: f64, svg_out: Option<&std::path::Path>) -> Result<SheetBench> {
+pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_limit_s: Option<f64>, svg_out: Option<&std::path::Path>) -> Result<SheetBench> {
     use crate::plan::cutting::{cutting_model, plan_cutting, topology, whole_geometry_violations};
     use crate::gen::sheet;
     use crate::plan::ecp::{checker, construct};
     use crate::plan::{PathGroup, PlanContext, PlannedPath, Planner, Sequence};
-    if !(time_limit_s.is_finite() && time_limit_s > 0.0) {
-        return Err(Error::Config(format!("bench sheet: --time-limit must be a positive number of seconds, got {time_limit_s}")));
-    }
+    positive_seconds("bench sheet", time_limit_s)?;
     if elements == 0 {
         return Err(Error::Config("bench sheet: --elements must be at least 1".into()));
     }
@@ -275,8 +290,10 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
     };
     let contour_order = constructed(construct::contour_order_construction)?;
     let construction = constructed(construct::insertion)?;
+    let mut search_stopped_by = SearchStop::Budget;
     let ecp = timed(&mut || {
         let plan = plan_cutting(&job, &ctx)?;
+        search_stopped_by = plan.search_stopped_by;
         Ok((plan.sequence, plan.broken_rules.len()))
     })?;
     let inst = &model.instance;
@@ -291,6 +308,7 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
         common_cuts: inst.common_cuts().len(),
         pierce_cost_mm: inst.pierce_cost,
         time_limit_s,
+        search_stopped_by,
         air_vs_nearest: ecp.air_mm / nearest.air_mm,
         air_vs_construction: ecp.air_mm / construction.air_mm,
         nearest,
@@ -320,6 +338,8 @@ pub struct GalvoCase {
     pub time_ratio_median: f64,
     pub time_ratio_worst: f64,
     pub stage_reversals: Vec<usize>,
+    /// `budget` unless the time limit ended a search of some seed.
+    pub search_stopped_by: SearchStop,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -336,7 +356,7 @@ pub struct GalvoBench {
 /// each seed on the machine's scanner with its whole field usable (the
 /// benchmark's 70 × 70 mm), the planning step timed alone.
 pub fn galvo_bench(machine: &MachineConfig, dir: &std::path::Path, kind: crate::plan::PlannerKind, seeds: &[u64]) -> Result<GalvoBench> {
-    use crate::plan::{planner, PlanContext};
+    use crate::plan::{planner, PlanContext, PlannerKind};
     let reference_path = dir.join("reference.json");
     let text = std::fs::read_to_string(&reference_path).map_err(|e| Error::Config(format!("{}: {e}", reference_path.display())))?;
     let reference: std::collections::BTreeMap<String, serde_json::Value> =
@@ -369,13 +389,18 @@ pub fn galvo_bench(machine: &MachineConfig, dir: &std::path::Path, kind: crate::
             time_ratio_median: 0.0,
             time_ratio_worst: 0.0,
             stage_reversals: Vec::new(),
+            search_stopped_by: SearchStop::Budget,
         };
         for &seed in seeds {
             machine.galvo.seed = seed;
             let ctx = PlanContext { machine: &machine, mode: crate::mode::Mode::StepAndScan, start: crate::run::job_start() };
             let started = std::time::Instant::now();
-            let sequence = planner(kind).plan(&job, &ctx)?;
+            let (sequence, stopped_by) = match kind {
+                PlannerKind::Hha | PlannerKind::Hga => crate::plan::galvo::plan_galvo(&job, &ctx, kind == PlannerKind::Hga)?,
+                _ => (planner(kind).plan(&job, &ctx)?, SearchStop::Budget),
+            };
             out.plan_time_s.push(started.elapsed().as_secs_f64());
+            out.search_stopped_by = out.search_stopped_by.and(stopped_by);
             out.idle_stroke_mm.push(sequence.idle_stroke());
             out.scan_fields.push(sequence.scan_fields().unwrap_or(0));
             out.stage_reversals.push(sequence.stage_reversals().unwrap_or(0));

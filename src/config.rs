@@ -462,10 +462,13 @@ pub struct CuttingConfig {
     /// A turn sharper than this (degrees) is a corner, where a cut may start.
     #[serde(default = "default_corner_angle")]
     pub corner_angle: f64,
-    /// How long the search may run (s); `--time-limit` overrides it. Small
-    /// jobs finish earlier, once the search long finds nothing better.
-    #[serde(default = "default_cutting_time_limit")]
-    pub time_limit: f64,
+    /// A wall-clock cap on the planning step (s); `--time-limit` overrides
+    /// it. None by default: the search ends on its budget of work, which
+    /// grows with the job, and plans the same whatever the machine's load.
+    /// A cap that ends the search first may change the plan (the report
+    /// says `search_stopped_by: "time-limit"`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_limit: Option<f64>,
     /// "ils" (iterated local search, the default) or "tabu" (seed 001's).
     #[serde(default, with = "search_kind")]
     #[schemars(with = "String")]
@@ -512,9 +515,12 @@ pub struct GalvoConfig {
     /// The same when the job fits one field.
     #[serde(default = "default_direction_weight_single_field")]
     pub direction_weight_single_field: f64,
-    /// How long the HGA may run (s); `--time-limit` overrides it.
-    #[serde(default = "default_galvo_time_limit")]
-    pub time_limit: f64,
+    /// A wall-clock cap on the planning step (s) of both galvo planners;
+    /// `--time-limit` overrides it. None by default: the searches end on
+    /// their budgets of work (kicks, generations) and plan the same whatever
+    /// the machine's load; a cap that ends one first may change the plan.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_limit: Option<f64>,
     /// Seed of the planners' random choices; `--seed` overrides it.
     #[serde(default = "default_galvo_seed")]
     pub seed: u64,
@@ -526,9 +532,6 @@ fn default_direction_weight() -> f64 {
 fn default_direction_weight_single_field() -> f64 {
     0.1
 }
-fn default_galvo_time_limit() -> f64 {
-    30.0
-}
 fn default_galvo_seed() -> u64 {
     1
 }
@@ -538,7 +541,7 @@ impl Default for GalvoConfig {
         GalvoConfig {
             direction_weight: default_direction_weight(),
             direction_weight_single_field: default_direction_weight_single_field(),
-            time_limit: default_galvo_time_limit(),
+            time_limit: None,
             seed: default_galvo_seed(),
         }
     }
@@ -553,9 +556,6 @@ fn default_common_cut_tolerance() -> f64 {
 fn default_corner_angle() -> f64 {
     30.0
 }
-fn default_cutting_time_limit() -> f64 {
-    10.0
-}
 
 impl Default for CuttingConfig {
     fn default() -> Self {
@@ -563,7 +563,7 @@ impl Default for CuttingConfig {
             pierce_cost: default_pierce_cost(),
             common_cut_tolerance: default_common_cut_tolerance(),
             corner_angle: default_corner_angle(),
-            time_limit: default_cutting_time_limit(),
+            time_limit: None,
             search: Default::default(),
         }
     }
@@ -862,11 +862,15 @@ impl MachineConfig {
         in_range("cutting.pierce_cost", c.pierce_cost, 0.0, TRAVEL.hi, TRAVEL.unit)?;
         TOLERANCE.check("cutting.common_cut_tolerance", c.common_cut_tolerance)?;
         in_range("cutting.corner_angle", c.corner_angle, 1.0, 180.0, "degrees")?;
-        TIME_LIMIT.check("cutting.time_limit", c.time_limit)?;
+        if let Some(t) = c.time_limit {
+            TIME_LIMIT.check("cutting.time_limit", t)?;
+        }
         let g = &self.galvo;
         DIRECTION_WEIGHT.check("galvo.direction_weight", g.direction_weight)?;
         DIRECTION_WEIGHT.check("galvo.direction_weight_single_field", g.direction_weight_single_field)?;
-        TIME_LIMIT.check("galvo.time_limit", g.time_limit)?;
+        if let Some(t) = g.time_limit {
+            TIME_LIMIT.check("galvo.time_limit", t)?;
+        }
         in_range("import.max_file_mb", self.import.max_file_mb, 0.001, 4096.0, "MB")?;
         in_range("import.max_elements", self.import.max_elements, 1, 100_000_000, "elements")?;
         in_range("import.max_points", self.import.max_points, 1_000, 1_000_000_000, "points")?;

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::ConfigSource;
 use crate::figures::SimFigures;
+use crate::plan::stop::SearchStop;
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct PlanReport {
@@ -21,6 +22,11 @@ pub struct PlanReport {
     pub mark_length_mm: f64,
     pub idle_stroke_mm: f64,
     pub plan_time_s: f64,
+    /// `budget` when every search ran its budget of work (the plan is the
+    /// same whatever the machine's load and cores), `time-limit` when the
+    /// user's time limit ended one first (the plan may differ from run to run).
+    #[serde(default)]
+    pub search_stopped_by: SearchStop,
     /// Cuts after the part they belong to has fallen out: by the independent
     /// checker on the cutting planner's route, or by whole geometries (a
     /// geometry finished at or after the nearest contour around it on a layer
@@ -73,8 +79,11 @@ impl PlanReport {
         ));
         let precedence = self.precedence_violations.map_or("unknown".to_string(), |n| n.to_string());
         s.push_str(&format!(
-            "  marking {:.1} mm, idle stroke {:.1} mm, planned in {:.3} s, precedence_violations {precedence}\n",
-            self.mark_length_mm, self.idle_stroke_mm, self.plan_time_s
+            "  marking {:.1} mm, idle stroke {:.1} mm, planned in {:.3} s (search stopped by {}), precedence_violations {precedence}\n",
+            self.mark_length_mm,
+            self.idle_stroke_mm,
+            self.plan_time_s,
+            self.search_stopped_by.as_str()
         ));
         s.push_str(&format!(
             "  trajectory {:.3} s (lower bound {:.3} s), program {} lines / {} bytes, computed in {:.3} s\n",

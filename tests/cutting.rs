@@ -15,7 +15,7 @@ use laserd_sim::controller::Faults;
 fn flatbed(time_limit: f64) -> MachineConfig {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml");
     let mut machine = MachineConfig::load(Some(&path)).unwrap();
-    machine.cutting.time_limit = time_limit;
+    machine.cutting.time_limit = Some(time_limit);
     machine
 }
 
@@ -81,7 +81,7 @@ fn bad_cutting_settings_name_the_setting() {
         ("pierce_cost = 20.0", "pierce_cost = -1.0", "cutting.pierce_cost"),
         ("common_cut_tolerance = 0.01", "common_cut_tolerance = nan", "cutting.common_cut_tolerance"),
         ("corner_angle = 30.0", "corner_angle = 270.0", "cutting.corner_angle"),
-        ("time_limit = 10.0", "time_limit = 0.0", "cutting.time_limit"),
+        ("[cutting]\n", "[cutting]\ntime_limit = 0.0\n", "cutting.time_limit"),
         ("search = \"ils\"", "search = \"annealing\"", "annealing"),
     ] {
         assert!(text.contains(from), "{from}");

@@ -90,7 +90,7 @@ fn generated_instances_of_every_family_are_planned_validly_and_beat_nearest_neig
 fn hga_is_never_worse_than_hha_and_keeps_to_its_time_limit() {
     use laserd::gen::galvo::{generate, Family};
     let mut machine = machine();
-    machine.galvo.time_limit = 2.0;
+    machine.galvo.time_limit = Some(2.0);
     let half = machine.scanner.as_ref().unwrap().usable_half_field;
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("rnd40.svg");

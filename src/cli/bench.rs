@@ -40,9 +40,9 @@ pub enum BenchCommand {
         tour: PathBuf,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Seconds the search may run.
-        #[arg(long, default_value_t = 10.0)]
-        time_limit: f64,
+        /// A wall-clock cap in seconds (default: none, the search's budget of work ends it).
+        #[arg(long)]
+        time_limit: Option<f64>,
         /// `ils` (iterated local search, the default) or `tabu` (seed 001's).
         #[arg(long, default_value = "ils")]
         search: SearchKind,
@@ -61,9 +61,9 @@ pub enum BenchCommand {
         elements: usize,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Seconds the search may run.
-        #[arg(long, default_value_t = 30.0)]
-        time_limit: f64,
+        /// A wall-clock cap in seconds (default: none, the search's budget of work ends it).
+        #[arg(long)]
+        time_limit: Option<f64>,
         /// Also write the sheet here as SVG (to plan or dry-run it as a job).
         #[arg(long)]
         svg: Option<PathBuf>,
@@ -84,7 +84,7 @@ pub enum BenchCommand {
         /// Planner seeds 1 to this.
         #[arg(long, default_value_t = 5)]
         seeds: u64,
-        /// HGA's time limit per run (default: the config's [galvo] time_limit).
+        /// A wall-clock cap per run (default: the config's [galvo] time_limit, none unless set).
         #[arg(long)]
         time_limit: Option<f64>,
         #[arg(long)]
@@ -131,8 +131,8 @@ pub enum BenchCommand {
 fn check_flags(command: &BenchCommand) -> Result<()> {
     match command {
         BenchCommand::Serve { clients, hz, .. } => in_range("--clients", *clients, 1, 10_000, "clients").and(in_range("--hz", *hz, 0.1, 1000.0, "Hz")),
-        BenchCommand::Ecp { time_limit: t, .. } => check_time_limit(Some(*t)),
-        BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(check_time_limit(Some(*t))),
+        BenchCommand::Ecp { time_limit: t, .. } => check_time_limit(*t),
+        BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(check_time_limit(*t)),
         BenchCommand::Galvo { seeds, time_limit: t, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds").and(check_time_limit(*t)),
         BenchCommand::Motion { repeats, .. } => in_range("--repeats", *repeats, 1, 1000, "runs"),
         BenchCommand::Link { blocks, block_ms, baud: b, .. } => in_range("--blocks", *blocks, 1, 1_000_000, "blocks")
@@ -154,21 +154,21 @@ pub fn run(command: BenchCommand) -> Result<ExitCode> {
     }
 }
 
-fn ecp_bench(tsp: PathBuf, tour: PathBuf, seed: u64, time_limit: f64, search: SearchKind, json: bool) -> Result<ExitCode> {
+fn ecp_bench(tsp: PathBuf, tour: PathBuf, seed: u64, time_limit: Option<f64>, search: SearchKind, json: bool) -> Result<ExitCode> {
     let report = laserd::bench::ecp_bench(&tsp, &tour, seed, time_limit, search)?;
     if json {
         print_json(&report)?;
     } else {
         println!(
-            "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {:.2} s of {} s, {} iterations ({}, {} threads), feasible: {}",
+            "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {:.2} s, search stopped by {}, {} iterations ({}, {} searches on {} threads), feasible: {}",
             report.instance, report.elements, report.contours, report.precedences, report.inner_outer, report.common_cuts,
-            report.optimum, report.construction, report.best, report.gap * 100.0, report.time_to_best_s, report.time_limit_s, report.iterations, report.search, report.threads, report.feasible
+            report.optimum, report.construction, report.best, report.gap * 100.0, report.time_to_best_s, report.search_stopped_by.as_str(), report.iterations, report.search, report.searches, report.threads, report.feasible
         );
     }
     Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(exit::STOPPED) })
 }
 
-fn sheet_bench(config: Option<PathBuf>, elements: usize, seed: u64, time_limit: f64, svg: Option<PathBuf>, json: bool) -> Result<ExitCode> {
+fn sheet_bench(config: Option<PathBuf>, elements: usize, seed: u64, time_limit: Option<f64>, svg: Option<PathBuf>, json: bool) -> Result<ExitCode> {
     let machine = machine_config(config.as_deref(), json)?.machine;
     let r = laserd::bench::sheet_bench(&machine, elements, seed, time_limit, svg.as_deref())?;
     if json {
@@ -243,7 +243,7 @@ fn motion_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, mode: Option<Mode>,
 fn galvo_bench(config: Option<PathBuf>, dir: PathBuf, planner: PlannerKind, seeds: u64, time_limit: Option<f64>, json: bool) -> Result<ExitCode> {
     let mut machine = machine_config(config.as_deref(), json)?.machine;
     if let Some(t) = time_limit {
-        machine.galvo.time_limit = t;
+        machine.galvo.time_limit = Some(t);
     }
     let seeds: Vec<u64> = (1..=seeds).collect();
     let r = laserd::bench::galvo_bench(&machine, &dir, planner, &seeds)?;

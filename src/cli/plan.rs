@@ -33,9 +33,11 @@ pub struct JobArgs {
     /// on-the-fly, step-and-scan or stage-only (default: on-the-fly with a scanner, else stage-only).
     #[arg(long)]
     mode: Option<Mode>,
-    /// Planning time limit in seconds for the search planners ecp and hga
-    /// (default: the config's [cutting] or [galvo] time_limit; nearest and
-    /// hha ignore it).
+    /// A wall-clock cap in seconds on the searches of ecp, hha and hga
+    /// (default: the config's [cutting] or [galvo] time_limit, none unless
+    /// set). Without one the searches end on their budgets of work and the
+    /// plan is the same whatever the load; a cap that ends one first may
+    /// change it (the report says search_stopped_by: time-limit).
     #[arg(long)]
     time_limit: Option<f64>,
     /// Seed of the galvo planners' random choices (default: the config's [galvo] seed).
@@ -50,8 +52,8 @@ impl JobArgs {
         // error later stays the one line of the error contract).
         let FoundConfig { mut machine, source, .. } = ConfigSearch::new(self.config.as_deref()).find()?;
         if let Some(t) = self.time_limit {
-            machine.cutting.time_limit = t;
-            machine.galvo.time_limit = t;
+            machine.cutting.time_limit = Some(t);
+            machine.galvo.time_limit = Some(t);
         }
         if let Some(seed) = self.seed {
             machine.galvo.seed = seed;

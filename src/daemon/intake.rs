@@ -345,7 +345,7 @@ mod tests {
     fn an_order_with_precedence_violations_is_refused_unless_the_submission_allows_it() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let mut machine = MachineConfig::load(Some(&root.join("config/flatbed-cutter.toml"))).unwrap();
-        machine.cutting.time_limit = 1.0;
+        machine.cutting.time_limit = Some(1.0);
         let dir = tempfile::tempdir().unwrap();
         let source = dir.path().join("source.svg");
         std::fs::copy(root.join("samples/nested-sheet.svg"), &source).unwrap();

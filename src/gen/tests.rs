@@ -5,7 +5,7 @@
 //! tests/layers.rs).
 
 use std::collections::BTreeSet;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use super::sheet::{self, SheetParams};
 use super::tsplib;
@@ -17,6 +17,7 @@ use crate::plan::ecp::ils::{search_from, SearchOptions, Start};
 use crate::plan::ecp::model::CuttingModel;
 use crate::plan::ecp::tabu::{tabu_search, TabuOptions};
 use crate::plan::ecp::{checker, checker::check, Cut, Instance};
+use crate::plan::stop::TimeCap;
 use crate::topology::tests::{check_model, length, ring};
 use crate::topology::{Topology, TopologyOptions};
 
@@ -42,9 +43,9 @@ fn contour_order_construction_cuts_a_sheet_contour_by_contour() {
 fn a_relaxed_start_is_mended_and_beats_the_construction_on_a280() {
     let b = a280(2);
     let construction = b.instance.cost(&insertion_in_order(&b.instance, None));
-    let options = SearchOptions { threads: 1, ..SearchOptions::new(Duration::from_millis(1500)) };
+    let options = SearchOptions { kicks: Some(60_000), ..SearchOptions::new() };
     for start in [Start::Relaxed, Start::Insertion] {
-        let found = search_from(&b.instance, start, &options);
+        let found = search_from(&b.instance, start, &options, &TimeCap::none());
         assert!(check(&b.instance, &found.route).is_empty(), "{start:?}");
         assert!(found.cost >= b.optimum, "never below the optimum");
         assert!(found.cost < construction, "{start:?}: {} vs construction {construction}", found.cost);
@@ -56,7 +57,8 @@ fn tabu_improves_on_the_construction_of_a280_and_stays_feasible() {
     let b = a280(1);
     let start = construct(&b.instance);
     assert!(check(&b.instance, &start).is_empty());
-    let found = tabu_search(&b.instance, start.clone(), &TabuOptions::new(&b.instance, Duration::from_millis(500)));
+    let options = TabuOptions { iterations: 2_000, ..TabuOptions::new(&b.instance) };
+    let found = tabu_search(&b.instance, start.clone(), &options, &TimeCap::none());
     assert!(check(&b.instance, &found.route).is_empty());
     assert!(found.cost < b.instance.cost(&start));
     assert!(found.cost >= b.optimum, "never below the optimum");

@@ -35,13 +35,13 @@ pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     let cuts = cuts_through(job, ctx.machine);
     let (cutting, marking): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| cuts[g]);
     if cutting.is_empty() {
-        let sequence = galvo::Hha.plan(job, ctx)?;
-        return Ok(PlanOutcome { sequence, planner: "hha".into(), broken_rules: Some(Vec::new()) });
+        let (sequence, search_stopped_by) = galvo::plan_galvo(job, ctx, false)?;
+        return Ok(PlanOutcome { sequence, planner: "hha".into(), broken_rules: Some(Vec::new()), search_stopped_by });
     }
     if marking.is_empty() {
         return Ok(cutting::plan_cutting(job, ctx)?.outcome());
     }
-    let mut marked = galvo::Hha.plan(&part_of(job, &marking), ctx)?;
+    let (mut marked, marking_stopped_by) = galvo::plan_galvo(&part_of(job, &marking), ctx, false)?;
     renumber(&mut marked, &marking);
     let start = marked.paths().last().map_or(ctx.start, |p| p.end());
     let cut = cutting::plan_cutting(&part_of(job, &cutting), &PlanContext { machine: ctx.machine, mode: ctx.mode, start })?;
@@ -58,7 +58,8 @@ pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
         broken.extend(m);
         broken
     });
-    Ok(PlanOutcome { sequence, planner: "hha+ecp".into(), broken_rules })
+    let search_stopped_by = marking_stopped_by.and(cut.search_stopped_by);
+    Ok(PlanOutcome { sequence, planner: "hha+ecp".into(), broken_rules, search_stopped_by })
 }
 
 /// The geometries `which` of `job` as a job of their own (the processes
@@ -119,7 +120,7 @@ mod tests {
     #[test]
     fn marks_first_with_the_galvo_planner_then_cuts_every_part_after_what_is_inside_it() {
         let mut machine = cutter();
-        machine.cutting.time_limit = 0.5;
+        machine.cutting.time_limit = Some(0.5);
         // Two plates, each with a hole and an engraved label inside; the
         // engraved frame around the second plate holds nothing.
         let geometries = vec![

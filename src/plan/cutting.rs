@@ -17,6 +17,7 @@ use super::ecp::checker::{self, Violation};
 use super::ecp::model::CuttingModel;
 use super::ecp::{ils, solve};
 use super::fields::centre_within_travel;
+use super::stop::SearchStop;
 use super::{check_reach, PathGroup, PlanContext, PlanOutcome, PlannedPath, Planner, Sequence};
 use crate::config::{CuttingConfig, MachineConfig};
 use crate::error::{Error, Result};
@@ -33,11 +34,13 @@ pub struct CuttingPlan {
     /// Rules the route breaks, by the independent checker (none unless the
     /// search is wrong); contours are the job's geometries.
     pub broken_rules: Vec<Violation>,
+    /// Whether the search's budget or the time limit ended it.
+    pub search_stopped_by: SearchStop,
 }
 
 impl CuttingPlan {
     pub fn outcome(self) -> PlanOutcome {
-        PlanOutcome { sequence: self.sequence, planner: "ecp".into(), broken_rules: Some(self.broken_rules) }
+        PlanOutcome { sequence: self.sequence, planner: "ecp".into(), broken_rules: Some(self.broken_rules), search_stopped_by: self.search_stopped_by }
     }
 }
 
@@ -68,19 +71,25 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     let settings = &ctx.machine.cutting;
     let model = cutting_model(job, ctx.start, settings)?;
     let inst = &model.instance;
-    // The time limit is for the whole planning step, topology included, with
-    // a little kept back for turning the route into paths.
-    let keep_back = Duration::from_millis(50) + Duration::from_secs_f64(settings.time_limit / 200.0);
-    let time_limit = Duration::from_secs_f64(settings.time_limit).saturating_sub(started.elapsed() + keep_back).max(Duration::from_millis(10));
-    let route = if inst.elements.is_empty() {
-        Vec::new()
+    // A time limit (none by default) is for the whole planning step, topology
+    // included, with a little kept back for turning the route into paths.
+    let time_limit = settings.time_limit.map(|limit| {
+        let keep_back = Duration::from_millis(50) + Duration::from_secs_f64(limit / 200.0);
+        Duration::from_secs_f64(limit).saturating_sub(started.elapsed() + keep_back).max(Duration::from_millis(10))
+    });
+    let threads = crate::parallel::threads()?;
+    let (route, search_stopped_by) = if inst.elements.is_empty() {
+        (Vec::new(), SearchStop::Budget)
     } else {
         let options = ils::SearchOptions {
             // Small jobs stop early once the search has long found nothing better.
             max_stall: 20_000 + 100 * inst.elements.len() as u64,
-            ..ils::SearchOptions::new(time_limit)
+            time_limit,
+            threads,
+            ..ils::SearchOptions::new()
         };
-        solve(inst, settings.search, &options).route
+        let found = solve(inst, settings.search, &options);
+        (found.route, found.stopped_by)
     };
     let broken_rules = checker::check(inst, &route);
     let polylines = model.polylines(&route);
@@ -96,10 +105,7 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
         None => vec![PathGroup { field_center: None, paths }],
         Some(s) => fields_along(job, paths, s.usable_half_field, (ctx.machine.stage.travel_x, ctx.machine.stage.travel_y))?,
     };
-    Ok(CuttingPlan {
-        sequence: Sequence { groups },
-        broken_rules,
-    })
+    Ok(CuttingPlan { sequence: Sequence { groups }, broken_rules, search_stopped_by })
 }
 
 /// The paths in their order, cut into scan fields: each field takes paths

@@ -9,6 +9,7 @@ pub mod fields;
 pub mod galvo;
 pub mod nearest;
 pub mod split;
+pub mod stop;
 
 use std::str::FromStr;
 
@@ -149,6 +150,8 @@ pub struct PlanOutcome {
     pub sequence: Sequence,
     pub planner: String,
     pub broken_rules: Option<Vec<ecp::checker::Violation>>,
+    /// Whether the searches ran their budgets or a time limit ended one.
+    pub search_stopped_by: stop::SearchStop,
 }
 
 /// Plans `job` with the planner `kind` stands for, and judges its order: the
@@ -160,9 +163,12 @@ pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
         PlannerKind::Ecp => Ok(cutting::plan_cutting(job, ctx)?.outcome()),
         _ => {
             let planner = planner(kind);
-            let sequence = planner.plan(job, ctx)?;
+            let (sequence, search_stopped_by) = match kind {
+                PlannerKind::Hha | PlannerKind::Hga => galvo::plan_galvo(job, ctx, kind == PlannerKind::Hga)?,
+                _ => (planner.plan(job, ctx)?, stop::SearchStop::Budget),
+            };
             let broken_rules = cutting::sequence_violations(job, &sequence, ctx);
-            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules })
+            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by })
         }
     }
 }

@@ -14,16 +14,22 @@
 //!   general direction early, and the rules then pin it: a route that visits
 //!   the sheet the "wrong way round" cannot be turned by moves that keep every
 //!   rule. So the other start is *relaxed*: the same search without rules for
-//!   part of the time, the result's better end taken as the start (a route and
+//!   part of the kicks, the result's better end taken as the start (a route and
 //!   its reverse cost the same, they break different rules), and the rules it
 //!   still breaks mended by moving single cuts (the fewest broken rules, then
 //!   the cheapest), and by moving each contour's last cut past its inner
-//!   contours where no single move mends one. Threads alternate between the two.
+//!   contours where no single move mends one. The independent searches
+//!   alternate between the two.
+//! * **Stop.** Each search makes a budget of kicks that grows with the
+//!   instance ([`default_kicks`]), so the route does not depend on the load
+//!   or the cores; a time limit the user sets may end it first.
 //!
 //! Seed 001's tabu search ([`super::tabu`]) stays as the reference this is
 //! measured against.
 
 use std::time::{Duration, Instant};
+
+use crate::plan::stop::{SearchStop, TimeCap};
 
 use rand::{Rng, SeedableRng};
 
@@ -524,34 +530,61 @@ pub enum Start {
     /// Seed 001's constructions: the cheaper of insertion (IB; elements of a
     /// depth in index order, or shuffled by the seed) and contour order (COB).
     Insertion,
-    /// The search without rules for a share of the time, then mended.
+    /// The search without rules for a share of the kicks, then mended.
     Relaxed,
 }
 
 /// Options of the search.
 #[derive(Debug, Clone)]
 pub struct SearchOptions {
-    pub time_limit: Duration,
+    /// Kicks each search makes (`None`: [`default_kicks`] of the instance).
+    pub kicks: Option<u64>,
+    /// A wall-clock cap the user set (`None`: the kicks alone end a search).
+    pub time_limit: Option<Duration>,
     /// Stop after this many kicks in a row that found nothing better (0: never).
     pub max_stall: u64,
     /// Kicks in a row finding nothing better after which a search starts
     /// afresh (`None`: 100 per element, at least 10 000).
     pub restart_after: Option<u64>,
-    /// Share of the time a relaxed start searches without rules.
+    /// Share of the kicks a relaxed start searches without rules.
     pub relaxed_share: f64,
     /// Neighbours per element that moves are taken from.
     pub neighbours: usize,
-    /// Searches run side by side (one per core helps: the outcome depends on the start).
+    /// Independent searches, relaxed and insertion starts in turn (the outcome
+    /// depends on the start). A fixed number, not the cores: the route does
+    /// not depend on the machine.
+    pub searches: usize,
+    /// Threads the searches run on.
     pub threads: usize,
     pub seed: u64,
 }
 
+/// Independent searches by default.
+pub const SEARCHES: usize = 2;
+
 impl SearchOptions {
-    pub fn new(time_limit: Duration) -> SearchOptions {
-        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-        SearchOptions { time_limit, max_stall: 0, restart_after: None, relaxed_share: 0.3, neighbours: 10, threads, seed: 1 }
+    /// The default budget, no time limit, one thread.
+    pub fn new() -> SearchOptions {
+        SearchOptions { kicks: None, time_limit: None, max_stall: 0, restart_after: None, relaxed_share: 0.3, neighbours: 10, searches: SEARCHES, threads: 1, seed: 1 }
     }
 }
+
+impl Default for SearchOptions {
+    fn default() -> Self {
+        SearchOptions::new()
+    }
+}
+
+/// Kicks of one search on an instance of `elements` elements: about what a
+/// quiet core made in the ten seconds the search used to be given (a kick
+/// costs more on a larger instance, so the budget grows less than the size).
+pub fn default_kicks(elements: usize) -> u64 {
+    (KICKS_BASE + KICKS_PER_ELEMENT * elements as u64).min(MAX_KICKS)
+}
+
+const KICKS_BASE: u64 = 20_000;
+const KICKS_PER_ELEMENT: u64 = 1_500;
+const MAX_KICKS: u64 = 400_000;
 
 /// What a search found.
 #[derive(Debug, Clone)]
@@ -559,18 +592,20 @@ pub struct SearchResult {
     /// A route that keeps every rule.
     pub route: Vec<Cut>,
     pub cost: f64,
-    /// Kicks (iterations of the outer loop), over all threads.
+    /// Kicks (iterations of the outer loop), over all searches.
     pub iterations: u64,
     pub time_to_best: Duration,
     /// The start the best route came from.
     pub start: Start,
+    /// Whether the budget or the user's time limit ended the searches.
+    pub stopped_by: SearchStop,
 }
 
 /// One search: rounds of a start and kicks from it until the round stalls
 /// (`restart_after` kicks finding nothing better), the first round from
 /// `first`, later ones from fresh insertions in random orders, relaxed and
 /// not in turn; the best route of all rounds.
-pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions) -> SearchResult {
+pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: &TimeCap) -> SearchResult {
     let began = Instant::now();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
     // The first start: the cheaper of seed 001's two constructions.
@@ -586,6 +621,7 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions) -> Se
     let mut since_best = 0u64;
     let mut start = first;
     let restart_after = options.restart_after.unwrap_or((100 * inst.elements.len() as u64).max(10_000));
+    let budget = options.kicks.unwrap_or_else(|| default_kicks(inst.elements.len()));
     for round in 0.. {
         if round > 0 {
             insertion = insertion_in_order(inst, Some(rng.random()));
@@ -594,10 +630,9 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions) -> Se
             s.wake_all();
         }
         if start == Start::Relaxed {
-            let now = began.elapsed();
-            let relaxed_until = now + options.time_limit.saturating_sub(now).mul_f64(options.relaxed_share.clamp(0.0, 1.0));
+            let relaxed = (budget.saturating_sub(iterations) as f64 * options.relaxed_share.clamp(0.0, 1.0)) as u64;
             s.penalty = 0.0;
-            iterations += iterate(&mut s, &mut rng, restart_after, |_| began.elapsed() < relaxed_until);
+            iterations += iterate(&mut s, &mut rng, restart_after, relaxed, |_| !cap.reached());
             // Of the route and its reverse, the one breaking fewer rules.
             let forward = s.violations;
             s.reverse_route();
@@ -612,23 +647,23 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions) -> Se
             s.wake_all();
         }
         let mut best_cost = best.as_ref().map_or(f64::INFINITY, |b| b.cost);
-        iterations += iterate(&mut s, &mut rng, restart_after, |found| {
+        iterations += iterate(&mut s, &mut rng, restart_after, budget.saturating_sub(iterations), |found| {
             if let Some(cost) = found.filter(|&c| c < best_cost - EPS) {
                 best_cost = cost;
                 time_to_best = began.elapsed();
                 since_best = 0;
             }
             since_best += KICKS_PER_CLOCK;
-            began.elapsed() < options.time_limit && (options.max_stall == 0 || since_best < options.max_stall)
+            (options.max_stall == 0 || since_best < options.max_stall) && !cap.reached()
         });
         if best.as_ref().is_none_or(|b| s.cost < b.cost - EPS) {
             if best.is_none() {
                 time_to_best = began.elapsed();
             }
-            best = Some(SearchResult { route: s.tour.cuts.clone(), cost: s.cost, iterations: 0, time_to_best, start });
+            best = Some(SearchResult { route: s.tour.cuts.clone(), cost: s.cost, iterations: 0, time_to_best, start, stopped_by: SearchStop::Budget });
         }
         let stalled = options.max_stall > 0 && since_best >= options.max_stall;
-        if began.elapsed() >= options.time_limit || stalled || restart_after == 0 || inst.elements.len() < 4 {
+        if iterations >= budget || stalled || restart_after == 0 || inst.elements.len() < 4 || cap.reached() {
             break;
         }
         start = if start == Start::Relaxed { Start::Insertion } else { Start::Relaxed };
@@ -637,24 +672,26 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions) -> Se
     best.cost = inst.cost(&best.route);
     best.iterations = iterations;
     best.time_to_best = time_to_best;
+    best.stopped_by = cap.stop();
     best
 }
 
 /// Kicks between two looks at the clock (a kick and its descent take microseconds).
 const KICKS_PER_CLOCK: u64 = 16;
 
-/// Descent, then kicks while `go_on` (told the new best cost when the last
-/// kicks found one) and until `stall_limit` kicks in a row found nothing
-/// better (0: no limit); leaves the best route in `s`. Returns the kicks made.
-fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, mut go_on: impl FnMut(Option<f64>) -> bool) -> u64 {
+/// Descent, then up to `max_kicks` kicks while `go_on` (told the new best
+/// cost when the last kicks found one) and until `stall_limit` kicks in a row
+/// found nothing better (0: no limit); leaves the best route in `s`. Returns
+/// the kicks made.
+fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, max_kicks: u64, mut go_on: impl FnMut(Option<f64>) -> bool) -> u64 {
     s.descend();
     let mut best = s.tour.cuts.clone();
     let mut best_cost = s.cost;
     let mut kicks = 0u64;
     let mut stall = 0u64;
     let mut found = Some(best_cost);
-    while go_on(found.take()) && (stall_limit == 0 || stall < stall_limit) && s.tour.cuts.len() >= 4 {
-        for _ in 0..KICKS_PER_CLOCK {
+    while kicks < max_kicks && go_on(found.take()) && (stall_limit == 0 || stall < stall_limit) && s.tour.cuts.len() >= 4 {
+        for _ in 0..KICKS_PER_CLOCK.min(max_kicks - kicks) {
             kicks += 1;
             stall += 1;
             if !s.kick(rng) {
@@ -677,23 +714,26 @@ fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, mut go_on: imp
     kicks
 }
 
-/// Searches side by side, starts alternating between relaxed and insertion
-/// (each thread its own random seed): the best route of all.
+/// The independent searches, starts alternating between relaxed and
+/// insertion, each its own seed, on the options' threads: the cheapest route
+/// of all, ties to the first search.
 pub fn search(inst: &Instance, options: &SearchOptions) -> SearchResult {
-    let threads = options.threads.max(1);
-    let runs: Vec<SearchResult> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..threads as u64)
-            .map(|k| {
-                let options = SearchOptions { seed: options.seed.wrapping_add(k), ..options.clone() };
-                let start = if k % 2 == 0 { Start::Relaxed } else { Start::Insertion };
-                scope.spawn(move || search_from(inst, start, &options))
-            })
-            .collect();
-        handles.into_iter().filter_map(|h| h.join().ok()).collect()
+    let cap = TimeCap::after(options.time_limit);
+    let runs = crate::parallel::tasks(options.searches.max(1), options.threads, |k| {
+        let options = SearchOptions { seed: options.seed.wrapping_add(k as u64), ..options.clone() };
+        let start = if k % 2 == 0 { Start::Relaxed } else { Start::Insertion };
+        search_from(inst, start, &options, &cap)
     });
+    best_of(runs, &cap)
+}
+
+/// The cheapest of independent searches' results (ties to the first), with
+/// the kicks of all and what stopped them.
+pub(super) fn best_of(runs: Vec<SearchResult>, cap: &TimeCap) -> SearchResult {
     let iterations = runs.iter().map(|r| r.iterations).sum();
     let mut best = runs.into_iter().min_by(|a, b| a.cost.total_cmp(&b.cost)).expect("at least one search ran");
     best.iterations = iterations;
+    best.stopped_by = cap.stop();
     best
 }
 
@@ -726,8 +766,8 @@ mod tests {
     fn reaches_the_optimum_of_small_instances() {
         for (seed, inst, optimum) in crate::plan::ecp::small_instances_with_optimum() {
             for start in [Start::Insertion, Start::Relaxed] {
-                let options = SearchOptions { max_stall: 5000, restart_after: Some(500), threads: 1, ..SearchOptions::new(Duration::from_secs(5)) };
-                let found = search_from(&inst, start, &options);
+                let options = SearchOptions { max_stall: 5000, restart_after: Some(500), ..SearchOptions::new() };
+                let found = search_from(&inst, start, &options, &TimeCap::none());
                 assert!(check(&inst, &found.route).is_empty(), "seed {seed} {start:?}");
                 assert!((found.cost - optimum).abs() < 1e-6, "seed {seed} {start:?}: {} vs optimum {optimum}", found.cost);
             }

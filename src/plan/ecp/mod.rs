@@ -35,15 +35,16 @@ use crate::config::SearchKind;
 use crate::topology::CommonCut;
 use crate::job::Point;
 
-/// The best route `kind` finds within the options' time limit, on every core
-/// the options allow.
+/// The best route `kind` finds with the options' budget (`kicks`, for the
+/// tabu search its iterations) and time limit, on the options' threads.
 pub fn solve(inst: &Instance, kind: SearchKind, options: &ils::SearchOptions) -> ils::SearchResult {
     match kind {
         SearchKind::Ils => ils::search(inst, options),
         SearchKind::Tabu => {
             let start = construct::insertion(inst);
-            let tabu_options = tabu::TabuOptions { seed: options.seed, ..tabu::TabuOptions::new(inst, options.time_limit) };
-            tabu::parallel_tabu_search(inst, &start, &tabu_options, options.threads)
+            let defaults = tabu::TabuOptions::new(inst);
+            let tabu_options = tabu::TabuOptions { seed: options.seed, iterations: options.kicks.unwrap_or(defaults.iterations), ..defaults };
+            tabu::parallel_tabu_search(inst, &start, &tabu_options, options.time_limit, options.searches, options.threads)
         }
     }
 }

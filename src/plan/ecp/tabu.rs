@@ -3,9 +3,12 @@
 //! reversals with the paper's rules: the best admissible move each iteration,
 //! even if it makes the route worse (least-degrading at a local optimum), the
 //! links a move breaks tabu for a tenure, a tabu move allowed when it beats the
-//! best route found (aspiration), until the time limit.
+//! best route found (aspiration), for a budget of iterations (or until the
+//! user's time limit, if that comes first).
 
 use std::time::{Duration, Instant};
+
+use crate::plan::stop::{SearchStop, TimeCap};
 
 use rand::{Rng, SeedableRng};
 
@@ -17,7 +20,8 @@ use super::{Cut, Instance};
 /// Options of the tabu search.
 #[derive(Debug, Clone)]
 pub struct TabuOptions {
-    pub time_limit: Duration,
+    /// Iterations of each search ([`default_iterations`] of the instance).
+    pub iterations: u64,
     /// Iterations a broken link stays tabu (seed 001: elements / 4; at least
     /// 10 here, or small instances cycle).
     pub tenure: usize,
@@ -34,10 +38,16 @@ pub struct TabuOptions {
 }
 
 impl TabuOptions {
-    pub fn new(inst: &Instance, time_limit: Duration) -> TabuOptions {
+    pub fn new(inst: &Instance) -> TabuOptions {
         let n = inst.elements.len();
-        TabuOptions { time_limit, tenure: (n / 4).clamp(10, 50), neighbours: 10, max_stall: 0, kick_after: 100, candidate_list: 24, seed: 1 }
+        TabuOptions { iterations: default_iterations(n), tenure: (n / 4).clamp(10, 50), neighbours: 10, max_stall: 0, kick_after: 100, candidate_list: 24, seed: 1 }
     }
+}
+
+/// Iterations of one search on an instance of `elements` elements: about
+/// what a quiet core made in the ten seconds the search used to be given.
+pub fn default_iterations(elements: usize) -> u64 {
+    (5_000 + 50 * elements as u64).min(20_000)
 }
 
 /// The links a move breaks and makes, between cuts (element and direction;
@@ -116,7 +126,7 @@ fn candidates(x: usize, tour: &Tour, neighbours: &[Vec<usize>], out: &mut Vec<Mo
 /// and not re-making a link broken within the tenure unless it yields a new
 /// best route (aspiration). After a long stall the search restarts from the
 /// best route, shaken by a few random feasible moves.
-pub fn tabu_search(inst: &Instance, start: Vec<Cut>, options: &TabuOptions) -> SearchResult {
+pub fn tabu_search(inst: &Instance, start: Vec<Cut>, options: &TabuOptions, cap: &TimeCap) -> SearchResult {
     let began = Instant::now();
     let n = inst.elements.len();
     let rules = Rules::new(inst);
@@ -126,7 +136,7 @@ pub fn tabu_search(inst: &Instance, start: Vec<Cut>, options: &TabuOptions) -> S
     }
     let mut tour = Tour { cuts: start, pos };
     let mut cost = inst.cost(&tour.cuts);
-    let mut best = SearchResult { route: tour.cuts.clone(), cost, iterations: 0, time_to_best: Duration::ZERO, start: Start::Insertion };
+    let mut best = SearchResult { route: tour.cuts.clone(), cost, iterations: 0, time_to_best: Duration::ZERO, start: Start::Insertion, stopped_by: SearchStop::Budget };
     if n < 2 {
         return best;
     }
@@ -141,7 +151,7 @@ pub fn tabu_search(inst: &Instance, start: Vec<Cut>, options: &TabuOptions) -> S
     let mut active: std::collections::VecDeque<usize> = (0..n).collect();
     let mut is_active = vec![true; n];
     let mut moves: Vec<Move> = Vec::new();
-    while (options.max_stall == 0 || stall < options.max_stall) && (!iteration.is_multiple_of(64) || began.elapsed() < options.time_limit) {
+    while (options.max_stall == 0 || stall < options.max_stall) && iteration < options.iterations && (!iteration.is_multiple_of(64) || !cap.reached()) {
         iteration += 1;
         let admissible = |mv: &Move, d: f64, tour: &Tour, cost: f64, best: f64| {
             let aspires = cost + d < best - 1e-9;
@@ -246,32 +256,24 @@ pub fn tabu_search(inst: &Instance, start: Vec<Cut>, options: &TabuOptions) -> S
     // Costs were updated by deltas: settle rounding on the route itself.
     best.cost = inst.cost(&best.route);
     best.iterations = iteration;
+    best.stopped_by = cap.stop();
     best
 }
 
-/// Independent tabu searches from the same start, one per thread (their
-/// random restarts differ), the best route of all: the search's outcome varies
-/// from run to run, and the machine's cores are otherwise idle while planning.
-pub fn parallel_tabu_search(inst: &Instance, start: &[Cut], options: &TabuOptions, threads: usize) -> SearchResult {
-    let threads = threads.max(1);
-    std::thread::scope(|scope| {
-        let runs: Vec<_> = (0..threads as u64)
-            .map(|k| {
-                let options = TabuOptions { seed: options.seed.wrapping_add(k), ..options.clone() };
-                scope.spawn(move || {
-                    // The first search starts from `start`, the others from
-                    // insertions in other orders: where a search ends up
-                    // depends much on where it starts.
-                    let from = if k == 0 { start.to_vec() } else { insertion_in_order(inst, Some(options.seed)) };
-                    tabu_search(inst, from, &options)
-                })
-            })
-            .collect();
-        runs.into_iter()
-            .filter_map(|r| r.join().ok())
-            .min_by(|a, b| a.cost.total_cmp(&b.cost))
-            .unwrap_or_else(|| SearchResult { cost: inst.cost(start), route: start.to_vec(), iterations: 0, time_to_best: Duration::ZERO, start: Start::Insertion })
-    })
+/// `searches` independent tabu searches (their random restarts differ) on
+/// `threads` threads, the best route of all, ties to the first search: the
+/// search's outcome varies with its seed, and the machine's cores are
+/// otherwise idle while planning. `time_limit`: the user's cap.
+pub fn parallel_tabu_search(inst: &Instance, start: &[Cut], options: &TabuOptions, time_limit: Option<Duration>, searches: usize, threads: usize) -> SearchResult {
+    let cap = TimeCap::after(time_limit);
+    let runs = crate::parallel::tasks(searches.max(1), threads, |k| {
+        let options = TabuOptions { seed: options.seed.wrapping_add(k as u64), ..options.clone() };
+        // The first search starts from `start`, the others from insertions in
+        // other orders: where a search ends up depends much on where it starts.
+        let from = if k == 0 { start.to_vec() } else { insertion_in_order(inst, Some(options.seed)) };
+        tabu_search(inst, from, &options, &cap)
+    });
+    super::ils::best_of(runs, &cap)
 }
 
 #[cfg(test)]
@@ -283,8 +285,8 @@ mod tests {
     fn tabu_search_reaches_the_optimum_of_small_instances() {
         for (seed, inst, optimum) in crate::plan::ecp::small_instances_with_optimum() {
             let start = construct(&inst);
-            let options = TabuOptions { max_stall: 3000, ..TabuOptions::new(&inst, Duration::from_secs(5)) };
-            let found = tabu_search(&inst, start, &options);
+            let options = TabuOptions { max_stall: 3000, ..TabuOptions::new(&inst) };
+            let found = tabu_search(&inst, start, &options, &TimeCap::none());
             assert!(check(&inst, &found.route).is_empty(), "seed {seed}");
             assert!((found.cost - optimum).abs() < 1e-6, "seed {seed}: tabu {} vs optimum {optimum}", found.cost);
         }

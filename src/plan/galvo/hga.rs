@@ -14,8 +14,9 @@
 //! probability 0.3 (every geometry of one random field gets a random entry).
 //! The population grows by half (at most 48) after a generation without
 //! progress and shrinks by a fifth (at least 16) after one with; the search
-//! stops after five generations without progress or at the time limit.
-//! Children are enhanced in parallel.
+//! stops after five generations without progress (at most 200 generations),
+//! or at the user's time limit if that comes first. Children are enhanced in
+//! parallel, each from its own seed, so the cores do not change the result.
 
 use super::route::{neighbours, Route, Stop};
 use super::{GalvoSettings, Layout};
@@ -23,7 +24,7 @@ use crate::job::Job;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use std::time::Instant;
+use crate::plan::stop::TimeCap;
 
 /// Order, entry choice per stop and field per stop.
 #[derive(Debug, Clone)]
@@ -44,11 +45,13 @@ const MAX_POPULATION: usize = 48;
 const ELITE_SHARE: f64 = 0.2;
 const MUTATION: f64 = 0.3;
 const STALL_GENERATIONS: usize = 5;
+/// A bound on the work however long the search keeps finding better routes.
+const MAX_GENERATIONS: usize = 200;
 
 struct Search<'a> {
     layout: &'a Layout,
     near: Vec<Vec<u32>>,
-    deadline: Instant,
+    cap: &'a TimeCap,
     /// Kicks of the enhancement per geometry.
     kicks: usize,
 }
@@ -72,26 +75,15 @@ impl Search<'_> {
         let mut grouped = order;
         grouped.sort_by_key(|&s| rank[field[s as usize] as usize]);
         let route = Route::new(stops, grouped, choice, field, fields);
-        let route = route.search(&self.near, self.kicks * stops.len(), Some(self.deadline), seed);
+        let route = route.search(&self.near, self.kicks * stops.len(), self.cap, seed);
         Chromosome { length: route.length(), order: route.order().to_vec(), choice: route.choices().to_vec(), field: route.fields().to_vec() }
     }
 
-    /// Enhances a batch on every core.
+    /// Enhances a batch on every core, in order.
     fn enhance_all(&self, raw: Vec<Raw>, threads: usize) -> Vec<Chromosome> {
-        if threads <= 1 || raw.len() < 2 {
-            return raw.into_iter().map(|(o, c, f, s)| self.enhance(o, c, f, s)).collect();
-        }
-        let chunk = raw.len().div_ceil(threads);
-        let mut raw = raw;
-        let mut parts: Vec<Vec<_>> = Vec::new();
-        while !raw.is_empty() {
-            let rest = raw.split_off(chunk.min(raw.len()));
-            parts.push(raw);
-            raw = rest;
-        }
-        std::thread::scope(|scope| {
-            let handles: Vec<_> = parts.into_iter().map(|part| scope.spawn(move || part.into_iter().map(|(o, c, f, s)| self.enhance(o, c, f, s)).collect::<Vec<_>>())).collect();
-            handles.into_iter().flat_map(|h| h.join().expect("enhancement thread")).collect()
+        crate::parallel::tasks(raw.len(), threads, |k| {
+            let (order, choice, field, seed) = raw[k].clone();
+            self.enhance(order, choice, field, seed)
         })
     }
 }
@@ -126,13 +118,13 @@ fn crossover(a: &Chromosome, b: &Chromosome, i: usize, j: usize) -> (Vec<u32>, V
 }
 
 /// The HGA's route, starting from the HHA's (`hha`).
-pub fn plan_route<'a>(job: &Job, layout: &'a Layout, hha: Route<'a>, settings: &GalvoSettings, deadline: Instant) -> Route<'a> {
+pub fn plan_route<'a>(job: &Job, layout: &'a Layout, hha: Route<'a>, settings: &GalvoSettings, cap: &'a TimeCap) -> Route<'a> {
     let n = job.geometries.len();
     let stops = &layout.stops;
     if n < 4 {
         return hha;
     }
-    let search = Search { layout, near: neighbours(stops, 8), deadline, kicks: 2 };
+    let search = Search { layout, near: neighbours(stops, 8), cap, kicks: 2 };
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
     let threads = settings.threads.max(1);
 
@@ -158,7 +150,10 @@ pub fn plan_route<'a>(job: &Job, layout: &'a Layout, hha: Route<'a>, settings: &
     let mut size = START_POPULATION;
     let mut stalled = 0;
     let mut best = population[0].length;
-    while stalled < STALL_GENERATIONS && Instant::now() < deadline {
+    for _ in 0..MAX_GENERATIONS {
+        if stalled >= STALL_GENERATIONS || cap.reached() {
+            break;
+        }
         let elite = ((ELITE_SHARE * size as f64).round() as usize).clamp(2, population.len());
         population.truncate(elite);
         let pairs = (0.5 * 0.8 * size as f64).round().max(1.0) as usize;

@@ -19,12 +19,15 @@
 use super::route::{neighbours, Route, Stop};
 use super::{GalvoSettings, Layout};
 use crate::job::{Job, Point};
-use std::time::Instant;
+use crate::plan::stop::TimeCap;
 
 /// Kicks on top of those per geometry: small jobs are cheap to search, and
 /// with many small fields the order of the fields needs its own kicks.
 const MIN_KICKS: usize = 400;
 const KICKS_PER_FIELD: usize = 120;
+/// Independent route searches from the constructed route, sharing the
+/// kicks; a fixed number, so that the plan does not depend on the cores.
+const ROUTE_SEARCHES: usize = 2;
 
 /// The route of step 1–4 (before the search): order, entry choice and field
 /// per stop.
@@ -120,28 +123,18 @@ pub fn construct(job: &Job, layout: &Layout, start: Point, settings: &GalvoSetti
     (sequence.into_iter().map(|g| g as u32).collect(), choice, field_of)
 }
 
-/// Steps 1–5: the constructed route improved by the route search.
-pub fn plan_route<'a>(job: &Job, layout: &'a Layout, start: Point, settings: &GalvoSettings, deadline: Instant) -> Route<'a> {
+/// Steps 1–5: the constructed route improved by the route search: its
+/// independent searches (each its own seed) on `settings.threads` threads,
+/// the shortest route wins, ties to the first search.
+pub fn plan_route<'a>(job: &Job, layout: &'a Layout, start: Point, settings: &GalvoSettings, cap: &TimeCap) -> Route<'a> {
     let (order, choice, field) = construct(job, layout, start, settings);
     let route = Route::new(&layout.stops, order, choice, field, layout.fields.len());
     let near = neighbours(&layout.stops, 8);
     let kicks = settings.kicks_per_geometry * layout.stops.len() + MIN_KICKS + KICKS_PER_FIELD * layout.fields.len();
-    if settings.threads <= 1 {
-        return route.search(&near, kicks, Some(deadline), settings.seed);
-    }
-    // Independent searches from the same start, one per thread, sharing the
-    // kicks; the shortest wins.
-    let kicks = kicks.div_ceil(settings.threads);
-    std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..settings.threads as u64)
-            .map(|t| {
-                let route = route.clone();
-                let near = &near;
-                scope.spawn(move || route.search(near, kicks, Some(deadline), settings.seed.wrapping_mul(0x9E37_79B9).wrapping_add(t)))
-            })
-            .collect();
-        handles.into_iter().map(|h| h.join().expect("route search thread")).min_by(|a, b| a.length().total_cmp(&b.length())).unwrap()
-    })
+    let kicks = kicks.div_ceil(ROUTE_SEARCHES);
+    let seed = |k: usize| settings.seed.wrapping_mul(0x9E37_79B9).wrapping_add(k as u64);
+    let routes = crate::parallel::tasks(ROUTE_SEARCHES, settings.threads, |k| route.clone().search(&near, kicks, cap, seed(k)));
+    routes.into_iter().min_by(|a, b| a.length().total_cmp(&b.length())).expect("at least one route search")
 }
 
 /// An order of `points` as an open path from `from`, ending near `towards`

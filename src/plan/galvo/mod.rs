@@ -20,8 +20,9 @@ use super::{check_reach, PathGroup, PlanContext, PlannedPath, Planner, Sequence}
 use crate::error::Result;
 use crate::job::{bounds_of, Job, Point};
 use crate::mode::Mode;
+use crate::plan::stop::{SearchStop, TimeCap};
 use route::{Route, Stop};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Settings of the galvo planners.
 #[derive(Debug, Clone)]
@@ -32,8 +33,7 @@ pub struct GalvoSettings {
     pub direction_weight_single_field: f64,
     /// Kicks of the route search per geometry.
     pub kicks_per_geometry: usize,
-    /// Route search time per geometry (a bound next to the kicks).
-    pub time_per_geometry: Duration,
+    /// Threads the independent searches run on (the plan does not depend on it).
     pub threads: usize,
     pub seed: u64,
 }
@@ -44,8 +44,7 @@ impl Default for GalvoSettings {
             direction_weight: 0.5,
             direction_weight_single_field: 0.1,
             kicks_per_geometry: 6,
-            time_per_geometry: Duration::from_micros(150),
-            threads: std::thread::available_parallelism().map_or(1, |n| n.get()).min(4),
+            threads: 1,
             seed: 1,
         }
     }
@@ -142,7 +141,7 @@ impl Planner for Hha {
     }
 
     fn plan(&self, job: &Job, ctx: &PlanContext) -> Result<Sequence> {
-        plan(job, ctx, false)
+        Ok(plan_galvo(job, ctx, false)?.0)
     }
 }
 
@@ -152,26 +151,26 @@ impl Planner for Hga {
     }
 
     fn plan(&self, job: &Job, ctx: &PlanContext) -> Result<Sequence> {
-        plan(job, ctx, true)
+        Ok(plan_galvo(job, ctx, true)?.0)
     }
 }
 
-/// The HHA's route (its search capped at a time per geometry), and with
-/// `genetic` the HGA on from there within the `[galvo]` time limit.
-fn plan(job: &Job, ctx: &PlanContext, genetic: bool) -> Result<Sequence> {
+/// The HHA's route, and with `genetic` the HGA on from there; each search
+/// stops on its work budget, or at the `[galvo]` time limit (a cap on the
+/// whole planning step, none by default) if that comes first.
+pub fn plan_galvo(job: &Job, ctx: &PlanContext, genetic: bool) -> Result<(Sequence, SearchStop)> {
     check_reach(job, ctx.machine, ctx.mode)?;
-    if job.geometries.is_empty() {
-        return Ok(Sequence { groups: Vec::new() });
-    }
-    let began = Instant::now();
     let g = &ctx.machine.galvo;
-    let settings = GalvoSettings { direction_weight: g.direction_weight, direction_weight_single_field: g.direction_weight_single_field, seed: g.seed, ..GalvoSettings::default() };
-    let layout = Layout::new(job, ctx)?;
-    let hha_deadline = began + settings.time_per_geometry * job.geometries.len() as u32;
-    let mut route = hha::plan_route(job, &layout, ctx.start, &settings, hha_deadline);
-    if genetic {
-        let deadline = began + Duration::from_secs_f64(g.time_limit);
-        route = hga::plan_route(job, &layout, route, &settings, deadline);
+    let cap = TimeCap::after(g.time_limit.map(Duration::from_secs_f64));
+    let threads = crate::parallel::threads()?;
+    if job.geometries.is_empty() {
+        return Ok((Sequence { groups: Vec::new() }, SearchStop::Budget));
     }
-    Ok(layout.sequence(job, &route, ctx))
+    let settings = GalvoSettings { direction_weight: g.direction_weight, direction_weight_single_field: g.direction_weight_single_field, seed: g.seed, threads, ..GalvoSettings::default() };
+    let layout = Layout::new(job, ctx)?;
+    let mut route = hha::plan_route(job, &layout, ctx.start, &settings, &cap);
+    if genetic {
+        route = hga::plan_route(job, &layout, route, &settings, &cap);
+    }
+    Ok((layout.sequence(job, &route, ctx), cap.stop()))
 }

@@ -17,7 +17,7 @@ use rand::{Rng, SeedableRng};
 use rstar::primitives::GeomWithData;
 use rstar::RTree;
 use std::collections::VecDeque;
-use std::time::Instant;
+use crate::plan::stop::TimeCap;
 
 /// One geometry as the route sees it.
 #[derive(Debug, Clone)]
@@ -650,11 +650,11 @@ impl<'a> Route<'a> {
         }
     }
 
-    /// Iterated local search: `kicks` times (or until `deadline`), two
+    /// Iterated local search: `kicks` times (or until the `cap`), two
     /// adjacent runs inside one field swap places, the local search repairs
     /// around them, and the route is kept if it is no longer. Returns the
     /// best route found.
-    pub fn search(mut self, near: &[Vec<u32>], kicks: usize, deadline: Option<Instant>, seed: u64) -> Route<'a> {
+    pub fn search(mut self, near: &[Vec<u32>], kicks: usize, cap: &TimeCap, seed: u64) -> Route<'a> {
         let n = self.order.len();
         self.improve(near);
         if n < 8 {
@@ -668,7 +668,7 @@ impl<'a> Route<'a> {
         let mut queue = VecDeque::new();
         let mut queued = vec![false; n];
         for k in 0..kicks {
-            if k % 16 == 0 && deadline.is_some_and(|d| Instant::now() >= d) {
+            if k % 16 == 0 && cap.reached() {
                 break;
             }
             self.dirty = None;
@@ -850,7 +850,7 @@ mod tests {
             r.improve(&near);
             r
         };
-        let searched = route.clone().search(&near, 2000, None, 1);
+        let searched = route.clone().search(&near, 2000, &TimeCap::none(), 1);
         assert!(improved.length() < 0.5 * before, "{} vs {}", improved.length(), before);
         assert!(searched.length() <= improved.length() + 1e-9);
         assert!(searched.contiguous() && improved.contiguous());
@@ -861,8 +861,8 @@ mod tests {
     fn the_same_seed_gives_the_same_route() {
         let stops = random_stops(150, 9);
         let near = neighbours(&stops, 8);
-        let one = start(&stops).search(&near, 800, None, 42);
-        let two = start(&stops).search(&near, 800, None, 42);
+        let one = start(&stops).search(&near, 800, &TimeCap::none(), 42);
+        let two = start(&stops).search(&near, 800, &TimeCap::none(), 42);
         assert_eq!((one.order(), one.choices(), one.fields()), (two.order(), two.choices(), two.fields()));
         assert!(one.contiguous());
     }
