@@ -35,6 +35,8 @@ impl Controller {
             Flavor::Grbl => 5,
             Flavor::Grblhal => 9,
         };
+        // A block of absurd length (a fuzzed G93 feed) needs more segments
+        // than a usize counts: the cast saturates, and so do the sums.
         let segments = |secs: f64| (secs / planner::SEGMENT_S - 1e-9).ceil().max(1.0) as usize;
         let mut used = segments(e.end_t - self.now);
         let mut prepared = 0;
@@ -43,7 +45,7 @@ impl Controller {
             // Each block at its own constant speed.
             for (i, b) in blocks.enumerate() {
                 if i > 0 {
-                    used += segments(self.block_time(b));
+                    used = used.saturating_add(segments(self.block_time(b)));
                 }
                 if used > slots {
                     break;
@@ -70,7 +72,7 @@ impl Controller {
             };
             while used <= slots {
                 let Some(seg) = planner::next_segment(SegmentInput { speed, remaining, ..input }) else { break };
-                used += segments(seg.duration);
+                used = used.saturating_add(segments(seg.duration));
                 speed = seg.end_speed;
                 remaining -= seg.distance;
             }
