@@ -238,6 +238,7 @@ pub fn sim_config(machine: &MachineConfig, faults: Faults) -> SimConfig {
         motion: machine.simulator.motion,
         flavor: machine.simulator.flavor,
         settings: machine.simulator.settings.clone(),
+        junction_deviation: machine.simulator.junction_deviation,
         faults,
     }
 }
