@@ -66,3 +66,43 @@ pub fn plain_program(job: &Job, sequence: &Sequence, machine: &MachineConfig) ->
     }
     Ok(Program { lines, axis_letters: vec!['X', 'Y'], start: vec![0.0, 0.0], sources: job.geometries.iter().map(|g| g.source.clone()).collect() })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::job::{Geometry, Process};
+    use crate::plan::{PathGroup, PlannedPath};
+
+    /// Two cuts: the approach, the pierce as laserd writes it, the vertices
+    /// at the layer's feed in mm/min, a `G0` between them.
+    #[test]
+    fn paths_become_g0_the_pierce_and_g1_at_the_layer_feed() {
+        let mut machine = MachineConfig::load(None).unwrap();
+        machine.laser.pierce_time = 0.2;
+        machine.laser.pierce_power = Some(900.0);
+        let square = |x: f64| vec![Point::new(x, 10.0), Point::new(x + 5.0, 10.0), Point::new(x + 5.0, 15.0), Point::new(x, 10.0)];
+        let job = Job {
+            source: "t".into(),
+            geometries: (0..2).map(|k| Geometry { points: square(10.0 * k as f64 + 10.0), closed: false, process: 0, source: format!("g{k}") }).collect(),
+            processes: vec![Process { layer: "mark".into(), speed: 50.0, power: 300.0, passes: 1 }],
+        };
+        let paths = (0..2).map(|k| PlannedPath { geometry: k, points: job.geometries[k].points.clone(), process: 0 }).collect();
+        let sequence = Sequence { groups: vec![PathGroup { field_center: None, paths }] };
+        let program = plain_program(&job, &sequence, &machine).unwrap();
+        let text: Vec<(&str, LineKind)> = program.lines.iter().map(|l| (l.text.as_str(), l.kind)).collect();
+        let mark = |x: f64| {
+            let pierce = [("G1M3S900F60", LineKind::Pierce), ("G4P0.2", LineKind::Pierce), ("M4", LineKind::Pierce)];
+            let first = format!("G1X{}Y10S300F3000", x + 5.0);
+            (pierce, first)
+        };
+        let (pierce, first) = mark(10.0);
+        let mut expected: Vec<(String, LineKind)> = vec![("G21G90G94".into(), LineKind::Setup), ("M4S0".into(), LineKind::Setup), ("G0X10Y10".into(), LineKind::Approach)];
+        expected.extend(pierce.iter().map(|(t, k)| (t.to_string(), *k)));
+        expected.extend([(first, LineKind::Mark), ("X15Y15".into(), LineKind::Mark), ("X10Y10".into(), LineKind::Mark), ("G0X20Y10".into(), LineKind::Jump)]);
+        let (pierce, first) = mark(20.0);
+        expected.extend(pierce.iter().map(|(t, k)| (t.to_string(), *k)));
+        expected.extend([(first, LineKind::Mark), ("X25Y15".into(), LineKind::Mark), ("X20Y10".into(), LineKind::Mark), ("M5S0".into(), LineKind::End), ("M2".into(), LineKind::End)]);
+        let expected: Vec<(&str, LineKind)> = expected.iter().map(|(t, k)| (t.as_str(), *k)).collect();
+        assert_eq!(text, expected);
+    }
+}
