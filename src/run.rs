@@ -286,14 +286,7 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
     }
 
     let streamed = stream_into_simulator(&planned.program, sim, machine.serial.baud, &planned_options(machine, &planned.program), Some(&recorder));
-    let (outcome, log) = match streamed {
-        Ok(r) => r,
-        Err(e) => {
-            drop(recorder);
-            rec.finish()?;
-            return Err(e);
-        }
-    };
+    let (outcome, log, recorder, rec) = closed_on_error(streamed, recorder, rec)?;
     let log = RunLog { setup: Some(setup), planned: planned_lines, ..log };
     let mut report = summary;
     report.sim = Some(sim_figures(&log));
@@ -301,6 +294,19 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
     drop(recorder);
     rec.finish()?;
     Ok(DryRun { report, outcome, log })
+}
+
+/// The outcome of a recorded stream with its recorder and recording; on an
+/// error, the recording closed first (readable up to there) and the error.
+pub(crate) fn closed_on_error(streamed: Result<(StreamOutcome, RunLog)>, recorder: Recorder, rec: Recording) -> Result<(StreamOutcome, RunLog, Recorder, Recording)> {
+    match streamed {
+        Ok((outcome, log)) => Ok((outcome, log, recorder, rec)),
+        Err(e) => {
+            drop(recorder);
+            rec.finish()?;
+            Err(e)
+        }
+    }
 }
 
 /// How the sender streams a program of `machine` that laserd planned: it

@@ -103,13 +103,7 @@ pub fn dry_run(args: DryRunArgs) -> Result<ExitCode> {
     planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations")?;
     let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
     let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
-    let breaches = dry.report.sim.as_ref().map(|s| s.limit_breaches.len()).unwrap_or(0);
-    if json {
-        print_json(&dry.report)?;
-    } else {
-        print!("{}", dry.report.summary());
-    }
-    dry_run_exit(json, breaches, &machine, &dry.outcome)
+    dry_run_end(json, &dry.report, dry.report.summary(), dry.report.sim.as_ref(), &machine, &dry.outcome)
 }
 
 /// `dry-run FILE.nc --keep-order`: the G-code file streamed as it is.
@@ -128,18 +122,25 @@ fn dry_run_as_it_is(args: DryRunArgs) -> Result<ExitCode> {
     let recording = record.unwrap_or_else(|| run::default_recording(path));
     let mut dry = gcode::dry_run_gcode(path, &machine, &recording)?;
     dry.report.config = Some(source);
-    let breaches = dry.report.sim.as_ref().map(|s| s.limit_breaches.len()).unwrap_or(0);
-    if json {
-        print_json(&dry.report)?;
-    } else {
-        print!("{}", dry.report.summary());
-    }
-    dry_run_exit(json, breaches, &machine, &dry.outcome)
+    dry_run_end(json, &dry.report, dry.report.summary(), dry.report.sim.as_ref(), &machine, &dry.outcome)
 }
 
-/// A dry-run's exit: stopped (2), a limit broken (4), else success; each
-/// said on stderr, the report printed before.
-fn dry_run_exit(json: bool, breaches: usize, machine: &MachineConfig, outcome: &laserd::stream::StreamOutcome) -> Result<ExitCode> {
+/// A dry-run's report (JSON, or `summary` for a person), then its exit:
+/// stopped (2), a limit broken (4), else success, each said on stderr.
+fn dry_run_end(
+    json: bool,
+    report: &impl serde::Serialize,
+    summary: String,
+    sim: Option<&laserd::figures::SimFigures>,
+    machine: &MachineConfig,
+    outcome: &laserd::stream::StreamOutcome,
+) -> Result<ExitCode> {
+    if json {
+        print_json(report)?;
+    } else {
+        print!("{summary}");
+    }
+    let breaches = sim.map_or(0, |s| s.limit_breaches.len());
     if !json && breaches > 0 && machine.simulator.motion == MotionModel::Grbl {
         println!("  (a stock Grbl 1.1 cannot keep a jerk limit: it plans trapezoids, and at a corner its junction deviation $11 changes each axis' velocity at once, beyond its acceleration too)");
     }

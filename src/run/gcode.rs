@@ -165,14 +165,7 @@ pub fn dry_run_gcode(path: &Path, machine: &MachineConfig, recording: &Path) -> 
     };
     recorder.write(TOPIC_JOB, 0.0, &report);
     let streamed = simulate(&program, vec![], machine, Some(&recorder));
-    let (outcome, log) = match streamed {
-        Ok(r) => r,
-        Err(e) => {
-            drop(recorder);
-            rec.finish()?;
-            return Err(e);
-        }
-    };
+    let (outcome, log, recorder, rec) = super::closed_on_error(streamed, recorder, rec)?;
     report.sim = Some(sim_figures(&log));
     recorder.write(TOPIC_REPORT, log.knots.last().map(|k| k.t).unwrap_or(0.0), &report);
     drop(recorder);
