@@ -88,7 +88,12 @@ fn a_bad_gcode_line_is_an_error_naming_the_line_and_gcode_needs_keep_order() {
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("ok.ngc: re-planning G-code is not available yet") && err.contains("--keep-order"), "{err}");
-    // --keep-order is for G-code only.
+    // Planning flags mean nothing for a file streamed as it is: refused by name.
+    let out = laserd(&["dry-run", "ok.ngc", "--keep-order", "--mode", "stage-only", "--config", cutter().to_str().unwrap()], dir.path());
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--mode: ok.ngc is streamed as it is (--keep-order), not planned"), "{err}");
+        // --keep-order is for G-code only.
     std::fs::write(dir.path().join("a.svg"), "<svg xmlns=\"http://www.w3.org/2000/svg\"/>").unwrap();
     let err = String::from_utf8_lossy(&laserd(&["dry-run", "a.svg", "--keep-order"], dir.path()).stderr).to_string();
     assert!(err.contains("a.svg: --keep-order streams a G-code file as it is"), "{err}");

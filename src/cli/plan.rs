@@ -117,6 +117,17 @@ fn dry_run_as_it_is(args: DryRunArgs) -> Result<ExitCode> {
             gcode::GCODE_EXTENSIONS.join(", .")
         )));
     }
+    // The planning flags mean nothing for a file that is not planned: refused, not ignored.
+    let planning = [
+        (job.planner != PlannerKind::Auto, "--planner"),
+        (job.mode.is_some(), "--mode"),
+        (job.time_limit.is_some(), "--time-limit"),
+        (job.seed.is_some(), "--seed"),
+        (job.allow_precedence_violations, "--allow-precedence-violations"),
+    ];
+    if let Some((_, flag)) = planning.iter().find(|(given, _)| *given) {
+        return Err(Error::Config(format!("{flag}: {} is streamed as it is (--keep-order), not planned", path.display())));
+    }
     let FoundConfig { mut machine, source, .. } = ConfigSearch::new(job.config.as_deref()).find()?;
     machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
     let recording = record.unwrap_or_else(|| run::default_recording(path));
