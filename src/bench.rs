@@ -3,6 +3,8 @@
 //! streams into the simulator in virtual time, once with character counting
 //! and once with send-response streaming as the baseline, in the same run.
 
+pub mod vs_grbl;
+
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 

@@ -667,11 +667,27 @@ pub struct SimulatorConfig {
     /// `[[10, 3]]` (`$10=3`: status reports with `Bf:`); by default Grbl's own.
     #[serde(default)]
     pub settings: Vec<(u32, f64)>,
+    /// The simulated controller's junction deviation (`$11`, mm) at
+    /// power-up: how fast the `grbl` motion model takes a corner (default
+    /// Grbl's own, 0.010; `bench motion --vs-grbl` sets it to
+    /// `[motion] corner_tolerance`). A `[11, ...]` in `settings` overrides it.
+    #[serde(default = "default_junction_deviation")]
+    pub junction_deviation: f64,
+}
+
+fn default_junction_deviation() -> f64 {
+    laserd_sim::controller::JUNCTION_DEVIATION
 }
 
 impl Default for SimulatorConfig {
     fn default() -> Self {
-        SimulatorConfig { planner_blocks: 15, motion: Default::default(), flavor: Default::default(), settings: Vec::new() }
+        SimulatorConfig {
+            planner_blocks: 15,
+            motion: Default::default(),
+            flavor: Default::default(),
+            settings: Vec::new(),
+            junction_deviation: default_junction_deviation(),
+        }
     }
 }
 
@@ -858,6 +874,7 @@ impl MachineConfig {
         in_range("program.decimals", p.decimals, 2, 9, "")?;
         in_range("program.scanner_decimals", p.scanner_decimals, 2, 7, "")?;
         in_range("simulator.planner_blocks", self.simulator.planner_blocks, 1, 10_000, "blocks")?;
+        in_range("simulator.junction_deviation", self.simulator.junction_deviation, 0.0, TOLERANCE.hi, TOLERANCE.unit)?;
         let c = &self.cutting;
         in_range("cutting.pierce_cost", c.pierce_cost, 0.0, TRAVEL.hi, TRAVEL.unit)?;
         TOLERANCE.check("cutting.common_cut_tolerance", c.common_cut_tolerance)?;
@@ -1230,6 +1247,8 @@ mod tests {
             ("program.scanner_decimals", I(1)),
             ("simulator.planner_blocks", I(0)),
             ("simulator.planner_blocks", I(1 << 40)),
+            ("simulator.junction_deviation", F(-0.01)),
+            ("simulator.junction_deviation", F(1e300)),
             ("cutting.pierce_cost", F(1e300)),
             ("cutting.pierce_cost", F(-1.0)),
             ("cutting.common_cut_tolerance", F(1e-300)),

@@ -77,7 +77,9 @@ pub struct SimFigures {
     /// first line sent to the last answer (`stream::link_utilization`).
     pub link_utilization: f64,
     pub planner_starved_s: f64,
-    pub max_tcp_deviation_mm: f64,
+    /// `null` when the program has no planned TCP to compare with (a G-code
+    /// file run as it is).
+    pub max_tcp_deviation_mm: Option<f64>,
     pub peak_field_use: Option<f64>,
     pub peak_stage_use: f64,
     /// Marking blocks executed with the laser off, and non-marking blocks executed
@@ -241,6 +243,8 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
         })
         .fold(0.0, f64::max);
 
+    // Measured only against a plan's check points.
+    let max_tcp_deviation_mm = log.planned.iter().any(|p| !p.checks.is_empty()).then_some(max_dev);
     let mut limit_breaches = breaches(&setup, &limits);
     if let Some(allowed) = setup.tcp_tolerance_mm.filter(|allowed| max_dev > *allowed) {
         limit_breaches.push(format!("TCP deviation while marking {max_dev:.4} mm, allowed {allowed:.4} mm (program.tolerance)"));
@@ -261,7 +265,7 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
         bytes_sent,
         link_utilization,
         planner_starved_s,
-        max_tcp_deviation_mm: max_dev,
+        max_tcp_deviation_mm,
         peak_field_use,
         peak_stage_use,
         laser_state_errors,

@@ -97,28 +97,75 @@ impl PlanReport {
             s.push_str(&format!("  {:.2} times the time at full speed, so that the link keeps the controller fed\n", self.link_slowdown));
         }
         if let Some(sim) = &self.sim {
-            s.push_str(&format!(
-                "  simulated: job time {:.3} s, {} lines / {} bytes sent, link {:.0} % used, planner starved {:.3} s\n",
-                sim.job_time_s,
-                sim.lines_sent,
-                sim.bytes_sent,
-                sim.link_utilization * 100.0,
-                sim.planner_starved_s
-            ));
-            let field = sim.peak_field_use.map(|f| format!(", field use {:.2}", f)).unwrap_or_default();
-            s.push_str(&format!(
-                "  max TCP deviation {:.4} mm, stage use {:.2}{}, limit violations {}, alarms {:?}\n",
-                sim.max_tcp_deviation_mm, sim.peak_stage_use, field, sim.limit_violations, sim.alarms
-            ));
-            if let Some(v) = &sim.first_violation {
-                s.push_str(&format!("  first limit violation: {v}\n"));
-            }
-            if !sim.limit_breaches.is_empty() {
-                s.push_str(&format!("  LIMITS BROKEN ({}):\n", sim.limit_breaches.len()));
-                for b in &sim.limit_breaches {
-                    s.push_str(&format!("    {b}\n"));
-                }
-            }
+            s.push_str(&sim_summary(sim));
+        }
+        if let Some(r) = &self.recording {
+            s.push_str(&format!("  recording: {r}\n"));
+        }
+        if let Some(c) = &self.config {
+            s.push_str(&format!("  machine config: {c}\n"));
+        }
+        s
+    }
+}
+
+/// The lines of a summary on the simulated run: its times and link, and how
+/// it kept the machine's limits.
+fn sim_summary(sim: &SimFigures) -> String {
+    let mut s = format!(
+        "  simulated: job time {:.3} s, {} lines / {} bytes sent, link {:.0} % used, planner starved {:.3} s\n",
+        sim.job_time_s,
+        sim.lines_sent,
+        sim.bytes_sent,
+        sim.link_utilization * 100.0,
+        sim.planner_starved_s
+    );
+    let field = sim.peak_field_use.map(|f| format!(", field use {:.2}", f)).unwrap_or_default();
+    let deviation = sim.max_tcp_deviation_mm.map_or("max TCP deviation not measured (no plan)".to_string(), |d| format!("max TCP deviation {d:.4} mm"));
+    s.push_str(&format!("  {deviation}, stage use {:.2}{}, limit violations {}, alarms {:?}\n", sim.peak_stage_use, field, sim.limit_violations, sim.alarms));
+    if let Some(v) = &sim.first_violation {
+        s.push_str(&format!("  first limit violation: {v}\n"));
+    }
+    if !sim.limit_breaches.is_empty() {
+        s.push_str(&format!("  LIMITS BROKEN ({}):\n", sim.limit_breaches.len()));
+        for b in &sim.limit_breaches {
+            s.push_str(&format!("    {b}\n"));
+        }
+    }
+    s
+}
+
+/// `dry-run FILE.nc --keep-order --json`: a G-code file streamed as it is,
+/// with no plan behind it: `trajectory_time_s` and `lower_bound_s` are
+/// `null`, and so is `sim.max_tcp_deviation_mm` (no planned TCP).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct GcodeReport {
+    pub job: String,
+    /// `keep-order`: the file's own order and moves, not planned.
+    pub planner: String,
+    /// How the simulated controller ran the blocks (`--motion`).
+    pub motion: laserd_sim::controller::MotionModel,
+    /// The simulated controller's `$11` at power-up (the `grbl` model's corners).
+    pub junction_deviation_mm: f64,
+    pub program_lines: usize,
+    pub program_bytes: usize,
+    pub trajectory_time_s: Option<f64>,
+    pub lower_bound_s: Option<f64>,
+    pub sim: Option<SimFigures>,
+    pub recording: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub config: Option<ConfigSource>,
+}
+
+impl GcodeReport {
+    /// A few lines for a person at a terminal.
+    pub fn summary(&self) -> String {
+        let mut s = format!(
+            "{}: G-code streamed as it is ({} lines / {} bytes), motion {:?}, junction deviation {} mm\n",
+            self.job, self.program_lines, self.program_bytes, self.motion, self.junction_deviation_mm
+        );
+        if let Some(sim) = &self.sim {
+            s.push_str(&sim_summary(sim));
         }
         if let Some(r) = &self.recording {
             s.push_str(&format!("  recording: {r}\n"));

@@ -2,6 +2,8 @@
 //! `dry_run` (plan, then stream into the in-process simulator in virtual time,
 //! recording everything, and measure the run).
 
+pub mod gcode;
+
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 use std::time::Instant as WallInstant;
@@ -238,6 +240,7 @@ pub fn sim_config(machine: &MachineConfig, faults: Faults) -> SimConfig {
         motion: machine.simulator.motion,
         flavor: machine.simulator.flavor,
         settings: machine.simulator.settings.clone(),
+        junction_deviation: machine.simulator.junction_deviation,
         faults,
     }
 }
@@ -282,18 +285,8 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
         recorder.write(TOPIC_PLAN_LINES, 0.0, p);
     }
 
-    let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
-    options.hold_limit = options.hold_limit_for(machine.stop_time_s());
-    options.expect_start = Some(planned.program.start.clone());
-    let streamed = stream_into_simulator(&planned.program, sim, machine.serial.baud, &options, Some(&recorder));
-    let (outcome, log) = match streamed {
-        Ok(r) => r,
-        Err(e) => {
-            drop(recorder);
-            rec.finish()?;
-            return Err(e);
-        }
-    };
+    let streamed = stream_into_simulator(&planned.program, sim, machine.serial.baud, &planned_options(machine, &planned.program), Some(&recorder));
+    let (outcome, log, recorder, rec) = closed_on_error(streamed, recorder, rec)?;
     let log = RunLog { setup: Some(setup), planned: planned_lines, ..log };
     let mut report = summary;
     report.sim = Some(sim_figures(&log));
@@ -301,6 +294,37 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
     drop(recorder);
     rec.finish()?;
     Ok(DryRun { report, outcome, log })
+}
+
+/// The outcome of a recorded stream with its recorder and recording; on an
+/// error, the recording closed first (readable up to there) and the error.
+pub(crate) fn closed_on_error(streamed: Result<(StreamOutcome, RunLog)>, recorder: Recorder, rec: Recording) -> Result<(StreamOutcome, RunLog, Recorder, Recording)> {
+    match streamed {
+        Ok((outcome, log)) => Ok((outcome, log, recorder, rec)),
+        Err(e) => {
+            drop(recorder);
+            rec.finish()?;
+            Err(e)
+        }
+    }
+}
+
+/// How the sender streams a program of `machine` that laserd planned: it
+/// checks first that the machine stands where the program starts.
+fn planned_options(machine: &MachineConfig, program: &Program) -> SenderOptions {
+    let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    options.hold_limit = options.hold_limit_for(machine.stop_time_s());
+    options.expect_start = Some(program.start.clone());
+    options
+}
+
+/// The `sim` figures of a dry-run of `planned`, without a recording.
+pub fn measure(planned: &Planned, machine: &MachineConfig) -> Result<(SimFigures, StreamOutcome)> {
+    let sim = sim_config(machine, Faults::default());
+    let setup = run_setup(machine, &sim);
+    let (outcome, log) = stream_into_simulator(&planned.program, sim, machine.serial.baud, &planned_options(machine, &planned.program), None)?;
+    let log = RunLog { setup: Some(setup), planned: PlannedLine::from_program(&planned.program), ..log };
+    Ok((sim_figures(&log), outcome))
 }
 
 /// Streams `program` into a fresh simulated controller in virtual time at
@@ -376,10 +400,7 @@ pub fn restream(log: &RunLog, machine: &MachineConfig) -> Result<(SimFigures, Ru
     let program = Program { lines, axis_letters: setup.axes.iter().map(|a| a.letter).collect(), start: vec![0.0; setup.axes.len()], sources: vec![] };
     let mut sim = sim_config(machine, Faults::default());
     sim.axes = setup.axes.clone();
-    let mut options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
-    options.hold_limit = options.hold_limit_for(machine.stop_time_s());
-    options.expect_start = Some(program.start.clone());
-    let (_, again) = stream_into_simulator(&program, sim, setup.baud, &options, None)?;
+    let (_, again) = stream_into_simulator(&program, sim, setup.baud, &planned_options(machine, &program), None)?;
     let again = RunLog { setup: Some(setup), planned: log.planned.clone(), ..again };
     Ok((sim_figures(&again), again))
 }

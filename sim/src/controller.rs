@@ -44,7 +44,7 @@ mod reset;
 mod settings;
 mod system;
 
-pub use config::{AxisConfig, Faults, Flavor, MotionModel, SimConfig, GRBL_AXES, STEPS_PER_MM};
+pub use config::{AxisConfig, Faults, Flavor, MotionModel, SimConfig, GRBL_AXES, JUNCTION_DEVIATION, STEPS_PER_MM};
 use config::sanitize;
 use motion::{dist, interpolate};
 use system::Protocol;

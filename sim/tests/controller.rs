@@ -360,7 +360,7 @@ fn laser_only_fires_on_feed_moves() {
 fn garbage_never_panics() {
     let mut axes = vec![AxisConfig::new('X')];
     axes[0].max_velocity = -1.0;
-    let mut s = Sim::new(SimConfig { axes, rx_buffer: 0, planner_blocks: 0, laser_max_s: f64::NAN, motion: Default::default(), flavor: Default::default(), faults: Faults::default(), settings: vec![(10, 3.0), (0, 1.0), (110, f64::NAN), (999, 1.0)] });
+    let mut s = Sim::new(SimConfig { axes, rx_buffer: 0, planner_blocks: 0, laser_max_s: f64::NAN, motion: Default::default(), flavor: Default::default(), faults: Faults::default(), settings: vec![(10, 3.0), (0, 1.0), (110, f64::NAN), (999, 1.0)], junction_deviation: f64::NAN });
     let junk: Vec<u8> = (0..5000u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect();
     for chunk in junk.chunks(97) {
         s.link.push(s.t, chunk);

@@ -101,6 +101,33 @@ fn corners_slow_to_the_junction_speed_of_the_deviation() {
     assert!(fast > slow + 20.0);
 }
 
+/// The junction deviation of the config is `$11` at power-up (what `$$`
+/// lists and `$RST=$` returns to) and sets the corner speed as a written
+/// `$11` does.
+#[test]
+fn the_configured_junction_deviation_is_11_at_power_up() {
+    let corner_time = |cfg: SimConfig, prefix: &str| {
+        let mut s = Sim::new(cfg);
+        s.send(&format!("{prefix}G1X50F6000\nY50\n"));
+        s.run_until(5.0);
+        assert!((s.knots.last().unwrap().pos[1] - 50.0).abs() < 1e-9);
+        s.knots.last().unwrap().t - s.knots[0].t
+    };
+    let configured = SimConfig { junction_deviation: 0.5, ..grbl(15) };
+    let mut s = Sim::new(configured.clone());
+    s.send("$$\n");
+    s.run_until(0.1);
+    assert!(s.texts().contains(&"$11=0.500"), "{:?}", s.texts());
+    s.send("$11=0.01\n$RST=$\n$$\n");
+    s.run_until(0.3);
+    assert_eq!(s.texts().iter().filter(|t| **t == "$11=0.500").count(), 2, "{:?}", s.texts());
+    let by_config = corner_time(configured, "");
+    let by_setting = corner_time(grbl(15), "$11=0.5\n");
+    let by_default = corner_time(grbl(15), "");
+    assert!((by_config - by_setting).abs() < 1e-3, "{by_config} vs {by_setting}");
+    assert!(by_default > by_config + 0.01, "Grbl's default 0.010 takes the corner slower: {by_default} vs {by_config}");
+}
+
 #[test]
 fn the_look_ahead_depth_caps_the_speed_of_short_blocks() {
     // 0.1 mm blocks at up to 100 mm/s, sent faster than they run: the machine

@@ -102,6 +102,12 @@ pub enum BenchCommand {
         /// Runs per job; the median counts.
         #[arg(long, default_value_t = 3)]
         repeats: usize,
+        /// Instead: each job's simulated time as laserd plans it (timed
+        /// controller) against the same path as plain G1 F moves on Grbl's
+        /// planner (--motion grbl, $11 = [motion] corner_tolerance), and
+        /// their ratio.
+        #[arg(long)]
+        vs_grbl: bool,
         #[arg(long)]
         json: bool,
     },
@@ -148,7 +154,8 @@ pub fn run(command: BenchCommand) -> Result<ExitCode> {
         BenchCommand::Ecp { tsp, tour, seed, time_limit, search, json } => ecp_bench(tsp, tour, seed, time_limit, search, json),
         BenchCommand::Sheet { config, elements, seed, time_limit, svg, json } => sheet_bench(config, elements, seed, time_limit, svg, json),
         BenchCommand::Serve { job, config, clients, hz, json } => serve_bench(job, config, clients, hz, json),
-        BenchCommand::Motion { jobs, config, mode, repeats, json } => motion_bench(jobs, config, mode, repeats, json),
+        BenchCommand::Motion { jobs, config, mode, vs_grbl: true, json, .. } => vs_grbl_bench(jobs, config, mode, json),
+        BenchCommand::Motion { jobs, config, mode, repeats, json, .. } => motion_bench(jobs, config, mode, repeats, json),
         BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } => galvo_bench(config, dir, planner, seeds, time_limit, json),
         BenchCommand::Link { config, blocks, block_ms, motion, baud, json } => link_bench(config, blocks, block_ms, motion, baud, json),
     }
@@ -236,6 +243,23 @@ fn motion_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, mode: Option<Mode>,
             );
         }
         println!("  worst {:.3} %, all jobs {:.3} % of their machine time", r.worst_share * 100.0, r.total_share * 100.0);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn vs_grbl_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, mode: Option<Mode>, json: bool) -> Result<ExitCode> {
+    let machine = machine_config(config.as_deref(), json)?.machine;
+    let r = laserd::bench::vs_grbl::vs_grbl(&machine, &jobs, mode)?;
+    if json {
+        print_json(&r)?;
+    } else {
+        println!("laserd (timed controller) against the same path as plain G1 F moves on Grbl's planner ($11 = {} mm), {} mode", r.junction_deviation_mm, r.mode);
+        for c in &r.jobs {
+            println!(
+                "  {:<40} laserd {:>9.3} s  grbl {:>9.3} s  ratio {:.3}  bound {:>9.3} s (laserd {:.2} x)",
+                c.job, c.laserd_job_time_s, c.grbl_job_time_s, c.ratio, c.lower_bound_s, c.laserd_vs_bound
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

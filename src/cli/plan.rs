@@ -8,7 +8,7 @@ use laserd::config::{ConfigSearch, FoundConfig, MachineConfig};
 use laserd::error::{Error, Result};
 use laserd::mode::Mode;
 use laserd::plan::PlannerKind;
-use laserd::run;
+use laserd::run::{self, gcode};
 use laserd_sim::controller::{Faults, MotionModel};
 
 use super::common::{check_time_limit, exit, print_json, write_file};
@@ -48,6 +48,13 @@ pub struct JobArgs {
 impl JobArgs {
     fn plan(&self) -> Result<(MachineConfig, run::Planned)> {
         check_time_limit(self.time_limit).map_err(Error::Config)?;
+        if gcode::is_gcode(&self.job) {
+            return Err(Error::Import(format!(
+                "{}: re-planning G-code is not available yet: `laserd dry-run {} --keep-order` streams it as it is",
+                self.job.display(),
+                self.job.display()
+            )));
+        }
         // The report says where the config came from (no line on stderr: an
         // error later stays the one line of the error contract).
         let FoundConfig { mut machine, source, .. } = ConfigSearch::new(self.config.as_deref()).find()?;
@@ -75,27 +82,80 @@ pub struct DryRunArgs {
     /// [simulator] motion): timed, or grbl (Grbl 1.1's planner).
     #[arg(long)]
     motion: Option<MotionModel>,
+    /// A G-code file (.nc, .gcode, .ngc, .gc, .g, .tap): stream it as it
+    /// is, its own order and moves, with no planning (each line checked
+    /// first as the controller parses it). There is no plan to compare
+    /// with: trajectory_time_s, lower_bound_s and sim.max_tcp_deviation_mm
+    /// are null.
+    #[arg(long)]
+    keep_order: bool,
     #[arg(long)]
     json: bool,
 }
 
 pub fn dry_run(args: DryRunArgs) -> Result<ExitCode> {
-    let DryRunArgs { job, record, motion, json } = args;
+    if args.keep_order {
+        return dry_run_as_it_is(args);
+    }
+    let DryRunArgs { job, record, motion, json, .. } = args;
     let (mut machine, planned) = job.plan()?;
     machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
     planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations")?;
     let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
     let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
-    let breaches = dry.report.sim.as_ref().map(|s| s.limit_breaches.len()).unwrap_or(0);
-    if json {
-        print_json(&dry.report)?;
-    } else {
-        print!("{}", dry.report.summary());
-        if breaches > 0 && machine.simulator.motion == MotionModel::Grbl {
-            println!("  (a stock Grbl 1.1 cannot keep a jerk limit: it plans trapezoids, and at a corner its junction deviation $11 changes each axis' velocity at once, beyond its acceleration too)");
-        }
+    dry_run_end(json, &dry.report, dry.report.summary(), dry.report.sim.as_ref(), &machine, &dry.outcome)
+}
+
+/// `dry-run FILE.nc --keep-order`: the G-code file streamed as it is.
+fn dry_run_as_it_is(args: DryRunArgs) -> Result<ExitCode> {
+    let DryRunArgs { job, record, motion, json, .. } = args;
+    let path = &job.job;
+    if !gcode::is_gcode(path) {
+        return Err(Error::Import(format!(
+            "{}: --keep-order streams a G-code file as it is (.{}); plan an SVG job without it",
+            path.display(),
+            gcode::GCODE_EXTENSIONS.join(", .")
+        )));
     }
-    if let Some(reason) = &dry.outcome.stop_reason {
+    // The planning flags mean nothing for a file that is not planned: refused, not ignored.
+    let planning = [
+        (job.planner != PlannerKind::Auto, "--planner"),
+        (job.mode.is_some(), "--mode"),
+        (job.time_limit.is_some(), "--time-limit"),
+        (job.seed.is_some(), "--seed"),
+        (job.allow_precedence_violations, "--allow-precedence-violations"),
+    ];
+    if let Some((_, flag)) = planning.iter().find(|(given, _)| *given) {
+        return Err(Error::Config(format!("{flag}: {} is streamed as it is (--keep-order), not planned", path.display())));
+    }
+    let FoundConfig { mut machine, source, .. } = ConfigSearch::new(job.config.as_deref()).find()?;
+    machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
+    let recording = record.unwrap_or_else(|| run::default_recording(path));
+    let mut dry = gcode::dry_run_gcode(path, &machine, &recording)?;
+    dry.report.config = Some(source);
+    dry_run_end(json, &dry.report, dry.report.summary(), dry.report.sim.as_ref(), &machine, &dry.outcome)
+}
+
+/// A dry-run's report (JSON, or `summary` for a person), then its exit:
+/// stopped (2), a limit broken (4), else success, each said on stderr.
+fn dry_run_end(
+    json: bool,
+    report: &impl serde::Serialize,
+    summary: String,
+    sim: Option<&laserd::figures::SimFigures>,
+    machine: &MachineConfig,
+    outcome: &laserd::stream::StreamOutcome,
+) -> Result<ExitCode> {
+    if json {
+        print_json(report)?;
+    } else {
+        print!("{summary}");
+    }
+    let breaches = sim.map_or(0, |s| s.limit_breaches.len());
+    if !json && breaches > 0 && machine.simulator.motion == MotionModel::Grbl {
+        println!("  (a stock Grbl 1.1 cannot keep a jerk limit: it plans trapezoids, and at a corner its junction deviation $11 changes each axis' velocity at once, beyond its acceleration too)");
+    }
+    if let Some(reason) = &outcome.stop_reason {
         eprintln!("laserd: error: job stopped: {reason}");
         return Ok(ExitCode::from(exit::STOPPED));
     }

@@ -15,43 +15,8 @@ use serde::{Deserialize, Serialize};
 use crate::config::MachineConfig;
 use crate::plan::PlannerKind;
 use crate::error::{Error, Result};
-
-/// How a job file is read.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum JobKind {
-    /// Planned into a program.
-    Svg,
-    /// Checked line by line as the controller would, then streamed as it is.
-    Gcode,
-}
-
-/// Extensions of G-code files, as CAM tools and senders write them.
-pub const GCODE_EXTENSIONS: [&str; 6] = ["nc", "gcode", "ngc", "gc", "g", "tap"];
-
-impl JobKind {
-    /// The kind the file's name says, if its content agrees: a job file is
-    /// taken by what it is, not by what it is called.
-    pub fn of(name: &str, bytes: &[u8]) -> Result<JobKind> {
-        let ext = Path::new(name).extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-        let kind = match ext.as_deref() {
-            Some("svg") => JobKind::Svg,
-            Some(e) if GCODE_EXTENSIONS.contains(&e) => JobKind::Gcode,
-            _ => return Err(Error::Import(format!("{name}: not a job file: the name must end in .svg or a G-code extension (.{})", GCODE_EXTENSIONS.join(", ."))))
-        };
-        let text = std::str::from_utf8(bytes).map_err(|e| Error::Import(format!("{name}: not a job file: not UTF-8 text (byte {})", e.valid_up_to())))?;
-        if let Some(at) = text.find(|c: char| c.is_control() && !matches!(c, '\n' | '\r' | '\t' | '\x0c')) {
-            let line = text[..at].lines().count().max(1);
-            return Err(Error::Import(format!("{name}:{line}: not a job file: control character {:#04x}", text.as_bytes()[at])));
-        }
-        let head = text.trim_start_matches('\u{feff}').trim_start();
-        let looks_svg = head.starts_with('<') && text[..text.len().min(64 * 1024)].contains("<svg");
-        match (kind, looks_svg) {
-            (JobKind::Svg, false) => Err(Error::Import(format!("{name}: not an SVG document (no <svg> element at its start)"))),
-            (JobKind::Gcode, true) => Err(Error::Import(format!("{name}: an SVG document named as G-code: name it .svg"))),
-            _ => Ok(kind),
-        }
-    }
-}
+// The G-code checks live with the pipeline (the dry-run of a G-code file uses them too).
+pub use crate::run::gcode::{check_gcode, JobKind, GCODE_EXTENSIONS};
 
 /// Reads a job file the operator named by path: only inside `folders`
 /// (symbolic links resolved), only a regular file, at most `max_bytes`.
@@ -80,63 +45,6 @@ pub fn read_by_path(path: &str, folders: &[String], max_bytes: usize) -> Result<
     let bytes = crate::import::read_regular(file, max_bytes, path)?;
     let name = real.file_name().and_then(|n| n.to_str()).unwrap_or("job").to_string();
     Ok((name, bytes))
-}
-
-/// Checks a G-code program line by line in the simulator's check mode
-/// (`$C`), as the controller would parse it; returns its line count. System
-/// commands (`$…`) are not program lines: a file must not change the
-/// controller's settings.
-pub fn check_gcode(name: &str, text: &str, machine: &MachineConfig) -> Result<usize> {
-    use laserd_sim::controller::{Controller, Faults};
-    use laserd_sim::wire::{error_message, alarm_message, Response};
-    let mut controller = Controller::new(crate::run::sim_config(machine, Faults::default()));
-    let mut t = 0.0;
-    let mut ask = |controller: &mut Controller, line: &str| -> Option<Response> {
-        for b in line.bytes().chain([b'\n']) {
-            controller.receive(t, b);
-        }
-        let mut out = String::new();
-        // A check takes no time: a few steps of the clock answer it.
-        for _ in 0..100 {
-            t += 1e-3;
-            controller.advance(t);
-            out.push_str(&String::from_utf8_lossy(&controller.take_output()));
-            if let Some(answer) = out.lines().map(Response::parse).find(|r| matches!(r, Response::Ok | Response::Error(_) | Response::Alarm(_))) {
-                return Some(answer);
-            }
-        }
-        None
-    };
-    controller.advance(0.0);
-    controller.take_output();
-    if ask(&mut controller, "$C") != Some(Response::Ok) {
-        return Err(Error::Io(format!("{name}: the G-code check could not enter check mode")));
-    }
-    // Split and capped as the service will stream it.
-    let mut lines = 0;
-    for (i, raw) in crate::stream::FileLines::new(text.as_bytes(), name).enumerate() {
-        let raw = raw?;
-        lines += 1;
-        let n = i + 1;
-        let clean = crate::stream::clean_line(&raw);
-        if clean.is_empty() {
-            continue;
-        }
-        let quoted = || format!("`{}`", crate::stream::quote(raw.trim()));
-        if clean.len() + 1 > machine.serial.rx_buffer {
-            return Err(Error::Import(format!("{name}:{n} {}: {} characters, more than the controller's receive buffer takes ([serial] rx_buffer = {})", quoted(), clean.len(), machine.serial.rx_buffer)));
-        }
-        if clean.starts_with('$') {
-            return Err(Error::Import(format!("{name}:{n} {}: a system command, not a program line (a job must not change the controller's settings)", quoted())));
-        }
-        match ask(&mut controller, &clean) {
-            Some(Response::Ok) => {}
-            Some(Response::Error(code)) => return Err(Error::Import(format!("{name}:{n} {}: error:{code} ({})", quoted(), error_message(code)))),
-            Some(Response::Alarm(code)) => return Err(Error::Import(format!("{name}:{n} {}: ALARM:{code} ({})", quoted(), alarm_message(code)))),
-            _ => return Err(Error::Import(format!("{name}:{n} {}: the check got no answer", quoted()))),
-        }
-    }
-    Ok(lines)
 }
 
 /// What planning a job gave: the child's answer.

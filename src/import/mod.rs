@@ -34,7 +34,7 @@ pub fn import_job(path: &Path, config: &MachineConfig) -> Result<Job> {
 
 /// A job file's bytes, if it is a regular file of at most `max` bytes (a
 /// device or a FIFO named like a job file is refused, not read forever).
-fn read_capped(path: &Path, max: usize) -> Result<Vec<u8>> {
+pub fn read_capped(path: &Path, max: usize) -> Result<Vec<u8>> {
     use std::os::unix::fs::OpenOptionsExt;
     let shown = path.display();
     let file = std::fs::OpenOptions::new().read(true).custom_flags(nix::libc::O_NONBLOCK).open(path).map_err(|e| Error::Import(format!("{shown}: cannot read: {e}")))?;

@@ -39,6 +39,7 @@
 //! coordinates allows without the controller seeing false acceleration or jerk.
 
 pub mod link;
+pub mod plain;
 
 use crate::config::{LaserMode, MachineConfig};
 use crate::error::{Error, Result};

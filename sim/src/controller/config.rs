@@ -100,6 +100,17 @@ pub struct SimConfig {
     /// would refuse is left out.
     #[serde(default)]
     pub settings: Vec<(u32, f64)>,
+    /// `$11` at power-up: the junction deviation (mm) of the `grbl` motion
+    /// model's corners (Grbl's default 0.010).
+    #[serde(default = "default_junction_deviation")]
+    pub junction_deviation: f64,
+}
+
+/// Grbl 1.1's default `$11` (mm).
+pub const JUNCTION_DEVIATION: f64 = 0.010;
+
+fn default_junction_deviation() -> f64 {
+    JUNCTION_DEVIATION
 }
 
 /// The firmware the simulated controller is: its banner, build info, line
@@ -183,6 +194,7 @@ impl Default for SimConfig {
             flavor: Flavor::default(),
             faults: Faults::default(),
             settings: Vec::new(),
+            junction_deviation: JUNCTION_DEVIATION,
         }
     }
 }
@@ -223,6 +235,9 @@ pub(super) fn sanitize(mut c: SimConfig) -> SimConfig {
         if !(a.max_acceleration.is_finite() && a.max_acceleration > 0.0) {
             a.max_acceleration = 1.0;
         }
+    }
+    if !(c.junction_deviation.is_finite() && c.junction_deviation >= 0.0) {
+        c.junction_deviation = JUNCTION_DEVIATION;
     }
     c.rx_buffer = c.rx_buffer.max(2);
     c.planner_blocks = c.planner_blocks.max(1);

@@ -282,7 +282,7 @@ impl Controller {
 
     /// `$11`, in mm.
     fn junction_deviation(&self) -> f64 {
-        self.written_settings.get(&11).copied().unwrap_or(0.010)
+        self.written_settings.get(&11).copied().unwrap_or(self.proto.defaults.junction_deviation)
     }
 
     /// Whether the machine may stop after `b` (coming after what is queued), or

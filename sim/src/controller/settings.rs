@@ -35,7 +35,7 @@ impl Controller {
             // Grbl 1.1h's default: MPos only, no `Bf:` (grblHAL reports the
             // buffers by default).
             (10, Int, if self.cfg.flavor == Flavor::Grblhal { 3.0 } else { 1.0 }),
-            (11, Float, 0.010),
+            (11, Float, d.junction_deviation),
             (12, Float, 0.002),
             (13, Bool, 0.0),
             // Grbl's defaults: soft limits off, and they need homing ($22).
