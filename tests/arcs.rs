@@ -85,5 +85,6 @@ fn a_stage_only_job_of_circles_sends_arcs_in_fewer_lines_as_closely_and_as_fast(
         assert!(f.max_tcp_deviation_mm <= bound, "{what}: deviation {} mm, bound {bound}", f.max_tcp_deviation_mm);
     }
     assert!(a.lines_sent < s.lines_sent);
+    assert!(a.planner_starved_s <= s.planner_starved_s + 1e-6, "starved: arcs {} s, straight {} s", a.planner_starved_s, s.planner_starved_s);
     assert!(a.job_time_s <= s.job_time_s + 1e-3, "arcs {} s, straight {} s", a.job_time_s, s.job_time_s);
 }

@@ -80,6 +80,35 @@ fn executed(start: Point, end: Point, offset: [f64; 2], clockwise: bool) -> Opti
     Some((centre, radius, travel, segments))
 }
 
+/// How many planner blocks each line of `program` takes in the controller:
+/// an arc (as written here: G2/G3 first, absolute X Y, I J) as many as the
+/// chords Grbl cuts it into, any other line one. The link model needs them:
+/// an arc's `ok` comes only once its last chord is queued.
+pub fn planner_blocks(program: &super::Program) -> Vec<usize> {
+    let mut at = Point::new(program.start.first().copied().unwrap_or(0.0), program.start.get(1).copied().unwrap_or(0.0));
+    program
+        .lines
+        .iter()
+        .map(|line| {
+            let word = |letter: char| {
+                let from = line.text.find(letter)? + 1;
+                let rest = &line.text[from..];
+                let len = rest.find(|c: char| c.is_ascii_alphabetic()).unwrap_or(rest.len());
+                rest[..len].parse::<f64>().ok()
+            };
+            let end = Point::new(word('X').unwrap_or(at.x), word('Y').unwrap_or(at.y));
+            let clockwise = line.text.starts_with("G2G") || line.text.starts_with("G2X") || line.text.starts_with("G2Y");
+            let counter = line.text.starts_with("G3G") || line.text.starts_with("G3X") || line.text.starts_with("G3Y");
+            let blocks = match (clockwise || counter, word('I'), word('J')) {
+                (true, Some(i), Some(j)) => executed(at, end, [i, j], clockwise).map_or(1, |(_, _, _, segments)| segments.max(1)),
+                _ => 1,
+            };
+            at = end;
+            blocks
+        })
+        .collect()
+}
+
 /// Tries one arc from `samples[0]` to the last sample (planned instants and
 /// TCP positions, the first and last a block's start and end): its words
 /// where every sample is within `limit` of the executed arc.
@@ -258,6 +287,20 @@ mod tests {
             s.0 = if f <= 0.5 { 1.5 * f } else { 0.75 + 0.5 * (f - 0.5) };
         }
         assert!(fit(&uneven, 5, 0.009).is_none());
+    }
+
+    #[test]
+    fn an_arc_takes_as_many_planner_blocks_as_grbl_cuts_it_into() {
+        let line = |text: &str| super::super::ProgramLine { text: text.into(), kind: super::super::LineKind::Mark, geometry: None, plan_time: None, checks: vec![] };
+        let program = super::super::Program {
+            lines: vec![line("G1X1Y0F60"), line("G3G94X0Y1I-1J0F60"), line("G93G1X5F60"), line("G2G94X5Y2I0J0.5F60")],
+            axis_letters: vec!['X', 'Y'],
+            start: vec![0.0, 0.0],
+            sources: vec![],
+        };
+        // A quarter of radius 1: floor(0.785 / 0.0632) = 12 chords; a half
+        // of radius 0.5: floor(0.785 / 0.0447) = 17.
+        assert_eq!(planner_blocks(&program), vec![1, 12, 1, 17]);
     }
 
     #[test]
