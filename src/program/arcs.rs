@@ -185,7 +185,7 @@ pub fn merge(times: &[f64], decimals: usize, limit: f64, samples_of: impl Fn(f64
         loop {
             let j = i + step;
             if j > last {
-                if good.map_or(true, |(g, _)| g < last) {
+                if good.is_none_or(|(g, _)| g < last) {
                     if let Some(arc) = try_to(last) {
                         good = Some((last, arc));
                     } else {
