@@ -635,6 +635,14 @@ pub struct ProgramConfig {
     /// its limits high: micrometres are finer than a galvo resolves).
     #[serde(default = "default_scanner_decimals")]
     pub scanner_decimals: usize,
+    /// Stage-only marks: runs of blocks on one circle as one G2/G3 (fewer
+    /// lines on the link) where the controller's chords stay within `tolerance`.
+    #[serde(default = "default_arcs")]
+    pub arcs: bool,
+}
+
+fn default_arcs() -> bool {
+    true
 }
 
 fn default_scanner_decimals() -> usize {
@@ -647,7 +655,7 @@ fn default_jump_tolerance() -> f64 {
 
 impl Default for ProgramConfig {
     fn default() -> Self {
-        ProgramConfig { tolerance: 0.01, jump_tolerance: default_jump_tolerance(), decimals: 6, scanner_decimals: default_scanner_decimals() }
+        ProgramConfig { tolerance: 0.01, jump_tolerance: default_jump_tolerance(), decimals: 6, scanner_decimals: default_scanner_decimals(), arcs: default_arcs() }
     }
 }
 

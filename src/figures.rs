@@ -125,21 +125,43 @@ pub fn program_line_of(lines: &[usize], knot: &Knot) -> usize {
     (knot.line as usize).checked_sub(1).and_then(|i| lines.get(i)).copied().unwrap_or(knot.line as usize)
 }
 
-/// Executed blocks of program lines: (line, start knot, end knot). A block
-/// the controller runs in several segments (Grbl's acceleration, cruise and
-/// deceleration) has a knot at each; it is one straight block from the knot
+/// Executed blocks of program lines: (line, their knots). A block the
+/// controller runs in several segments (Grbl's acceleration, cruise and
+/// deceleration; an arc's chords) has a knot at each; it runs from the knot
 /// before its first segment to the end of its last.
-fn executed_blocks<'a>(knots: &'a [Knot], lines: &'a [usize]) -> Vec<(usize, &'a Knot, &'a Knot)> {
-    let mut blocks: Vec<(usize, &Knot, &Knot)> = Vec::new();
-    for w in knots.windows(2).filter(|w| w[1].t > w[0].t && w[0].pos != w[1].pos) {
+fn executed_blocks<'a>(knots: &'a [Knot], lines: &[usize]) -> Vec<(usize, &'a [Knot])> {
+    // (line, first knot, last knot)
+    let mut blocks: Vec<(usize, usize, usize)> = Vec::new();
+    for (k, w) in knots.windows(2).enumerate().filter(|(_, w)| w[1].t > w[0].t && w[0].pos != w[1].pos) {
         let line = program_line_of(lines, &w[1]);
         match blocks.last_mut() {
-            Some((last, _, end)) if *last == line && w[1].line == end.line && std::ptr::eq(*end, &w[0]) => *end = &w[1],
-            _ => blocks.push((line, &w[0], &w[1])),
+            Some((last, _, end)) if *last == line && w[1].line == knots[*end].line && *end == k => *end = k + 1,
+            _ => blocks.push((line, k, k + 1)),
         }
     }
-    blocks.retain(|(line, _, _)| *line > 0);
-    blocks
+    blocks.into_iter().filter(|(line, _, _)| *line > 0).map(|(line, a, b)| (line, &knots[a..=b])).collect()
+}
+
+/// Where an executed block is at `fraction` of it: on the straight line
+/// from its first knot to its last, by distance, as a straight block runs
+/// (at constant velocity in its time); on the knots' polyline by time where
+/// the knots leave that line (an arc's chords).
+fn executed_at(run: &[Knot], fraction: f64) -> Vec<f64> {
+    let (a, b) = (&run[0], &run[run.len() - 1]);
+    let along = |x: &[f64], y: &[f64], f: f64| -> Vec<f64> { x.iter().zip(y).map(|(x, y)| x + (y - x) * f).collect() };
+    let straight = run[1..run.len() - 1].iter().all(|k| {
+        let d: Vec<f64> = b.pos.iter().zip(&a.pos).map(|(b, a)| b - a).collect();
+        let len2: f64 = d.iter().map(|v| v * v).sum();
+        let s = k.pos.iter().zip(&a.pos).zip(&d).map(|((p, a), d)| (p - a) * d).sum::<f64>() / len2.max(f64::MIN_POSITIVE);
+        along(&a.pos, &b.pos, s).iter().zip(&k.pos).all(|(p, q)| (p - q).abs() < 1e-6)
+    });
+    if straight {
+        return along(&a.pos, &b.pos, fraction);
+    }
+    let t = a.t + fraction * (b.t - a.t);
+    let i = run.partition_point(|k| k.t < t).clamp(1, run.len() - 1);
+    let (p, q) = (&run[i - 1], &run[i]);
+    along(&p.pos, &q.pos, ((t - p.t) / (q.t - p.t)).clamp(0.0, 1.0))
 }
 
 pub fn sim_figures(log: &RunLog) -> SimFigures {
@@ -212,14 +234,14 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
     let planned: std::collections::HashMap<usize, &PlannedLine> = log.planned.iter().map(|p| (p.line, p)).collect();
     let mut max_dev: f64 = 0.0;
     let mut laser_state_errors = 0;
-    for (line, a, b) in executed_blocks(&log.knots, &lines) {
+    for (line, run) in executed_blocks(&log.knots, &lines) {
         let Some(p) = planned.get(&line) else { continue };
         let marking = p.kind == LineKind::Mark;
-        if marking != (b.power > 0.0) {
+        if marking != (run[run.len() - 1].power > 0.0) {
             laser_state_errors += 1;
         }
         for c in &p.checks {
-            let exec: Vec<f64> = a.pos.iter().zip(&b.pos).map(|(x, y)| x + (y - x) * c.fraction).collect();
+            let exec = executed_at(run, c.fraction);
             let dev = (tcp_of(&exec) - Point::new(c.tcp[0], c.tcp[1])).norm();
             max_dev = max_dev.max(dev);
         }

@@ -735,6 +735,30 @@ fn grbl_1_1h_parser_and_reports() {
     assert_eq!(s.ctl.position()[0], 5.0, "{:?}", s.texts());
 }
 
+/// Arcs as Grbl 1.1h's `mc_arc` cuts them: `floor(arc length / chord)`
+/// segments for chords of sagitta `$12` (so a quarter circle of radius 1 at
+/// the default 0.002 mm is 12 planner blocks, not the 13 that keep every
+/// chord within `$12`); in G93 each segment runs at F × segments mm/min
+/// (Grbl multiplies F by the count and drops inverse time); gcode.c's radius
+/// check: start and end radii within 0.005 mm, or within 0.1 % of the radius
+/// up to 0.5 mm.
+#[test]
+fn arcs_as_grbl_1_1h_segments_and_times_them() {
+    let rows: &[Row] = &[
+        (xy, &[L("$10=3"), Q, Q], &[L("G3X-1Y1I-1F6"), Q], &["ok", "<Run|MPos:*|Bf:3,128|FS:6,0>"]),
+        (xy, &[L("$10=3"), L("$12=0.02"), Q, Q], &[L("G3X-1Y1I-1F6"), Q], &["ok", "<Run|MPos:*|Bf:12,128|FS:6,0>"]),
+        (xy, &[L("$10=3"), Q, Q], &[L("G93G3X-1Y1I-1F6"), Q], &["ok", "<Run|MPos:*|Bf:5,128|FS:72,0>"]),
+        // An arc shorter than one chord is one straight block, in G93 in 1/F minutes.
+        (xy, &[L("$10=3"), Q, Q], &[L("G93G2X0.1Y-0.001J-5F60"), Q], &["ok", "<Run|MPos:*|Bf:14,128|FS:6,0>"]),
+        // (Coarse `$12` so that the planner queue takes the whole arc at once.)
+        (xy, &[L("$12=0.1")], &[L("G2X10.004Y0I5F600")], &["ok"]),
+        (xy, &[], &[L("G2X10.006Y0I5F600")], &["error:33"]),
+        (xy, &[L("$12=10")], &[L("G2X1200.4Y0I600F600")], &["ok"]),
+        (xy, &[], &[L("G2X1200.55Y0I600F600")], &["error:33"]),
+    ];
+    check(rows);
+}
+
 /// Homing and soft limits as Grbl 1.1h has them: its default settings (no
 /// homing, no soft limits), its negative machine space (homing to the
 /// positive end by default, `$23` turning an axis round, the pull-off `$27`

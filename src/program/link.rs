@@ -45,6 +45,8 @@ struct Line {
     bytes: usize,
     due: Option<(f64, f64)>,
     rest: bool,
+    /// Planner blocks it takes: an arc's chords, else 1.
+    blocks: usize,
 }
 
 impl Line {
@@ -95,7 +97,8 @@ impl LinkModel {
     /// (`rests`); asked only when the program does not keep up without
     /// counting them (rests only help).
     pub fn slowdown(&self, program: &Program, rests: impl FnOnce() -> Vec<bool>) -> Result<f64> {
-        let mut lines: Vec<Line> = program.lines.iter().map(|l| Line { bytes: l.text.len() + 1, due: l.plan_time, rest: false }).collect();
+        let blocks = super::arcs::planner_blocks(program);
+        let mut lines: Vec<Line> = program.lines.iter().zip(blocks).map(|(l, blocks)| Line { bytes: l.text.len() + 1, due: l.plan_time, rest: false, blocks }).collect();
         if self.on_time(&lines, 1.0) {
             return Ok(1.0);
         }
@@ -164,7 +167,16 @@ impl LinkModel {
         // The motion blocks' plan times and whether each ends at rest, in
         // order; lines without motion (set-up, laser switches) take no
         // planner block.
-        let blocks: Vec<(f64, f64, bool)> = lines.iter().filter(|l| l.moves()).map(|l| l.due.map(|(s, e)| (s, e, l.rest)).unwrap_or_default()).collect();
+        // An arc's chords share its time evenly.
+        let blocks: Vec<(f64, f64, bool)> = lines
+            .iter()
+            .filter(|l| l.moves())
+            .flat_map(|l| {
+                let (s, e) = l.due.unwrap_or_default();
+                let n = l.blocks.max(1);
+                (0..n).map(move |k| (s + (e - s) * k as f64 / n as f64, s + (e - s) * (k + 1) as f64 / n as f64, l.rest && k + 1 == n))
+            })
+            .collect();
         if blocks.is_empty() {
             return true;
         }
@@ -196,7 +208,7 @@ impl LinkModel {
             link_free = arrived;
             // Lines are taken in order; a motion line once the planner has room.
             let mut taken = arrived.max(last_answer);
-            if line.moves() {
+            for _ in 0..if line.moves() { line.blocks.max(1) } else { 0 } {
                 if block == starts_with {
                     clock = taken;
                 } else if block > starts_with {
@@ -235,7 +247,7 @@ mod tests {
 
     /// `n` lines of `bytes` each, blocks of `dt` seconds back to back.
     fn lines(n: usize, bytes: usize, dt: f64) -> Vec<Line> {
-        (0..n).map(|i| Line { bytes, due: Some((i as f64 * dt, (i + 1) as f64 * dt)), rest: false }).collect()
+        (0..n).map(|i| Line { bytes, due: Some((i as f64 * dt, (i + 1) as f64 * dt)), rest: false, blocks: 1 }).collect()
     }
 
     #[test]
@@ -255,7 +267,7 @@ mod tests {
         let burst = |n: usize| {
             let mut v = lines(100, 40, 0.05);
             let t = 100.0 * 0.05;
-            v.extend((0..n).map(|i| Line { bytes: 40, due: Some((t + i as f64 * 0.001, t + (i + 1) as f64 * 0.001)), rest: false }));
+            v.extend((0..n).map(|i| Line { bytes: 40, due: Some((t + i as f64 * 0.001, t + (i + 1) as f64 * 0.001)), rest: false, blocks: 1 }));
             v
         };
         assert!(model(8000.0).on_time(&burst(3), 1.0));

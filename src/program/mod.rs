@@ -37,7 +37,9 @@
 //! straight, constant-velocity block stays within `program.tolerance` of the
 //! trajectory at every instant, and at least as long as the rounding of
 //! coordinates allows without the controller seeing false acceleration or jerk.
+//! Stage-only, runs of them on one circle become one G2/G3 (`arcs.rs`).
 
+pub mod arcs;
 pub mod link;
 pub mod plain;
 
@@ -141,6 +143,8 @@ struct Writer {
     decimals: Vec<usize>,
     /// Whether the modal motion mode is G1 already (then lines leave it out).
     in_g1: bool,
+    /// Whether the feed mode is G93 (an arc leaves it in G94).
+    in_g93: bool,
     letters: Vec<char>,
     last_words: Vec<String>,
     last_power: Option<f64>,
@@ -167,13 +171,41 @@ impl Writer {
 
     /// Appends the motion block ending at `values`, taking `duration` seconds with
     /// the laser at `power`; `line` carries everything but the text.
-    fn block(&mut self, values: &[f64], power: f64, duration: f64, mut line: ProgramLine) -> Result<()> {
+    fn block(&mut self, values: &[f64], power: f64, duration: f64, line: ProgramLine) -> Result<()> {
         let plan_time = line.plan_time.unwrap_or_default();
-        let mut text = String::from(if self.in_g1 { "" } else { "G1" });
+        let mut text = String::from(if self.in_g93 { "" } else { "G93" });
+        text.push_str(if self.in_g1 { "" } else { "G1" });
         self.in_g1 = true;
+        self.in_g93 = true;
+        self.axis_words(values, plan_time.0, &mut text)?;
+        self.finish(text, power, 60.0 / duration, duration, line)
+    }
+
+    /// An arc block (see `arcs.rs`) ending at `values`, in G94: both plane
+    /// axes written (a full circle ends where it starts), then `I J`.
+    fn arc_block(&mut self, values: &[f64], power: f64, duration: f64, arc: &arcs::ArcWords, line: ProgramLine) -> Result<()> {
+        let plan_time = line.plan_time.unwrap_or_default();
+        let mut text = String::from(if arc.clockwise { "G2" } else { "G3" });
+        if self.in_g93 {
+            text.push_str("G94");
+        }
+        self.in_g1 = false;
+        self.in_g93 = false;
+        self.last_words[0].clear();
+        self.last_words[1].clear();
+        self.axis_words(values, plan_time.0, &mut text)?;
+        for (letter, v) in ['I', 'J'].iter().zip(arc.centre_offset) {
+            text.push(*letter);
+            text.push_str(&format_number(v, self.decimals[0]));
+        }
+        self.finish(text, power, arc.feed, duration, line)
+    }
+
+    /// The axis words of the values that changed.
+    fn axis_words(&mut self, values: &[f64], at: f64, text: &mut String) -> Result<()> {
         for (i, v) in values.iter().enumerate() {
             if !v.is_finite() {
-                return Err(Error::Program(format!("non-finite {} coordinate at t={:.6}", self.letters[i], plan_time.0)));
+                return Err(Error::Program(format!("non-finite {} coordinate at t={at:.6}", self.letters[i])));
             }
             let word = format_number(*v, self.decimals[i]);
             if self.last_words[i] != word {
@@ -182,16 +214,22 @@ impl Writer {
                 self.last_words[i] = word;
             }
         }
+        Ok(())
+    }
+
+    /// Power (where it changed) and `F` (`f`, for a block of `duration`
+    /// seconds) end the block's text.
+    fn finish(&mut self, mut text: String, power: f64, f: f64, duration: f64, mut line: ProgramLine) -> Result<()> {
         if self.last_power != Some(power) {
             text.push('S');
             text.push_str(&format_number(power, 1));
             self.last_power = Some(power);
         }
-        // G93: F is the inverse of the block time in minutes. Six significant
-        // digits keep a block's timing within 1e-6 of the plan; short blocks
-        // get eight, since a timing error is a velocity error, which the
-        // controller sees as acceleration and jerk over the block's duration.
-        let f = 60.0 / duration;
+        // G93: F is the inverse of the block time in minutes (an arc's, in
+        // G94, its speed). Six significant digits keep a block's timing
+        // within 1e-6 of the plan; short blocks get eight, since a timing
+        // error is a velocity error, which the controller sees as
+        // acceleration and jerk over the block's duration.
         let significant = if duration < 2e-3 { 8 } else { 6 };
         let digits = (significant - (f.log10().floor() as i64 + 1)).clamp(0, 8) as usize;
         text.push('F');
@@ -499,6 +537,7 @@ struct PlannedBlock {
     end: f64,
     axes: Vec<f64>,
     checks: Vec<CheckPoint>,
+    arc: Option<arcs::ArcWords>,
 }
 
 /// The blocks of one span (none for a pierce, which is a dwell).
@@ -522,12 +561,30 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
     }
     times.extend(block_times(trajectory, &Span { start: from, ..*span }, tolerance, min_block)?.into_iter().skip(1));
     let has_scanner = trajectory.has_scanner;
-    Ok(times
-        .windows(2)
-        .map(|pair| {
-            let (a, b) = (pair[0], pair[1]);
+    let stage_only = matches!(trajectory.stage, crate::motion::stage::StagePath::FollowsTcp);
+    let blocks: Vec<(usize, Option<arcs::ArcWords>)> = if span.kind == LineKind::Mark && stage_only && machine.program.arcs {
+        // The planned TCP at the block ends and eighths of each block between.
+        let samples_of = |a: f64, b: f64| {
+            let (i, j) = (times.partition_point(|&t| t < a), times.partition_point(|&t| t <= b));
+            let mut out = vec![(a, trajectory.tcp.position(a))];
+            for w in times[i..j].windows(2) {
+                out.extend((1..=8).map(|q| w[0] + (w[1] - w[0]) * q as f64 / 8.0).map(|t| (t, trajectory.tcp.position(t))));
+            }
+            out
+        };
+        arcs::merge(&times, machine.program.decimals, 0.9 * tolerance, samples_of)
+    } else {
+        (1..times.len()).map(|j| (j, None)).collect()
+    };
+    let mut from = 0;
+    Ok(blocks
+        .into_iter()
+        .map(|(to, arc)| {
+            let (a, b) = (times[from], times[to]);
+            from = to;
+            let fractions: &[f64] = if arc.is_some() { &[0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0] } else { &[0.25, 0.5, 0.75, 1.0] };
             let checks = if span.kind == LineKind::Mark {
-                [0.25, 0.5, 0.75, 1.0]
+                fractions
                     .iter()
                     .map(|&f| {
                         let p = trajectory.tcp.position(a + f * (b - a));
@@ -537,7 +594,7 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
             } else {
                 Vec::new()
             };
-            PlannedBlock { start: a, end: b, axes: axis_values(&trajectory.state_at(b), has_scanner), checks }
+            PlannedBlock { start: a, end: b, axes: axis_values(&trajectory.state_at(b), has_scanner), checks, arc }
         })
         .collect())
 }
@@ -550,6 +607,7 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
     let decimals: Vec<usize> = (0..start.len()).map(|i| if i < 2 { machine.program.decimals } else { machine.program.scanner_decimals }).collect();
     let mut w = Writer {
         in_g1: false,
+        in_g93: true,
         letters: letters.clone(),
         last_words: start.iter().zip(&decimals).map(|(v, d)| format_number(*v, *d)).collect(),
         decimals,
@@ -582,7 +640,10 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
         })?;
         for block in blocks {
             let line = ProgramLine { text: String::new(), kind: span.kind, geometry: span.geometry, plan_time: Some((block.start, block.end)), checks: block.checks };
-            w.block(&block.axes, span.power, block.end - block.start, line)?;
+            match &block.arc {
+                Some(arc) => w.arc_block(&block.axes, span.power, block.end - block.start, arc, line)?,
+                None => w.block(&block.axes, span.power, block.end - block.start, line)?,
+            }
         }
     }
     for text in ["M5S0", "G94", "M2"] {

@@ -1,5 +1,6 @@
 //! Arcs (G2/G3) cut into chords as Grbl does (reference §9): the centre from
-//! `IJK` or `R`, the error checks, and chord end points within 0.002 mm.
+//! `IJK` or `R`, the error checks, and chord end points from `$12` (Grbl's
+//! `mc_arc`).
 //! Separate from the parser because it is geometry, not modal state.
 
 use super::{Controller, EPS_POS};
@@ -16,9 +17,9 @@ pub(super) struct ArcInput<'a> {
 }
 
 impl Controller {
-    /// Chord end points of an arc (reference §9; sagitta <= 0.002 mm).
+    /// Chord end points of an arc (reference §9): one per segment Grbl cuts
+    /// it into, the last the end point.
     pub(super) fn arc_points(&self, arc: &ArcInput, axes: &[Option<f64>]) -> Result<Vec<Vec<f64>>, u16> {
-        const TOLERANCE: f64 = 0.002;
         let (l0, l1, o0, o1) = match arc.plane {
             17 => ('X', 'Y', 0, 1),
             18 => ('Z', 'X', 2, 0),
@@ -59,11 +60,10 @@ impl Controller {
         let (r0x, r0y) = (s0 - c0, s1 - c1);
         let (r1x, r1y) = (arc.end[a0] - c0, arc.end[a1] - c1);
         let radius = r0x.hypot(r0y);
-        let end_radius = r1x.hypot(r1y);
-        if radius.is_nan()
-            || radius <= 0.0
-            || ((end_radius - radius).abs() > 0.005 && (end_radius - radius).abs() > 0.001 * radius)
-        {
+        // Grbl's radius check (gcode.c): start and end radii may differ by
+        // 0.005 mm, or by up to 0.5 mm where that is within 0.1 % of the radius.
+        let radius_error = (r1x.hypot(r1y) - radius).abs();
+        if radius.is_nan() || radius <= 0.0 || (radius_error > 0.005 && (radius_error > 0.5 || radius_error > 0.001 * radius)) {
             return Err(33);
         }
         let mut travel = (r0x * r1y - r0y * r1x).atan2(r0x * r1x + r0y * r1y);
@@ -74,25 +74,42 @@ impl Controller {
         } else if travel <= 5e-7 {
             travel += std::f64::consts::TAU;
         }
-        let max_step = if radius <= TOLERANCE / 2.0 {
-            std::f64::consts::PI
-        } else {
-            (2.0 * (1.0 - TOLERANCE / radius).acos()).min(std::f64::consts::PI)
-        };
-        let n = (travel.abs() / max_step).ceil().max(1.0);
-        if n > 1e6 {
+        // Grbl's mc_arc: as many whole segments as chords of sagitta `$12`
+        // fit in the arc (so a segment is at least that long; none: one
+        // straight line to the end).
+        let tolerance = self.setting(12);
+        let segments = (0.5 * travel * radius).abs() / (tolerance * (2.0 * radius - tolerance)).sqrt();
+        let segments = if segments.is_finite() { segments.floor() } else { 0.0 };
+        if segments > 1e6 {
             return Err(33);
         }
-        let n = n as usize;
-        let theta0 = r0y.atan2(r0x);
-        let mut pts = Vec::with_capacity(n);
-        for k in 1..n {
-            let f = k as f64 / n as f64;
-            let th = theta0 + travel * f;
-            let mut p: Vec<f64> = arc.start.iter().zip(arc.end.iter()).map(|(s, e)| s + (e - s) * f).collect();
-            p[a0] = c0 + radius * th.cos();
-            p[a1] = c1 + radius * th.sin();
-            pts.push(p);
+        let segments = segments as usize;
+        let mut pts = Vec::with_capacity(segments.max(1));
+        if segments > 1 {
+            // Each point the radius vector rotated on by a small-angle
+            // (third-order) rotation, recomputed exactly every
+            // N_ARC_CORRECTION (12) segments, as Grbl does.
+            const N_ARC_CORRECTION: usize = 12;
+            let step = travel / segments as f64;
+            let cos_t = 1.0 - 0.5 * step * step;
+            let sin_t = step * (1.0 - step * step / 6.0);
+            let (mut rx, mut ry) = (r0x, r0y);
+            let mut count = 0;
+            for k in 1..segments {
+                if count < N_ARC_CORRECTION {
+                    (rx, ry) = (rx * cos_t - ry * sin_t, rx * sin_t + ry * cos_t);
+                    count += 1;
+                } else {
+                    let (sin_k, cos_k) = (k as f64 * step).sin_cos();
+                    (rx, ry) = (r0x * cos_k - r0y * sin_k, r0x * sin_k + r0y * cos_k);
+                    count = 0;
+                }
+                let f = k as f64 / segments as f64;
+                let mut p: Vec<f64> = arc.start.iter().zip(arc.end.iter()).map(|(s, e)| s + (e - s) * f).collect();
+                p[a0] = c0 + rx;
+                p[a1] = c1 + ry;
+                pts.push(p);
+            }
         }
         pts.push(arc.end.to_vec());
         Ok(pts)

@@ -398,6 +398,10 @@ impl Controller {
             }
             let duration = match mode {
                 _ if rapid => min_duration,
+                // Grbl's mc_arc multiplies a G93 F by the segment count and
+                // then runs the segments in units/min: each at F × segments
+                // mm/min, whatever its length (Grbl 1.1h and grblHAL alike).
+                _ if inverse && is_arc && points.len() > 1 => len / (feed * nchords / 60.0),
                 _ if inverse => 60.0 / feed / nchords,
                 _ => len / (feed / 60.0),
             }

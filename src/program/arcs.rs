@@ -1,0 +1,326 @@
+//! Arc blocks (G2/G3) for stage-only programs: where consecutive straight
+//! blocks of a mark lie on one circle and the trajectory runs along them at
+//! the speed a controller runs an arc (constant), one arc replaces them.
+//!
+//! The check is against what the controller will execute, not against the
+//! fitted circle: the arc as Grbl reads it from the rounded words (start =
+//! the previous block's rounded end, `I J` rounded, end rounded; gcode.c's
+//! radius check; mc_arc's angular travel and its chords, whose count comes
+//! from `$12`), run at constant speed in the block's time. Every planned
+//! position in the block must be within the limit of that arc at the same
+//! instant, the chords' sagitta added.
+//!
+//! Arcs are written in G94 (`F` in mm/min): Grbl 1.1h and grblHAL run a G93
+//! arc's segments at `F` × segments mm/min (mc_arc multiplies the inverse
+//! time by the count, then drops inverse time), not in 1/F minutes.
+
+use crate::job::Point;
+use std::f64::consts::{PI, TAU};
+
+/// Grbl's default `$12` (mm): the sagitta of the chords it cuts an arc into.
+pub const GRBL_ARC_TOLERANCE: f64 = 0.002;
+
+/// Grbl's `ARC_ANGULAR_TRAVEL_EPSILON`: a smaller travel is a full circle.
+const ANGULAR_EPSILON: f64 = 5e-7;
+
+/// Radii beyond this are left as straight blocks (a large arc's centre
+/// offset is a long word, and its chord count large).
+const MAX_RADIUS: f64 = 2000.0;
+
+/// The words of an arc block, as written.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ArcWords {
+    /// G2 (clockwise with the machine's Y up) or G3.
+    pub clockwise: bool,
+    /// `I`, `J`: the centre from the block's (rounded) start.
+    pub centre_offset: [f64; 2],
+    /// `F` in mm/min (G94): the controller's chords in the block's time.
+    pub feed: f64,
+}
+
+/// Rounded as the program writes a coordinate with `decimals` decimals.
+fn rounded(v: f64, decimals: usize) -> f64 {
+    let scale = 10f64.powi(decimals as i32);
+    (v * scale).round() / scale
+}
+
+/// Centre of the circle through three points (None when they are nearly
+/// on one line).
+fn circumcentre(a: Point, b: Point, c: Point) -> Option<Point> {
+    let (b, c) = (b - a, c - a);
+    let d = 2.0 * (b.x * c.y - b.y * c.x);
+    let scale = b.norm_squared().max(c.norm_squared());
+    if d.abs() <= 1e-12 * scale || scale == 0.0 {
+        return None;
+    }
+    let (b2, c2) = (b.norm_squared(), c.norm_squared());
+    Some(Point::new(a.x + (c.y * b2 - b.y * c2) / d, a.y + (b.x * c2 - c.x * b2) / d))
+}
+
+/// The arc the controller runs from `start` to `end` around `start +
+/// offset`: (centre, radius, signed angular travel, chord count), or None
+/// where Grbl refuses it (error 33).
+fn executed(start: Point, end: Point, offset: [f64; 2], clockwise: bool) -> Option<(Point, f64, f64, usize)> {
+    let centre = Point::new(start.x + offset[0], start.y + offset[1]);
+    let (r0, r1) = (start - centre, end - centre);
+    let radius = r0.norm();
+    let radius_error = (r1.norm() - radius).abs();
+    if radius <= 0.0 || (radius_error > 0.005 && (radius_error > 0.5 || radius_error > 0.001 * radius)) {
+        return None;
+    }
+    let mut travel = (r0.x * r1.y - r0.y * r1.x).atan2(r0.x * r1.x + r0.y * r1.y);
+    if clockwise && travel >= -ANGULAR_EPSILON {
+        travel -= TAU;
+    } else if !clockwise && travel <= ANGULAR_EPSILON {
+        travel += TAU;
+    }
+    let t = GRBL_ARC_TOLERANCE;
+    let segments = ((0.5 * travel * radius).abs() / (t * (2.0 * radius - t)).sqrt()).floor();
+    let segments = if segments.is_finite() { segments as usize } else { 0 };
+    Some((centre, radius, travel, segments))
+}
+
+/// How many planner blocks each line of `program` takes in the controller:
+/// an arc (as written here: G2/G3 first, absolute X Y, I J) as many as the
+/// chords Grbl cuts it into, any other line one. The link model needs them:
+/// an arc's `ok` comes only once its last chord is queued.
+pub fn planner_blocks(program: &super::Program) -> Vec<usize> {
+    let mut at = Point::new(program.start.first().copied().unwrap_or(0.0), program.start.get(1).copied().unwrap_or(0.0));
+    program
+        .lines
+        .iter()
+        .map(|line| {
+            let word = |letter: char| {
+                let from = line.text.find(letter)? + 1;
+                let rest = &line.text[from..];
+                let len = rest.find(|c: char| c.is_ascii_alphabetic()).unwrap_or(rest.len());
+                rest[..len].parse::<f64>().ok()
+            };
+            let end = Point::new(word('X').unwrap_or(at.x), word('Y').unwrap_or(at.y));
+            let clockwise = line.text.starts_with("G2G") || line.text.starts_with("G2X") || line.text.starts_with("G2Y");
+            let counter = line.text.starts_with("G3G") || line.text.starts_with("G3X") || line.text.starts_with("G3Y");
+            let blocks = match (clockwise || counter, word('I'), word('J')) {
+                (true, Some(i), Some(j)) => executed(at, end, [i, j], clockwise).map_or(1, |(_, _, _, segments)| segments.max(1)),
+                _ => 1,
+            };
+            at = end;
+            blocks
+        })
+        .collect()
+}
+
+/// Tries one arc from `samples[0]` to the last sample (planned instants and
+/// TCP positions, the first and last a block's start and end): its words
+/// where every sample is within `limit` of the executed arc.
+pub fn fit(samples: &[(f64, Point)], decimals: usize, limit: f64) -> Option<ArcWords> {
+    let n = samples.len();
+    if n < 4 {
+        return None;
+    }
+    let (t0, t1) = (samples[0].0, samples[n - 1].0);
+    let duration = t1 - t0;
+    if duration <= 0.0 {
+        return None;
+    }
+    let at_time = |f: f64| samples[samples.partition_point(|s| s.0 < t0 + f * duration).min(n - 1)].1;
+    // Three points a third of the time apart: a full circle too has them apart.
+    let (a, b, c) = (samples[0].1, at_time(1.0 / 3.0), at_time(2.0 / 3.0));
+    let centre = circumcentre(a, b, c)?;
+    if (a - centre).norm() > MAX_RADIUS {
+        return None;
+    }
+    // The planned travel: the angle swept sample by sample (each step less than a half turn).
+    let mut planned_travel = 0.0;
+    for w in samples.windows(2) {
+        let (p, q) = (w[0].1 - centre, w[1].1 - centre);
+        let step = (p.x * q.y - p.y * q.x).atan2(p.x * q.x + p.y * q.y);
+        if step.abs() > 0.5 * PI {
+            return None;
+        }
+        planned_travel += step;
+    }
+    if planned_travel.abs() > TAU + 1e-9 || planned_travel.abs() < 1e-6 {
+        return None;
+    }
+    let clockwise = planned_travel < 0.0;
+    let start = Point::new(rounded(a.x, decimals), rounded(a.y, decimals));
+    let last = samples[n - 1].1;
+    let end = Point::new(rounded(last.x, decimals), rounded(last.y, decimals));
+    let offset = [rounded(centre.x - start.x, decimals), rounded(centre.y - start.y, decimals)];
+    let (centre, radius, travel, segments) = executed(start, end, offset, clockwise)?;
+    // Rounding may move the end across the start (a circle read as a sliver).
+    if (travel - planned_travel).abs() > 1e-3 {
+        return None;
+    }
+    let (sagitta, chords) = if segments == 0 {
+        (radius * (1.0 - (0.5 * travel).cos()), (end - start).norm())
+    } else {
+        let half = 0.5 * travel.abs() / segments as f64;
+        (radius * (1.0 - half.cos()), segments as f64 * 2.0 * radius * half.sin())
+    };
+    if sagitta >= limit {
+        return None;
+    }
+    let theta0 = (start.y - centre.y).atan2(start.x - centre.x);
+    let within = samples.iter().all(|&(t, p)| {
+        let angle = theta0 + travel * (t - t0) / duration;
+        let on_arc = Point::new(centre.x + radius * angle.cos(), centre.y + radius * angle.sin());
+        (p - on_arc).norm() + sagitta <= limit
+    });
+    within.then_some(ArcWords { clockwise, centre_offset: offset, feed: 60.0 * chords / duration })
+}
+
+/// Where straight blocks with ends `times` (the first the span's start)
+/// merge into arcs: (end index into `times`, arc) per block, in order; an
+/// arc covers at least two straight blocks. `samples_of(a, b)` gives the
+/// planned instants and positions from `a` to `b`, both included.
+pub fn merge(times: &[f64], decimals: usize, limit: f64, samples_of: impl Fn(f64, f64) -> Vec<(f64, Point)>) -> Vec<(usize, Option<ArcWords>)> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    let last = times.len().saturating_sub(1);
+    while i < last {
+        let try_to = |j: usize| fit(&samples_of(times[i], times[j]), decimals, limit);
+        // Galloping, then bisecting, over the block ends the arc reaches.
+        let (mut good, mut bad, mut step) = (None, last + 1, 2);
+        loop {
+            let j = i + step;
+            if j > last {
+                if good.is_none_or(|(g, _)| g < last) {
+                    if let Some(arc) = try_to(last) {
+                        good = Some((last, arc));
+                    } else {
+                        bad = last;
+                    }
+                }
+                break;
+            }
+            match try_to(j) {
+                Some(arc) => good = Some((j, arc)),
+                None => {
+                    bad = j;
+                    break;
+                }
+            }
+            step *= 2;
+        }
+        let mut lo = good.map_or(i + 1, |(g, _)| g);
+        while bad <= last && bad - lo > 1 {
+            let mid = (lo + bad) / 2;
+            match try_to(mid) {
+                Some(arc) => {
+                    good = Some((mid, arc));
+                    lo = mid;
+                }
+                None => bad = mid,
+            }
+        }
+        match good {
+            Some((j, arc)) if j >= i + 2 => {
+                out.push((j, Some(arc)));
+                i = j;
+            }
+            _ => {
+                out.push((i + 1, None));
+                i += 1;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Planned samples of a run around (cx, cy) at radius `r` from angle
+    /// `from` by `travel` (radians, signed) in `duration` s at constant speed.
+    fn circle(cx: f64, cy: f64, r: f64, from: f64, travel: f64, duration: f64, n: usize) -> Vec<(f64, Point)> {
+        (0..=n)
+            .map(|k| {
+                let f = k as f64 / n as f64;
+                let a = from + travel * f;
+                (f * duration, Point::new(cx + r * a.cos(), cy + r * a.sin()))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn points_on_a_circle_become_one_arc_with_the_machines_y_up() {
+        // A quarter, counter-clockwise (Y up): G3, centre offset from the start.
+        let quarter = circle(100.0, 50.0, 10.0, 0.0, 0.5 * PI, 0.4, 40);
+        let arc = fit(&quarter, 5, 0.009).expect("a quarter circle is an arc");
+        assert!(!arc.clockwise);
+        assert_eq!(arc.centre_offset, [-10.0, 0.0]);
+        // F: the chords' length in the time, near the arc length (15.71 mm in 0.4 s).
+        assert!((arc.feed - 60.0 * 15.70796 / 0.4).abs() < 0.01 * arc.feed, "{}", arc.feed);
+        // The same the other way round: G2.
+        let cw = circle(100.0, 50.0, 10.0, 0.0, -0.5 * PI, 0.4, 40);
+        assert!(fit(&cw, 5, 0.009).expect("an arc").clockwise);
+    }
+
+    #[test]
+    fn half_and_full_circles_are_arcs() {
+        let half = fit(&circle(0.0, 0.0, 5.0, 0.3, PI, 1.0, 64), 5, 0.009).expect("a half circle");
+        assert!(!half.clockwise);
+        let full = fit(&circle(20.0, 20.0, 5.0, 1.0, -TAU, 1.0, 128), 5, 0.009).expect("a full circle");
+        assert!(full.clockwise);
+        assert!((full.feed - 60.0 * TAU * 5.0).abs() < 0.01 * full.feed);
+        // More than a turn is not one arc.
+        assert!(fit(&circle(20.0, 20.0, 5.0, 1.0, TAU + 0.5, 1.0, 140), 5, 0.009).is_none());
+    }
+
+    #[test]
+    fn a_polyline_that_is_no_arc_or_runs_at_another_pace_stays_lines() {
+        // A right-angle corner: no circle within 0.01 mm.
+        let corner: Vec<(f64, Point)> = (0..=20)
+            .map(|k| {
+                let p = if k <= 10 { Point::new(k as f64, 0.0) } else { Point::new(10.0, (k - 10) as f64) };
+                (k as f64 * 0.1, p)
+            })
+            .collect();
+        assert!(fit(&corner, 5, 0.009).is_none());
+        // On the circle, but stopping half-way (slow, then fast): the
+        // controller's constant speed is not the plan's timing.
+        let mut uneven = circle(0.0, 0.0, 10.0, 0.0, PI, 1.0, 60);
+        for (k, s) in uneven.iter_mut().enumerate() {
+            let f = k as f64 / 60.0;
+            s.0 = if f <= 0.5 { 1.5 * f } else { 0.75 + 0.5 * (f - 0.5) };
+        }
+        assert!(fit(&uneven, 5, 0.009).is_none());
+    }
+
+    #[test]
+    fn an_arc_takes_as_many_planner_blocks_as_grbl_cuts_it_into() {
+        let line = |text: &str| super::super::ProgramLine { text: text.into(), kind: super::super::LineKind::Mark, geometry: None, plan_time: None, checks: vec![] };
+        let program = super::super::Program {
+            lines: vec![line("G1X1Y0F60"), line("G3G94X0Y1I-1J0F60"), line("G93G1X5F60"), line("G2G94X5Y2I0J0.5F60")],
+            axis_letters: vec!['X', 'Y'],
+            start: vec![0.0, 0.0],
+            sources: vec![],
+        };
+        // A quarter of radius 1: floor(0.785 / 0.0632) = 12 chords; a half
+        // of radius 0.5: floor(0.785 / 0.0447) = 17.
+        assert_eq!(planner_blocks(&program), vec![1, 12, 1, 17]);
+    }
+
+    #[test]
+    fn merging_keeps_lines_off_the_circle_and_an_arc_on_it() {
+        // A straight run of 4 blocks, then a half circle of 16 blocks.
+        let times: Vec<f64> = (0..=20).map(|k| k as f64 * 0.1).collect();
+        let at = |t: f64| {
+            if t <= 0.4 {
+                Point::new(-10.0, -40.0 + 100.0 * t)
+            } else {
+                let a = PI - PI * (t - 0.4) / 1.6;
+                Point::new(10.0 * a.cos(), 10.0 * a.sin())
+            }
+        };
+        let samples_of = |a: f64, b: f64| (0..=64).map(|k| a + (b - a) * k as f64 / 64.0).map(|t| (t, at(t))).collect();
+        let merged = merge(&times, 5, 0.009, samples_of);
+        let arcs: Vec<_> = merged.iter().filter(|(_, a)| a.is_some()).collect();
+        assert_eq!(arcs.len(), 1, "{merged:?}");
+        assert_eq!(arcs[0].0, 20, "the arc ends at the last block");
+        assert!(arcs[0].1.unwrap().clockwise);
+        assert_eq!(merged.len(), 5, "4 lines and an arc: {merged:?}");
+    }
+}

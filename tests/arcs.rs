@@ -1,0 +1,90 @@
+//! Arcs on the wire: a stage-only program of circles sent with G2/G3 takes
+//! far fewer lines than with straight blocks only, and the simulated Grbl
+//! (which cuts each arc into chords by `$12`) follows the plan as closely and
+//! as fast, within every limit.
+//!
+//! Stage-only marks run from rest to rest at every vertex today, so no run of
+//! blocks there has the constant speed of an arc; the trajectory here is the
+//! on-the-fly TCP of the circles (blended, at speed) given to a stage that
+//! follows the TCP and has the limits the TCP was planned with.
+
+use laserd::config::MachineConfig;
+use laserd::figures::{sim_figures, PlannedLine, SimFigures};
+use laserd::job::{Geometry, Job, Point, Process};
+use laserd::mode::Mode;
+use laserd::motion::stage::StagePath;
+use laserd::motion::{build, AxisState, Trajectory};
+use laserd::plan::{nearest::NearestNeighbour, PlanContext, Planner};
+use laserd::program::{self, Program};
+use laserd::run;
+use laserd::stream::SenderOptions;
+use laserd_sim::controller::Faults;
+
+fn circles() -> Job {
+    let circle = |cx: f64, cy: f64, r: f64| {
+        let n = 128;
+        let points = (0..n)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / n as f64;
+                Point::new(cx + r * a.cos(), cy + r * a.sin())
+            })
+            .collect();
+        Geometry { points, closed: true, process: 0, source: format!("circle at {cx},{cy}") }
+    };
+    Job {
+        source: "circles".into(),
+        geometries: vec![circle(140.0, 150.0, 8.0), circle(160.0, 150.0, 6.0), circle(150.0, 165.0, 4.0)],
+        processes: vec![Process { layer: "cut".into(), speed: 50.0, power: 500.0, passes: 1 }],
+    }
+}
+
+fn simulate(program: &Program, machine: &MachineConfig) -> SimFigures {
+    let sim = run::sim_config(machine, Faults::default());
+    let setup = run::run_setup(machine, &sim);
+    let options = SenderOptions::new(machine.serial.rx_buffer, machine.serial.status_hz);
+    let (_, log) = run::stream_into_simulator(program, sim, 115_200, &options, None).unwrap();
+    sim_figures(&laserd::figures::RunLog { setup: Some(setup), planned: PlannedLine::from_program(program), ..log })
+}
+
+#[test]
+fn a_stage_only_job_of_circles_sends_arcs_in_fewer_lines_as_closely_and_as_fast() {
+    // The TCP planned on the fly...
+    let planning = MachineConfig::load(None).unwrap();
+    let scanner = planning.scanner_limits().unwrap();
+    let job = circles();
+    let planning_machine = Mode::OnTheFly.planning_machine(&planning);
+    let ctx = PlanContext { machine: &planning_machine, mode: Mode::OnTheFly, start: Point::origin() };
+    let sequence = NearestNeighbour.plan(&job, &ctx).unwrap();
+    let on_the_fly = build(&job, &sequence, &planning, Mode::OnTheFly, Point::origin()).unwrap();
+    // ...run by an XY machine whose stage follows it, with the scanner's limits.
+    let mut machine = planning.clone();
+    machine.scanner = None;
+    (machine.stage.max_velocity, machine.stage.max_acceleration, machine.stage.max_jerk) = (scanner.velocity, scanner.acceleration, scanner.jerk);
+    machine.serial.baud = 115_200;
+    let start = AxisState { stage: on_the_fly.start.tcp(), scanner: Point::origin() };
+    let trajectory = Trajectory { tcp: on_the_fly.tcp, stage: StagePath::FollowsTcp, start, job_start: on_the_fly.job_start, has_scanner: false };
+
+    let with_arcs = program::generate(&job, &trajectory, &machine).unwrap();
+    let mut lines_only = machine.clone();
+    lines_only.program.arcs = false;
+    let straight = program::generate(&job, &trajectory, &lines_only).unwrap();
+    // G2 or G3, not G21.
+    let is_arc = |text: &str| (text.starts_with("G2") || text.starts_with("G3")) && !text[2..].starts_with(|c: char| c.is_ascii_digit());
+    let arcs = with_arcs.lines.iter().filter(|l| is_arc(&l.text)).count();
+    assert!(arcs >= 3, "{arcs} arc blocks");
+    assert!(!straight.lines.iter().any(|l| is_arc(&l.text)), "arcs = false: straight blocks only");
+    assert!(2 * with_arcs.lines.len() <= straight.lines.len(), "{} lines with arcs, {} without", with_arcs.lines.len(), straight.lines.len());
+
+    let (a, s) = (simulate(&with_arcs, &machine), simulate(&straight, &lines_only));
+    // A unit of the last decimal on each axis: what rounding adds.
+    let bound = machine.program.tolerance + 2.0 * 10f64.powi(-(machine.program.decimals as i32));
+    for (what, f) in [("arcs", &a), ("straight", &s)] {
+        assert_eq!(f.limit_violations, 0, "{what}: {:?}", f.limit_breaches);
+        assert!(f.limit_breaches.is_empty(), "{what}: {:?}", f.limit_breaches);
+        assert!(f.alarms.is_empty(), "{what}: {:?}", f.alarms);
+        assert!(f.max_tcp_deviation_mm <= bound, "{what}: deviation {} mm, bound {bound}", f.max_tcp_deviation_mm);
+    }
+    assert!(a.lines_sent < s.lines_sent);
+    assert!(a.planner_starved_s <= s.planner_starved_s + 1e-6, "starved: arcs {} s, straight {} s", a.planner_starved_s, s.planner_starved_s);
+    assert!(a.job_time_s <= s.job_time_s + 1e-3, "arcs {} s, straight {} s", a.job_time_s, s.job_time_s);
+}
