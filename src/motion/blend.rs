@@ -229,21 +229,8 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64) -> Option<Run> {
             let inner = (lengths[k] - 0.5 * w[k] * t_in - 0.5 * w[k + 1] * t_out).max(0.0);
             // The fastest peak whose ramps fit between the turns.
             let low = w[k].max(w[k + 1]);
-            let fits = |v: f64| change_distance(w[k], v, lim) + change_distance(w[k + 1], v, lim) <= inner;
-            let peak = if fits(lim.velocity) {
-                lim.velocity
-            } else {
-                let (mut lo, mut hi) = (low, lim.velocity);
-                for _ in 0..50 {
-                    let mid = 0.5 * (lo + hi);
-                    if fits(mid) {
-                        lo = mid;
-                    } else {
-                        hi = mid;
-                    }
-                }
-                lo
-            };
+            let peak_fits = |v: f64| change_distance(w[k], v, lim) + change_distance(w[k + 1], v, lim) <= inner;
+            let peak = largest(low, lim.velocity, &peak_fits);
             let mut p = Profile::new();
             if t_in > 0.0 {
                 let j = 4.0 * w[k] / (t_in * t_in);
