@@ -11,8 +11,9 @@
 //! - step-and-scan (the baseline of vector-by-vector scanner control): every
 //!   vector from rest to rest, the stage carrying the scanner to each field
 //!   and standing still while it marks;
-//! - stage-only: the stage is the TCP (machines without a scanner), every
-//!   vector from rest to rest.
+//! - stage-only: the stage is the TCP (machines without a scanner); marks
+//!   run through their vertices at the speed each turn allows (`blend`),
+//!   from rest to rest.
 //!
 //! Before the job's clock starts the machine moves from where it rests to the
 //! job's first point (`PieceKind::Approach`); `lower_bound_s`, the idle
@@ -22,6 +23,7 @@
 //! rest: the machine stands still at the entry with the laser on at the
 //! pierce power for the pierce time (a `Pierce` piece), then marks.
 
+pub mod blend;
 pub mod leg;
 pub mod profile;
 pub mod stage;
@@ -111,6 +113,7 @@ fn tcp_settings(machine: &MachineConfig, mode: Mode) -> TcpSettings {
         axis,
         mark_speed,
         blend,
+        junctions: false,
         skywrite,
         corner_tolerance: m.corner_tolerance,
         line_tolerance: m.line_tolerance,
@@ -129,10 +132,9 @@ fn tcp_settings(machine: &MachineConfig, mode: Mode) -> TcpSettings {
             base(axis, sc.mark_speed, true, true)
         }
         (Mode::StepAndScan, Some(sc), Some(lim)) => base(lim.scaled(margin), sc.mark_speed, false, false),
-        // Stage-only stops at every vertex: each block then ends where the
-        // machine can stop, which a cut that waits behind a pierce's dwell
-        // for its lines needs (blended corners there are left for later).
-        _ => base(stage, stage.velocity, false, false),
+        // Stage-only runs through the vertices at the speed each turn
+        // allows (`blend`); marks start and end at rest.
+        _ => TcpSettings { junctions: true, ..base(stage, stage.velocity, true, false) },
     }
 }
 

@@ -36,10 +36,12 @@ pub enum PieceKind {
     Carried,
 }
 
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub enum Motion {
     /// Along `dir` (a unit vector) from `from`.
     Leg { from: Point, dir: Vector2<f64>, leg: Leg },
+    /// Along `dir` from `from` with a speed that changes (stage-only, `blend`).
+    Profile { from: Point, dir: Vector2<f64>, profile: super::blend::Profile },
     Free(FreeMove),
     Still(Point),
 }
@@ -64,6 +66,7 @@ impl Piece {
     pub fn position(&self, t: f64) -> Point {
         match &self.motion {
             Motion::Leg { from, dir, leg } => from + dir * leg.position(t),
+            Motion::Profile { from, dir, profile } => from + dir * profile.at(t)[0],
             Motion::Free(m) => m.at(t).0,
             Motion::Still(p) => *p,
         }
@@ -76,6 +79,7 @@ impl Piece {
     pub fn end_point(&self) -> Point {
         match &self.motion {
             Motion::Leg { from, dir, leg } => from + dir * leg.length,
+            Motion::Profile { from, dir, profile } => from + dir * profile.length,
             Motion::Free(m) => m.to,
             Motion::Still(p) => *p,
         }
@@ -104,6 +108,7 @@ impl Piece {
     pub fn breakpoints(&self, out: &mut Vec<f64>) {
         match &self.motion {
             Motion::Leg { leg, .. } => leg.breakpoints(out),
+            Motion::Profile { profile, .. } => profile.breakpoints(out),
             // A Ruckig move's phases are not exposed: eighths of it, or
             // every 5 ms of a long one (an approach across the table).
             Motion::Free(m) => {
@@ -219,6 +224,9 @@ pub struct TcpSettings {
     pub mark_speed: f64,
     /// Blend corners within `corner_tolerance` (else stop at every vertex).
     pub blend: bool,
+    /// Run through the vertices at the speed each turn allows (`blend`:
+    /// stage-only), rather than by overlapping legs' ramps.
+    pub junctions: bool,
     /// Marks start and end at speed; laser-off moves are state-to-state.
     pub skywrite: bool,
     pub corner_tolerance: f64,
@@ -226,26 +234,63 @@ pub struct TcpSettings {
     pub line_tolerance: f64,
 }
 
-/// A planned mark: its legs with their start times relative to the run's start.
+/// A planned mark: its legs with their start times relative to the run's
+/// start and their durations (consecutive legs may overlap at a corner).
 pub struct Run {
-    legs: Vec<(Point, Vector2<f64>, Leg, f64)>,
+    legs: Vec<(f64, f64, Motion)>,
     duration: f64,
+    entry: Point,
+    entry_velocity: Vector2<f64>,
+    exit: Point,
+    exit_velocity: Vector2<f64>,
 }
 
 impl Run {
+    /// From legs in time order (at least one).
+    pub fn new(legs: Vec<(f64, f64, Motion)>) -> Run {
+        let velocity = |m: &Motion, t: f64| match m {
+            Motion::Leg { dir, leg, .. } => dir * leg.at(t)[1],
+            Motion::Profile { dir, profile, .. } => dir * profile.at(t)[1],
+            _ => Vector2::zeros(),
+        };
+        let (_, _, first) = &legs[0];
+        let (last_start, last_duration, last) = legs.last().expect("a run has legs");
+        let entry_velocity = velocity(first, 0.0);
+        let exit_velocity = velocity(last, *last_duration);
+        let (entry, exit) = (first.start(), last.end());
+        let duration = last_start + last_duration;
+        Run { legs, duration, entry, entry_velocity, exit, exit_velocity }
+    }
+
     fn entry_velocity(&self) -> Vector2<f64> {
-        let (_, dir, leg, _) = &self.legs[0];
-        dir * leg.at(0.0)[1]
+        self.entry_velocity
     }
 
     fn exit_point(&self) -> Point {
-        let (from, dir, leg, _) = self.legs.last().expect("a run has legs");
-        from + dir * leg.length
+        self.exit
     }
 
     fn exit_velocity(&self) -> Vector2<f64> {
-        let (_, dir, leg, _) = self.legs.last().expect("a run has legs");
-        dir * leg.at(leg.duration)[1]
+        self.exit_velocity
+    }
+}
+
+impl Motion {
+    fn start(&self) -> Point {
+        match self {
+            Motion::Leg { from, .. } | Motion::Profile { from, .. } => *from,
+            Motion::Free(m) => m.at(0.0).0,
+            Motion::Still(p) => *p,
+        }
+    }
+
+    fn end(&self) -> Point {
+        match self {
+            Motion::Leg { from, dir, leg } => from + dir * leg.length,
+            Motion::Profile { from, dir, profile } => from + dir * profile.length,
+            Motion::Free(m) => m.to,
+            Motion::Still(p) => *p,
+        }
     }
 }
 
@@ -271,6 +316,12 @@ fn simplify(points: &[Point], tol: f64) -> Vec<Point> {
         }
     }
     kept
+}
+
+/// `point_segment_distance` for the tests of the other motion planners.
+#[cfg(test)]
+pub(super) fn tests_distance(p: Point, a: Point, b: Point) -> f64 {
+    point_segment_distance(p, a, b)
 }
 
 fn point_segment_distance(p: Point, a: Point, b: Point) -> f64 {
@@ -361,6 +412,9 @@ fn plan_run(s: &TcpSettings, corners: &mut Corners, points: &[Point], speed: f64
     if points.len() < 2 {
         return Ok(None);
     }
+    if s.junctions {
+        return Ok(super::blend::plan_run(s, &points, speed));
+    }
     let n = points.len() - 1;
     let mut legs = Vec::with_capacity(n);
     for i in 0..n {
@@ -412,8 +466,8 @@ fn plan_run(s: &TcpSettings, corners: &mut Corners, points: &[Point], speed: f64
         };
         t += legs[i].2.duration - overlap;
     }
-    let duration = legs.last().map(|(_, _, l, t0)| t0 + l.duration).unwrap_or(0.0);
-    Ok(Some(Run { legs, duration }))
+    let legs = legs.into_iter().map(|(from, dir, leg, start)| (start, leg.duration, Motion::Leg { from, dir, leg })).collect();
+    Ok(Some(Run::new(legs)))
 }
 
 /// Builds the TCP's pieces one path at a time.
@@ -555,7 +609,7 @@ impl TcpBuilder {
         }
         // The laser-off moves between consecutive marks, as `mark_run` will
         // ask for them (unless something else moves the TCP in between).
-        let ends: Vec<_> = runs.iter().flatten().map(|r| (r.legs[0].0, r.entry_velocity(), r.exit_point(), r.exit_velocity())).collect();
+        let ends: Vec<_> = runs.iter().flatten().map(|r| (r.entry, r.entry_velocity(), r.exit_point(), r.exit_velocity())).collect();
         let axis = settings.axis;
         let wanted: Vec<_> = ends
             .windows(2)
@@ -575,16 +629,16 @@ impl TcpBuilder {
     /// `pierce` > 0 (the run must have been planned with its pierce).
     pub fn mark_run(&mut self, geometry: usize, group: usize, run: Option<&Run>, power: f64, pierce: f64, pierce_power: f64) -> Result<()> {
         let Some(run) = run else { return Ok(()) };
-        let entry = run.legs[0].0;
+        let entry = run.entry;
         self.jump(PieceKind::Jump, group, entry, run.entry_velocity())?;
         if pierce > 0.0 {
             self.still(PieceKind::Pierce { geometry, power: pierce_power }, group, pierce);
         }
         let kind = PieceKind::Mark { geometry, power };
         let t0 = self.time;
-        for (from, dir, leg, start) in &run.legs {
-            if leg.duration > 0.0 {
-                self.path.pieces.push(Piece { kind, group, start: t0 + start, duration: leg.duration, motion: Motion::Leg { from: *from, dir: *dir, leg: *leg } });
+        for (start, duration, motion) in &run.legs {
+            if *duration > 0.0 {
+                self.path.pieces.push(Piece { kind, group, start: t0 + start, duration: *duration, motion: motion.clone() });
             }
         }
         self.time = t0 + run.duration;
@@ -617,6 +671,7 @@ mod tests {
             axis: Limits { velocity: 4500.0, acceleration: 9.8e6, jerk: 3.9e11 },
             mark_speed: 1000.0,
             blend,
+            junctions: false,
             skywrite,
             corner_tolerance: 0.01,
             line_tolerance: 0.001,

@@ -383,7 +383,6 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
     // Legs change character only at their phase changes (free moves give
     // eighths of themselves): quarters between them.
     let parts = 4;
-    let marking = span.kind == LineKind::Mark;
     // Positions at the phase changes and between them, computed once; a
     // block's error is then read off these samples (and stops at the first
     // one out of tolerance).
@@ -431,14 +430,15 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
                 off(t, at(t))
             })
         };
-        // And, off the marks, the block's own eighths: laser-off moves have
-        // long phases (an approach across the table).
+        // And the block's own eighths: phases may be long against a block
+        // (an approach across the table, a cruise of a stage-only mark
+        // sampled in quarters), its middle between two samples.
         let _ = (a_sampled || stretch(a, first))
             && (b_sampled || stretch(last, b))
-            && (marking || (1..8).all(|q| {
+            && (1..8).all(|q| {
                 let t = a + (q as f64 / 8.0) * (b - a);
                 off(t, at(t))
-            }));
+            });
         worst
     };
     // (The limit is a little inside the tolerance: the samples find nearly,

@@ -1,0 +1,380 @@
+//! Stage-only marks through their vertices at speed (machines without a
+//! scanner), planned as Grbl plans junctions but jerk-limited.
+//!
+//! At each inner vertex the velocity turns from `w·u_in` to `w·u_out` along a
+//! jerk-limited S-curve of duration `T`: the two legs overlap there, one
+//! ramping down along its line while the next ramps up along its own (as the
+//! blended corners of `tcp`), both with the same shape, so the sum changes
+//! only by the turn. `T` is the shortest the axes allow for that change; `w`
+//! the highest speed whose corner cut stays within `corner_tolerance` and
+//! whose turn fits in half of each leg. A sharp corner thus gets a low `w`, a
+//! reversal a stop, and the gentle turns of a flattened curve nearly the full
+//! speed. Between vertices a leg changes speed along its line (jerk-limited
+//! ramps, a cruise); a forward and a backward pass over the vertices make
+//! every change fit its leg. A run starts and ends at rest (a pierce, a laser
+//! switch), where each program block then ends on a rest point.
+
+use nalgebra::Vector2;
+
+use super::tcp::{path_limits, Motion, Run, TcpSettings};
+use crate::config::Limits;
+use crate::job::Point;
+
+/// A motion along a line as phases of constant jerk: position, speed,
+/// acceleration and jerk in closed form at any time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Profile {
+    /// Each phase's start time and its state there: (t0, s, v, a, jerk).
+    phases: Vec<[f64; 5]>,
+    pub length: f64,
+    pub duration: f64,
+}
+
+impl Profile {
+    fn new() -> Profile {
+        Profile { phases: Vec::with_capacity(12), length: 0.0, duration: 0.0 }
+    }
+
+    /// The state at the end: (s, v, a).
+    fn end_state(&self) -> [f64; 3] {
+        match self.phases.last() {
+            None => [0.0, 0.0, 0.0],
+            Some(p) => {
+                let [s, v, a, _] = eval(p, self.duration);
+                [s, v, a]
+            }
+        }
+    }
+
+    /// Appends `duration` seconds at `jerk`.
+    fn push(&mut self, duration: f64, jerk: f64) {
+        if duration <= 0.0 {
+            return;
+        }
+        let [s, v, a] = self.end_state();
+        self.phases.push([self.duration, s, v, a, jerk]);
+        self.duration += duration;
+        self.length = self.end_state()[0];
+    }
+
+    /// (distance, speed, acceleration, jerk) `t` seconds in (clamped).
+    pub fn at(&self, t: f64) -> [f64; 4] {
+        if self.phases.is_empty() {
+            return [0.0; 4];
+        }
+        let t = t.clamp(0.0, self.duration);
+        let k = self.phases.partition_point(|p| p[0] <= t).saturating_sub(1);
+        eval(&self.phases[k], t)
+    }
+
+    pub fn breakpoints(&self, out: &mut Vec<f64>) {
+        out.extend(self.phases.iter().skip(1).map(|p| p[0]));
+    }
+}
+
+fn eval(p: &[f64; 5], t: f64) -> [f64; 4] {
+    let [t0, s, v, a, j] = *p;
+    let x = t - t0;
+    [s + v * x + a * x * x / 2.0 + j * x * x * x / 6.0, v + a * x + j * x * x / 2.0, a + j * x, j]
+}
+
+/// Jerk and constant-acceleration durations of the time-optimal speed
+/// change by `dv` within `lim` (the ramps of `leg::Ramp`).
+fn change_phases(dv: f64, lim: &Limits) -> (f64, f64) {
+    if dv <= 0.0 {
+        return (0.0, 0.0);
+    }
+    if dv * lim.jerk >= lim.acceleration * lim.acceleration {
+        (lim.acceleration / lim.jerk, dv / lim.acceleration - lim.acceleration / lim.jerk)
+    } else {
+        ((dv / lim.jerk).sqrt(), 0.0)
+    }
+}
+
+/// Distance of the speed change from `v0` to `v1` (either way).
+fn change_distance(v0: f64, v1: f64, lim: &Limits) -> f64 {
+    let (tj, ta) = change_phases((v1 - v0).abs(), lim);
+    0.5 * (v0 + v1) * (2.0 * tj + ta)
+}
+
+/// Appends the speed change to `to` (from the profile's end speed).
+fn push_change(p: &mut Profile, to: f64, lim: &Limits) {
+    let from = p.end_state()[1];
+    let (tj, ta) = change_phases((to - from).abs(), lim);
+    let j = if to > from { lim.jerk } else { -lim.jerk };
+    p.push(tj, j);
+    p.push(ta, 0.0);
+    p.push(tj, -j);
+}
+
+/// A turn from direction `a` to `b` (unit vectors): its duration per unit
+/// speed and per square root of speed, and its corner cut per unit of
+/// speed × duration (the path's shape scales with both).
+struct Turn {
+    per_speed: f64,
+    per_root: f64,
+    cut: f64,
+}
+
+impl Turn {
+    fn new(a: Vector2<f64>, b: Vector2<f64>, axis: &Limits) -> Turn {
+        // The velocity changes by w·(b − a): per axis within the acceleration
+        // (a pure-jerk S-curve peaks at 2·Δ/T) and the jerk (4·Δ/T²).
+        let d = b - a;
+        let m = d.x.abs().max(d.y.abs());
+        let per_speed = 2.0 * m / axis.acceleration;
+        let per_root = 2.0 * (m / axis.jerk).sqrt();
+        // Where the TCP is during the turn (w = T = 1), against the two
+        // legs taken as rays from the vertex.
+        let ray = |q: Vector2<f64>, u: Vector2<f64>| {
+            let along = q.dot(&u).max(0.0);
+            (q - u * along).norm()
+        };
+        let mut cut: f64 = 0.0;
+        for k in 1..16 {
+            let t = k as f64 / 16.0;
+            let covered = ramp_in_distance(t);
+            let left = 0.5 - t + covered;
+            let q = b * covered - a * left;
+            cut = cut.max(ray(q, -a).min(ray(q, b)));
+        }
+        Turn { per_speed, per_root, cut }
+    }
+
+    fn duration(&self, w: f64) -> f64 {
+        (self.per_speed * w).max(self.per_root * w.sqrt())
+    }
+
+    /// The highest speed whose turn takes at most `product` of speed × duration.
+    fn speed_for(&self, product: f64) -> f64 {
+        let by_acc = if self.per_speed > 0.0 { (product / self.per_speed).sqrt() } else { f64::INFINITY };
+        let by_jerk = if self.per_root > 0.0 { (product / self.per_root).powf(2.0 / 3.0) } else { f64::INFINITY };
+        by_acc.min(by_jerk)
+    }
+}
+
+/// Distance covered `t` into a pure-jerk ramp from rest to speed 1 lasting 1
+/// (jerk 4; the second half mirrors the first).
+fn ramp_in_distance(t: f64) -> f64 {
+    let first = |y: f64| 4.0 * y * y * y / 6.0;
+    if t <= 0.5 {
+        first(t)
+    } else {
+        let y = 1.0 - t;
+        0.5 - y + first(y)
+    }
+}
+
+/// The run marking `points` at `speed` through its vertices, from rest to
+/// rest (none for fewer than two points).
+pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64) -> Option<Run> {
+    let n = points.len().checked_sub(1).filter(|&n| n > 0)?;
+    let lengths: Vec<f64> = points.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
+    let dirs: Vec<Vector2<f64>> = points.windows(2).zip(&lengths).map(|(w, l)| (w[1] - w[0]) / *l).collect();
+    let limits: Vec<Limits> = dirs
+        .iter()
+        .map(|d| {
+            let l = path_limits(s.axis, *d);
+            Limits { velocity: l.velocity.min(speed), ..l }
+        })
+        .collect();
+    // Vertex i joins legs i-1 and i; the ends rest.
+    let mut turns: Vec<Option<Turn>> = (0..=n).map(|_| None).collect();
+    let mut w = vec![0.0; n + 1];
+    for i in 1..n {
+        let turn = Turn::new(dirs[i - 1], dirs[i], &s.axis);
+        let product = (s.corner_tolerance / turn.cut.max(1e-12)).min(lengths[i - 1].min(lengths[i]));
+        w[i] = turn.speed_for(product).min(limits[i - 1].velocity).min(limits[i].velocity);
+        turns[i] = Some(turn);
+    }
+    // Half a turn's length on each leg; leg k fits when its speed change
+    // fits between its turns. The turns alone take at most half of each
+    // leg, so a leg fits at one speed at both ends, and lowering its
+    // faster end towards its slower one only makes room.
+    let half = |i: usize, w: f64| turns[i].as_ref().map_or(0.0, |t| 0.5 * w * t.duration(w));
+    let fits = |k: usize, a: f64, b: f64| change_distance(a, b, &limits[k]) + half(k, a) + half(k + 1, b) <= lengths[k];
+    // The largest speed in `lo..=hi` that `ok` takes (`ok(lo)` holds).
+    let largest = |lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool| {
+        if ok(hi) {
+            return hi;
+        }
+        let (mut lo, mut hi) = (lo, hi);
+        for _ in 0..50 {
+            let mid = 0.5 * (lo + hi);
+            if ok(mid) {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        lo
+    };
+    // Speeds through the vertices, then the legs: their pieces and the run's end.
+    let plan_with = |mut w: Vec<f64>| {
+        for k in 0..n {
+            if w[k + 1] > w[k] {
+                w[k + 1] = largest(w[k], w[k + 1], &|b| fits(k, w[k], b));
+            }
+        }
+        for k in (0..n).rev() {
+            if w[k] > w[k + 1] {
+                w[k] = largest(w[k + 1], w[k], &|a| fits(k, a, w[k + 1]));
+            }
+        }
+        let mut legs = Vec::with_capacity(n);
+        let (mut start, mut t_last) = (0.0, 0.0);
+        for k in 0..n {
+            let lim = &limits[k];
+            let (t_in, t_out) = (turns[k].as_ref().map_or(0.0, |t| t.duration(w[k])), turns[k + 1].as_ref().map_or(0.0, |t| t.duration(w[k + 1])));
+            let inner = (lengths[k] - 0.5 * w[k] * t_in - 0.5 * w[k + 1] * t_out).max(0.0);
+            // The fastest peak whose ramps fit between the turns.
+            let low = w[k].max(w[k + 1]);
+            let peak_fits = |v: f64| change_distance(w[k], v, lim) + change_distance(w[k + 1], v, lim) <= inner;
+            let peak = largest(low, lim.velocity, &peak_fits);
+            let mut p = Profile::new();
+            if t_in > 0.0 {
+                let j = 4.0 * w[k] / (t_in * t_in);
+                p.push(0.5 * t_in, j);
+                p.push(0.5 * t_in, -j);
+            }
+            push_change(&mut p, peak, lim);
+            let cruise = inner - change_distance(w[k], peak, lim) - change_distance(w[k + 1], peak, lim);
+            if peak > 0.0 && cruise > 0.0 {
+                p.push(cruise / peak, 0.0);
+            }
+            push_change(&mut p, w[k + 1], lim);
+            if t_out > 0.0 {
+                let j = 4.0 * w[k + 1] / (t_out * t_out);
+                p.push(0.5 * t_out, -j);
+                p.push(0.5 * t_out, j);
+            }
+            let duration = p.duration;
+            legs.push((start, duration, Motion::Profile { from: points[k], dir: dirs[k], profile: p }));
+            t_last = duration;
+            start += duration - t_out;
+        }
+        (legs, start + t_last)
+    };
+    // A turn at a low speed costs more than stopping there (jerk-limited
+    // ramps cost the most per unit of speed where they are small): the
+    // fastest of turning everywhere, stopping where the turn is slower than
+    // half the legs' speed, and stopping everywhere (rest to rest).
+    let slow = |i: usize| i > 0 && i < n && w[i] < 0.5 * limits[i - 1].velocity.min(limits[i].velocity);
+    let candidates = [w.clone(), (0..=n).map(|i| if slow(i) { 0.0 } else { w[i] }).collect(), vec![0.0; n + 1]];
+    let (legs, _) = candidates.into_iter().map(plan_with).min_by(|a, b| a.1.total_cmp(&b.1))?;
+    Some(Run::new(legs))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::motion::tcp::{TcpBuilder, TcpPath};
+
+    /// A stage like `config/flatbed-cutter.toml`'s within its margin.
+    fn settings() -> TcpSettings {
+        TcpSettings {
+            axis: Limits { velocity: 490.0, acceleration: 4900.0, jerk: 245_000.0 },
+            mark_speed: 490.0,
+            blend: true,
+            junctions: true,
+            skywrite: false,
+            corner_tolerance: 0.01,
+            line_tolerance: 0.001,
+        }
+    }
+
+    fn marked(points: &[Point], speed: f64) -> TcpPath {
+        let mut b = TcpBuilder::new(settings(), points[0], 0.0);
+        b.mark(0, 0, points, speed, 100.0, 0.0, 0.0).unwrap();
+        b.stop(0).unwrap();
+        b.path
+    }
+
+    fn speed_at(path: &TcpPath, t: f64) -> f64 {
+        let h = 1e-6;
+        (path.position(t + h) - path.position(t - h)).norm() / (2.0 * h)
+    }
+
+    /// Samples the path: per-axis velocity and acceleration within the
+    /// limits, and never further from the polyline than the corner tolerance.
+    fn check(path: &TcpPath, points: &[Point]) {
+        let s = settings();
+        let dt = 1e-4;
+        let n = (path.duration() / dt).ceil() as usize;
+        let (mut prev, mut prev_v) = (None, None);
+        for k in 0..=n {
+            let p = path.position(k as f64 * dt);
+            let off = points.windows(2).map(|w| super::super::tcp::tests_distance(p, w[0], w[1])).fold(f64::INFINITY, f64::min);
+            assert!(off <= s.corner_tolerance + 1e-9, "{off} mm off the polyline at {p:?}");
+            if let Some(q) = prev {
+                let v: Vector2<f64> = (p - q) / dt;
+                assert!(v.x.abs() <= s.axis.velocity * 1.001 && v.y.abs() <= s.axis.velocity * 1.001, "v {v:?}");
+                if let Some(pv) = prev_v {
+                    let a: Vector2<f64> = (v - pv) / dt;
+                    assert!(a.x.abs() <= s.axis.acceleration * 1.01 && a.y.abs() <= s.axis.acceleration * 1.01, "a {a:?} at {p:?}");
+                }
+                prev_v = Some(v);
+            }
+            prev = Some(p);
+        }
+    }
+
+    #[test]
+    fn a_flattened_circle_runs_through_its_vertices_near_its_speed() {
+        // Radius 10 flattened to 0.01 mm: legs of 0.9 mm turning 5 degrees.
+        let step = 2.0 * (1.0 - 0.01 / 10.0_f64).acos();
+        let n = (std::f64::consts::TAU / step).ceil() as usize;
+        let circle: Vec<Point> = (0..=n).map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / n as f64;
+            Point::new(20.0 + 10.0 * a.cos(), 20.0 + 10.0 * a.sin())
+        }).collect();
+        let length: f64 = circle.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+        for speed in [50.0, 65.0] {
+            let path = marked(&circle, speed);
+            let marks: Vec<_> = path.pieces.iter().filter(|p| p.is_marking()).collect();
+            let time = marks.last().unwrap().end_time() - marks[0].start;
+            assert!(time <= 1.15 * length / speed, "{speed} mm/s: {time} s for {length} mm");
+            // Mid-circle, every vertex is passed at nearly the full speed.
+            for m in &marks[n / 4..3 * n / 4] {
+                let v = speed_at(&path, m.start);
+                assert!(v > 0.9 * speed, "{v} mm/s at a vertex of a circle marked at {speed}");
+            }
+            check(&path, &circle);
+        }
+    }
+
+    #[test]
+    fn small_squares_mark_no_slower_than_stopping_at_every_corner() {
+        for (side, speed) in [(3.0, 490.0), (3.0, 50.0), (0.5, 490.0), (20.0, 490.0)] {
+            let square = [Point::new(10.0, 10.0), Point::new(10.0 + side, 10.0), Point::new(10.0 + side, 10.0 + side), Point::new(10.0, 10.0 + side), Point::new(10.0, 10.0)];
+            let through = marked(&square, speed).duration();
+            let stopping = TcpSettings { blend: false, junctions: false, ..settings() };
+            let mut b = TcpBuilder::new(stopping, square[0], 0.0);
+            b.mark(0, 0, &square, speed, 100.0, 0.0, 0.0).unwrap();
+            b.stop(0).unwrap();
+            let stops = b.path.duration();
+            assert!(through <= stops + 1e-9, "side {side} at {speed}: {through} s through the corners, {stops} s stopping");
+        }
+    }
+
+    #[test]
+    fn a_sharp_corner_slows_to_what_the_tolerance_allows() {
+        let square = [Point::new(10.0, 10.0), Point::new(40.0, 10.0), Point::new(40.0, 40.0), Point::new(10.0, 40.0), Point::new(10.0, 10.0)];
+        let path = marked(&square, 200.0);
+        let marks: Vec<_> = path.pieces.iter().filter(|p| p.is_marking()).collect();
+        assert_eq!(marks.len(), 4);
+        for m in &marks[1..] {
+            let v = speed_at(&path, m.start);
+            assert!(v < 0.2 * 200.0, "{v} mm/s into a right angle");
+        }
+        // Along the sides at full speed again.
+        assert!(speed_at(&path, 0.5 * (marks[1].start + marks[2].start)) > 0.99 * 200.0);
+        check(&path, &square);
+        // A reversal stops.
+        let back = [Point::new(10.0, 10.0), Point::new(30.0, 10.0), Point::new(20.0, 10.0)];
+        let path = marked(&back, 400.0);
+        let turn = path.pieces[1].start + 0.5 * (path.pieces[0].end_time() - path.pieces[1].start);
+        assert!(speed_at(&path, turn) < 1.0);
+        check(&path, &back);
+    }
+}
