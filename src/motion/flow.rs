@@ -135,14 +135,7 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings) -> Result<Flow, Vec<f64>> {
             lo[k] = l.max(0.0);
             hi[k] = u.min(travel[i]);
         }
-        if std::env::var("FLOW_DEBUG").is_ok() {
-            // Least travel through the corridor: a lazy string without speed limit.
-            let mut at = 0.5 * (lo[0] + hi[0]);
-            let mut tv = 0.0;
-            for k in 0..total { let nx = at.clamp(lo[k], hi[k].max(lo[k])); tv += (nx - at).abs(); at = nx; }
-            eprintln!("  axis {i}: least travel {tv:.1} mm over {:.3} s", duration);
-        }
-        match plan_axis(&lo, &hi, &wins, i, -(pad as f64) * h, h, v * h, n2, n3, s.half, a) {
+        match plan_axis(&lo, &hi, &wins, i, pad, -(pad as f64) * h, h, v * h, n2, n3, s.half, a) {
             Ok(c) => control[i] = c,
             Err(times) => behind.extend(times),
         }
@@ -164,18 +157,20 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings) -> Result<Flow, Vec<f64>> {
 
 /// One axis: the control points, or the times where the stage falls behind.
 #[allow(clippy::too_many_arguments)]
-fn plan_axis(lo: &[f64], hi: &[f64], wins: &[Window], i: usize, t0: f64, h: f64, step: f64, n2: usize, n3: usize, half: f64, a: f64) -> Result<Vec<f64>, Vec<f64>> {
+fn plan_axis(lo: &[f64], hi: &[f64], wins: &[Window], i: usize, pad: usize, t0: f64, h: f64, step: f64, n2: usize, n3: usize, half: f64, a: f64) -> Result<Vec<f64>, Vec<f64>> {
     let n = lo.len();
     let mut margin_lo = vec![0.0; n];
     let mut margin_hi = vec![0.0; n];
     let reach = n2 / 2 + n3 / 2 + 2;
-    for round in 0..REPAIRS {
+    for _ in 0..REPAIRS {
         let l: Vec<f64> = (0..n).map(|k| lo[k] + margin_lo[k]).collect();
         let u: Vec<f64> = (0..n).map(|k| hi[k] - margin_hi[k]).collect();
-        let string = string(&l, &u, step).map_err(|k| {
-            if std::env::var("FLOW_DEBUG").is_ok() { eprintln!("  axis {i}: no string at {:.3} (round {round})", t0 + k as f64 * h); }
-            vec![t0 + k as f64 * h]
-        })?;
+        let mut string = string(&l, &u, step).map_err(|k| vec![t0 + k as f64 * h])?;
+        // Still before and after the TCP (the pads), so that the stage starts
+        // and settles as late and as early as the averages allow.
+        let (first, last) = (string[pad], string[n - 1 - pad]);
+        string[..pad].fill(first);
+        string[n - pad..].fill(last);
         let c = average(&average(&string, n2), n3);
         // Spline on each window: its ends, and how far a curve with this
         // acceleration bows between them.
@@ -212,7 +207,6 @@ fn plan_axis(lo: &[f64], hi: &[f64], wins: &[Window], i: usize, t0: f64, h: f64,
     }
     // Still outside after every repair: where the margin grew most.
     let worst = (0..n).max_by(|&x, &y| (margin_lo[x] + margin_hi[x]).total_cmp(&(margin_lo[y] + margin_hi[y]))).unwrap_or(0);
-    if std::env::var("FLOW_DEBUG").is_ok() { eprintln!("  axis {i}: no convergence, worst {:.3}", t0 + worst as f64 * h); }
     Err(vec![t0 + worst as f64 * h])
 }
 
@@ -291,7 +285,10 @@ mod tests {
         // within the bounds that make the spline keep V, A and J.
         let (h, v, a, j) = (1e-3, 400.0, 4000.0, 2.0e5);
         let step = v * h;
-        let x: Vec<f64> = (0..2000).map(|k| step * ((k % 300) as f64 - if (k / 300) % 2 == 0 { 0.0 } else { 150.0 }).abs()).collect();
+        // A triangle wave (300 steps up, 300 down) with still ends, as the
+        // flow's strings have.
+        let tri = |k: usize| if k % 600 < 300 { (k % 600) as f64 } else { (600 - k % 600) as f64 };
+        let x: Vec<f64> = (0..2400).map(|k| if (300..2100).contains(&k) { step * tri(k - 300) } else { 0.0 }).collect();
         let n2 = ((2.0 * v / (a * h)).ceil() as usize) | 1;
         let n3 = ((4.0 * v / (n2 as f64 * j * h * h)).ceil() as usize) | 1;
         let c = average(&average(&x, n2), n3);

@@ -321,7 +321,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
 
 /// Rounds of slowing per field change at most, and how much slower each.
 const SLOWING_ROUNDS: usize = 8;
-const SLOWER: f64 = 0.7;
+const SLOWER: f64 = 0.5;
 
 /// The share of `sequence`'s field changes not `slowed` (`None` without any).
 fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
@@ -369,9 +369,7 @@ fn flowing(
         }
         cache = b.take_cache();
         let tcp = b.path;
-        let planned = flow::plan(&tcp, split);
-        if std::env::var("FLOW_DEBUG").is_ok() { eprintln!("flow: tcp {:.3} s, slowed {:?}, {:?}", tcp.duration(), slowed.iter().enumerate().filter_map(|(g, s)| s.map(|c| (g, c as i64))).collect::<Vec<_>>(), planned.as_ref().err()); }
-        match planned {
+        match flow::plan(&tcp, split) {
             Ok(f) => {
                 let stage0 = f.start_point();
                 let (mut all, approach, job_start) = approach(start, stage0, first, stage_limits, settings)?;
@@ -412,7 +410,7 @@ fn flowing(
                     let next = (g.max(first_group + 1)..groups).find(|&k| !sequence.groups[k].paths.is_empty() && slowed[k].is_none_or(|c| c > 0.1 * burst_speed));
                     if let Some(k) = next {
                         tracing::debug!(field = k + 1, "the stage cannot flow into this field: the TCP slows for it");
-                        slowed[k] = Some(slowed[k].map_or(4.0 * burst_speed, |c| SLOWER * c));
+                        slowed[k] = Some(slowed[k].map_or(2.0 * burst_speed, |c| SLOWER * c));
                         added = true;
                     }
                 }
@@ -620,6 +618,28 @@ mod tests {
         let lb = lower_bound(&j, &seq, &machine, Mode::OnTheFly).unwrap();
         assert!(tr.job_time() < step.job_time(), "{} vs step-and-scan {}", tr.job_time(), step.job_time());
         assert!(tr.job_time() <= 1.15 * lb, "{} vs bound {lb}", tr.job_time());
+    }
+
+    #[test]
+    fn on_the_fly_the_stage_flows_through_fields_far_apart_within_its_limits() {
+        let machine = MachineConfig::load(None).unwrap();
+        // Small squares in fields 120 mm apart, zig-zagging over the table:
+        // bursts alone carry the TCP at nearly every change.
+        let mut j = job();
+        j.geometries = (0..8)
+            .map(|k| {
+                let (x, y) = (20.0 + 30.0 * k as f64, if k % 2 == 0 { 30.0 } else { 150.0 });
+                Geometry { points: vec![Point::new(x, y), Point::new(x + 4.0, y), Point::new(x + 4.0, y + 4.0), Point::new(x, y + 4.0)], closed: true, process: 0, source: format!("sq {k}") }
+            })
+            .collect();
+        let (seq, tr) = plan(&j, &machine, Mode::OnTheFly);
+        assert!(matches!(tr.stage, StagePath::Flow { .. }), "the flowing stage is the faster here");
+        let flow = tr.stage_flow.expect("field changes on the fly");
+        assert!(flow > 0.0 && flow <= 1.0, "{flow}");
+        check_sampled(&tr, &machine, 2e-5);
+        assert!(marked_time(&tr) >= j.mark_length() / 800.0 - 1e-9);
+        let lb = lower_bound(&j, &seq, &machine, Mode::OnTheFly).unwrap();
+        assert!(lb <= tr.job_time(), "{lb} vs {}", tr.job_time());
     }
 
     /// The default machine with a pierce on the `mark` layer.
