@@ -128,9 +128,9 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings) -> Result<Flow, Vec<f64>> {
         let mut hi = vec![0.0; total];
         for k in 0..total {
             let (mut l, mut u) = (f64::NEG_INFINITY, f64::INFINITY);
-            for q in k.saturating_sub(1)..=(k + 1).min(total - 1) {
-                l = l.max(tcp_at[q][i] - s.half);
-                u = u.min(tcp_at[q][i] + s.half);
+            for p in &tcp_at[k.saturating_sub(1)..=(k + 1).min(total - 1)] {
+                l = l.max(p[i] - s.half);
+                u = u.min(p[i] + s.half);
             }
             lo[k] = l.max(0.0);
             hi[k] = u.min(travel[i]);
