@@ -134,10 +134,12 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
     let duration = trajectory.duration();
     let mut stage = Vec::new();
     let mut rests = vec![trajectory.start.stage];
-    if let StagePath::Moves { axes, .. } = &trajectory.stage {
+    if !matches!(trajectory.stage, StagePath::FollowsTcp) {
         for k in 0..=TIME_SAMPLES * 4 {
             stage.push(trajectory.state_at(duration * k as f64 / (TIME_SAMPLES * 4) as f64).stage);
         }
+    }
+    if let StagePath::Moves { axes, .. } = &trajectory.stage {
         let mut ends: Vec<f64> = axes.iter().flatten().map(|m| m.end_time()).collect();
         ends.sort_by(f64::total_cmp);
         for t in ends {

@@ -19,6 +19,11 @@ pub struct PlanReport {
     /// Turns of more than 90° of the stage's field-to-field path (it going
     /// back the way it came); `null` on a stage-only plan.
     pub stage_reversals: Option<usize>,
+    /// On the fly: the share of field changes the stage takes at speed
+    /// (the others stop the TCP while the stage catches up); `null` in other
+    /// modes and without a field change.
+    #[serde(default)]
+    pub stage_flow: Option<f64>,
     pub mark_length_mm: f64,
     pub idle_stroke_mm: f64,
     pub plan_time_s: f64,
@@ -68,8 +73,9 @@ impl PlanReport {
     /// A few lines for a person at a terminal.
     pub fn summary(&self) -> String {
         let mut s = String::new();
+        let flow = self.stage_flow.map(|f| format!(", {:.0} % of field changes at speed", 100.0 * f)).unwrap_or_default();
         let fields = match (self.scan_fields, self.stage_reversals) {
-            (Some(n), Some(r)) => format!(", {n} scan fields ({r} stage reversals)"),
+            (Some(n), Some(r)) => format!(", {n} scan fields ({r} stage reversals{flow})"),
             (Some(n), None) => format!(", {n} scan fields"),
             _ => String::new(),
         };

@@ -82,6 +82,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         geometries: job.geometries.len(),
         scan_fields: sequence.scan_fields(),
         stage_reversals: sequence.stage_reversals(),
+        stage_flow: trajectory.stage_flow,
         mark_length_mm: job.mark_length(),
         idle_stroke_mm: sequence.idle_stroke(),
         plan_time_s,

@@ -24,6 +24,7 @@
 //! pierce power for the pierce time (a `Pierce` piece), then marks.
 
 pub mod blend;
+pub mod flow;
 pub mod leg;
 pub mod profile;
 pub mod stage;
@@ -61,6 +62,10 @@ pub struct Trajectory {
     /// When the approach ends and the job's clock starts.
     pub job_start: f64,
     pub has_scanner: bool,
+    /// On the fly: the share of field changes the stage takes at speed (the
+    /// others stop the TCP while the stage catches up); `None` otherwise or
+    /// without a field change.
+    pub stage_flow: Option<f64>,
 }
 
 impl Trajectory {
@@ -201,7 +206,7 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     let job_start = b.time;
     mark_all(&mut b, job, sequence, machine, &mut None, |_, _| Ok(()))?;
     let start_state = AxisState { stage: start, scanner: Point::origin() };
-    Ok(Trajectory { tcp: b.path, stage: StagePath::FollowsTcp, start: start_state, job_start, has_scanner: machine.scanner.is_some() })
+    Ok(Trajectory { tcp: b.path, stage: StagePath::FollowsTcp, start: start_state, job_start, has_scanner: machine.scanner.is_some(), stage_flow: None })
 }
 
 fn step_and_scan(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Point) -> Result<Trajectory> {
@@ -243,7 +248,7 @@ fn step_and_scan(job: &Job, sequence: &Sequence, machine: &MachineConfig, start:
         Ok(())
     })?;
     let start_state = AxisState { stage: start, scanner: Point::origin() };
-    Ok(Trajectory { tcp: b.path, stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true })
+    Ok(Trajectory { tcp: b.path, stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true, stage_flow: None })
 }
 
 fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Point) -> Result<Trajectory> {
@@ -258,7 +263,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     };
     let Some(first) = sequence.paths().next().map(|p| p.start()) else {
         let start_state = AxisState { stage: start, scanner: Point::origin() };
-        return Ok(Trajectory { tcp: TcpPath::default(), stage: StagePath::FollowsTcp, start: start_state, job_start: 0.0, has_scanner: true });
+        return Ok(Trajectory { tcp: TcpPath::default(), stage: StagePath::FollowsTcp, start: start_state, job_start: 0.0, has_scanner: true, stage_flow: None });
     };
     let groups = sequence.groups.len();
     // Field changes where the stage carries the TCP (no burst fits there).
@@ -289,7 +294,20 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
             }
         };
         match stage::split(&tcp, &positions, &split)? {
-            Ok(stage_path) => return with_approach(tcp, stage_path, positions[0], start, first, stage_limits, settings),
+            Ok(stage_path) => {
+                let slowed = carried.iter().filter(|&&c| c).count();
+                let mut bursts = with_approach(tcp, stage_path, positions[0], start, first, stage_limits, settings)?;
+                bursts.stage_flow = flow_share(sequence, slowed);
+                if slowed == 0 {
+                    return Ok(bursts);
+                }
+                // Bursts alone carry the TCP somewhere: the stage planned over
+                // the whole job may flow there; the faster of the two.
+                return Ok(match flowing(job, sequence, machine, start, first, &split, settings, &mut runs)? {
+                    Some(flow) if flow.job_time() < bursts.job_time() => flow,
+                    _ => bursts,
+                });
+            }
             Err(stage::NoSplit(into)) => {
                 for g in into {
                     if carried[g] {
@@ -303,10 +321,114 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     }
 }
 
-/// Puts the approach in front of an on-the-fly job: the stage carries the
-/// centred scanner from `start` to `stage0`, then the scanner jumps to the
-/// first point; the job's pieces and stage moves follow.
-fn with_approach(mut tcp: TcpPath, mut stage_path: StagePath, stage0: Point, start: Point, first: Point, stage_limits: Limits, settings: TcpSettings) -> Result<Trajectory> {
+/// Rounds of slowing per field change at most, and how much slower each.
+const SLOWING_ROUNDS: usize = 8;
+const SLOWER: f64 = 0.5;
+
+/// The share of `sequence`'s field changes not `slowed` (`None` without any).
+fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
+    let changes = sequence.groups.iter().filter(|g| !g.paths.is_empty()).count().saturating_sub(1);
+    (changes > 0).then(|| (changes - slowed.min(changes)) as f64 / changes as f64)
+}
+
+/// On the fly with the stage planned over the whole job (`flow`). Where the
+/// stage cannot keep up, the field change there is slowed: the TCP stops and
+/// moves to the next field's first point at the stage's own limits, and all
+/// is planned again. `None` when that does not settle it.
+#[allow(clippy::too_many_arguments)]
+fn flowing(
+    job: &Job,
+    sequence: &Sequence,
+    machine: &MachineConfig,
+    start: Point,
+    first: Point,
+    split: &SplitSettings,
+    settings: TcpSettings,
+    runs: &mut Option<Vec<Option<Run>>>,
+) -> Result<Option<Trajectory>> {
+    let groups = sequence.groups.len();
+    let first_group = sequence.groups.iter().position(|g| !g.paths.is_empty()).unwrap_or(0);
+    let stage_limits = machine.stage_limits().scaled(machine.motion.limit_margin);
+    // Per field: the speed cap of the jump into it, where slowed.
+    let mut slowed: Vec<Option<f64>> = vec![None; groups];
+    let mut cache = tcp::PlanCache::default();
+    let burst_speed = split.burst.velocity;
+    for _ in 0..=SLOWING_ROUNDS * groups {
+        let mut b = TcpBuilder::new(settings, first, 0.0).with_cache(std::mem::take(&mut cache));
+        // The slowed jumps' accelerations: the scanner's would be more than
+        // Ruckig can scale at these speeds, and more than the stage needs.
+        let slow = |cap: f64| Limits { velocity: cap, acceleration: settings.axis.acceleration.min(10.0 * split.burst.acceleration), jerk: settings.axis.jerk.min(100.0 * split.burst.jerk) };
+        let marked = mark_all(&mut b, job, sequence, machine, runs, |b, g| {
+            if let Some(cap) = slowed[g] {
+                let entry = sequence.groups[g].paths[0].start();
+                b.jump_within(g, entry, slow(cap))?;
+            }
+            Ok(())
+        });
+        if let Err(e) = marked {
+            tracing::debug!("no flowing stage: {e}");
+            return Ok(None);
+        }
+        cache = b.take_cache();
+        let tcp = b.path;
+        match flow::plan(&tcp, split) {
+            Ok(f) => {
+                let stage0 = f.start_point();
+                let (mut all, approach, job_start) = approach(start, stage0, first, stage_limits, settings)?;
+                // Where the stage starts before the TCP, the TCP waits for it
+                // at its first point (in the job's time).
+                let approach_end = approach.iter().flatten().map(stage::AxisMove::end_time).fold(0.0, f64::max);
+                let wait = (approach_end - job_start - f.first_motion()).max(0.0);
+                if wait > 0.0 {
+                    let mut b = TcpBuilder::new(settings, first, job_start);
+                    b.still(PieceKind::Jump, first_group, wait);
+                    all.append(&mut b.path.pieces);
+                }
+                let (mut tcp, mut f) = (tcp, f);
+                tcp.shift(job_start + wait);
+                f.shift(job_start + wait);
+                let tcp_end = tcp.duration();
+                all.append(&mut tcp.pieces);
+                // And where the stage settles after the TCP's end, the TCP
+                // waits at its last point, so that the program runs it.
+                if f.end_time() > tcp_end {
+                    let last = all.last().map_or(first, |p| p.end_point());
+                    let mut b = TcpBuilder::new(settings, last, tcp_end);
+                    b.still(PieceKind::Jump, groups.saturating_sub(1), f.end_time() - tcp_end);
+                    all.append(&mut b.path.pieces);
+                }
+                let start_state = AxisState { stage: start, scanner: Point::origin() };
+                let stage_flow = flow_share(sequence, slowed.iter().filter(|s| s.is_some()).count());
+                let stage = StagePath::Flow { start, approach, flow: f };
+                return Ok(Some(Trajectory { tcp: TcpPath::new(all), stage, start: start_state, job_start, has_scanner: true, stage_flow }));
+            }
+            Err(times) => {
+                let mut added = false;
+                for t in times {
+                    let g = tcp.pieces[tcp.index_at(t)].group;
+                    // The change into that field, or the one after it.
+                    // The change into that field, slower each time, down to
+                    // a tenth of the stage's speed; then the one after it.
+                    let next = (g.max(first_group + 1)..groups).find(|&k| !sequence.groups[k].paths.is_empty() && slowed[k].is_none_or(|c| c > 0.1 * burst_speed));
+                    if let Some(k) = next {
+                        tracing::debug!(field = k + 1, "the stage cannot flow into this field: the TCP slows for it");
+                        slowed[k] = Some(slowed[k].map_or(2.0 * burst_speed, |c| SLOWER * c));
+                        added = true;
+                    }
+                }
+                if !added {
+                    return Ok(None);
+                }
+            }
+        }
+    }
+    Ok(None)
+}
+
+/// The approach of an on-the-fly job: the stage carries the centred scanner
+/// from `start` to `stage0`, then the scanner jumps to the first point. Its
+/// TCP pieces, stage moves, and when it ends.
+fn approach(start: Point, stage0: Point, first: Point, stage_limits: Limits, settings: TcpSettings) -> Result<(Vec<tcp::Piece>, [Vec<stage::AxisMove>; 2], f64)> {
     let mut b = TcpBuilder::new(settings, start, 0.0);
     b.straight(PieceKind::Approach, 0, stage0, stage_limits)?;
     let mut axes: [Vec<stage::AxisMove>; 2] = [Vec::new(), Vec::new()];
@@ -314,10 +436,15 @@ fn with_approach(mut tcp: TcpPath, mut stage_path: StagePath, stage0: Point, sta
         stage::carried_moves(piece, &mut axes, start);
     }
     b.jump(PieceKind::Approach, 0, first, nalgebra::Vector2::zeros())?;
-    let job_start = b.time;
+    Ok((b.path.pieces, axes, b.time))
+}
+
+/// Puts the approach in front of an on-the-fly job; the job's pieces and
+/// stage moves follow.
+fn with_approach(mut tcp: TcpPath, mut stage_path: StagePath, stage0: Point, start: Point, first: Point, stage_limits: Limits, settings: TcpSettings) -> Result<Trajectory> {
+    let (mut pieces, mut axes, job_start) = approach(start, stage0, first, stage_limits, settings)?;
     tcp.shift(job_start);
     stage_path.shift(job_start);
-    let mut pieces = b.path.pieces;
     pieces.append(&mut tcp.pieces);
     if let StagePath::Moves { axes: job_axes, .. } = stage_path {
         for (a, mut moves) in axes.iter_mut().zip(job_axes) {
@@ -325,7 +452,7 @@ fn with_approach(mut tcp: TcpPath, mut stage_path: StagePath, stage0: Point, sta
         }
     }
     let start_state = AxisState { stage: start, scanner: Point::origin() };
-    Ok(Trajectory { tcp: TcpPath::new(pieces), stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true })
+    Ok(Trajectory { tcp: TcpPath::new(pieces), stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true, stage_flow: None })
 }
 
 /// The contract's `lower_bound_s` for this sequence: max(T_proc, T_stage).
@@ -493,6 +620,28 @@ mod tests {
         let lb = lower_bound(&j, &seq, &machine, Mode::OnTheFly).unwrap();
         assert!(tr.job_time() < step.job_time(), "{} vs step-and-scan {}", tr.job_time(), step.job_time());
         assert!(tr.job_time() <= 1.15 * lb, "{} vs bound {lb}", tr.job_time());
+    }
+
+    #[test]
+    fn on_the_fly_the_stage_flows_through_fields_far_apart_within_its_limits() {
+        let machine = MachineConfig::load(None).unwrap();
+        // Small squares in fields 120 mm apart, zig-zagging over the table:
+        // bursts alone carry the TCP at nearly every change.
+        let mut j = job();
+        j.geometries = (0..8)
+            .map(|k| {
+                let (x, y) = (20.0 + 30.0 * k as f64, if k % 2 == 0 { 30.0 } else { 150.0 });
+                Geometry { points: vec![Point::new(x, y), Point::new(x + 4.0, y), Point::new(x + 4.0, y + 4.0), Point::new(x, y + 4.0)], closed: true, process: 0, source: format!("sq {k}") }
+            })
+            .collect();
+        let (seq, tr) = plan(&j, &machine, Mode::OnTheFly);
+        assert!(matches!(tr.stage, StagePath::Flow { .. }), "the flowing stage is the faster here");
+        let flow = tr.stage_flow.expect("field changes on the fly");
+        assert!(flow > 0.0 && flow <= 1.0, "{flow}");
+        check_sampled(&tr, &machine, 2e-5);
+        assert!(marked_time(&tr) >= j.mark_length() / 800.0 - 1e-9);
+        let lb = lower_bound(&j, &seq, &machine, Mode::OnTheFly).unwrap();
+        assert!(lb <= tr.job_time(), "{lb} vs {}", tr.job_time());
     }
 
     /// The default machine with a pierce on the `mark` layer.

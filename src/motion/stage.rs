@@ -50,6 +50,9 @@ pub enum StagePath {
     FollowsTcp,
     /// Each axis's moves in time order (none overlapping on one axis).
     Moves { start: Point, axes: [Vec<AxisMove>; 2] },
+    /// On the fly, planned over the whole job (`flow`): the approach's moves,
+    /// then the flow.
+    Flow { start: Point, approach: [Vec<AxisMove>; 2], flow: super::flow::Flow },
 }
 
 impl StagePath {
@@ -57,6 +60,13 @@ impl StagePath {
         match self {
             StagePath::FollowsTcp => tcp.position(t),
             StagePath::Moves { start, axes } => Point::new(axis_position(&axes[0], start.x, t), axis_position(&axes[1], start.y, t)),
+            StagePath::Flow { start, approach, flow } => {
+                if t < flow.moves_from {
+                    Point::new(axis_position(&approach[0], start.x, t), axis_position(&approach[1], start.y, t))
+                } else {
+                    flow.position(t)
+                }
+            }
         }
     }
 
@@ -65,12 +75,18 @@ impl StagePath {
         match self {
             StagePath::FollowsTcp => 0.0,
             StagePath::Moves { axes, .. } => axes.iter().flatten().map(AxisMove::end_time).fold(0.0, f64::max),
+            StagePath::Flow { flow, .. } => flow.end_time(),
         }
     }
 
     pub fn shift(&mut self, dt: f64) {
-        if let StagePath::Moves { axes, .. } = self {
-            axes.iter_mut().flatten().for_each(|m| m.start += dt);
+        match self {
+            StagePath::FollowsTcp => {}
+            StagePath::Moves { axes, .. } => axes.iter_mut().flatten().for_each(|m| m.start += dt),
+            StagePath::Flow { approach, flow, .. } => {
+                approach.iter_mut().flatten().for_each(|m| m.start += dt);
+                flow.shift(dt);
+            }
         }
     }
 
@@ -78,12 +94,17 @@ impl StagePath {
     pub fn moving(&self, t: f64) -> bool {
         match self {
             StagePath::FollowsTcp => true,
-            StagePath::Moves { axes, .. } => axes.iter().any(|moves| {
-                let k = moves.partition_point(|m| m.start <= t);
-                k > 0 && moves[k - 1].end_time() > t
-            }),
+            StagePath::Moves { axes, .. } => axes_moving(axes, t),
+            StagePath::Flow { approach, flow, .. } => axes_moving(approach, t) || flow.moving(t),
         }
     }
+}
+
+fn axes_moving(axes: &[Vec<AxisMove>; 2], t: f64) -> bool {
+    axes.iter().any(|moves| {
+        let k = moves.partition_point(|m| m.start <= t);
+        k > 0 && moves[k - 1].end_time() > t
+    })
 }
 
 fn axis_position(moves: &[AxisMove], start: f64, t: f64) -> f64 {
@@ -123,11 +144,11 @@ pub struct SplitSettings {
 
 /// A stretch of time and the TCP's bounding box over it.
 #[derive(Debug, Clone, Copy)]
-struct Window {
-    t0: f64,
-    t1: f64,
-    lo: [f64; 2],
-    hi: [f64; 2],
+pub(super) struct Window {
+    pub t0: f64,
+    pub t1: f64,
+    pub lo: [f64; 2],
+    pub hi: [f64; 2],
 }
 
 /// Windows no longer than this: the stage moves little within one.
@@ -138,11 +159,11 @@ const WINDOW: f64 = 1.0e-3;
 const MOST_WINDOWS: f64 = 1.0e6;
 
 /// The windows' length for `tcp`: `WINDOW`, or longer on very long jobs.
-fn window_length(tcp: &TcpPath) -> f64 {
+pub(super) fn window_length(tcp: &TcpPath) -> f64 {
     (tcp.duration() / MOST_WINDOWS).max(WINDOW)
 }
 
-fn windows(tcp: &TcpPath, length: f64) -> Vec<Window> {
+pub(super) fn windows(tcp: &TcpPath, length: f64) -> Vec<Window> {
     // Disjoint stretches between piece boundaries, cut to at most `length`;
     // the TCP is sampled inside each (blended corners and free moves bow).
     let mut times: Vec<f64> = tcp.pieces.iter().flat_map(|p| [p.start, p.end_time()]).collect();

@@ -530,6 +530,21 @@ impl TcpBuilder {
         Ok(())
     }
 
+    /// A laser-off move from rest to rest at `to` within `axis` (not cached:
+    /// the cache holds moves at the settings' limits).
+    pub fn jump_within(&mut self, group: usize, to: Point, axis: Limits) -> Result<()> {
+        self.stop(group)?;
+        if (to - self.position).norm() < 1e-9 {
+            return Ok(());
+        }
+        let m = FreeMove::new(self.position, Vector2::zeros(), to, Vector2::zeros(), axis)?;
+        let d = m.duration;
+        self.push(PieceKind::Jump, group, Motion::Free(m), d);
+        self.time += d;
+        self.position = to;
+        Ok(())
+    }
+
     /// A straight rest-to-rest move to `to` at `limits` (per axis).
     pub fn straight(&mut self, kind: PieceKind, group: usize, to: Point, axis: Limits) -> Result<()> {
         self.stop(group)?;
