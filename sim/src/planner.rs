@@ -155,19 +155,27 @@ pub fn next_segment(s: SegmentInput) -> Option<Segment> {
         let t_floor = ((v - floor) / a).max(0.0);
         // Time at which the remaining distance is used up, if before the floor.
         let disc = v * v - 2.0 * a * s.remaining;
-        let t_end = if disc >= floor * floor { (v - disc.max(0.0).sqrt()) / a } else { f64::INFINITY };
+        // (v - end) / a, written without the cancellation of v - end.
+        let end = disc.max(0.0).sqrt();
+        let t_end = if disc >= floor * floor { 2.0 * s.remaining / (v + end) } else { f64::INFINITY };
         let t = t_floor.min(t_end).min(SEGMENT_S);
         if t <= 0.0 {
             return None;
         }
-        let (distance, end_speed) = if t >= t_end {
-            // Rounding in `disc` is amplified by the root: snap to the floor.
-            let end = disc.max(0.0).sqrt();
-            (s.remaining, if end - floor < 1e-6 { floor } else { end })
-        } else {
-            (covered(v, -a, t).min(s.remaining), v - a * t)
-        };
-        Some(Segment { distance, duration: t, end_speed: end_speed.max(0.0) })
+        if t >= t_end {
+            // The remaining distance carries the rounding of the block's
+            // segments (1e-14 mm on a 40 mm block), which the root turns into
+            // an end speed of some 1e-6 mm/s above the floor: a step of speed
+            // into the next block that reads as acceleration over the limit.
+            // A remaining distance that short of braking to the floor only by
+            // rounding ends at the floor, and the duration then follows from
+            // the distance and the two speeds (an exact ramp, 1e-10 over `a`
+            // at most).
+            let to_floor = (v * v - floor * floor) / (2.0 * a);
+            let end_speed = if s.remaining >= to_floor * (1.0 - 1e-10) - 1e-13 { floor } else { end };
+            return Some(Segment { distance: s.remaining, duration: 2.0 * s.remaining / (v + end_speed), end_speed });
+        }
+        Some(Segment { distance: covered(v, -a, t).min(s.remaining), duration: t, end_speed: (v - a * t).max(0.0) })
     };
     if s.stopping {
         return if v <= EPS_SPEED { None } else { decelerate(0.0) };
@@ -186,8 +194,14 @@ pub fn next_segment(s: SegmentInput) -> Option<Segment> {
     let top = s.nominal.min(peak);
     if top > v + EPS_SPEED {
         let t = ((top - v) / a).min(SEGMENT_S);
-        let distance = covered(v, a, t).min(s.remaining);
-        return Some(Segment { distance, duration: t, end_speed: v + a * t });
+        // The exit speed may be more than this block can reach (the reverse
+        // pass plans from the queue's end only): then the ramp ends with the
+        // block, at the speed it reached there.
+        let reached = (v * v + 2.0 * a * s.remaining).sqrt();
+        if v + a * t >= reached {
+            return Some(Segment { distance: s.remaining, duration: 2.0 * s.remaining / (v + reached), end_speed: reached });
+        }
+        return Some(Segment { distance: covered(v, a, t), duration: t, end_speed: v + a * t });
     }
     // Cruise to where braking for the exit must begin.
     if v <= EPS_SPEED {

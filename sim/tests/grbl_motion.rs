@@ -246,3 +246,33 @@ fn jog_cancel_brakes_in_jog_then_drops_the_jog() {
     s.run_until(3.0);
     assert!((s.ctl.position()[0] - stopped - 1.0).abs() < 1e-9);
 }
+
+/// Back and forth along X with reversals, straight-on junctions and feeds
+/// that change from block to block: every ramp keeps the acceleration, to the
+/// checker's rounding. (Before: a block too short to reach the exit speed its
+/// queue allowed ramped for a whole segment's time over a shorter distance,
+/// 11 times the limit; and a stop before a reversal kept an end speed of
+/// 1e-6 mm/s from the root of a rounded distance, 1 + 1e-6 times it.)
+#[test]
+fn reversals_and_feed_changes_keep_the_acceleration() {
+    let cfg = grbl(15);
+    let mut lines = vec!["G21G90G94".to_string()];
+    // A fixed pseudo-random walk (no seed to vary): 200 moves inside 0..100 mm.
+    let mut state: u64 = 3;
+    let mut next = |n: u64| {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (state >> 33) % n
+    };
+    for _ in 0..200 {
+        let x = next(100_000) as f64 / 1000.0;
+        let feed = [600, 3000, 6000, 12000, 30000][next(5) as usize];
+        lines.push(format!("G1X{x:.3}F{feed}"));
+    }
+    let lines: Vec<&str> = lines.iter().map(String::as_str).collect();
+    let mut s = Sim::new(cfg.clone());
+    stream(&mut s, &lines);
+    s.run_until(s.t + 400.0);
+    assert!(s.knots.len() > 1000, "{} knots", s.knots.len());
+    let use_ = peak_acceleration_use(&cfg, &s.knots);
+    assert!(use_ <= 1.0 + 1e-9 && use_ > 0.99, "acceleration {use_} times the limit");
+}
