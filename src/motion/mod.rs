@@ -334,7 +334,8 @@ fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
 /// On the fly with the stage planned over the whole job (`flow`). Where the
 /// stage cannot keep up, the field change there is slowed: the TCP stops and
 /// moves to the next field's first point at the stage's own limits, and all
-/// is planned again. `None` when that does not settle it.
+/// is planned again (every change where the stage falls behind at once).
+/// `None` when that does not settle it.
 #[allow(clippy::too_many_arguments)]
 fn flowing(
     job: &Job,
@@ -407,13 +408,14 @@ fn flowing(
                 let stage = StagePath::Flow { start, approach, flow: f };
                 return Ok(Some(Trajectory { tcp: TcpPath::new(all), stage, start: start_state, job_start, has_scanner: true, stage_flow }));
             }
-            Err(times) => {
+            Err(behind) => {
+                // The changes into the fields where the stage falls behind
+                // (or the next one), slower each time, down to a tenth of
+                // the stage's speed; then the one after it.
+                let mut into: Vec<usize> = behind.iter().map(|&t| tcp.pieces[tcp.index_at(t)].group).collect();
+                into.dedup();
                 let mut added = false;
-                for t in times {
-                    let g = tcp.pieces[tcp.index_at(t)].group;
-                    // The change into that field, or the one after it.
-                    // The change into that field, slower each time, down to
-                    // a tenth of the stage's speed; then the one after it.
+                for g in into {
                     let next = (g.max(first_group + 1)..groups).find(|&k| !sequence.groups[k].paths.is_empty() && slowed[k].is_none_or(|c| c > 0.1 * burst_speed));
                     if let Some(k) = next {
                         tracing::debug!(field = k + 1, "the stage cannot flow into this field: the TCP slows for it");
