@@ -21,8 +21,10 @@
 //!    raised around that time by the excess, and all is planned again.
 //!
 //! Where no string exists (the stage cannot reach the next field in time) or
-//! the repairs do not converge, the plan names the times: the caller slows
-//! the TCP at the field changes there, and plans again. The string is held
+//! the repairs do not converge, the plan names the times (the forward pass
+//! goes on from the corridor's edge nearest the reach, so that one plan
+//! names every place the stage falls behind): the caller slows the TCP at
+//! the field changes there, and plans again. The string is held
 //! still over the first and last `n2 + n3` steps, so that the stage starts and
 //! ends at rest with the TCP (no motion before the job's clock starts).
 
@@ -165,7 +167,7 @@ fn plan_axis(lo: &[f64], hi: &[f64], wins: &[Window], i: usize, pad: usize, t0: 
     for _ in 0..REPAIRS {
         let l: Vec<f64> = (0..n).map(|k| lo[k] + margin_lo[k]).collect();
         let u: Vec<f64> = (0..n).map(|k| hi[k] - margin_hi[k]).collect();
-        let mut string = string(&l, &u, step).map_err(|k| vec![t0 + k as f64 * h])?;
+        let mut string = string(&l, &u, step).map_err(|short| short.iter().map(|&k| t0 + k as f64 * h).collect::<Vec<_>>())?;
         // Still before and after the TCP (the pads), so that the stage starts
         // and settles as late and as early as the averages allow.
         let (first, last) = (string[pad], string[n - 1 - pad]);
@@ -226,24 +228,34 @@ fn spline(c: &[f64], h: f64, t: f64) -> f64 {
 }
 
 /// Positions within `[lo, hi]` moving at most `step` from one to the next,
-/// each as near its reachable interval's middle as the step allows; `Err(k)`:
-/// none reaches grid time `k`.
-fn string(lo: &[f64], hi: &[f64], step: f64) -> Result<Vec<f64>, usize> {
+/// each as near its reachable interval's middle as the step allows. `Err`:
+/// the grid times no string reaches (the pass goes on from the corridor's
+/// edge nearest the reach).
+fn string(lo: &[f64], hi: &[f64], step: f64) -> Result<Vec<f64>, Vec<usize>> {
     let n = lo.len();
     let mut f = Vec::with_capacity(n);
     let mut prev: Option<(f64, f64)> = None;
+    let mut short = Vec::new();
     for k in 0..n {
         let (mut l, mut u) = (lo[k], hi[k]);
         if let Some((pl, pu)) = prev {
-            l = l.max(pl - step);
-            u = u.min(pu + step);
-        }
-        if l > u + 1e-12 {
-            return Err(k);
+            if lo[k] > pu + step + 1e-12 {
+                short.push(k);
+                u = lo[k];
+            } else if hi[k] < pl - step - 1e-12 {
+                short.push(k);
+                l = hi[k];
+            } else {
+                l = l.max(pl - step);
+                u = u.min(pu + step);
+            }
         }
         let u = u.max(l);
         f.push((l, u));
         prev = Some((l, u));
+    }
+    if !short.is_empty() {
+        return Err(short);
     }
     for k in (0..n.saturating_sub(1)).rev() {
         let (nl, nu) = f[k + 1];
@@ -313,6 +325,12 @@ mod tests {
                 assert!((s[k] - s[k - 1]).abs() <= 2.0 + 1e-12);
             }
         }
-        assert_eq!(string(&lo, &hi, 1.0), Err(2));
+        // Every place it falls behind, in one pass: short at 2, and from
+        // there (2.5) at 3; from there (5) the end is reachable.
+        assert_eq!(string(&lo, &hi, 1.0), Err(vec![2, 3]));
+        // The same going down.
+        let far = [10.0, 10.0, 5.0, 0.0, 0.0];
+        assert_eq!(string(&far, &far, 1.0), Err(vec![2, 3]));
+        assert_eq!(string(&far, &far, 5.0).map(|s| s.len()), Ok(5));
     }
 }

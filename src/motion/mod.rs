@@ -334,7 +334,8 @@ fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
 /// On the fly with the stage planned over the whole job (`flow`). Where the
 /// stage cannot keep up, the field change there is slowed: the TCP stops and
 /// moves to the next field's first point at the stage's own limits, and all
-/// is planned again. `None` when that does not settle it.
+/// is planned again (every change where the stage falls behind at once).
+/// `None` when that does not settle it.
 #[allow(clippy::too_many_arguments)]
 fn flowing(
     job: &Job,
@@ -371,6 +372,11 @@ fn flowing(
         }
         cache = b.take_cache();
         let tcp = b.path;
+        if !stage::pierce_times(&tcp).is_empty() {
+            // A pierce dwells (`G4`), which stops the stage: the flow does
+            // not plan such stops, the bursts do.
+            return Ok(None);
+        }
         match flow::plan(&tcp, split) {
             Ok(f) => {
                 let stage0 = f.start_point();
@@ -402,13 +408,14 @@ fn flowing(
                 let stage = StagePath::Flow { start, approach, flow: f };
                 return Ok(Some(Trajectory { tcp: TcpPath::new(all), stage, start: start_state, job_start, has_scanner: true, stage_flow }));
             }
-            Err(times) => {
+            Err(behind) => {
+                // The changes into the fields where the stage falls behind
+                // (or the next one), slower each time, down to a tenth of
+                // the stage's speed; then the one after it.
+                let mut into: Vec<usize> = behind.iter().map(|&t| tcp.pieces[tcp.index_at(t)].group).collect();
+                into.dedup();
                 let mut added = false;
-                for t in times {
-                    let g = tcp.pieces[tcp.index_at(t)].group;
-                    // The change into that field, or the one after it.
-                    // The change into that field, slower each time, down to
-                    // a tenth of the stage's speed; then the one after it.
+                for g in into {
                     let next = (g.max(first_group + 1)..groups).find(|&k| !sequence.groups[k].paths.is_empty() && slowed[k].is_none_or(|c| c > 0.1 * burst_speed));
                     if let Some(k) = next {
                         tracing::debug!(field = k + 1, "the stage cannot flow into this field: the TCP slows for it");
@@ -596,11 +603,9 @@ mod tests {
         assert!(lb > 0.0 && lb <= tr.job_time(), "lower bound {lb} vs {}", tr.job_time());
     }
 
-    #[test]
-    fn on_the_fly_moves_the_stage_while_marking_and_comes_close_to_the_bound() {
-        let machine = MachineConfig::load(None).unwrap();
-        // A row of nested squares 200 mm long: several fields side by side,
-        // more marking than the stage needs to cross them.
+    /// A row of nested squares 200 mm long: several fields side by side,
+    /// more marking than the stage needs to cross them.
+    fn row_job() -> Job {
         let mut j = job();
         j.geometries = (0..11)
             .flat_map(|k| {
@@ -611,6 +616,13 @@ mod tests {
                 })
             })
             .collect();
+        j
+    }
+
+    #[test]
+    fn on_the_fly_moves_the_stage_while_marking_and_comes_close_to_the_bound() {
+        let machine = MachineConfig::load(None).unwrap();
+        let j = row_job();
         let (seq, tr) = plan(&j, &machine, Mode::OnTheFly);
         let stage_speed = check_sampled(&tr, &machine, 2e-5);
         assert!(stage_speed > 10.0, "the stage moves while the scanner marks: {stage_speed}");
@@ -673,6 +685,11 @@ mod tests {
                 assert!((tr.tcp.position(p.start + 0.1) - path.start()).norm() < 1e-9, "{mode:?}");
                 let next = &tr.tcp.pieces[i + 1];
                 assert!(next.is_marking() && (next.start - p.end_time()).abs() < 1e-12, "{mode:?}: {next:?}");
+                // The program dwells there (G4), which stops every axis: the
+                // stage stands still too.
+                if mode != Mode::StageOnly {
+                    assert!((0..=20).all(|k| !tr.stage.moving(p.start + p.duration * k as f64 / 20.0)), "{mode:?}: the stage moves during the pierce at {}", p.start);
+                }
             }
             check_sampled(&tr, &machine, 5e-5);
             let lb = lower_bound(&j, &seq, &machine, mode).unwrap();
@@ -681,6 +698,15 @@ mod tests {
             assert!(lb > lb_plain && lb >= 0.2 * paths.len() as f64, "{mode:?}: {lb} vs {lb_plain}");
             assert!(lb <= tr.job_time(), "{mode:?}: {lb} vs {}", tr.job_time());
         }
+        // On the fly with fields side by side: the stage's moves from field
+        // to field keep clear of the pierces.
+        let machine = piercing(MachineConfig::load(None).unwrap(), 0.05, 700.0);
+        let (_, tr) = plan(&row_job(), &machine, Mode::OnTheFly);
+        assert!(tr.stage_flow.is_some(), "field changes on the fly");
+        for p in tr.tcp.pieces.iter().filter(|p| matches!(p.kind, PieceKind::Pierce { .. })) {
+            assert!((0..=20).all(|k| !tr.stage.moving(p.start + p.duration * k as f64 / 20.0)), "the stage moves during the pierce at {}", p.start);
+        }
+        check_sampled(&tr, &machine, 5e-5);
         // No pierce time, no pierce pieces.
         let machine = piercing(MachineConfig::load(None).unwrap(), 0.0, 700.0);
         let (_, tr) = plan(&job(), &machine, Mode::StepAndScan);

@@ -286,6 +286,7 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
     let mut stage = start;
     // Time range of each group's own pieces.
     let span_time = |g: usize| spans[g].map(|(a, b)| (tcp.pieces[a].start, tcp.pieces[b].end_time()));
+    let pierces = pierce_times(tcp);
     let mut prev_group: Option<usize> = None;
     let mut failed = Vec::new();
     for (g, &target) in at.iter().enumerate() {
@@ -317,7 +318,7 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
                 let earliest = axes[i].last().map_or(k_start, |m| m.end_time().max(k_start));
                 // The burst ends before the next field begins.
                 let latest = g_end.min(next_end) - leg.duration;
-                match burst_start(&wins, window, i, stage[i], target[i], &leg, earliest, latest, k_end, g_start, s.half) {
+                match burst_start(&wins, &pierces, window, i, stage[i], target[i], &leg, earliest, latest, k_end, g_start, s.half) {
                     Some(t0) => bursts.push((i, AxisMove { start: t0, from: stage[i], to: target[i], leg })),
                     None => {
                         // Carried in the next plan; go on to find all such changes at once.
@@ -340,17 +341,27 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
     Ok(Ok(StagePath::Moves { start, axes }))
 }
 
+/// The time spans of `tcp`'s pierces. The program dwells there (`G4`), which
+/// stops every axis: the stage must stand still through them.
+pub(super) fn pierce_times(tcp: &TcpPath) -> Vec<(f64, f64)> {
+    tcp.pieces.iter().filter(|p| matches!(p.kind, PieceKind::Pierce { .. })).map(|p| (p.start, p.end_time())).collect()
+}
+
 /// The start of a burst on axis `i` from `from` to `to` along `leg` within
-/// `[earliest, latest]` that keeps every TCP window within reach, searched
-/// outward from the field change (between `change_start` and `change_end`).
+/// `[earliest, latest]` that keeps every TCP window within reach and leaves
+/// the `pierces` alone, searched outward from the field change (between
+/// `change_start` and `change_end`).
 #[allow(clippy::too_many_arguments)]
-fn burst_start(wins: &[Window], window: f64, i: usize, from: f64, to: f64, leg: &Leg, earliest: f64, latest: f64, change_start: f64, change_end: f64, half: f64) -> Option<f64> {
+fn burst_start(wins: &[Window], pierces: &[(f64, f64)], window: f64, i: usize, from: f64, to: f64, leg: &Leg, earliest: f64, latest: f64, change_start: f64, change_end: f64, half: f64) -> Option<f64> {
     if latest < earliest {
         return None;
     }
     let d = leg.duration;
     let at = |t0: f64, t: f64| from + (to - from) * leg.position(t - t0) / leg.length;
     let fits = |t0: f64| {
+        if pierces.iter().any(|&(a, b)| a < t0 + d && t0 < b) {
+            return false;
+        }
         // Windows before the burst are within reach of `from`, after it of
         // `to`, by the choice of the ranges, except those of the field change.
         let (a, b) = (t0.min(change_start), (t0 + d).max(change_end));
