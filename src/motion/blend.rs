@@ -216,7 +216,7 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vec
             Limits { velocity: l.velocity.min(speed), ..l }
         })
         .collect();
-    // Vertex i joins legs i-1 and i; the ends rest.
+    // Vertex i joins legs i-1 and i; the ends rest unless handed over.
     let mut turns: Vec<Option<Turn>> = (0..=n).map(|_| None).collect();
     let mut w = vec![0.0; n + 1];
     w[0] = entry.map_or(0.0, |c| hand_over_speed(s, c, dirs[0], &limits[0]));
