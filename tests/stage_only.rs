@@ -33,3 +33,34 @@ fn a_stage_only_job_of_circles_runs_near_its_bound_within_every_limit() {
     assert!(sim["peak_stage_use"].as_f64().unwrap() <= 1.0, "{sim}");
     assert!(sim["job_time_s"].as_f64().unwrap() <= 1.15 * bound, "{sim}");
 }
+
+#[test]
+fn a_stage_only_job_without_pierces_runs_its_laser_off_moves_into_the_marks_at_speed() {
+    let dir = tempfile::tempdir().unwrap();
+    // Dashes along a line on the flatbed cutter's engrave layer (no pierce):
+    // G0 and G1 in a row, which Grbl takes at its junction speed (here: in line).
+    let dashes: String = (0..8).map(|k| format!("<line x1=\"{}\" y1=\"100\" x2=\"{}\" y2=\"100\"/>\n", 50 + 15 * k, 60 + 15 * k)).collect();
+    let svg = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"400mm\" height=\"200mm\" viewBox=\"0 0 400 200\">\n\
+         <g fill=\"none\" stroke=\"#0000ff\" stroke-width=\"0.1\">\n{dashes}</g></svg>\n"
+    );
+    let job = dir.path().join("dashes.svg");
+    std::fs::write(&job, svg).unwrap();
+    let cutter = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml");
+    let out = Command::new(env!("CARGO_BIN_EXE_laserd"))
+        .args(["dry-run", job.to_str().unwrap(), "--config", cutter.to_str().unwrap(), "--json"])
+        .current_dir(dir.path())
+        .output()
+        .expect("laserd runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["mode"], "stage-only");
+    let sim = &report["sim"];
+    assert_eq!(sim["limit_breaches"].as_array().unwrap().len(), 0, "{sim}");
+    assert_eq!(sim["laser_state_errors"], 0, "{sim}");
+    assert!(sim["max_tcp_deviation_mm"].as_f64().unwrap() <= 0.02, "{sim}");
+    // lower_bound_s: the dashes at full speed, the laser-off moves from rest
+    // to rest. Starting and ending every dash at rest took 1.88 times it.
+    let (time, bound) = (sim["job_time_s"].as_f64().unwrap(), report["lower_bound_s"].as_f64().unwrap());
+    assert!(time <= 1.1 * bound, "{time} s against a bound of {bound} s");
+}

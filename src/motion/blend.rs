@@ -180,9 +180,10 @@ fn ramp_in_distance(t: f64) -> f64 {
 /// it) may hand over to a leg along `leg` (a unit vector) at a run's end: the
 /// junction speed of Grbl's rule (a circle `corner_tolerance` deep through
 /// the corner at the acceleration of the turn's direction; the laser-off
-/// move itself runs free of the corner). 0 without a chord. (Capping it
-/// further by what the move can reach over its length changed nothing
-/// measurable on the samples.)
+/// move itself runs free of the corner), at most the speed reached from
+/// rest over half the chord: the speeds at both ends of a laser-off move
+/// then differ by no more than it can change along its way, so it never
+/// swings back for a run-up. 0 without a chord.
 fn hand_over_speed(s: &TcpSettings, chord: Vector2<f64>, leg: Vector2<f64>, lim: &Limits) -> f64 {
     let length = chord.norm();
     if length < 1e-9 {
@@ -198,7 +199,21 @@ fn hand_over_speed(s: &TcpSettings, chord: Vector2<f64>, leg: Vector2<f64>, lim:
         let acc = path_limits(s.axis, turn).acceleration;
         (acc * s.corner_tolerance * half / (1.0 - half)).sqrt()
     };
-    junction.min(lim.velocity)
+    let cap = junction.min(lim.velocity);
+    let reachable = |v: f64| change_distance(0.0, v, lim) <= 0.5 * length;
+    if reachable(cap) {
+        return cap;
+    }
+    let (mut lo, mut hi) = (0.0, cap);
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if reachable(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
 }
 
 /// The run marking `points` at `speed` through its vertices (none for fewer
