@@ -199,15 +199,18 @@ fn hand_over_speed(s: &TcpSettings, chord: Vector2<f64>, leg: Vector2<f64>, lim:
         let acc = path_limits(s.axis, turn).acceleration;
         (acc * s.corner_tolerance * half / (1.0 - half)).sqrt()
     };
-    let cap = junction.min(lim.velocity);
-    let reachable = |v: f64| change_distance(0.0, v, lim) <= 0.5 * length;
-    if reachable(cap) {
-        return cap;
+    largest(0.0, junction.min(lim.velocity), &|v| change_distance(0.0, v, lim) <= 0.5 * length)
+}
+
+/// The largest speed in `lo..=hi` that `ok` takes (`ok(lo)` holds).
+fn largest(lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool) -> f64 {
+    if ok(hi) {
+        return hi;
     }
-    let (mut lo, mut hi) = (0.0, cap);
-    for _ in 0..40 {
+    let (mut lo, mut hi) = (lo, hi);
+    for _ in 0..50 {
         let mid = 0.5 * (lo + hi);
-        if reachable(mid) {
+        if ok(mid) {
             lo = mid;
         } else {
             hi = mid;
@@ -248,22 +251,6 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vec
     // faster end towards its slower one only makes room.
     let half = |i: usize, w: f64| turns[i].as_ref().map_or(0.0, |t| 0.5 * w * t.duration(w));
     let fits = |k: usize, a: f64, b: f64| change_distance(a, b, &limits[k]) + half(k, a) + half(k + 1, b) <= lengths[k];
-    // The largest speed in `lo..=hi` that `ok` takes (`ok(lo)` holds).
-    let largest = |lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool| {
-        if ok(hi) {
-            return hi;
-        }
-        let (mut lo, mut hi) = (lo, hi);
-        for _ in 0..50 {
-            let mid = 0.5 * (lo + hi);
-            if ok(mid) {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        lo
-    };
     // Speeds through the vertices, then the legs: their pieces and the run's end.
     let plan_with = |mut w: Vec<f64>| {
         for k in 0..n {
