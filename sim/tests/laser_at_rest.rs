@@ -240,3 +240,28 @@ fn after_a_pierce_the_cut_waits_for_its_rest_point_though_the_dwell_held_the_lin
     assert_eq!(report.violations, 0, "{report:?}");
     assert!(report.peak_jerk_use[0] > 0.5, "the cut does use the axis: {report:?}");
 }
+
+#[test]
+fn a_cut_fed_as_fast_as_it_runs_goes_on_through_its_block_ends() {
+    // After a pierce, a cut of 80 blocks, each as long in time (1.975 ms) as
+    // its line takes on the link (23 bytes): the planner fills up, and from
+    // then on the next line arrives microseconds after each block ends. A
+    // full planner is why the cut runs; the block that just ended still held
+    // its slot, so Grbl's stepper goes on into the next block, and it must not
+    // stop there (each such stop shows as a jerk far beyond the limit).
+    let mut lines = vec!["G93 M4 S0".to_string()];
+    lines.extend(smooth_move(0.0, 10.0, 0.2, 20));
+    lines.extend(["G1M3S1000F60", "G4P0.2", "M4 S1000"].map(String::from));
+    lines.extend(smooth_move(10.0, 20.0, 0.158, 80));
+    lines.push("M5".to_string());
+    let mut s = Sim::new(flatbed());
+    stream_counting(&mut s, &lines, 128, 5.0);
+    assert_eq!(s.ctl.position(), vec![20.0, 0.0, 0.0]);
+    let dwell_end = s.knots.iter().find(|k| k.line == 23).expect("the dwell ends with a knot of its line").t;
+    let cut: Vec<&Knot> = s.knots.iter().filter(|k| k.t > dwell_end + 1e-9).collect();
+    let stops: Vec<f64> = cut.windows(2).filter(|w| w[0].pos == w[1].pos && w[1].t > w[0].t).map(|w| w[0].pos[0]).collect();
+    assert!(stops.iter().all(|x| (x - 10.0).abs() < 1e-6 || (x - 20.0).abs() < 1e-6), "stopped inside the cut at X {stops:?}");
+    let mut checker = laserd_sim::limits::LimitChecker::new(&flatbed().axes);
+    s.knots.iter().for_each(|k| checker.push(k));
+    assert_eq!(checker.finish().violations, 0);
+}

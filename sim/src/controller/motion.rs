@@ -253,7 +253,7 @@ impl Controller {
             if self.ramp.is_some_and(|r| r.braking) && !self.braked_to_rest(t) && !self.planner.is_empty() {
                 self.start_next(t, false, 0.0);
             }
-        } else if !self.planner.is_empty() && self.may_start() {
+        } else if !self.planner.is_empty() && self.may_start(true) {
             self.start_next(t, false, 0.0);
         } else {
             self.mark_idle(t);
@@ -261,7 +261,7 @@ impl Controller {
     }
 
     pub(super) fn auto_start(&mut self) {
-        if self.exec.is_none() && !self.hold && !self.alarm && !self.planner.is_empty() && self.may_start() {
+        if self.exec.is_none() && !self.hold && !self.alarm && !self.planner.is_empty() && self.may_start(false) {
             self.start_next(self.now, true, 0.0);
         }
     }
@@ -314,8 +314,11 @@ impl Controller {
     /// program's motion, where a line without motion follows). Otherwise wait for more
     /// blocks, unless the planner is full, the pending line needs motion to end
     /// (M2, M5, G4, ...), or the link has fallen silent (a stream that never
-    /// comes to rest must still run).
-    fn may_start(&self) -> bool {
+    /// comes to rest must still run). A block that has `just_finished` still
+    /// counts as filling the planner: were it full, Grbl's stepper goes on into
+    /// the next block at once, and the line waiting for that slot takes it
+    /// within microseconds; stopping there would be a stop Grbl never makes.
+    fn may_start(&self, just_finished: bool) -> bool {
         if self.cfg.motion == MotionModel::Grbl {
             // Grbl starts a cycle as soon as it has parsed everything received,
             // which the simulator does the moment a line arrives.
@@ -324,7 +327,7 @@ impl Controller {
         let queued: Vec<bool> = self.planner.iter().map(|b| b.gentle).collect();
         queued.windows(2).any(|w| w[0] && w[1])
             || self.planner.iter().any(|b| b.ends_sequence)
-            || self.planner_full()
+            || self.planner.len() + usize::from(self.exec.is_some() || just_finished) >= self.cfg.planner_blocks
             || self.pending.as_ref().is_some_and(|p| !matches!(p.steps.front(), None | Some(Step::Queue(_))))
             || self.now - self.link_quiet_since() >= LINK_SILENCE_START - 1e-9
     }
