@@ -201,10 +201,12 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     let settings = tcp_settings(machine, Mode::StageOnly);
     // Marks without a pierce are entered and left at speed; where a
     // laser-off move running through a mark's end would leave the travel
-    // (near the table's edge), the job is planned from rest to rest.
-    let plan = |hand_over: bool| -> Result<(TcpBuilder, f64)> {
+    // (near the table's edge), its two ends are planned at rest and the job
+    // again (a few rounds; should that not settle, all of it rest to rest).
+    let plan = |hand_over: bool, rest_at: &[Point]| -> Result<(TcpBuilder, f64)> {
         let mut b = TcpBuilder::new(settings, start, 0.0);
         b.hand_over = hand_over;
+        b.rest_at = rest_at.to_vec();
         if let Some(f) = first {
             b.jump(PieceKind::Approach, 0, f, nalgebra::Vector2::zeros())?;
         }
@@ -212,21 +214,39 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
         mark_all(&mut b, job, sequence, machine, &mut None, |_, _| Ok(()))?;
         Ok((b, job_start))
     };
-    let (mut b, mut job_start) = plan(true)?;
-    if !moves_within_travel(&b.path, machine) {
-        (b, job_start) = plan(false)?;
+    let mut rest_at = Vec::new();
+    let (mut b, mut job_start) = plan(true, &rest_at)?;
+    let mut outside = moves_leaving_travel(&b.path, machine);
+    for _ in 0..TRAVEL_ROUNDS {
+        if outside.is_empty() {
+            break;
+        }
+        rest_at.extend(outside.iter().flat_map(|&(from, to)| [from, to]));
+        (b, job_start) = plan(true, &rest_at)?;
+        outside = moves_leaving_travel(&b.path, machine);
+    }
+    if !outside.is_empty() {
+        (b, job_start) = plan(false, &[])?;
     }
     let start_state = AxisState { stage: start, scanner: Point::origin() };
     Ok(Trajectory { tcp: b.path, stage: StagePath::FollowsTcp, start: start_state, job_start, has_scanner: machine.scanner.is_some(), stage_flow: None })
 }
 
-/// Whether every moving laser-off piece stays inside the stage's travel
+/// Rounds of `stage_only` that bring marks' ends to rest where moves left the travel.
+const TRAVEL_ROUNDS: usize = 4;
+
+/// The ends of each moving laser-off piece that leaves the stage's travel
 /// (sampled every millisecond: a move running through its ends may swing out).
-fn moves_within_travel(path: &TcpPath, machine: &MachineConfig) -> bool {
-    path.pieces.iter().filter(|p| matches!(p.motion, tcp::Motion::Free(_)) && !p.is_marking()).all(|p| {
-        let n = ((p.duration / 1e-3).ceil() as usize).max(8);
-        (0..=n).all(|k| check_travel(machine, p.position(p.duration * k as f64 / n as f64), "").is_ok())
-    })
+fn moves_leaving_travel(path: &TcpPath, machine: &MachineConfig) -> Vec<(Point, Point)> {
+    path.pieces
+        .iter()
+        .filter(|p| matches!(p.motion, tcp::Motion::Free(_)) && !p.is_marking())
+        .filter(|p| {
+            let n = ((p.duration / 1e-3).ceil() as usize).max(8);
+            (0..=n).any(|k| check_travel(machine, p.position(p.duration * k as f64 / n as f64), "").is_err())
+        })
+        .map(|p| (p.position(0.0), p.position(p.duration)))
+        .collect()
 }
 
 fn step_and_scan(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Point) -> Result<Trajectory> {
@@ -788,6 +808,26 @@ mod tests {
         let paths = vec![vec![Point::new(30.0, 50.0), Point::new(0.0, 50.0)], vec![Point::new(0.0, 53.0), Point::new(30.0, 53.0)]];
         let tr = stage_only_in_order(&paths, &machine);
         check_sampled(&tr, &machine, 2e-5);
+    }
+
+    #[test]
+    fn near_the_travel_edge_only_the_marks_there_stop() {
+        let mut machine = MachineConfig::load(None).unwrap();
+        machine.scanner = None;
+        // The two marks at the edge of the test above, then dashes away from it.
+        let mut paths = vec![vec![Point::new(30.0, 50.0), Point::new(0.0, 50.0)], vec![Point::new(0.0, 53.0), Point::new(30.0, 53.0)]];
+        paths.extend((0..4).map(|k| {
+            let x = 40.0 + 15.0 * k as f64;
+            vec![Point::new(x, 53.0), Point::new(x + 10.0, 53.0)]
+        }));
+        let tr = stage_only_in_order(&paths, &machine);
+        check_sampled(&tr, &machine, 2e-5);
+        let marks: Vec<_> = tr.tcp.pieces.iter().filter(|p| p.is_marking()).collect();
+        assert_eq!(marks.len(), paths.len());
+        assert!(speed_at(&tr, marks[0].end_time()) < 1e-6 && speed_at(&tr, marks[1].start) < 1e-6, "the move at the edge runs from rest to rest");
+        for m in &marks[2..] {
+            assert!(speed_at(&tr, m.start) > 100.0, "entered at {} mm/s", speed_at(&tr, m.start));
+        }
     }
 
     #[test]

@@ -481,6 +481,9 @@ pub struct TcpBuilder {
     /// `prepare` take the laser-off moves' speed over (set by the caller
     /// where the moves may run at speed through the marks' ends).
     pub hand_over: bool,
+    /// Mark ends the hand-over leaves at rest (a laser-off move running
+    /// through them at speed would leave the travel).
+    pub rest_at: Vec<Point>,
     /// Corners and laser-off moves already planned (kept from one plan of a
     /// job to the next with `take_cache`: a replan after a field change the
     /// stage cannot make on the fly changes only that change).
@@ -501,7 +504,7 @@ type Corners = std::collections::HashMap<CornerKey, f64>;
 impl TcpBuilder {
     /// Starting at rest at `position` at time `time`.
     pub fn new(settings: TcpSettings, position: Point, time: f64) -> TcpBuilder {
-        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros(), hand_over: false, cache: Default::default() }
+        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros(), hand_over: false, rest_at: Vec::new(), cache: Default::default() }
     }
 
     fn push(&mut self, kind: PieceKind, group: usize, motion: Motion, duration: f64) {
@@ -615,7 +618,9 @@ impl TcpBuilder {
         let known = self.cache.borrow().corners.clone();
         // Stage-only: a mark without a pierce is entered and left at speed
         // (the mark before and after it in `marks` is where the TCP comes
-        // from and goes to); the job's last mark ends at rest.
+        // from and goes to); the job's last mark ends at rest, and so does
+        // every end in `rest_at`.
+        let at_rest = |p: &Point| self.rest_at.iter().any(|r| (r - p).norm() < 1e-6);
         let hand_overs: Vec<HandOver> = (0..marks.len())
             .map(|k| {
                 if !(self.hand_over && settings.junctions) {
@@ -625,8 +630,8 @@ impl TcpBuilder {
                 let before = k.checked_sub(1).and_then(|j| marks[j].points.last());
                 let after = marks.get(k + 1).and_then(|m| m.points.first());
                 HandOver {
-                    entry: before.zip(first).filter(|_| !marks[k].pierce).map(|(b, f)| f - b),
-                    exit: last.zip(after).map(|(l, a)| a - l),
+                    entry: before.zip(first).filter(|(_, f)| !marks[k].pierce && !at_rest(f)).map(|(b, f)| f - b),
+                    exit: last.zip(after).filter(|(l, _)| !at_rest(l)).map(|(l, a)| a - l),
                 }
             })
             .collect();
