@@ -251,7 +251,8 @@ impl Run {
         let velocity = |m: &Motion, t: f64| match m {
             Motion::Leg { dir, leg, .. } => dir * leg.at(t)[1],
             Motion::Profile { dir, profile, .. } => dir * profile.at(t)[1],
-            _ => Vector2::zeros(),
+            Motion::Free(m) => m.at(t).1,
+            Motion::Still(_) => Vector2::zeros(),
         };
         let (_, _, first) = &legs[0];
         let (last_start, last_duration, last) = legs.last().expect("a run has legs");

@@ -161,6 +161,18 @@ pub fn fit(samples: &[(f64, Point)], decimals: usize, limit: f64) -> Option<ArcW
     if sagitta >= limit {
         return None;
     }
+    // The plan's own speed must be the arc's all along (to 0.5 %): a plan
+    // that speeds up or slows down along the arc, even within the
+    // tolerance, would meet the blocks around it with a step in speed that
+    // the controller sees as a jerk far beyond its limit.
+    let speed = radius * travel.abs() / duration;
+    let steady = samples.windows(2).all(|w| {
+        let dt = w[1].0 - w[0].0;
+        dt <= 0.0 || ((w[1].1 - w[0].1).norm() / dt - speed).abs() <= 5e-3 * speed
+    });
+    if !steady {
+        return None;
+    }
     let theta0 = (start.y - centre.y).atan2(start.x - centre.x);
     let within = samples.iter().all(|&(t, p)| {
         let angle = theta0 + travel * (t - t0) / duration;
