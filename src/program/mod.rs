@@ -563,16 +563,7 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
     let has_scanner = trajectory.has_scanner;
     let stage_only = matches!(trajectory.stage, crate::motion::stage::StagePath::FollowsTcp);
     let blocks: Vec<(usize, Option<arcs::ArcWords>)> = if span.kind == LineKind::Mark && stage_only && machine.program.arcs {
-        // The planned TCP at the block ends and eighths of each block between.
-        let samples_of = |a: f64, b: f64| {
-            let (i, j) = (times.partition_point(|&t| t < a), times.partition_point(|&t| t <= b));
-            let mut out = vec![(a, trajectory.tcp.position(a))];
-            for w in times[i..j].windows(2) {
-                out.extend((1..=8).map(|q| w[0] + (w[1] - w[0]) * q as f64 / 8.0).map(|t| (t, trajectory.tcp.position(t))));
-            }
-            out
-        };
-        arcs::merge(&times, machine.program.decimals, 0.9 * tolerance, samples_of)
+        arcs::merge(&times, machine.program.decimals, 0.9 * tolerance, machine.stage_limits(), |t| trajectory.tcp.position(t))
     } else {
         (1..times.len()).map(|j| (j, None)).collect()
     };
