@@ -209,12 +209,7 @@ pub fn fit(samples: &[(f64, Point)], decimals: usize, limit: f64) -> Option<ArcW
     if (travel - planned_travel).abs() > 1e-3 {
         return None;
     }
-    let (sagitta, chords) = if segments == 0 {
-        (radius * (1.0 - (0.5 * travel).cos()), (end - start).norm())
-    } else {
-        let half = 0.5 * travel.abs() / segments as f64;
-        (radius * (1.0 - half.cos()), segments as f64 * 2.0 * radius * half.sin())
-    };
+    let sagitta = radius * (1.0 - (0.5 * travel.abs() / segments.max(1) as f64).cos());
     if sagitta >= limit {
         return None;
     }
@@ -236,7 +231,16 @@ pub fn fit(samples: &[(f64, Point)], decimals: usize, limit: f64) -> Option<ArcW
         let on_arc = Point::new(centre.x + radius * angle.cos(), centre.y + radius * angle.sin());
         (p - on_arc).norm() + sagitta <= limit
     });
-    within.then_some(ArcWords { clockwise, centre_offset: offset, feed: 60.0 * chords / duration })
+    if !within {
+        return None;
+    }
+    // Grbl runs every chord at `F`, the last one to the written end (off the
+    // circle by the rounding): the block's time is the chords' length over F.
+    let mut arc = ArcWords { clockwise, centre_offset: offset, feed: 0.0 };
+    let knots = chord_knots(start, end, &arc, 0.0, 1.0)?;
+    let chords: f64 = knots.iter().scan(start, |from, &(_, to)| Some((to - std::mem::replace(from, to)).norm())).sum();
+    arc.feed = 60.0 * chords / duration;
+    Some(arc)
 }
 
 /// Where straight blocks with ends `times` (the first the span's start)
