@@ -18,7 +18,7 @@ use nalgebra::Vector2;
 
 use super::blend::{change_distance, push_change, Profile};
 use super::profile::FreeMove;
-use super::tcp::{Motion, TcpSettings};
+use super::tcp::{Legs, Motion, TcpSettings};
 use crate::config::Limits;
 use crate::job::Point;
 
@@ -159,7 +159,7 @@ fn within_limits(curve: &Curve, speed: &Profile, axis: &Limits) -> bool {
 /// `speed` capped per leg in `limits`) as one smooth curve from speed `entry`
 /// to speed `exit`, when every inner vertex is gentle: its pieces (start,
 /// duration, motion) and its duration.
-pub fn plan(s: &TcpSettings, points: &[Point], lengths: &[f64], dirs: &[Vector2<f64>], limits: &[Limits], entry: f64, exit: f64) -> Option<(Vec<(f64, f64, Motion)>, f64)> {
+pub fn plan(s: &TcpSettings, points: &[Point], lengths: &[f64], dirs: &[Vector2<f64>], limits: &[Limits], entry: f64, exit: f64) -> Option<(Legs, f64)> {
     let n = dirs.len();
     if n < 3 || dirs.windows(2).any(|w| w[0].dot(&w[1]).clamp(-1.0, 1.0).acos() > GENTLE_TURN) {
         return None;

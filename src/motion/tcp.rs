@@ -234,10 +234,13 @@ pub struct TcpSettings {
     pub line_tolerance: f64,
 }
 
+/// A run's motions: (start relative to the run's start, duration, motion).
+pub type Legs = Vec<(f64, f64, Motion)>;
+
 /// A planned mark: its legs with their start times relative to the run's
 /// start and their durations (consecutive legs may overlap at a corner).
 pub struct Run {
-    legs: Vec<(f64, f64, Motion)>,
+    legs: Legs,
     duration: f64,
     entry: Point,
     entry_velocity: Vector2<f64>,
@@ -247,7 +250,7 @@ pub struct Run {
 
 impl Run {
     /// From legs in time order (at least one).
-    pub fn new(legs: Vec<(f64, f64, Motion)>) -> Run {
+    pub fn new(legs: Legs) -> Run {
         let velocity = |m: &Motion, t: f64| match m {
             Motion::Leg { dir, leg, .. } => dir * leg.at(t)[1],
             Motion::Profile { dir, profile, .. } => dir * profile.at(t)[1],
