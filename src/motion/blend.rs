@@ -19,7 +19,7 @@
 
 use nalgebra::Vector2;
 
-use super::tcp::{path_limits, Motion, Run, TcpSettings};
+use super::tcp::{path_limits, Legs, Motion, Run, TcpSettings};
 use crate::config::Limits;
 use crate::job::Point;
 
@@ -224,6 +224,12 @@ fn largest(lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool) -> f64 {
 /// `entry` (its chord to the first point), at the speed `hand_over_speed`
 /// allows; it ends at rest or hands over to the laser-off move along `exit`.
 pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector2<f64>>, exit: Option<Vector2<f64>>) -> Option<Run> {
+    plan_legs(s, points, speed, entry, exit, true).map(|(legs, _)| Run::new(legs))
+}
+
+/// `plan_run`'s legs and duration; with `curves`, a run of gentle vertices
+/// becomes one smooth curve where that is faster.
+fn plan_legs(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector2<f64>>, exit: Option<Vector2<f64>>, curves: bool) -> Option<(Legs, f64)> {
     let n = points.len().checked_sub(1).filter(|&n| n > 0)?;
     let lengths: Vec<f64> = points.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
     let dirs: Vec<Vector2<f64>> = points.windows(2).zip(&lengths).map(|(w, l)| (w[1] - w[0]) / *l).collect();
@@ -264,7 +270,7 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vec
             }
         }
         let mut legs = Vec::with_capacity(n);
-        let (mut start, mut t_last) = (0.0, 0.0);
+        let mut start = 0.0;
         for k in 0..n {
             let lim = &limits[k];
             let (t_in, t_out) = (turns[k].as_ref().map_or(0.0, |t| t.duration(w[k])), turns[k + 1].as_ref().map_or(0.0, |t| t.duration(w[k + 1])));
@@ -293,10 +299,10 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vec
             }
             let duration = p.duration;
             legs.push((start, duration, Motion::Profile { from: points[k], dir: dirs[k], profile: p }));
-            t_last = duration;
             start += duration - t_out;
         }
-        (legs, start + t_last)
+        // The last vertex has no turn: the run ends with its last leg.
+        (legs, start)
     };
     // A turn at a low speed costs more than stopping there (jerk-limited
     // ramps cost the most per unit of speed where they are small): the
@@ -308,8 +314,8 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vec
     let (legs, time) = candidates.into_iter().map(plan_with).min_by(|a, b| a.1.total_cmp(&b.1))?;
     // A flattened curve may run faster as one smooth curve than turned
     // vertex by vertex.
-    let curve = super::curve::plan(s, points, &lengths, &dirs, &limits, w[0], w[n]).filter(|c| c.1 < time);
-    Some(Run::new(curve.map_or(legs, |c| c.0)))
+    let curve = curves.then(|| super::curve::plan(s, points, &lengths, &dirs, &limits, w[0], w[n])).flatten().filter(|c| c.1 < time);
+    Some(curve.unwrap_or((legs, time)))
 }
 
 #[cfg(test)]
@@ -412,6 +418,26 @@ mod tests {
         // From rest to rest: the ramps at each end add about 0.1 s.
         assert!(t1 - t0 <= 1.5 * length / speed, "{} s for {length} mm", t1 - t0);
         check(&path, &circle);
+    }
+
+    #[test]
+    fn a_run_is_one_curve_only_where_that_is_faster() {
+        // Circles flattened to 0.01 mm: at 50 mm/s turned vertex by vertex
+        // nearly at the feed, at 180 mm/s faster as one curve.
+        let step = 2.0 * (1.0 - 0.01 / 10.0_f64).acos();
+        let n = (std::f64::consts::TAU / step).ceil() as usize;
+        let circle: Vec<Point> = (0..=n).map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / n as f64;
+            Point::new(20.0 + 10.0 * a.cos(), 20.0 + 10.0 * a.sin())
+        }).collect();
+        // The legs' end, not their estimate of it.
+        let end = |legs: &Legs| legs.iter().map(|(start, duration, _)| start + duration).fold(0.0, f64::max);
+        for speed in [50.0, 180.0] {
+            let (turned, turned_time) = plan_legs(&settings(), &circle, speed, None, None, false).unwrap();
+            assert!((end(&turned) - turned_time).abs() < 1e-9, "{speed} mm/s: legs end at {} s, estimated {turned_time} s", end(&turned));
+            let (chosen, time) = plan_legs(&settings(), &circle, speed, None, None, true).unwrap();
+            assert!((end(&chosen) - time).abs() < 1e-9 && time <= turned_time, "{speed} mm/s: {time} s, turned {turned_time} s");
+        }
     }
 
     #[test]
