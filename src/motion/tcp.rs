@@ -251,16 +251,10 @@ pub struct Run {
 impl Run {
     /// From legs in time order (at least one).
     pub fn new(legs: Legs) -> Run {
-        let velocity = |m: &Motion, t: f64| match m {
-            Motion::Leg { dir, leg, .. } => dir * leg.at(t)[1],
-            Motion::Profile { dir, profile, .. } => dir * profile.at(t)[1],
-            Motion::Free(m) => m.at(t).1,
-            Motion::Still(_) => Vector2::zeros(),
-        };
         let (_, _, first) = &legs[0];
         let (last_start, last_duration, last) = legs.last().expect("a run has legs");
-        let entry_velocity = velocity(first, 0.0);
-        let exit_velocity = velocity(last, *last_duration);
+        let entry_velocity = first.velocity(0.0);
+        let exit_velocity = last.velocity(*last_duration);
         let (entry, exit) = (first.start(), last.end());
         let duration = last_start + last_duration;
         Run { legs, duration, entry, entry_velocity, exit, exit_velocity }
@@ -280,6 +274,16 @@ impl Run {
 }
 
 impl Motion {
+    /// Velocity `t` seconds into the motion.
+    pub fn velocity(&self, t: f64) -> Vector2<f64> {
+        match self {
+            Motion::Leg { dir, leg, .. } => dir * leg.at(t)[1],
+            Motion::Profile { dir, profile, .. } => dir * profile.at(t)[1],
+            Motion::Free(m) => m.at(t).1,
+            Motion::Still(_) => Vector2::zeros(),
+        }
+    }
+
     fn start(&self) -> Point {
         match self {
             Motion::Leg { from, .. } | Motion::Profile { from, .. } => *from,

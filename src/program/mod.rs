@@ -547,13 +547,16 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
     }
     let tolerance = if span.kind == LineKind::Mark { machine.program.tolerance } else { machine.program.jump_tolerance };
     // A block ends wherever one piece ends before the next begins (a
-    // vertex taken from rest, a jump's end): the machine can stop there.
+    // vertex taken from rest, a jump's end): the machine can stop there. In a
+    // mark, only where it does stop: a stage-only curve's pieces (`curve.rs`)
+    // continue each other at speed.
     let mut times = vec![span.start];
     let mut from = span.start;
     for k in span.first..span.last {
         let (p, q) = (&trajectory.tcp.pieces[k], &trajectory.tcp.pieces[k + 1]);
         let end = p.end_time();
-        if q.start >= end - 1e-12 && end > from + 1e-12 && end < span.end - 1e-12 {
+        let stops = span.kind != LineKind::Mark || p.motion.velocity(p.duration).norm() <= 1e-6;
+        if stops && q.start >= end - 1e-12 && end > from + 1e-12 && end < span.end - 1e-12 {
             let part = Span { start: from, end, ..*span };
             times.extend(block_times(trajectory, &part, tolerance, min_block)?.into_iter().skip(1));
             from = end;
