@@ -372,15 +372,23 @@ mod tests {
         }
     }
 
+    /// A closed circle of radius `r` flattened to within `tolerance`.
+    fn flattened_circle(centre: Point, r: f64, tolerance: f64) -> Vec<Point> {
+        let step = 2.0 * (1.0 - tolerance / r).acos();
+        let n = (std::f64::consts::TAU / step).ceil() as usize;
+        (0..=n)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / n as f64;
+                centre + Vector2::new(r * a.cos(), r * a.sin())
+            })
+            .collect()
+    }
+
     #[test]
     fn a_flattened_circle_runs_through_its_vertices_near_its_speed() {
         // Radius 10 flattened to 0.01 mm: legs of 0.9 mm turning 5 degrees.
-        let step = 2.0 * (1.0 - 0.01 / 10.0_f64).acos();
-        let n = (std::f64::consts::TAU / step).ceil() as usize;
-        let circle: Vec<Point> = (0..=n).map(|k| {
-            let a = std::f64::consts::TAU * k as f64 / n as f64;
-            Point::new(20.0 + 10.0 * a.cos(), 20.0 + 10.0 * a.sin())
-        }).collect();
+        let circle = flattened_circle(Point::new(20.0, 20.0), 10.0, 0.01);
+        let n = circle.len() - 1;
         let length: f64 = circle.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
         for speed in [50.0, 65.0] {
             let path = marked(&circle, speed);
@@ -403,12 +411,7 @@ mod tests {
         // them) it ran at most ~55 mm/s; as one curve its centripetal
         // acceleration (3240 mm/s²) and jerk allow the feed.
         let (r, speed): (f64, f64) = (10.0, 180.0);
-        let step = 2.0 * (1.0 - 0.001 / r).acos();
-        let n = (std::f64::consts::TAU / step).ceil() as usize;
-        let circle: Vec<Point> = (0..=n).map(|k| {
-            let a = std::f64::consts::TAU * k as f64 / n as f64;
-            Point::new(60.0 + r * a.cos(), 60.0 + r * a.sin())
-        }).collect();
+        let circle = flattened_circle(Point::new(60.0, 60.0), r, 0.001);
         let length: f64 = circle.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
         let path = marked(&circle, speed);
         let marks: Vec<_> = path.pieces.iter().filter(|p| p.is_marking()).collect();
@@ -424,12 +427,7 @@ mod tests {
     fn a_run_is_one_curve_only_where_that_is_faster() {
         // Circles flattened to 0.01 mm: at 50 mm/s turned vertex by vertex
         // nearly at the feed, at 180 mm/s faster as one curve.
-        let step = 2.0 * (1.0 - 0.01 / 10.0_f64).acos();
-        let n = (std::f64::consts::TAU / step).ceil() as usize;
-        let circle: Vec<Point> = (0..=n).map(|k| {
-            let a = std::f64::consts::TAU * k as f64 / n as f64;
-            Point::new(20.0 + 10.0 * a.cos(), 20.0 + 10.0 * a.sin())
-        }).collect();
+        let circle = flattened_circle(Point::new(20.0, 20.0), 10.0, 0.01);
         // The legs' end, not their estimate of it.
         let end = |legs: &Legs| legs.iter().map(|(start, duration, _)| start + duration).fold(0.0, f64::max);
         for speed in [50.0, 180.0] {
