@@ -89,3 +89,80 @@ fn a_stage_only_job_of_circles_sends_arcs_in_fewer_lines_as_closely_and_as_fast(
     assert!(a.planner_starved_s <= s.planner_starved_s + 1e-6, "starved: arcs {} s, straight {} s", a.planner_starved_s, s.planner_starved_s);
     assert!(a.job_time_s <= s.job_time_s + 1e-3, "arcs {} s, straight {} s", a.job_time_s, s.job_time_s);
 }
+
+/// An ellipse within 0.012 mm of a circle of 10 mm, run at 200 mm/s in
+/// straight blocks of 5 ms, reached along its tangent from far away (a long first and
+/// last segment, so that the checker's rest before and after the knots asks
+/// for nothing): `position(t)` and the block ends.
+fn near_circle() -> (impl Fn(f64) -> Point, Vec<f64>) {
+    let (cx, cy, omega) = (100.0, 100.0, 20.0);
+    let on_ellipse = move |t: f64| Point::new(cx + 10.012 * (omega * t).cos(), cy + 9.988 * (omega * t).sin());
+    let turn = std::f64::consts::TAU / omega;
+    let position = move |t: f64| {
+        if t < 0.0 {
+            on_ellipse(0.0) + Point::new(0.0, 9.988 * omega * t).coords
+        } else if t > turn {
+            on_ellipse(turn) + Point::new(0.0, 9.988 * omega * (t - turn)).coords
+        } else {
+            on_ellipse(t)
+        }
+    };
+    let times: Vec<f64> = (0..=62).map(|k| k as f64 * 0.005).chain([turn]).collect();
+    (position, times)
+}
+
+/// The knots a timed controller runs through for `blocks` (from
+/// `arcs::merge`): the block ends as written, each arc's chord ends; with a
+/// far knot on the tangent 100 s before and after.
+fn executed_knots(position: &impl Fn(f64) -> Point, times: &[f64], blocks: &[(usize, Option<program::arcs::ArcWords>)], decimals: usize) -> Vec<laserd_sim::Knot> {
+    let written = |t: f64| {
+        let p = position(t);
+        let round = |v: f64| (v * 10f64.powi(decimals as i32)).round() / 10f64.powi(decimals as i32);
+        Point::new(round(p.x), round(p.y))
+    };
+    let mut knots = vec![(-100.0, written(-100.0)), (times[0], written(times[0]))];
+    let mut from = 0;
+    for &(to, arc) in blocks {
+        match arc {
+            Some(arc) => knots.extend(program::arcs::chord_knots(written(times[from]), written(times[to]), &arc, times[from], times[to]).expect("a fitted arc runs")),
+            None => knots.push((times[to], written(times[to]))),
+        }
+        from = to;
+    }
+    let end = times[times.len() - 1];
+    knots.push((end + 100.0, written(end + 100.0)));
+    knots.into_iter().map(|(t, p)| laserd_sim::Knot { t, pos: vec![p.x, p.y], power: 0.0, line: 1 }).collect()
+}
+
+#[test]
+fn an_arc_is_taken_only_where_its_chords_keep_the_controllers_limits() {
+    let flatbed = MachineConfig::load(Some(std::path::Path::new("config/flatbed-cutter.toml"))).unwrap();
+    let limits = flatbed.stage_limits();
+    let axes: Vec<laserd_sim::AxisConfig> = ['X', 'Y']
+        .into_iter()
+        .map(|letter| laserd_sim::AxisConfig { letter, min: -1e5, max: 1e5, max_velocity: limits.velocity, max_acceleration: limits.acceleration, max_jerk: limits.jerk })
+        .collect();
+    let check = |knots: &[laserd_sim::Knot]| {
+        let mut checker = laserd_sim::LimitChecker::new(&axes);
+        knots.iter().for_each(|k| checker.push(k));
+        checker.finish()
+    };
+    let (position, times) = near_circle();
+    let decimals = flatbed.program.decimals;
+    // The blocks as written, straight only, keep the limits.
+    let straight: Vec<_> = (1..times.len()).map(|j| (j, None)).collect();
+    let report = check(&executed_knots(&position, &times, &straight, decimals));
+    assert_eq!(report.violations, 0, "{:?}", report.first_violation);
+    // Fitted by position alone (limits that ask for nothing), the ellipse
+    // becomes arcs whose chords break the jerk limit.
+    let unlimited = laserd::config::Limits { velocity: f64::INFINITY, acceleration: f64::INFINITY, jerk: f64::INFINITY };
+    let by_position = program::arcs::merge(&times, decimals, 0.018, unlimited, &position);
+    assert!(by_position.iter().any(|(_, arc)| arc.is_some()), "{by_position:?}");
+    let report = check(&executed_knots(&position, &times, &by_position, decimals));
+    assert!(report.violations > 0, "{report:?}");
+    // With the machine's limits, every arc taken keeps them.
+    let kinematic = program::arcs::merge(&times, decimals, 0.018, limits, &position);
+    let report = check(&executed_knots(&position, &times, &kinematic, decimals));
+    assert_eq!(report.violations, 0, "{:?} {kinematic:?}", report.first_violation);
+    eprintln!("arcs kept: {}", kinematic.iter().filter(|(_, a)| a.is_some()).count());
+}

@@ -19,7 +19,7 @@
 
 use nalgebra::Vector2;
 
-use super::tcp::{path_limits, Motion, Run, TcpSettings};
+use super::tcp::{path_limits, Legs, Motion, Run, TcpSettings};
 use crate::config::Limits;
 use crate::job::Point;
 
@@ -36,7 +36,7 @@ pub struct Profile {
 }
 
 impl Profile {
-    fn new(start_speed: f64) -> Profile {
+    pub(super) fn new(start_speed: f64) -> Profile {
         Profile { phases: Vec::with_capacity(12), start_speed, length: 0.0, duration: 0.0 }
     }
 
@@ -52,7 +52,7 @@ impl Profile {
     }
 
     /// Appends `duration` seconds at `jerk`.
-    fn push(&mut self, duration: f64, jerk: f64) {
+    pub(super) fn push(&mut self, duration: f64, jerk: f64) {
         if duration <= 0.0 {
             return;
         }
@@ -97,13 +97,13 @@ fn change_phases(dv: f64, lim: &Limits) -> (f64, f64) {
 }
 
 /// Distance of the speed change from `v0` to `v1` (either way).
-fn change_distance(v0: f64, v1: f64, lim: &Limits) -> f64 {
+pub(super) fn change_distance(v0: f64, v1: f64, lim: &Limits) -> f64 {
     let (tj, ta) = change_phases((v1 - v0).abs(), lim);
     0.5 * (v0 + v1) * (2.0 * tj + ta)
 }
 
 /// Appends the speed change to `to` (from the profile's end speed).
-fn push_change(p: &mut Profile, to: f64, lim: &Limits) {
+pub(super) fn push_change(p: &mut Profile, to: f64, lim: &Limits) {
     let from = p.end_state()[1];
     // A change of rounding size (a run handed over at speed ends at its
     // legs' speed) would be a phase of a nanosecond: a block the controller
@@ -224,6 +224,12 @@ fn largest(lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool) -> f64 {
 /// `entry` (its chord to the first point), at the speed `hand_over_speed`
 /// allows; it ends at rest or hands over to the laser-off move along `exit`.
 pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector2<f64>>, exit: Option<Vector2<f64>>) -> Option<Run> {
+    plan_legs(s, points, speed, entry, exit, true).map(|(legs, _)| Run::new(legs))
+}
+
+/// `plan_run`'s legs and duration; with `curves`, a run of gentle vertices
+/// becomes one smooth curve where that is faster.
+fn plan_legs(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector2<f64>>, exit: Option<Vector2<f64>>, curves: bool) -> Option<(Legs, f64)> {
     let n = points.len().checked_sub(1).filter(|&n| n > 0)?;
     let lengths: Vec<f64> = points.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
     let dirs: Vec<Vector2<f64>> = points.windows(2).zip(&lengths).map(|(w, l)| (w[1] - w[0]) / *l).collect();
@@ -264,7 +270,7 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vec
             }
         }
         let mut legs = Vec::with_capacity(n);
-        let (mut start, mut t_last) = (0.0, 0.0);
+        let mut start = 0.0;
         for k in 0..n {
             let lim = &limits[k];
             let (t_in, t_out) = (turns[k].as_ref().map_or(0.0, |t| t.duration(w[k])), turns[k + 1].as_ref().map_or(0.0, |t| t.duration(w[k + 1])));
@@ -293,10 +299,10 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vec
             }
             let duration = p.duration;
             legs.push((start, duration, Motion::Profile { from: points[k], dir: dirs[k], profile: p }));
-            t_last = duration;
             start += duration - t_out;
         }
-        (legs, start + t_last)
+        // The last vertex has no turn: the run ends with its last leg.
+        (legs, start)
     };
     // A turn at a low speed costs more than stopping there (jerk-limited
     // ramps cost the most per unit of speed where they are small): the
@@ -305,8 +311,11 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vec
     let slow = |i: usize| i > 0 && i < n && w[i] < 0.5 * limits[i - 1].velocity.min(limits[i].velocity);
     let stops = (0..=n).map(|i| if i == 0 || i == n { w[i] } else { 0.0 }).collect();
     let candidates = [w.clone(), (0..=n).map(|i| if slow(i) { 0.0 } else { w[i] }).collect(), stops];
-    let (legs, _) = candidates.into_iter().map(plan_with).min_by(|a, b| a.1.total_cmp(&b.1))?;
-    Some(Run::new(legs))
+    let (legs, time) = candidates.into_iter().map(plan_with).min_by(|a, b| a.1.total_cmp(&b.1))?;
+    // A flattened curve may run faster as one smooth curve than turned
+    // vertex by vertex.
+    let curve = curves.then(|| super::curve::plan(s, points, &lengths, &dirs, &limits, w[0], w[n])).flatten().filter(|c| c.1 < time);
+    Some(curve.unwrap_or((legs, time)))
 }
 
 #[cfg(test)]
@@ -363,15 +372,23 @@ mod tests {
         }
     }
 
+    /// A closed circle of radius `r` flattened to within `tolerance`.
+    fn flattened_circle(centre: Point, r: f64, tolerance: f64) -> Vec<Point> {
+        let step = 2.0 * (1.0 - tolerance / r).acos();
+        let n = (std::f64::consts::TAU / step).ceil() as usize;
+        (0..=n)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / n as f64;
+                centre + Vector2::new(r * a.cos(), r * a.sin())
+            })
+            .collect()
+    }
+
     #[test]
     fn a_flattened_circle_runs_through_its_vertices_near_its_speed() {
         // Radius 10 flattened to 0.01 mm: legs of 0.9 mm turning 5 degrees.
-        let step = 2.0 * (1.0 - 0.01 / 10.0_f64).acos();
-        let n = (std::f64::consts::TAU / step).ceil() as usize;
-        let circle: Vec<Point> = (0..=n).map(|k| {
-            let a = std::f64::consts::TAU * k as f64 / n as f64;
-            Point::new(20.0 + 10.0 * a.cos(), 20.0 + 10.0 * a.sin())
-        }).collect();
+        let circle = flattened_circle(Point::new(20.0, 20.0), 10.0, 0.01);
+        let n = circle.len() - 1;
         let length: f64 = circle.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
         for speed in [50.0, 65.0] {
             let path = marked(&circle, speed);
@@ -384,6 +401,40 @@ mod tests {
                 assert!(v > 0.9 * speed, "{v} mm/s at a vertex of a circle marked at {speed}");
             }
             check(&path, &circle);
+        }
+    }
+
+    #[test]
+    fn a_flattened_circle_at_a_high_feed_runs_near_the_feed_as_one_curve() {
+        // Radius 10 finely flattened (to 0.001 mm, legs of 0.28 mm) at 180
+        // mm/s: turned vertex by vertex (acceleration back to 0 between
+        // them) it ran at most ~55 mm/s; as one curve its centripetal
+        // acceleration (3240 mm/s²) and jerk allow the feed.
+        let (r, speed): (f64, f64) = (10.0, 180.0);
+        let circle = flattened_circle(Point::new(60.0, 60.0), r, 0.001);
+        let length: f64 = circle.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+        let path = marked(&circle, speed);
+        let marks: Vec<_> = path.pieces.iter().filter(|p| p.is_marking()).collect();
+        let (t0, t1) = (marks[0].start, marks.last().unwrap().end_time());
+        let mid = (1..20).map(|k| speed_at(&path, t0 + (t1 - t0) * (0.4 + 0.01 * k as f64))).fold(f64::INFINITY, f64::min);
+        assert!(mid > 0.85 * speed, "{mid} mm/s mid-circle");
+        // From rest to rest: the ramps at each end add about 0.1 s.
+        assert!(t1 - t0 <= 1.5 * length / speed, "{} s for {length} mm", t1 - t0);
+        check(&path, &circle);
+    }
+
+    #[test]
+    fn a_run_is_one_curve_only_where_that_is_faster() {
+        // Circles flattened to 0.01 mm: at 50 mm/s turned vertex by vertex
+        // nearly at the feed, at 180 mm/s faster as one curve.
+        let circle = flattened_circle(Point::new(20.0, 20.0), 10.0, 0.01);
+        // The legs' end, not their estimate of it.
+        let end = |legs: &Legs| legs.iter().map(|(start, duration, _)| start + duration).fold(0.0, f64::max);
+        for speed in [50.0, 180.0] {
+            let (turned, turned_time) = plan_legs(&settings(), &circle, speed, None, None, false).unwrap();
+            assert!((end(&turned) - turned_time).abs() < 1e-9, "{speed} mm/s: legs end at {} s, estimated {turned_time} s", end(&turned));
+            let (chosen, time) = plan_legs(&settings(), &circle, speed, None, None, true).unwrap();
+            assert!((end(&chosen) - time).abs() < 1e-9 && time <= turned_time, "{speed} mm/s: {time} s, turned {turned_time} s");
         }
     }
 

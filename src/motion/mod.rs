@@ -24,6 +24,7 @@
 //! pierce power for the pierce time (a `Pierce` piece), then marks.
 
 pub mod blend;
+pub mod curve;
 pub mod flow;
 pub mod leg;
 pub mod profile;

@@ -123,6 +123,13 @@ impl std::fmt::Debug for FreeMove {
 }
 
 impl FreeMove {
+    /// A move given by its states (position, velocity, acceleration) at
+    /// equal steps over `duration` (at least two; a stage-only curve).
+    pub fn sampled(duration: f64, table: Vec<(Point, Vector2<f64>, Vector2<f64>)>) -> FreeMove {
+        let (from, to) = (table[0].0, table[table.len() - 1].0);
+        FreeMove { from, to, duration, table }
+    }
+
     pub fn new(from: Point, v_from: Vector2<f64>, to: Point, v_to: Vector2<f64>, axis: Limits) -> Result<FreeMove> {
         Self::tabulated(from, v_from, to, v_to, axis, TABLE_STEP)
     }

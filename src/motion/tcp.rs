@@ -234,10 +234,13 @@ pub struct TcpSettings {
     pub line_tolerance: f64,
 }
 
+/// A run's motions: (start relative to the run's start, duration, motion).
+pub type Legs = Vec<(f64, f64, Motion)>;
+
 /// A planned mark: its legs with their start times relative to the run's
 /// start and their durations (consecutive legs may overlap at a corner).
 pub struct Run {
-    legs: Vec<(f64, f64, Motion)>,
+    legs: Legs,
     duration: f64,
     entry: Point,
     entry_velocity: Vector2<f64>,
@@ -247,16 +250,11 @@ pub struct Run {
 
 impl Run {
     /// From legs in time order (at least one).
-    pub fn new(legs: Vec<(f64, f64, Motion)>) -> Run {
-        let velocity = |m: &Motion, t: f64| match m {
-            Motion::Leg { dir, leg, .. } => dir * leg.at(t)[1],
-            Motion::Profile { dir, profile, .. } => dir * profile.at(t)[1],
-            _ => Vector2::zeros(),
-        };
+    pub fn new(legs: Legs) -> Run {
         let (_, _, first) = &legs[0];
         let (last_start, last_duration, last) = legs.last().expect("a run has legs");
-        let entry_velocity = velocity(first, 0.0);
-        let exit_velocity = velocity(last, *last_duration);
+        let entry_velocity = first.velocity(0.0);
+        let exit_velocity = last.velocity(*last_duration);
         let (entry, exit) = (first.start(), last.end());
         let duration = last_start + last_duration;
         Run { legs, duration, entry, entry_velocity, exit, exit_velocity }
@@ -276,6 +274,16 @@ impl Run {
 }
 
 impl Motion {
+    /// Velocity `t` seconds into the motion.
+    pub fn velocity(&self, t: f64) -> Vector2<f64> {
+        match self {
+            Motion::Leg { dir, leg, .. } => dir * leg.at(t)[1],
+            Motion::Profile { dir, profile, .. } => dir * profile.at(t)[1],
+            Motion::Free(m) => m.at(t).1,
+            Motion::Still(_) => Vector2::zeros(),
+        }
+    }
+
     fn start(&self) -> Point {
         match self {
             Motion::Leg { from, .. } | Motion::Profile { from, .. } => *from,

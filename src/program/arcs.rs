@@ -10,10 +10,20 @@
 //! position in the block must be within the limit of that arc at the same
 //! instant, the chords' sagitta added.
 //!
+//! An arc's chords are also knots the controller runs straight between, at
+//! equal times: their small deviations from the plan are divided by the
+//! chord time cubed in the jerk the limit checker sees (8·e/T³ for an error
+//! e alternating over chords of T). So an arc is taken only where the knots
+//! it makes, with the executed blocks before it and the planned ones after,
+//! keep every axis within its velocity, acceleration and jerk limits
+//! (`within_limits`, the simulator's divided differences): this also keeps
+//! the speed continuous at the joins.
+//!
 //! Arcs are written in G94 (`F` in mm/min): Grbl 1.1h and grblHAL run a G93
 //! arc's segments at `F` × segments mm/min (mc_arc multiplies the inverse
 //! time by the count, then drops inverse time), not in 1/F minutes.
 
+use crate::config::Limits;
 use crate::job::Point;
 use std::f64::consts::{PI, TAU};
 
@@ -22,6 +32,15 @@ pub const GRBL_ARC_TOLERANCE: f64 = 0.002;
 
 /// Grbl's `ARC_ANGULAR_TRAVEL_EPSILON`: a smaller travel is a full circle.
 const ANGULAR_EPSILON: f64 = 5e-7;
+
+/// Share of each limit the knots of an arc and its neighbours may use: the
+/// rest is for the rounding of the other blocks' words (1 %, see
+/// `min_block_time`) and Grbl's small-angle chord rotation.
+const LIMIT_SHARE: f64 = 0.95;
+
+/// Known knots on either side of a candidate arc: enough for every jerk
+/// window (four knots) that holds one of the arc's chord ends.
+const CONTEXT_KNOTS: usize = 3;
 
 /// Radii beyond this are left as straight blocks (a large arc's centre
 /// offset is a long word, and its chord count large).
@@ -109,6 +128,44 @@ pub fn planner_blocks(program: &super::Program) -> Vec<usize> {
         .collect()
 }
 
+/// The knots the controller runs `arc` through from `start` (at `t0`) to
+/// `end` (at `t1`), the start excluded: its chord ends at equal times (the
+/// timed model; Grbl gives every chord of an arc the same speed).
+pub fn chord_knots(start: Point, end: Point, arc: &ArcWords, t0: f64, t1: f64) -> Option<Vec<(f64, Point)>> {
+    let (centre, radius, travel, segments) = executed(start, end, arc.centre_offset, arc.clockwise)?;
+    let n = segments.max(1);
+    let theta0 = (start.y - centre.y).atan2(start.x - centre.x);
+    let mut knots: Vec<(f64, Point)> = (1..n)
+        .map(|k| {
+            let f = k as f64 / n as f64;
+            let angle = theta0 + travel * f;
+            (t0 + f * (t1 - t0), Point::new(centre.x + radius * angle.cos(), centre.y + radius * angle.sin()))
+        })
+        .collect();
+    knots.push((t1, end));
+    Some(knots)
+}
+
+/// Whether motion straight from knot to knot (instants, positions) keeps
+/// both axes within `LIMIT_SHARE` of `limits`, by the divided differences
+/// the simulator's limit checker takes: the velocity of a segment, the
+/// acceleration at a knot, the jerk over two knots.
+fn within_limits(knots: &[(f64, Point)], limits: Limits) -> bool {
+    let axis = |p: Point, k: usize| if k == 0 { p.x } else { p.y };
+    (0..2).all(|k| {
+        let dt: Vec<f64> = knots.windows(2).map(|w| w[1].0 - w[0].0).collect();
+        if dt.iter().any(|&d| d <= 0.0) {
+            return false;
+        }
+        let v: Vec<f64> = knots.windows(2).zip(&dt).map(|(w, d)| (axis(w[1].1, k) - axis(w[0].1, k)) / d).collect();
+        let a: Vec<f64> = (0..v.len().saturating_sub(1)).map(|m| (v[m + 1] - v[m]) / (0.5 * (dt[m] + dt[m + 1]))).collect();
+        let j = (0..a.len().saturating_sub(1)).map(|m| 3.0 * (a[m + 1] - a[m]) / (dt[m] + dt[m + 1] + dt[m + 2]));
+        v.iter().all(|x| x.abs() <= LIMIT_SHARE * limits.velocity)
+            && a.iter().all(|x| x.abs() <= LIMIT_SHARE * limits.acceleration)
+            && j.into_iter().all(|x| x.abs() <= LIMIT_SHARE * limits.jerk)
+    })
+}
+
 /// Tries one arc from `samples[0]` to the last sample (planned instants and
 /// TCP positions, the first and last a block's start and end): its words
 /// where every sample is within `limit` of the executed arc.
@@ -152,13 +209,20 @@ pub fn fit(samples: &[(f64, Point)], decimals: usize, limit: f64) -> Option<ArcW
     if (travel - planned_travel).abs() > 1e-3 {
         return None;
     }
-    let (sagitta, chords) = if segments == 0 {
-        (radius * (1.0 - (0.5 * travel).cos()), (end - start).norm())
-    } else {
-        let half = 0.5 * travel.abs() / segments as f64;
-        (radius * (1.0 - half.cos()), segments as f64 * 2.0 * radius * half.sin())
-    };
+    let sagitta = radius * (1.0 - (0.5 * travel.abs() / segments.max(1) as f64).cos());
     if sagitta >= limit {
+        return None;
+    }
+    // The plan's own speed must be the arc's all along (to 0.5 %): a plan
+    // that speeds up or slows down along the arc, even within the
+    // tolerance, would meet the blocks around it with a step in speed that
+    // the controller sees as a jerk far beyond its limit.
+    let speed = radius * travel.abs() / duration;
+    let steady = samples.windows(2).all(|w| {
+        let dt = w[1].0 - w[0].0;
+        dt <= 0.0 || ((w[1].1 - w[0].1).norm() / dt - speed).abs() <= 5e-3 * speed
+    });
+    if !steady {
         return None;
     }
     let theta0 = (start.y - centre.y).atan2(start.x - centre.x);
@@ -167,25 +231,64 @@ pub fn fit(samples: &[(f64, Point)], decimals: usize, limit: f64) -> Option<ArcW
         let on_arc = Point::new(centre.x + radius * angle.cos(), centre.y + radius * angle.sin());
         (p - on_arc).norm() + sagitta <= limit
     });
-    within.then_some(ArcWords { clockwise, centre_offset: offset, feed: 60.0 * chords / duration })
+    if !within {
+        return None;
+    }
+    // Grbl runs every chord at `F`, the last one to the written end (off the
+    // circle by the rounding): the block's time is the chords' length over F.
+    let mut arc = ArcWords { clockwise, centre_offset: offset, feed: 0.0 };
+    let knots = chord_knots(start, end, &arc, 0.0, 1.0)?;
+    let chords: f64 = knots.iter().scan(start, |from, &(_, to)| Some((to - std::mem::replace(from, to)).norm())).sum();
+    arc.feed = 60.0 * chords / duration;
+    Some(arc)
 }
 
 /// Where straight blocks with ends `times` (the first the span's start)
 /// merge into arcs: (end index into `times`, arc) per block, in order; an
-/// arc covers at least two straight blocks. `samples_of(a, b)` gives the
-/// planned instants and positions from `a` to `b`, both included.
-pub fn merge(times: &[f64], decimals: usize, limit: f64, samples_of: impl Fn(f64, f64) -> Vec<(f64, Point)>) -> Vec<(usize, Option<ArcWords>)> {
+/// arc covers at least two straight blocks. `position(t)` is the planned
+/// TCP; `limits` the axes' (see the module's doc on the knots an arc makes).
+pub fn merge(times: &[f64], decimals: usize, limit: f64, limits: Limits, position: impl Fn(f64) -> Point) -> Vec<(usize, Option<ArcWords>)> {
     let mut out = Vec::new();
-    let mut i = 0;
     let last = times.len().saturating_sub(1);
+    if last == 0 {
+        return out;
+    }
+    // Where a straight block ends: the rounded words the program writes.
+    let written = |t: f64| {
+        let p = position(t);
+        (t, Point::new(rounded(p.x, decimals), rounded(p.y, decimals)))
+    };
+    // The planned TCP at the block ends from `a` to `b` and eighths of each block between.
+    let samples_of = |a: usize, b: usize| {
+        let mut out = vec![(times[a], position(times[a]))];
+        for w in times[a..=b].windows(2) {
+            out.extend((1..=8).map(|q| w[0] + (w[1] - w[0]) * q as f64 / 8.0).map(|t| (t, position(t))));
+        }
+        out
+    };
+    // The knots the program makes so far (the blocks before the span: the
+    // plan, sampled at the candidate arc's chord time).
+    let mut executed = vec![written(times[0])];
+    let mut i = 0;
     while i < last {
-        let try_to = |j: usize| fit(&samples_of(times[i], times[j]), decimals, limit);
+        let try_to = |j: usize| -> Option<(ArcWords, Vec<(f64, Point)>)> {
+            let arc = fit(&samples_of(i, j), decimals, limit)?;
+            let (start, end) = (written(times[i]), written(times[j]));
+            let chords = chord_knots(start.1, end.1, &arc, start.0, end.0)?;
+            let chord_time = chords[0].0 - start.0;
+            let known = executed.len().min(CONTEXT_KNOTS);
+            let mut knots: Vec<(f64, Point)> = (known..CONTEXT_KNOTS).rev().map(|k| written(times[0] - (k + 1 - known) as f64 * chord_time)).collect();
+            knots.extend_from_slice(&executed[executed.len() - known..]);
+            knots.extend_from_slice(&chords);
+            knots.extend((1..CONTEXT_KNOTS).map(|k| written(if j + k <= last { times[j + k] } else { times[last] + (j + k - last) as f64 * chord_time })));
+            within_limits(&knots, limits).then_some((arc, chords))
+        };
         // Galloping, then bisecting, over the block ends the arc reaches.
         let (mut good, mut bad, mut step) = (None, last + 1, 2);
         loop {
             let j = i + step;
             if j > last {
-                if good.is_none_or(|(g, _)| g < last) {
+                if good.as_ref().is_none_or(|(g, _)| *g < last) {
                     if let Some(arc) = try_to(last) {
                         good = Some((last, arc));
                     } else {
@@ -203,7 +306,7 @@ pub fn merge(times: &[f64], decimals: usize, limit: f64, samples_of: impl Fn(f64
             }
             step *= 2;
         }
-        let mut lo = good.map_or(i + 1, |(g, _)| g);
+        let mut lo = good.as_ref().map_or(i + 1, |(g, _)| *g);
         while bad <= last && bad - lo > 1 {
             let mid = (lo + bad) / 2;
             match try_to(mid) {
@@ -215,14 +318,20 @@ pub fn merge(times: &[f64], decimals: usize, limit: f64, samples_of: impl Fn(f64
             }
         }
         match good {
-            Some((j, arc)) if j >= i + 2 => {
+            Some((j, (arc, chords))) if j >= i + 2 => {
                 out.push((j, Some(arc)));
+                executed.extend(chords);
                 i = j;
             }
             _ => {
                 out.push((i + 1, None));
+                executed.push(written(times[i + 1]));
                 i += 1;
             }
+        }
+        // Only the last few knots are context for the next arc.
+        if executed.len() > 4 * CONTEXT_KNOTS {
+            executed.drain(..executed.len() - CONTEXT_KNOTS);
         }
     }
     out
@@ -315,8 +424,9 @@ mod tests {
                 Point::new(10.0 * a.cos(), 10.0 * a.sin())
             }
         };
-        let samples_of = |a: f64, b: f64| (0..=64).map(|k| a + (b - a) * k as f64 / 64.0).map(|t| (t, at(t))).collect();
-        let merged = merge(&times, 5, 0.009, samples_of);
+        // Limits this plan keeps (its speed steps from 100 to 20 mm/s at the join).
+        let limits = Limits { velocity: 1e3, acceleration: 1e5, jerk: 1e9 };
+        let merged = merge(&times, 5, 0.009, limits, at);
         let arcs: Vec<_> = merged.iter().filter(|(_, a)| a.is_some()).collect();
         assert_eq!(arcs.len(), 1, "{merged:?}");
         assert_eq!(arcs[0].0, 20, "the arc ends at the last block");

@@ -547,13 +547,16 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
     }
     let tolerance = if span.kind == LineKind::Mark { machine.program.tolerance } else { machine.program.jump_tolerance };
     // A block ends wherever one piece ends before the next begins (a
-    // vertex taken from rest, a jump's end): the machine can stop there.
+    // vertex taken from rest, a jump's end): the machine can stop there. In a
+    // mark, only where it does stop: a stage-only curve's pieces (`curve.rs`)
+    // continue each other at speed.
     let mut times = vec![span.start];
     let mut from = span.start;
     for k in span.first..span.last {
         let (p, q) = (&trajectory.tcp.pieces[k], &trajectory.tcp.pieces[k + 1]);
         let end = p.end_time();
-        if q.start >= end - 1e-12 && end > from + 1e-12 && end < span.end - 1e-12 {
+        let stops = span.kind != LineKind::Mark || p.motion.velocity(p.duration).norm() <= 1e-6;
+        if stops && q.start >= end - 1e-12 && end > from + 1e-12 && end < span.end - 1e-12 {
             let part = Span { start: from, end, ..*span };
             times.extend(block_times(trajectory, &part, tolerance, min_block)?.into_iter().skip(1));
             from = end;
@@ -563,16 +566,7 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
     let has_scanner = trajectory.has_scanner;
     let stage_only = matches!(trajectory.stage, crate::motion::stage::StagePath::FollowsTcp);
     let blocks: Vec<(usize, Option<arcs::ArcWords>)> = if span.kind == LineKind::Mark && stage_only && machine.program.arcs {
-        // The planned TCP at the block ends and eighths of each block between.
-        let samples_of = |a: f64, b: f64| {
-            let (i, j) = (times.partition_point(|&t| t < a), times.partition_point(|&t| t <= b));
-            let mut out = vec![(a, trajectory.tcp.position(a))];
-            for w in times[i..j].windows(2) {
-                out.extend((1..=8).map(|q| w[0] + (w[1] - w[0]) * q as f64 / 8.0).map(|t| (t, trajectory.tcp.position(t))));
-            }
-            out
-        };
-        arcs::merge(&times, machine.program.decimals, 0.9 * tolerance, samples_of)
+        arcs::merge(&times, machine.program.decimals, 0.9 * tolerance, machine.stage_limits(), |t| trajectory.tcp.position(t))
     } else {
         (1..times.len()).map(|j| (j, None)).collect()
     };
@@ -692,9 +686,10 @@ mod tests {
         assert_eq!(format_number(60.0 / 0.0042, 6), "14285.714286");
     }
 
-    /// Re-executes `prog` as a controller would (constant velocity per block, a
-    /// dwell standing still) and returns the worst distance from the trajectory
-    /// at many instants; checks that the blocks tile the trajectory's time.
+    /// Re-executes `prog` as a controller would (constant velocity per block,
+    /// an arc (G94, `F` in mm/min) through its chords at equal times, a dwell
+    /// standing still) and returns the worst distance from the trajectory at
+    /// many instants; checks that the blocks tile the trajectory's time.
     fn replay_against(prog: &Program, tr: &Trajectory) -> f64 {
         let jump_tolerance = MachineConfig::load(None).unwrap().program.jump_tolerance;
         let mut pos = prog.start.clone();
@@ -711,6 +706,8 @@ mod tests {
             assert!((a - t).abs() < 1e-9, "blocks are contiguous in time");
             let mut end = pos.clone();
             let text = &line.text;
+            // The executed knots after the block's start (time, values).
+            let mut knots = vec![(b, end.clone())];
             if line.kind == LineKind::Pierce {
                 // The dwell: P seconds, nothing moves.
                 assert!(text.starts_with("G4P"), "{text}");
@@ -722,13 +719,28 @@ mod tests {
                     }
                 }
                 let f = word(text, 'F').unwrap();
-                assert!(((60.0 / f) - (b - a)).abs() < 1e-5 * (b - a) + 1e-12);
+                knots = vec![(b, end.clone())];
+                if text.starts_with("G2") || text.starts_with("G3") {
+                    // Stage-only arcs: the plane's axes are the first two.
+                    let arc = arcs::ArcWords { clockwise: text.starts_with("G2"), centre_offset: [word(text, 'I').unwrap(), word(text, 'J').unwrap()], feed: f };
+                    let (from, to) = (Point::new(pos[0], pos[1]), Point::new(end[0], end[1]));
+                    let chords = arcs::chord_knots(from, to, &arc, a, b).expect("an arc the controller runs");
+                    let length: f64 = std::iter::once(from).chain(chords.iter().map(|k| k.1)).collect::<Vec<_>>().windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+                    assert!((60.0 * length / f - (b - a)).abs() < 1e-5 * (b - a) + 1e-12, "{text}: {} s for {} s", 60.0 * length / f, b - a);
+                    knots = chords.into_iter().map(|(t, p)| (t, vec![p.x, p.y])).collect();
+                } else {
+                    assert!(((60.0 / f) - (b - a)).abs() < 1e-5 * (b - a) + 1e-12, "{text}");
+                }
             }
             for k in 0..=10 {
                 let tt = a + (b - a) * k as f64 / 10.0;
                 let planned = tr.state_at(tt).tcp();
-                let frac = k as f64 / 10.0;
-                let exec: Vec<f64> = pos.iter().zip(&end).map(|(p, e)| p + (e - p) * frac).collect();
+                // Straight between the knots either side of `tt`.
+                let next = knots.partition_point(|(t, _)| *t < tt).min(knots.len() - 1);
+                let (t0, from) = if next == 0 { (a, &pos) } else { (knots[next - 1].0, &knots[next - 1].1) };
+                let (t1, to) = (knots[next].0, &knots[next].1);
+                let frac = if t1 > t0 { (tt - t0) / (t1 - t0) } else { 1.0 };
+                let exec: Vec<f64> = from.iter().zip(to).map(|(p, e)| p + (e - p) * frac).collect();
                 let dev = (tcp_of(&exec) - planned).norm();
                 if line.kind == LineKind::Mark {
                     worst = worst.max(dev);
