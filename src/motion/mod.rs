@@ -321,9 +321,12 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     }
 }
 
-/// Rounds of slowing per field change at most, and how much slower each.
-const SLOWING_ROUNDS: usize = 8;
-const SLOWER: f64 = 0.5;
+/// Rounds of planning the flow, slowing where it falls behind, at most.
+const FLOW_ROUNDS: usize = 24;
+/// Each round a field change where the stage falls behind by `d` mm takes
+/// `SLOWING · d / V + SLOWING_FLOOR` longer (V: the stage's burst speed).
+const SLOWING: f64 = 0.7;
+const SLOWING_FLOOR: f64 = 2.0e-3;
 
 /// The share of `sequence`'s field changes not `slowed` (`None` without any).
 fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
@@ -332,9 +335,9 @@ fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
 }
 
 /// On the fly with the stage planned over the whole job (`flow`). Where the
-/// stage cannot keep up, the field change there is slowed: the TCP stops and
-/// moves to the next field's first point at the stage's own limits, and all
-/// is planned again (every change where the stage falls behind at once).
+/// stage falls behind, the field change there is slowed (the TCP stops and
+/// moves to the next field's first point slower, taking longer by what the
+/// stage is short of), and at the ends the TCP waits; all is planned again.
 /// `None` when that does not settle it.
 #[allow(clippy::too_many_arguments)]
 fn flowing(
@@ -350,18 +353,25 @@ fn flowing(
     let groups = sequence.groups.len();
     let first_group = sequence.groups.iter().position(|g| !g.paths.is_empty()).unwrap_or(0);
     let stage_limits = machine.stage_limits().scaled(machine.motion.limit_margin);
-    // Per field: the speed cap of the jump into it, where slowed.
+    // Per field: how long the jump into it takes, where slowed.
     let mut slowed: Vec<Option<f64>> = vec![None; groups];
+    let mut pads = (0.0, 0.0);
+    // Per field: how far the stage fell behind at the change into it, last round.
+    let mut short: Vec<Option<f64>> = vec![None; groups];
     let mut cache = tcp::PlanCache::default();
     let burst_speed = split.burst.velocity;
-    for _ in 0..=SLOWING_ROUNDS * groups {
+    let longer = |mm: f64| SLOWING * mm / burst_speed + SLOWING_FLOOR;
+    for _ in 0..FLOW_ROUNDS {
         let mut b = TcpBuilder::new(settings, first, 0.0).with_cache(std::mem::take(&mut cache));
         // The slowed jumps' accelerations: the scanner's would be more than
         // Ruckig can scale at these speeds, and more than the stage needs.
-        let slow = |cap: f64| Limits { velocity: cap, acceleration: settings.axis.acceleration.min(10.0 * split.burst.acceleration), jerk: settings.axis.jerk.min(100.0 * split.burst.jerk) };
+        let slow = |cap: f64| Limits { velocity: cap.min(settings.axis.velocity), acceleration: settings.axis.acceleration.min(10.0 * split.burst.acceleration), jerk: settings.axis.jerk.min(100.0 * split.burst.jerk) };
         let marked = mark_all(&mut b, job, sequence, machine, runs, |b, g| {
-            if let Some(cap) = slowed[g] {
+            if let Some(took) = slowed[g] {
                 let entry = sequence.groups[g].paths[0].start();
+                b.stop(g)?;
+                let d = entry - b.position;
+                let cap = speed_cap_taking(d.x.abs().max(d.y.abs()), took, slow)?;
                 b.jump_within(g, entry, slow(cap))?;
             }
             Ok(())
@@ -377,7 +387,7 @@ fn flowing(
             // not plan such stops, the bursts do.
             return Ok(None);
         }
-        match flow::plan(&tcp, split) {
+        match flow::plan(&tcp, split, pads) {
             Ok(f) => {
                 let stage0 = f.start_point();
                 let (mut all, approach, job_start) = approach(start, stage0, first, stage_limits, settings)?;
@@ -408,28 +418,60 @@ fn flowing(
                 let stage = StagePath::Flow { start, approach, flow: f };
                 return Ok(Some(Trajectory { tcp: TcpPath::new(all), stage, start: start_state, job_start, has_scanner: true, stage_flow }));
             }
-            Err(behind) => {
-                // The changes into the fields where the stage falls behind
-                // (or the next one), slower each time, down to a tenth of
-                // the stage's speed; then the one after it.
-                let mut into: Vec<usize> = behind.iter().map(|&t| tcp.pieces[tcp.index_at(t)].group).collect();
-                into.dedup();
-                let mut added = false;
-                for g in into {
-                    let next = (g.max(first_group + 1)..groups).find(|&k| !sequence.groups[k].paths.is_empty() && slowed[k].is_none_or(|c| c > 0.1 * burst_speed));
-                    if let Some(k) = next {
-                        tracing::debug!(field = k + 1, "the stage cannot flow into this field: the TCP slows for it");
-                        slowed[k] = Some(slowed[k].map_or(2.0 * burst_speed, |c| SLOWER * c));
-                        added = true;
+            Err(behind) if behind.start.is_finite() && behind.end.is_finite() => {
+                if behind.start > 0.0 {
+                    pads.0 += longer(behind.start);
+                }
+                if behind.end > 0.0 {
+                    pads.1 += longer(behind.end);
+                }
+                for (g, f, mm) in behind.into {
+                    // The jump into `g` takes longer; where that did not
+                    // help, both jumps next to the field where the stage is
+                    // short.
+                    let stuck = short[g].is_some_and(|before| mm > 0.8 * before);
+                    short[g] = Some(mm);
+                    let next = (f + 1..groups).find(|&k| !sequence.groups[k].paths.is_empty());
+                    let around = [Some(f).filter(|&f| f > first_group), next];
+                    let changes = if stuck { around } else { [Some(g), None] };
+                    for k in changes.into_iter().flatten() {
+                        let Some(took) = slowed[k].or_else(|| field_change(&tcp, k)) else { continue };
+                        tracing::debug!(field = k + 1, mm, took, "the stage cannot flow into this field: the TCP slows for it");
+                        slowed[k] = Some(took + longer(mm));
                     }
                 }
-                if !added {
-                    return Ok(None);
-                }
             }
+            Err(_) => return Ok(None),
         }
     }
     Ok(None)
+}
+
+/// How long the change into field `g` of `tcp` takes: from the last mark
+/// before it to its first mark.
+fn field_change(tcp: &TcpPath, g: usize) -> Option<f64> {
+    let first = tcp.pieces.iter().position(|p| p.group == g && p.is_marking())?;
+    let before = tcp.pieces[..first].iter().rposition(|p| p.is_marking())?;
+    Some(tcp.pieces[first].start - tcp.pieces[before].end_time())
+}
+
+/// The speed cap under which a rest-to-rest move over `distance` (its
+/// larger axis) with `limits(cap)` takes `took` (bisection; at least a
+/// fiftieth of the distance per second).
+fn speed_cap_taking(distance: f64, took: f64, limits: impl Fn(f64) -> Limits) -> Result<f64> {
+    let (mut slow, mut fast) = (distance / 50.0, limits(f64::INFINITY).velocity);
+    if distance <= 0.0 || rest_to_rest_time(distance, limits(fast))? >= took {
+        return Ok(fast);
+    }
+    for _ in 0..40 {
+        let mid = 0.5 * (slow + fast);
+        if rest_to_rest_time(distance, limits(mid))? > took {
+            slow = mid;
+        } else {
+            fast = mid;
+        }
+    }
+    Ok(slow.max(1e-3))
 }
 
 /// The approach of an on-the-fly job: the stage carries the centred scanner
@@ -649,7 +691,7 @@ mod tests {
         let (seq, tr) = plan(&j, &machine, Mode::OnTheFly);
         assert!(matches!(tr.stage, StagePath::Flow { .. }), "the flowing stage is the faster here");
         let flow = tr.stage_flow.expect("field changes on the fly");
-        assert!(flow > 0.0 && flow <= 1.0, "{flow}");
+        assert!((0.0..=1.0).contains(&flow), "{flow}");
         check_sampled(&tr, &machine, 2e-5);
         assert!(marked_time(&tr) >= j.mark_length() / 800.0 - 1e-9);
         let lb = lower_bound(&j, &seq, &machine, Mode::OnTheFly).unwrap();
