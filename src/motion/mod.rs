@@ -327,6 +327,8 @@ const FLOW_ROUNDS: usize = 24;
 /// `SLOWING · d / V + SLOWING_FLOOR` longer (V: the stage's burst speed).
 const SLOWING: f64 = 0.7;
 const SLOWING_FLOOR: f64 = 2.0e-3;
+/// Rounds of taking back half of the added time, once the flow is found.
+const TAKE_BACK: usize = 3;
 
 /// The share of `sequence`'s field changes not `slowed` (`None` without any).
 fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
@@ -336,9 +338,10 @@ fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
 
 /// On the fly with the stage planned over the whole job (`flow`). Where the
 /// stage falls behind, the field change there is slowed (the TCP stops and
-/// moves to the next field's first point slower, taking longer by what the
-/// stage is short of), and at the ends the TCP waits; all is planned again.
-/// `None` when that does not settle it.
+/// jumps to the next field's first point time-scaled, taking longer by what
+/// the stage is short of), and at the ends the TCP waits; all is planned
+/// again. Once it flows, part of the added time is taken back where the
+/// stage keeps up without it. `None` when that does not settle it.
 #[allow(clippy::too_many_arguments)]
 fn flowing(
     job: &Job,
@@ -353,26 +356,17 @@ fn flowing(
     let groups = sequence.groups.len();
     let first_group = sequence.groups.iter().position(|g| !g.paths.is_empty()).unwrap_or(0);
     let stage_limits = machine.stage_limits().scaled(machine.motion.limit_margin);
-    // Per field: how long the jump into it takes, where slowed.
-    let mut slowed: Vec<Option<f64>> = vec![None; groups];
-    let mut pads = (0.0, 0.0);
-    // Per field: how far the stage fell behind at the change into it, last round.
-    let mut short: Vec<Option<f64>> = vec![None; groups];
     let mut cache = tcp::PlanCache::default();
-    let burst_speed = split.burst.velocity;
-    let longer = |mm: f64| SLOWING * mm / burst_speed + SLOWING_FLOOR;
-    for _ in 0..FLOW_ROUNDS {
+    // The TCP with the jumps into the fields `slowed` taking that long, and
+    // the flow for it (or where it falls behind). `None`: no flow for this job.
+    let mut attempt = |slowed: &[Option<f64>], pads: (f64, f64)| -> Result<Option<(TcpPath, std::result::Result<flow::Flow, flow::Behind>)>> {
         let mut b = TcpBuilder::new(settings, first, 0.0).with_cache(std::mem::take(&mut cache));
-        // The slowed jumps' accelerations: the scanner's would be more than
-        // Ruckig can scale at these speeds, and more than the stage needs.
-        let slow = |cap: f64| Limits { velocity: cap.min(settings.axis.velocity), acceleration: settings.axis.acceleration.min(10.0 * split.burst.acceleration), jerk: settings.axis.jerk.min(100.0 * split.burst.jerk) };
         let marked = mark_all(&mut b, job, sequence, machine, runs, |b, g| {
             if let Some(took) = slowed[g] {
                 let entry = sequence.groups[g].paths[0].start();
                 b.stop(g)?;
                 let d = entry - b.position;
-                let cap = speed_cap_taking(d.x.abs().max(d.y.abs()), took, slow)?;
-                b.jump_within(g, entry, slow(cap))?;
+                b.jump_within(g, entry, stretched(d.x.abs().max(d.y.abs()), took, settings.axis)?)?;
             }
             Ok(())
         });
@@ -388,63 +382,113 @@ fn flowing(
             return Ok(None);
         }
         match flow::plan(&tcp, split, pads) {
+            Err(behind) if !behind.start.is_finite() || !behind.end.is_finite() => Ok(None),
+            planned => Ok(Some((tcp, planned))),
+        }
+    };
+    // Per field: how long the jump into it takes, where slowed, and took
+    // before; how far the stage fell behind at the change into it last round.
+    let mut slowed: Vec<Option<f64>> = vec![None; groups];
+    let mut unslowed: Vec<Option<f64>> = vec![None; groups];
+    let mut short: Vec<Option<f64>> = vec![None; groups];
+    let mut pads = (0.0, 0.0);
+    let burst_speed = split.burst.velocity;
+    let longer = |mm: f64| SLOWING * mm / burst_speed + SLOWING_FLOOR;
+    let next_field = |f: usize| (f + 1..groups).find(|&k| !sequence.groups[k].paths.is_empty());
+    let mut found = None;
+    for _ in 0..FLOW_ROUNDS {
+        let Some((tcp, planned)) = attempt(&slowed, pads)? else { return Ok(None) };
+        let behind = match planned {
             Ok(f) => {
-                let stage0 = f.start_point();
-                let (mut all, approach, job_start) = approach(start, stage0, first, stage_limits, settings)?;
-                // Where the stage starts before the TCP, the TCP waits for it
-                // at its first point (in the job's time).
-                let approach_end = approach.iter().flatten().map(stage::AxisMove::end_time).fold(0.0, f64::max);
-                let wait = (approach_end - job_start - f.first_motion()).max(0.0);
-                if wait > 0.0 {
-                    let mut b = TcpBuilder::new(settings, first, job_start);
-                    b.still(PieceKind::Jump, first_group, wait);
-                    all.append(&mut b.path.pieces);
-                }
-                let (mut tcp, mut f) = (tcp, f);
-                tcp.shift(job_start + wait);
-                f.shift(job_start + wait);
-                let tcp_end = tcp.duration();
-                all.append(&mut tcp.pieces);
-                // And where the stage settles after the TCP's end, the TCP
-                // waits at its last point, so that the program runs it.
-                if f.end_time() > tcp_end {
-                    let last = all.last().map_or(first, |p| p.end_point());
-                    let mut b = TcpBuilder::new(settings, last, tcp_end);
-                    b.still(PieceKind::Jump, groups.saturating_sub(1), f.end_time() - tcp_end);
-                    all.append(&mut b.path.pieces);
-                }
-                let start_state = AxisState { stage: start, scanner: Point::origin() };
-                let stage_flow = flow_share(sequence, slowed.iter().filter(|s| s.is_some()).count());
-                let stage = StagePath::Flow { start, approach, flow: f };
-                return Ok(Some(Trajectory { tcp: TcpPath::new(all), stage, start: start_state, job_start, has_scanner: true, stage_flow }));
+                found = Some((tcp, f));
+                break;
             }
-            Err(behind) if behind.start.is_finite() && behind.end.is_finite() => {
-                if behind.start > 0.0 {
-                    pads.0 += longer(behind.start);
-                }
-                if behind.end > 0.0 {
-                    pads.1 += longer(behind.end);
-                }
-                for (g, f, mm) in behind.into {
-                    // The jump into `g` takes longer; where that did not
-                    // help, both jumps next to the field where the stage is
-                    // short.
-                    let stuck = short[g].is_some_and(|before| mm > 0.8 * before);
-                    short[g] = Some(mm);
-                    let next = (f + 1..groups).find(|&k| !sequence.groups[k].paths.is_empty());
-                    let around = [Some(f).filter(|&f| f > first_group), next];
-                    let changes = if stuck { around } else { [Some(g), None] };
-                    for k in changes.into_iter().flatten() {
-                        let Some(took) = slowed[k].or_else(|| field_change(&tcp, k)) else { continue };
-                        tracing::debug!(field = k + 1, mm, took, "the stage cannot flow into this field: the TCP slows for it");
-                        slowed[k] = Some(took + longer(mm));
-                    }
-                }
+            Err(behind) => behind,
+        };
+        if behind.start > 0.0 {
+            pads.0 += longer(behind.start);
+        }
+        if behind.end > 0.0 {
+            pads.1 += longer(behind.end);
+        }
+        for (g, f, mm) in behind.into {
+            // The jump into `g` takes longer; where that did not help, both
+            // jumps next to the field where the stage is short.
+            let stuck = short[g].is_some_and(|before| mm > 0.8 * before);
+            short[g] = Some(mm);
+            let around = [Some(f).filter(|&f| f > first_group), next_field(f)];
+            let changes = if stuck { around } else { [Some(g), None] };
+            for k in changes.into_iter().flatten() {
+                let Some(took) = slowed[k].or_else(|| field_change(&tcp, k)) else { continue };
+                unslowed[k] = unslowed[k].or(Some(took));
+                tracing::debug!(field = k + 1, mm, took, "the stage cannot flow into this field: the TCP slows for it");
+                slowed[k] = Some(took + longer(mm));
             }
-            Err(_) => return Ok(None),
         }
     }
-    Ok(None)
+    let Some((mut tcp, mut f)) = found else { return Ok(None) };
+    // The shortfall over-states the time a change needs: take half of every
+    // change's added time back; where the stage then falls behind, those
+    // changes keep theirs.
+    for _ in 0..TAKE_BACK {
+        let trial: Vec<Option<f64>> = slowed.iter().zip(&unslowed).map(|(s, u)| s.map(|s| u.map_or(s, |u| u + 0.5 * (s - u)))).collect();
+        let keep = match attempt(&trial, pads)? {
+            Some((t, Ok(fl))) => {
+                (slowed, tcp, f) = (trial, t, fl);
+                continue;
+            }
+            Some((_, Err(behind))) => {
+                let mut keep = trial;
+                for (g, field, _) in behind.into {
+                    for k in [Some(g), Some(field), next_field(field)].into_iter().flatten() {
+                        keep[k] = slowed[k];
+                    }
+                }
+                keep
+            }
+            None => break,
+        };
+        match attempt(&keep, pads)? {
+            Some((t, Ok(fl))) => (slowed, tcp, f) = (keep, t, fl),
+            _ => break,
+        }
+    }
+
+    let stage_flow = flow_share(sequence, slowed.iter().filter(|s| s.is_some()).count());
+    Ok(Some(with_flow(tcp, f, start, first, first_group, groups, stage_limits, settings, stage_flow)?))
+}
+
+/// An on-the-fly trajectory: the approach, then the TCP with the flowing
+/// stage, the TCP waiting at its ends for the stage where it needs longer.
+#[allow(clippy::too_many_arguments)]
+fn with_flow(tcp: TcpPath, f: flow::Flow, start: Point, first: Point, first_group: usize, groups: usize, stage_limits: Limits, settings: TcpSettings, stage_flow: Option<f64>) -> Result<Trajectory> {
+    let stage0 = f.start_point();
+    let (mut all, approach, job_start) = approach(start, stage0, first, stage_limits, settings)?;
+    // Where the stage starts before the TCP, the TCP waits for it at its
+    // first point (in the job's time).
+    let approach_end = approach.iter().flatten().map(stage::AxisMove::end_time).fold(0.0, f64::max);
+    let wait = (approach_end - job_start - f.first_motion()).max(0.0);
+    if wait > 0.0 {
+        let mut b = TcpBuilder::new(settings, first, job_start);
+        b.still(PieceKind::Jump, first_group, wait);
+        all.append(&mut b.path.pieces);
+    }
+    let (mut tcp, mut f) = (tcp, f);
+    tcp.shift(job_start + wait);
+    f.shift(job_start + wait);
+    let tcp_end = tcp.duration();
+    all.append(&mut tcp.pieces);
+    // And where the stage settles after the TCP's end, the TCP waits at its
+    // last point, so that the program runs it.
+    if f.end_time() > tcp_end {
+        let last = all.last().map_or(first, |p| p.end_point());
+        let mut b = TcpBuilder::new(settings, last, tcp_end);
+        b.still(PieceKind::Jump, groups.saturating_sub(1), f.end_time() - tcp_end);
+        all.append(&mut b.path.pieces);
+    }
+    let start_state = AxisState { stage: start, scanner: Point::origin() };
+    let stage = StagePath::Flow { start, approach, flow: f };
+    Ok(Trajectory { tcp: TcpPath::new(all), stage, start: start_state, job_start, has_scanner: true, stage_flow })
 }
 
 /// How long the change into field `g` of `tcp` takes: from the last mark
@@ -455,23 +499,14 @@ fn field_change(tcp: &TcpPath, g: usize) -> Option<f64> {
     Some(tcp.pieces[first].start - tcp.pieces[before].end_time())
 }
 
-/// The speed cap under which a rest-to-rest move over `distance` (its
-/// larger axis) with `limits(cap)` takes `took` (bisection; at least a
-/// fiftieth of the distance per second).
-fn speed_cap_taking(distance: f64, took: f64, limits: impl Fn(f64) -> Limits) -> Result<f64> {
-    let (mut slow, mut fast) = (distance / 50.0, limits(f64::INFINITY).velocity);
-    if distance <= 0.0 || rest_to_rest_time(distance, limits(fast))? >= took {
-        return Ok(fast);
-    }
-    for _ in 0..40 {
-        let mid = 0.5 * (slow + fast);
-        if rest_to_rest_time(distance, limits(mid))? > took {
-            slow = mid;
-        } else {
-            fast = mid;
-        }
-    }
-    Ok(slow.max(1e-3))
+/// Limits under which a rest-to-rest move over `distance` (its larger
+/// axis) takes `took`, at least as long as within `axis`: `axis` time-scaled
+/// (velocity by k, acceleration by k², jerk by k³ make the same move 1/k as
+/// long).
+fn stretched(distance: f64, took: f64, axis: Limits) -> Result<Limits> {
+    let fastest = rest_to_rest_time(distance, axis)?;
+    let k = if took > fastest { fastest / took } else { 1.0 };
+    Ok(Limits { velocity: axis.velocity * k, acceleration: axis.acceleration * k * k, jerk: axis.jerk * k * k * k })
 }
 
 /// The approach of an on-the-fly job: the stage carries the centred scanner
