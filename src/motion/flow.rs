@@ -212,9 +212,13 @@ fn samples(tcp: &TcpPath, pads: (f64, f64), h: f64, half: f64, a: f64) -> Vec<Sa
         2 * g + usize::from(t >= 0.5 * (span[g].0 + span[g].1))
     };
     let mut wins = windows(tcp, h);
+    // The pads, the TCP still at its ends: windows of `h` too (the bow
+    // allowed between samples grows with the square of the window).
     for (t, p, length) in [(-pads.0, tcp.position(0.0), pads.0), (duration, tcp.position(duration), pads.1)] {
-        if length > 0.0 {
-            wins.push(Window { t0: t, t1: t + length, lo: [p.x, p.y], hi: [p.x, p.y] });
+        let parts = (length / h).ceil() as usize;
+        for k in 0..parts {
+            let (t0, t1) = (t + length * k as f64 / parts as f64, t + length * (k + 1) as f64 / parts as f64);
+            wins.push(Window { t0, t1, lo: [p.x, p.y], hi: [p.x, p.y] });
         }
     }
     let mut out: Vec<Sample> = Vec::with_capacity(2 * wins.len());
