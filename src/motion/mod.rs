@@ -327,8 +327,6 @@ const FLOW_ROUNDS: usize = 24;
 /// `SLOWING · d / V + SLOWING_FLOOR` longer (V: the stage's burst speed).
 const SLOWING: f64 = 0.7;
 const SLOWING_FLOOR: f64 = 2.0e-3;
-/// Rounds of taking back half of the added time, once the flow is found.
-const TAKE_BACK: usize = 3;
 
 /// The share of `sequence`'s field changes not `slowed` (`None` without any).
 fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
@@ -340,8 +338,7 @@ fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
 /// stage falls behind, the field change there is slowed (the TCP stops and
 /// jumps to the next field's first point time-scaled, taking longer by what
 /// the stage is short of), and at the ends the TCP waits; all is planned
-/// again. Once it flows, part of the added time is taken back where the
-/// stage keeps up without it. `None` when that does not settle it.
+/// again. `None` when that does not settle it.
 #[allow(clippy::too_many_arguments)]
 fn flowing(
     job: &Job,
@@ -386,10 +383,9 @@ fn flowing(
             planned => Ok(Some((tcp, planned))),
         }
     };
-    // Per field: how long the jump into it takes, where slowed, and took
-    // before; how far the stage fell behind at the change into it last round.
+    // Per field: how long the jump into it takes, where slowed; how far the
+    // stage fell behind at the change into it last round.
     let mut slowed: Vec<Option<f64>> = vec![None; groups];
-    let mut unslowed: Vec<Option<f64>> = vec![None; groups];
     let mut short: Vec<Option<f64>> = vec![None; groups];
     let mut pads = (0.0, 0.0);
     let burst_speed = split.burst.velocity;
@@ -420,40 +416,12 @@ fn flowing(
             let changes = if stuck { around } else { [Some(g), None] };
             for k in changes.into_iter().flatten() {
                 let Some(took) = slowed[k].or_else(|| field_change(&tcp, k)) else { continue };
-                unslowed[k] = unslowed[k].or(Some(took));
                 tracing::debug!(field = k + 1, mm, took, "the stage cannot flow into this field: the TCP slows for it");
                 slowed[k] = Some(took + longer(mm));
             }
         }
     }
-    let Some((mut tcp, mut f)) = found else { return Ok(None) };
-    // The shortfall over-states the time a change needs: take half of every
-    // change's added time back; where the stage then falls behind, those
-    // changes keep theirs.
-    for _ in 0..TAKE_BACK {
-        let trial: Vec<Option<f64>> = slowed.iter().zip(&unslowed).map(|(s, u)| s.map(|s| u.map_or(s, |u| u + 0.5 * (s - u)))).collect();
-        let keep = match attempt(&trial, pads)? {
-            Some((t, Ok(fl))) => {
-                (slowed, tcp, f) = (trial, t, fl);
-                continue;
-            }
-            Some((_, Err(behind))) => {
-                let mut keep = trial;
-                for (g, field, _) in behind.into {
-                    for k in [Some(g), Some(field), next_field(field)].into_iter().flatten() {
-                        keep[k] = slowed[k];
-                    }
-                }
-                keep
-            }
-            None => break,
-        };
-        match attempt(&keep, pads)? {
-            Some((t, Ok(fl))) => (slowed, tcp, f) = (keep, t, fl),
-            _ => break,
-        }
-    }
-
+    let Some((tcp, f)) = found else { return Ok(None) };
     let stage_flow = flow_share(sequence, slowed.iter().filter(|s| s.is_some()).count());
     Ok(Some(with_flow(tcp, f, start, first, first_group, groups, stage_limits, settings, stage_flow)?))
 }
