@@ -287,12 +287,19 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
         row(&[(k, -1.0)], 0.0);
         row(&[(k, 1.0)], travel);
     }
-    for sm in samples {
+    let his: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, sm.hi[i], sm.slack)).collect();
+    let los: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, -sm.lo[i], sm.slack)).collect();
+    let (keep_hi, keep_lo) = (binding(&his, lim.velocity, slacks), binding(&los, lim.velocity, slacks));
+    for (k, sm) in samples.iter().enumerate() {
         let basis = basis(m, h, sm.t - t0);
-        let up: Vec<(usize, f64)> = basis.iter().copied().chain([(m + sm.slack, -1.0)]).collect();
-        let down: Vec<(usize, f64)> = basis.iter().map(|&(c, w)| (c, -w)).chain([(m + sm.slack, -1.0)]).collect();
-        row(&up, sm.hi[i]);
-        row(&down, -sm.lo[i]);
+        if keep_hi[k] {
+            let up: Vec<(usize, f64)> = basis.iter().copied().chain([(m + sm.slack, -1.0)]).collect();
+            row(&up, sm.hi[i]);
+        }
+        if keep_lo[k] {
+            let down: Vec<(usize, f64)> = basis.iter().map(|&(c, w)| (c, -w)).chain([(m + sm.slack, -1.0)]).collect();
+            row(&down, -sm.lo[i]);
+        }
     }
     for k in m..n {
         row(&[(k, -1.0)], 0.0);
@@ -326,6 +333,34 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
         _ => Err(fail()),
     }
 }
+
+/// Which bounds `x(t) ≤ bound` (samples `(t, bound, slack)`, sorted by
+/// time) can bind: one is implied by another of the same slack where
+/// `bound' + V·|t − t'| ≤ bound`, since the spline moves at most `V`. Fewer
+/// rows, the same solution.
+fn binding(bounds: &[(f64, f64, usize)], v: f64, slacks: usize) -> Vec<bool> {
+    let mut keep = vec![true; bounds.len()];
+    // The tightest bound implied from earlier (then later) samples, per slack.
+    let mut best = vec![f64::INFINITY; slacks];
+    for (k, &(t, bound, slack)) in bounds.iter().enumerate() {
+        if best[slack] + v * t <= bound - TIGHTER {
+            keep[k] = false;
+        }
+        best[slack] = best[slack].min(bound - v * t);
+    }
+    best.fill(f64::INFINITY);
+    for (k, &(t, bound, slack)) in bounds.iter().enumerate().rev() {
+        if best[slack] - v * t <= bound - TIGHTER {
+            keep[k] = false;
+        }
+        best[slack] = best[slack].min(bound + v * t);
+    }
+    keep
+}
+
+/// A bound is dropped only where another implies it by this much (mm): the
+/// solver's tolerance on the speed rows.
+const TIGHTER: f64 = 1.0e-6;
 
 /// The spline's weights on the control points at time `t` (from control
 /// point 0), indices clamped to the `m` points as `spline` does.
@@ -417,6 +452,15 @@ mod tests {
         // (less what the stage moves between two samples, at most V·1 ms)
         assert!((136.0 - 0.4 - 1e-6..=136.0 + 1e-6).contains(&short), "{:?}", &x[m..]);
         assert!(x[m] <= SLACK_TOLERANCE && x[m + 3] <= SLACK_TOLERANCE, "nowhere else: {:?}", &x[m..]);
+    }
+
+    #[test]
+    fn a_bound_is_dropped_only_where_a_tighter_one_nearby_implies_it() {
+        // V = 100 mm/s: within 1 ms the spline moves at most 0.1 mm.
+        let bounds = [(0.0, 5.0, 0), (0.001, 5.2, 0), (0.001, 1.0, 1), (0.002, 5.15, 0), (0.003, 4.95, 0)];
+        let keep = binding(&bounds, 100.0, 2);
+        // 5.2 ≥ 5 + 0.1; 5.15 ≥ 4.95 + 0.1; the other slack's bound stands alone.
+        assert_eq!(keep, [true, false, true, false, true]);
     }
 
     #[test]
