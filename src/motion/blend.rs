@@ -11,8 +11,11 @@
 //! reversal a stop, and the gentle turns of a flattened curve nearly the full
 //! speed. Between vertices a leg changes speed along its line (jerk-limited
 //! ramps, a cruise); a forward and a backward pass over the vertices make
-//! every change fit its leg. A run starts and ends at rest (a pierce, a laser
-//! switch), where each program block then ends on a rest point.
+//! every change fit its leg. A run starts and ends at rest before a pierce;
+//! without one it takes over the speed of the laser-off move before it and
+//! hands its own to the one after it (the laser switches at the block
+//! boundary; the laser-off move, a state-to-state Ruckig move, arrives on the
+//! mark's line at the speed Grbl's junction rule gives that corner).
 
 use nalgebra::Vector2;
 
@@ -26,19 +29,21 @@ use crate::job::Point;
 pub struct Profile {
     /// Each phase's start time and its state there: (t0, s, v, a, jerk).
     phases: Vec<[f64; 5]>,
+    /// The speed at the start (a run handed over at speed from a laser-off move).
+    start_speed: f64,
     pub length: f64,
     pub duration: f64,
 }
 
 impl Profile {
-    fn new() -> Profile {
-        Profile { phases: Vec::with_capacity(12), length: 0.0, duration: 0.0 }
+    fn new(start_speed: f64) -> Profile {
+        Profile { phases: Vec::with_capacity(12), start_speed, length: 0.0, duration: 0.0 }
     }
 
     /// The state at the end: (s, v, a).
     fn end_state(&self) -> [f64; 3] {
         match self.phases.last() {
-            None => [0.0, 0.0, 0.0],
+            None => [0.0, self.start_speed, 0.0],
             Some(p) => {
                 let [s, v, a, _] = eval(p, self.duration);
                 [s, v, a]
@@ -60,7 +65,7 @@ impl Profile {
     /// (distance, speed, acceleration, jerk) `t` seconds in (clamped).
     pub fn at(&self, t: f64) -> [f64; 4] {
         if self.phases.is_empty() {
-            return [0.0; 4];
+            return [0.0, self.start_speed, 0.0, 0.0];
         }
         let t = t.clamp(0.0, self.duration);
         let k = self.phases.partition_point(|p| p[0] <= t).saturating_sub(1);
@@ -100,6 +105,12 @@ fn change_distance(v0: f64, v1: f64, lim: &Limits) -> f64 {
 /// Appends the speed change to `to` (from the profile's end speed).
 fn push_change(p: &mut Profile, to: f64, lim: &Limits) {
     let from = p.end_state()[1];
+    // A change of rounding size (a run handed over at speed ends at its
+    // legs' speed) would be a phase of a nanosecond: a block the controller
+    // cannot time. Below a microsecond's jerk it is left out.
+    if (to - from).abs() <= lim.jerk * 1e-12 {
+        return;
+    }
     let (tj, ta) = change_phases((to - from).abs(), lim);
     let j = if to > from { lim.jerk } else { -lim.jerk };
     p.push(tj, j);
@@ -165,9 +176,54 @@ fn ramp_in_distance(t: f64) -> f64 {
     }
 }
 
-/// The run marking `points` at `speed` through its vertices, from rest to
-/// rest (none for fewer than two points).
-pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64) -> Option<Run> {
+/// The speed at which a laser-off move along `chord` (from the vertex, or to
+/// it) may hand over to a leg along `leg` (a unit vector) at a run's end: the
+/// junction speed of Grbl's rule (a circle `corner_tolerance` deep through
+/// the corner at the acceleration of the turn's direction; the laser-off
+/// move itself runs free of the corner), at most the speed reached from
+/// rest over half the chord: the speeds at both ends of a laser-off move
+/// then differ by no more than it can change along its way, so it never
+/// swings back for a run-up. 0 without a chord.
+fn hand_over_speed(s: &TcpSettings, chord: Vector2<f64>, leg: Vector2<f64>, lim: &Limits) -> f64 {
+    let length = chord.norm();
+    if length < 1e-9 {
+        return 0.0;
+    }
+    let u = chord / length;
+    // Half the angle between the two directions' reversals (Grbl: sin(θ/2)).
+    let half = (0.5 * (1.0 + u.dot(&leg))).max(0.0).sqrt();
+    let turn = leg - u;
+    let junction = if half >= 1.0 - 1e-9 || turn.norm() < 1e-12 {
+        f64::INFINITY
+    } else {
+        let acc = path_limits(s.axis, turn).acceleration;
+        (acc * s.corner_tolerance * half / (1.0 - half)).sqrt()
+    };
+    largest(0.0, junction.min(lim.velocity), &|v| change_distance(0.0, v, lim) <= 0.5 * length)
+}
+
+/// The largest speed in `lo..=hi` that `ok` takes (`ok(lo)` holds).
+fn largest(lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool) -> f64 {
+    if ok(hi) {
+        return hi;
+    }
+    let (mut lo, mut hi) = (lo, hi);
+    for _ in 0..50 {
+        let mid = 0.5 * (lo + hi);
+        if ok(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
+/// The run marking `points` at `speed` through its vertices (none for fewer
+/// than two points). It starts at rest, or, after a laser-off move along
+/// `entry` (its chord to the first point), at the speed `hand_over_speed`
+/// allows; it ends at rest or hands over to the laser-off move along `exit`.
+pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector2<f64>>, exit: Option<Vector2<f64>>) -> Option<Run> {
     let n = points.len().checked_sub(1).filter(|&n| n > 0)?;
     let lengths: Vec<f64> = points.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
     let dirs: Vec<Vector2<f64>> = points.windows(2).zip(&lengths).map(|(w, l)| (w[1] - w[0]) / *l).collect();
@@ -178,9 +234,11 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64) -> Option<Run> {
             Limits { velocity: l.velocity.min(speed), ..l }
         })
         .collect();
-    // Vertex i joins legs i-1 and i; the ends rest.
+    // Vertex i joins legs i-1 and i; the ends rest unless handed over.
     let mut turns: Vec<Option<Turn>> = (0..=n).map(|_| None).collect();
     let mut w = vec![0.0; n + 1];
+    w[0] = entry.map_or(0.0, |c| hand_over_speed(s, c, dirs[0], &limits[0]));
+    w[n] = exit.map_or(0.0, |c| hand_over_speed(s, c, dirs[n - 1], &limits[n - 1]));
     for i in 1..n {
         let turn = Turn::new(dirs[i - 1], dirs[i], &s.axis);
         let product = (s.corner_tolerance / turn.cut.max(1e-12)).min(lengths[i - 1].min(lengths[i]));
@@ -193,22 +251,6 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64) -> Option<Run> {
     // faster end towards its slower one only makes room.
     let half = |i: usize, w: f64| turns[i].as_ref().map_or(0.0, |t| 0.5 * w * t.duration(w));
     let fits = |k: usize, a: f64, b: f64| change_distance(a, b, &limits[k]) + half(k, a) + half(k + 1, b) <= lengths[k];
-    // The largest speed in `lo..=hi` that `ok` takes (`ok(lo)` holds).
-    let largest = |lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool| {
-        if ok(hi) {
-            return hi;
-        }
-        let (mut lo, mut hi) = (lo, hi);
-        for _ in 0..50 {
-            let mid = 0.5 * (lo + hi);
-            if ok(mid) {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        lo
-    };
     // Speeds through the vertices, then the legs: their pieces and the run's end.
     let plan_with = |mut w: Vec<f64>| {
         for k in 0..n {
@@ -231,7 +273,8 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64) -> Option<Run> {
             let low = w[k].max(w[k + 1]);
             let peak_fits = |v: f64| change_distance(w[k], v, lim) + change_distance(w[k + 1], v, lim) <= inner;
             let peak = largest(low, lim.velocity, &peak_fits);
-            let mut p = Profile::new();
+            // At the run's start, the speed handed over by the laser-off move.
+            let mut p = Profile::new(if t_in > 0.0 { 0.0 } else { w[k] });
             if t_in > 0.0 {
                 let j = 4.0 * w[k] / (t_in * t_in);
                 p.push(0.5 * t_in, j);
@@ -260,7 +303,8 @@ pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64) -> Option<Run> {
     // fastest of turning everywhere, stopping where the turn is slower than
     // half the legs' speed, and stopping everywhere (rest to rest).
     let slow = |i: usize| i > 0 && i < n && w[i] < 0.5 * limits[i - 1].velocity.min(limits[i].velocity);
-    let candidates = [w.clone(), (0..=n).map(|i| if slow(i) { 0.0 } else { w[i] }).collect(), vec![0.0; n + 1]];
+    let stops = (0..=n).map(|i| if i == 0 || i == n { w[i] } else { 0.0 }).collect();
+    let candidates = [w.clone(), (0..=n).map(|i| if slow(i) { 0.0 } else { w[i] }).collect(), stops];
     let (legs, _) = candidates.into_iter().map(plan_with).min_by(|a, b| a.1.total_cmp(&b.1))?;
     Some(Run::new(legs))
 }

@@ -199,14 +199,34 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
         }
     }
     let settings = tcp_settings(machine, Mode::StageOnly);
-    let mut b = TcpBuilder::new(settings, start, 0.0);
-    if let Some(f) = first {
-        b.jump(PieceKind::Approach, 0, f, nalgebra::Vector2::zeros())?;
+    // Marks without a pierce are entered and left at speed; where a
+    // laser-off move running through a mark's end would leave the travel
+    // (near the table's edge), the job is planned from rest to rest.
+    let plan = |hand_over: bool| -> Result<(TcpBuilder, f64)> {
+        let mut b = TcpBuilder::new(settings, start, 0.0);
+        b.hand_over = hand_over;
+        if let Some(f) = first {
+            b.jump(PieceKind::Approach, 0, f, nalgebra::Vector2::zeros())?;
+        }
+        let job_start = b.time;
+        mark_all(&mut b, job, sequence, machine, &mut None, |_, _| Ok(()))?;
+        Ok((b, job_start))
+    };
+    let (mut b, mut job_start) = plan(true)?;
+    if !moves_within_travel(&b.path, machine) {
+        (b, job_start) = plan(false)?;
     }
-    let job_start = b.time;
-    mark_all(&mut b, job, sequence, machine, &mut None, |_, _| Ok(()))?;
     let start_state = AxisState { stage: start, scanner: Point::origin() };
     Ok(Trajectory { tcp: b.path, stage: StagePath::FollowsTcp, start: start_state, job_start, has_scanner: machine.scanner.is_some(), stage_flow: None })
+}
+
+/// Whether every moving laser-off piece stays inside the stage's travel
+/// (sampled every millisecond: a move running through its ends may swing out).
+fn moves_within_travel(path: &TcpPath, machine: &MachineConfig) -> bool {
+    path.pieces.iter().filter(|p| matches!(p.motion, tcp::Motion::Free(_)) && !p.is_marking()).all(|p| {
+        let n = ((p.duration / 1e-3).ceil() as usize).max(8);
+        (0..=n).all(|k| check_travel(machine, p.position(p.duration * k as f64 / n as f64), "").is_ok())
+    })
 }
 
 fn step_and_scan(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Point) -> Result<Trajectory> {
@@ -756,6 +776,63 @@ mod tests {
         let machine = piercing(MachineConfig::load(None).unwrap(), 0.0, 700.0);
         let (_, tr) = plan(&job(), &machine, Mode::StepAndScan);
         assert!(!tr.tcp.pieces.iter().any(|p| matches!(p.kind, PieceKind::Pierce { .. })));
+    }
+
+    /// A stage-only trajectory of `paths` marked in this order (no scanner).
+    fn stage_only_in_order(paths: &[Vec<Point>], machine: &MachineConfig) -> Trajectory {
+        let mut j = job();
+        j.geometries = paths.iter().enumerate().map(|(k, p)| Geometry { points: p.clone(), closed: false, process: 0, source: format!("path {k}") }).collect();
+        let paths = paths.iter().enumerate().map(|(k, p)| crate::plan::PlannedPath { geometry: k, points: p.clone(), process: 0 }).collect();
+        let seq = Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths }] };
+        build(&j, &seq, machine, Mode::StageOnly, Point::origin()).unwrap()
+    }
+
+    fn speed_at(tr: &Trajectory, t: f64) -> f64 {
+        (tr.tcp.position(t + 1e-6) - tr.tcp.position(t - 1e-6)).norm() / 2e-6
+    }
+
+    #[test]
+    fn stage_only_runs_laser_off_moves_into_marks_without_a_pierce_at_speed() {
+        let mut plain = MachineConfig::load(None).unwrap();
+        plain.scanner = None;
+        // Dashes along a line: Grbl's junction rule takes each G0-G1 corner
+        // (here none) at speed, and so does laserd without a pierce.
+        let dashes: Vec<Vec<Point>> = (0..6).map(|k| {
+            let x = 20.0 + 15.0 * k as f64;
+            vec![Point::new(x, 50.0), Point::new(x + 10.0, 50.0)]
+        }).collect();
+        let tr = stage_only_in_order(&dashes, &plain);
+        check_sampled(&tr, &plain, 1e-4);
+        let marks: Vec<_> = tr.tcp.pieces.iter().filter(|p| p.is_marking()).collect();
+        assert_eq!(marks.len(), dashes.len());
+        for (m, dash) in marks.iter().zip(&dashes) {
+            // The laser is on exactly along the dash.
+            assert!((m.start_point() - dash[0]).norm() < 1e-9 && (m.end_point() - dash[1]).norm() < 1e-9, "{m:?}");
+        }
+        for m in &marks[1..] {
+            assert!(speed_at(&tr, m.start) > 100.0, "entered at {} mm/s", speed_at(&tr, m.start));
+        }
+        for m in &marks[..marks.len() - 1] {
+            assert!(speed_at(&tr, m.end_time()) > 100.0, "left at {} mm/s", speed_at(&tr, m.end_time()));
+        }
+        // A pierce still stands still: entered and left at rest.
+        let pierced = piercing(plain, 0.05, 700.0);
+        let tr = stage_only_in_order(&dashes, &pierced);
+        for p in tr.tcp.pieces.iter().filter(|p| matches!(p.kind, PieceKind::Pierce { .. })) {
+            assert!(speed_at(&tr, p.start) < 1e-6 && speed_at(&tr, p.end_time()) < 1e-6);
+        }
+    }
+
+    #[test]
+    fn a_stage_only_mark_ending_at_the_travel_edge_is_left_within_the_travel() {
+        let mut machine = MachineConfig::load(None).unwrap();
+        machine.scanner = None;
+        // The first mark ends on the table's edge moving towards it, the next
+        // starts beside it: a laser-off move leaving at speed would swing
+        // past the edge.
+        let paths = vec![vec![Point::new(30.0, 50.0), Point::new(0.0, 50.0)], vec![Point::new(0.0, 53.0), Point::new(30.0, 53.0)]];
+        let tr = stage_only_in_order(&paths, &machine);
+        check_sampled(&tr, &machine, 2e-5);
     }
 
     #[test]

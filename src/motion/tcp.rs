@@ -404,7 +404,7 @@ pub fn path_limits(axis: Limits, d: Vector2<f64>) -> Limits {
 
 /// The run of legs marking `points` at `speed` (none for fewer than two
 /// distinct points); corners already in `corners` are taken from there.
-fn plan_run(s: &TcpSettings, corners: &mut Corners, points: &[Point], speed: f64, ramp_in: bool) -> Result<Option<Run>> {
+fn plan_run(s: &TcpSettings, corners: &mut Corners, points: &[Point], speed: f64, ramp_in: bool, hand_over: HandOver) -> Result<Option<Run>> {
     if !(speed.is_finite() && speed > 0.0) {
         return Err(Error::Motion(format!("invalid marking speed {speed}")));
     }
@@ -413,7 +413,7 @@ fn plan_run(s: &TcpSettings, corners: &mut Corners, points: &[Point], speed: f64
         return Ok(None);
     }
     if s.junctions {
-        return Ok(super::blend::plan_run(s, &points, speed));
+        return Ok(super::blend::plan_run(s, &points, speed, hand_over.entry, hand_over.exit));
     }
     let n = points.len() - 1;
     let mut legs = Vec::with_capacity(n);
@@ -477,6 +477,10 @@ pub struct TcpBuilder {
     pub time: f64,
     pub position: Point,
     pub velocity: Vector2<f64>,
+    /// Stage-only (`junctions`): marks without a pierce planned ahead by
+    /// `prepare` take the laser-off moves' speed over (set by the caller
+    /// where the moves may run at speed through the marks' ends).
+    pub hand_over: bool,
     /// Corners and laser-off moves already planned (kept from one plan of a
     /// job to the next with `take_cache`: a replan after a field change the
     /// stage cannot make on the fly changes only that change).
@@ -497,7 +501,7 @@ type Corners = std::collections::HashMap<CornerKey, f64>;
 impl TcpBuilder {
     /// Starting at rest at `position` at time `time`.
     pub fn new(settings: TcpSettings, position: Point, time: f64) -> TcpBuilder {
-        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros(), cache: Default::default() }
+        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros(), hand_over: false, cache: Default::default() }
     }
 
     fn push(&mut self, kind: PieceKind, group: usize, motion: Motion, duration: f64) {
@@ -609,11 +613,29 @@ impl TcpBuilder {
     pub fn prepare(&self, marks: &[MarkRequest]) -> Result<Vec<Option<Run>>> {
         let settings = self.settings;
         let known = self.cache.borrow().corners.clone();
-        let parts = crate::parallel::chunks(marks, 8, |part| {
+        // Stage-only: a mark without a pierce is entered and left at speed
+        // (the mark before and after it in `marks` is where the TCP comes
+        // from and goes to); the job's last mark ends at rest.
+        let hand_overs: Vec<HandOver> = (0..marks.len())
+            .map(|k| {
+                if !(self.hand_over && settings.junctions) {
+                    return HandOver::default();
+                }
+                let (first, last) = (marks[k].points.first(), marks[k].points.last());
+                let before = k.checked_sub(1).and_then(|j| marks[j].points.last());
+                let after = marks.get(k + 1).and_then(|m| m.points.first());
+                HandOver {
+                    entry: before.zip(first).filter(|_| !marks[k].pierce).map(|(b, f)| f - b),
+                    exit: last.zip(after).map(|(l, a)| a - l),
+                }
+            })
+            .collect();
+        let indexed: Vec<(&MarkRequest, HandOver)> = marks.iter().zip(hand_overs).collect();
+        let parts = crate::parallel::chunks(&indexed, 8, |part| {
             let mut corners = known.clone();
             let runs = part
                 .iter()
-                .map(|m| plan_run(&settings, &mut corners, m.points, m.speed, m.pierce || !settings.skywrite))
+                .map(|(m, h)| plan_run(&settings, &mut corners, m.points, m.speed, m.pierce || !settings.skywrite, *h))
                 .collect::<Result<Vec<_>>>();
             (runs, corners)
         });
@@ -661,6 +683,14 @@ impl TcpBuilder {
         self.velocity = run.exit_velocity();
         Ok(())
     }
+}
+
+/// The chords of the laser-off moves before and after a stage-only run that
+/// may take it at speed (none: from or to rest).
+#[derive(Clone, Copy, Default)]
+struct HandOver {
+    entry: Option<Vector2<f64>>,
+    exit: Option<Vector2<f64>>,
 }
 
 /// A mark to plan ahead: its points, its speed, and whether it starts with a
