@@ -1,8 +1,8 @@
 //! On the fly: the stage planned over the whole job, flowing through the scan
 //! fields at speed instead of resting in each.
 //!
-//! Each stage axis is one convex problem (a QP, solved by Clarabel's
-//! interior point method). The unknowns are the control points of a uniform
+//! Each stage axis is one convex problem (a QP whose rows are banded,
+//! solved by `qp`'s interior point method). The unknowns are the control points of a uniform
 //! cubic B-spline (step `h` of a few ms). A B-spline's velocity,
 //! acceleration and jerk are B-splines of the control points' first, second
 //! and third differences over `h`, `h²`, `h³`, so bounding those differences
@@ -14,8 +14,8 @@
 //! the stage starts and ends at rest.
 //!
 //! Where no such stage exists (it cannot reach the next field in time), the
-//! corridor gives: slack variables, one per half of each field's time, widen
-//! it at a cost, so the solution names every field change where the stage
+//! corridor gives: a slack per sample widens it at a cost, and the largest
+//! in each half of a field's time names the field change where the stage
 //! falls behind and by how far. The caller slows the TCP there and plans
 //! again. A small smoothing term (squared accelerations) picks one stage among
 //! the feasible ones.
@@ -121,7 +121,7 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, 
     let duration = tcp.duration();
     let (pre, post) = pads;
     let span = duration + pre + post;
-    let steps = ((span / STEP).ceil()).clamp(1.0, MOST_STEPS) as usize;
+    let steps = ((span / STEP).ceil()).clamp(2.0, MOST_STEPS) as usize;
     let h = span.max(1e-9) / steps as f64;
     let too_big = Behind { into: Vec::new(), start: f64::INFINITY, end: f64::INFINITY };
     if h > COARSEST * STEP {
@@ -251,87 +251,78 @@ fn samples(tcp: &TcpPath, pads: (f64, f64), h: f64, half: f64, a: f64) -> Vec<Sa
 /// widen the corridor, as little as possible) such that the control points'
 /// first, second and third differences keep `V·h`, `A·h²`, `J·h³` (then the
 /// spline keeps V, A and J), inside the travel, and the spline inside the
-/// corridor at every sample. Returns control points then slacks.
+/// corridor at every sample. Returns control points then, per slack, the
+/// most its samples needed.
 #[allow(clippy::too_many_arguments)]
 fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: usize, travel: f64, s: &SplitSettings) -> Result<Vec<f64>, Behind> {
-    use clarabel::algebra::CscMatrix;
-    use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
-    let n = m + slacks;
-    let (mut rows, mut cols, mut vals) = (Vec::new(), Vec::new(), Vec::new());
-    let mut b = Vec::new();
-    let mut row = |terms: &[(usize, f64)], bound: f64| {
-        let r = b.len();
-        for &(c, v) in terms {
-            rows.push(r);
-            cols.push(c);
-            vals.push(v);
-        }
-        b.push(bound);
-    };
-    // At rest at both ends: the first and last three control points equal.
-    for k in [0, 1, m - 3, m - 2] {
-        row(&[(k, 1.0), (k + 1, -1.0)], 0.0);
-    }
-    let equalities = 4;
+    use super::qp::{Banded, Row};
+    let fail = || Behind { into: Vec::new(), start: f64::INFINITY, end: f64::INFINITY };
+    // The unknowns: control points 2..m-3; the first and last three equal
+    // (at rest at both ends), so control point k is unknown clamp(k − 2).
+    let n = m.checked_sub(4).filter(|&n| n > 0).ok_or_else(fail)?;
+    let unknown = |k: usize| k.saturating_sub(2).min(n - 1);
+    let terms = |k0: usize, weights: &[f64]| -> Vec<(usize, f64)> { weights.iter().enumerate().map(|(j, &w)| (unknown(k0 + j), w)).collect() };
+    let mut rows = Vec::new();
     let lim = s.burst;
+    // Each difference row scaled to a bound of 1.
     let diffs: [(&[f64], f64); 3] = [(&[-1.0, 1.0], lim.velocity * h), (&[1.0, -2.0, 1.0], lim.acceleration * h * h), (&[-1.0, 3.0, -3.0, 1.0], lim.jerk * h * h * h)];
     for (weights, bound) in diffs {
+        let scaled: Vec<f64> = weights.iter().map(|w| w / bound).collect();
+        let negated: Vec<f64> = scaled.iter().map(|w| -w).collect();
         for k in 0..=m - weights.len() {
-            let terms: Vec<(usize, f64)> = weights.iter().enumerate().map(|(j, &w)| (k + j, w)).collect();
-            let neg: Vec<(usize, f64)> = terms.iter().map(|&(c, w)| (c, -w)).collect();
-            row(&terms, bound);
-            row(&neg, bound);
+            rows.extend(Row::new(&terms(k, &scaled), 1.0, false, n));
+            rows.extend(Row::new(&terms(k, &negated), 1.0, false, n));
         }
-    }
-    for k in 0..m {
-        row(&[(k, -1.0)], 0.0);
-        row(&[(k, 1.0)], travel);
     }
     let his: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, sm.hi[i], sm.slack)).collect();
     let los: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, -sm.lo[i], sm.slack)).collect();
     let (keep_hi, keep_lo) = (binding(&his, lim.velocity, slacks), binding(&los, lim.velocity, slacks));
+    // Which slack each soft row widens.
+    let mut widens: Vec<Option<usize>> = vec![None; rows.len()];
     for (k, sm) in samples.iter().enumerate() {
-        let basis = basis(m, h, sm.t - t0);
+        let basis: Vec<(usize, f64)> = basis(m, h, sm.t - t0).into_iter().map(|(c, w)| (unknown(c), w)).collect();
         if keep_hi[k] {
-            let up: Vec<(usize, f64)> = basis.iter().copied().chain([(m + sm.slack, -1.0)]).collect();
-            row(&up, sm.hi[i]);
+            rows.extend(Row::new(&basis, sm.hi[i], true, n));
         }
         if keep_lo[k] {
-            let down: Vec<(usize, f64)> = basis.iter().map(|&(c, w)| (c, -w)).chain([(m + sm.slack, -1.0)]).collect();
-            row(&down, -sm.lo[i]);
+            let down: Vec<(usize, f64)> = basis.iter().map(|&(c, w)| (c, -w)).collect();
+            rows.extend(Row::new(&down, -sm.lo[i], true, n));
         }
+        widens.resize(rows.len(), Some(sm.slack));
     }
-    for k in m..n {
-        row(&[(k, -1.0)], 0.0);
-    }
-    let a = CscMatrix::new_from_triplets(b.len(), n, rows, cols, vals);
-    // Smoothing: the second differences' squares, upper triangle of DᵀD.
+    // Smoothing: the second differences' squares.
     let w = SMOOTH / (lim.acceleration * h * h).powi(2);
-    let (mut pr, mut pc, mut pv) = (Vec::new(), Vec::new(), Vec::new());
-    let d2 = [1.0, -2.0, 1.0];
+    let mut p = Banded::zeros(n);
     for k in 0..m - 2 {
-        for (x, &dx) in d2.iter().enumerate() {
-            for (y, &dy) in d2.iter().enumerate().skip(x) {
-                pr.push(k + x);
-                pc.push(k + y);
-                pv.push(2.0 * w * dx * dy);
-            }
+        if let Some(r) = Row::new(&terms(k, &[1.0, -2.0, 1.0]), 0.0, false, n) {
+            p.add_row(&r, 2.0 * w);
         }
     }
-    let p = CscMatrix::new_from_triplets(n, n, pr, pc, pv);
-    let mut q = vec![0.0; n];
-    q[m..].fill(1.0);
-    let cones = [SupportedConeT::ZeroConeT(equalities), SupportedConeT::NonnegativeConeT(b.len() - equalities)];
-    // One thread: the same result on any machine. Without iterative
-    // refinement: half the time, and `EDGE` covers its tolerance.
-    let settings = DefaultSettingsBuilder::default().verbose(false).max_threads(1).presolve_enable(false).iterative_refinement_enable(false).build().expect("valid solver settings");
-    let fail = || Behind { into: Vec::new(), start: f64::INFINITY, end: f64::INFINITY };
-    let mut solver = DefaultSolver::new(&p, &q, &a, &b, &cones, settings).map_err(|_| fail())?;
-    solver.solve();
-    match solver.solution.status {
-        SolverStatus::Solved | SolverStatus::AlmostSolved => Ok(solver.solution.x.clone()),
-        _ => Err(fail()),
+    // From the stage standing still mid-corridor (every hard row holds).
+    let mid = samples.iter().map(|sm| 0.5 * (sm.lo[i] + sm.hi[i])).sum::<f64>() / samples.len().max(1) as f64;
+    let start = mid.clamp(0.25 * travel, 0.75 * travel);
+    let mut solved = super::qp::solve(&p, &rows, 1.0, vec![start; n]).ok_or_else(fail)?;
+    // The travel rarely binds (the corridor lies within it): its rows only
+    // where the stage left it without them.
+    if solved.x.iter().any(|&x| !(0.0..=travel).contains(&x)) {
+        let corridor = rows.len();
+        for k in 0..n {
+            rows.extend(Row::new(&[(k, -1.0)], 0.0, false, n));
+            rows.extend(Row::new(&[(k, 1.0)], travel, false, n));
+        }
+        widens.resize(rows.len(), None);
+        solved = super::qp::solve(&p, &rows, 1.0, vec![start; n]).ok_or_else(fail)?;
+        solved.slack.truncate(corridor);
     }
+    let mut out: Vec<f64> = (0..m).map(|k| solved.x[unknown(k)]).collect();
+    let mut short = vec![0.0f64; slacks];
+    for (r, sigma) in solved.slack.iter().enumerate() {
+        if let Some(g) = widens[r] {
+            short[g] = short[g].max(*sigma);
+        }
+    }
+    out.extend(short);
+    Ok(out)
 }
 
 /// Which bounds `x(t) ≤ bound` (samples `(t, bound, slack)`, sorted by
@@ -401,13 +392,13 @@ mod tests {
     use super::*;
     use crate::config::Limits;
 
-    /// The field corridor of a TCP that marks in one place until `switch`,
-    /// then at `to` mm further along the axis (both axes alike).
-    fn corridor(switch: f64, to: f64, end: f64, half: f64) -> Vec<Sample> {
+    /// The field corridor of a TCP that marks moving at `drift` mm/s until
+    /// `switch`, then `to` mm further along the axis (both axes alike).
+    fn corridor(drift: f64, switch: f64, to: f64, end: f64, half: f64) -> Vec<Sample> {
         (0..=(end / 1e-3) as usize)
             .map(|k| {
                 let t = k as f64 * 1e-3;
-                let (tcp, slack) = if t < switch { (100.0, 1) } else { (100.0 + to, 2) };
+                let (tcp, slack) = if t < switch { (100.0 + drift * t, 1) } else { (100.0 + drift * t + to, 2) };
                 Sample { t, lo: [tcp - half; 2], hi: [tcp + half; 2], slack }
             })
             .collect()
@@ -424,8 +415,9 @@ mod tests {
         let steps = (end / h) as usize;
         let m = steps + 3;
         let t0 = -h;
-        // Fields 50 mm apart (they overlap): the stage can follow.
-        let samples = corridor(0.5, 50.0, end, s.half);
+        // The TCP drifting 60 mm/s, fields 50 mm apart (they overlap): the
+        // stage can follow, and must move by at least 46 mm.
+        let samples = corridor(60.0, 0.5, 50.0, end, s.half);
         let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s).unwrap();
         let c = &x[..m];
         assert!(x[m..].iter().all(|&sigma| sigma <= SLACK_TOLERANCE), "feasible: no slack {:?}", &x[m..]);
@@ -438,7 +430,7 @@ mod tests {
         assert!(big(&d3) <= s.burst.jerk * h * h * h * tol, "J {}", big(&d3) / (h * h * h));
         // It moves far, within the field of the TCP at every sample, from
         // rest to rest.
-        assert!(spline(c, h, end - t0) - spline(c, h, 0.0 - t0) > 10.0);
+        assert!(spline(c, h, end - t0) - spline(c, h, 0.0 - t0) >= 46.0 - 1e-6);
         for sm in &samples {
             let p = spline(c, h, sm.t - t0);
             assert!(p >= sm.lo[0] - 1e-6 && p <= sm.hi[0] + 1e-6, "t={}: {p} outside {}..{}", sm.t, sm.lo[0], sm.hi[0]);
@@ -446,7 +438,7 @@ mod tests {
         assert!((c[0] - c[2]).abs() < 1e-6 && (c[m - 1] - c[m - 3]).abs() < 1e-6, "at rest at both ends");
         // 200 mm at once: the fields are 136 mm apart, which the slacks on
         // both sides of the change bridge, and no more.
-        let samples = corridor(0.5, 200.0, end, s.half);
+        let samples = corridor(0.0, 0.5, 200.0, end, s.half);
         let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s).unwrap();
         let short = x[m + 1] + x[m + 2];
         // (less what the stage moves between two samples, at most V·1 ms)

@@ -27,6 +27,7 @@ pub mod blend;
 pub mod flow;
 pub mod leg;
 pub mod profile;
+pub mod qp;
 pub mod stage;
 pub mod tcp;
 
