@@ -81,11 +81,13 @@ impl Banded {
 
     pub fn add_row(&mut self, r: &Row, k: f64) {
         for p in 0..BAND {
+            let kp = k * r.a[p];
+            if kp == 0.0 {
+                continue;
+            }
+            let row = &mut self.band[r.first + p];
             for q in 0..=p {
-                let v = k * r.a[p] * r.a[q];
-                if v != 0.0 {
-                    self.add(r.first + p, r.first + q, v);
-                }
+                row[BAND - 1 - (p - q)] += kp * r.a[q];
             }
         }
     }
@@ -155,7 +157,7 @@ pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution>
     let m = rows.len();
     let mut x = x0;
     // Per row: its slack s (b − a·x [+ σ]) and dual λ; per soft row also σ,
-    // σ's own bound's slack (= σ) and dual.
+    // σ's own bound's slack (= σ) and dual (0 for hard rows).
     let mut s = vec![0.0; m];
     let mut lam = vec![0.0; m];
     let mut sigma = vec![0.0; m];
@@ -175,27 +177,27 @@ pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution>
             lam[r] = 1.0;
         }
     }
-    let soft: Vec<usize> = (0..m).filter(|&r| rows[r].soft).collect();
-    let count = (m + soft.len()) as f64;
-    let gap = |s: &[f64], lam: &[f64], sigma: &[f64], lam_n: &[f64]| (s.iter().zip(lam).map(|(a, b)| a * b).sum::<f64>() + soft.iter().map(|&r| sigma[r] * lam_n[r]).sum::<f64>()) / count;
+    let count = (m + rows.iter().filter(|r| r.soft).count()) as f64;
+    let worst = |v: &[f64]| v.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    let (mut rp, mut rs, mut d, mut d_n) = (vec![0.0; m], vec![0.0; m], vec![0.0; m], vec![0.0; m]);
+    let (mut rc, mut rc_n) = (vec![0.0; m], vec![0.0; m]);
+    let (mut affine, mut step) = (Step::zeros(x.len(), m), Step::zeros(x.len(), m));
+    let mut k = p.clone();
     // Steps in a row that barely lowered the complementarity.
     let (mut stalled, mut last_mu) = (0, f64::INFINITY);
     for _ in 0..MOST_STEPS {
         // Residuals: dual (x, σ), primal (rows; σ's bound holds by
         // construction: its slack is σ itself).
         let mut rx = p.mul(&x);
-        let mut rp = vec![0.0; m];
-        let mut rs = vec![0.0; m];
+        let mut gap = 0.0;
         for (r, row) in rows.iter().enumerate() {
             row.add_to(&mut rx, lam[r]);
-            rp[r] = row.dot(&x) - if row.soft { sigma[r] } else { 0.0 } + s[r] - row.b;
-            if row.soft {
-                rs[r] = w - lam[r] - lam_n[r];
-            }
+            rp[r] = row.dot(&x) - sigma[r] + s[r] - row.b;
+            rs[r] = if row.soft { w - lam[r] - lam_n[r] } else { 0.0 };
+            gap += s[r] * lam[r] + sigma[r] * lam_n[r];
         }
-        let mu = gap(&s, &lam, &sigma, &lam_n);
-        let worst = |v: &[f64]| v.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-        let done = |x: Vec<f64>| Some(Solution { x, slack: (0..m).map(|r| if rows[r].soft { sigma[r] } else { 0.0 }).collect() });
+        let mu = gap / count;
+        let done = |x: Vec<f64>| Some(Solution { x, slack: sigma.clone() });
         if worst(&rp) <= PRIMAL && worst(&rx) <= DUAL && worst(&rs) <= DUAL && mu <= GAP {
             return done(x);
         }
@@ -206,76 +208,130 @@ pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution>
         }
         // The normal equations' matrix: P + Σ dᵣ aᵣaᵣᵀ (a soft row's weight
         // with its σ eliminated).
-        let d: Vec<f64> = (0..m).map(|r| lam[r] / s[r]).collect();
-        let d_n: Vec<f64> = (0..m).map(|r| if rows[r].soft { lam_n[r] / sigma[r] } else { 0.0 }).collect();
-        let mut k = p.clone();
+        k.band.clone_from(&p.band);
         for (r, row) in rows.iter().enumerate() {
-            let weight = if row.soft { d[r] * d_n[r] / (d[r] + d_n[r]) } else { d[r] };
+            d[r] = lam[r] / s[r];
+            let weight = if row.soft {
+                d_n[r] = lam_n[r] / sigma[r];
+                d[r] * d_n[r] / (d[r] + d_n[r])
+            } else {
+                d[r]
+            };
             k.add_row(row, weight);
         }
-        let factor = k.cholesky(1e-12);
-        // One Newton step for complementarity targets `rc` (rows) and
-        // `rc_n` (σ's bounds): (dx, ds, dλ, dσ, dλₙ).
-        let step = |rc: &[f64], rc_n: &[f64]| {
-            let e: Vec<f64> = (0..m).map(|r| rp[r] - rc[r] / lam[r]).collect();
-            let e_n: Vec<f64> = (0..m).map(|r| if rows[r].soft { -rc_n[r] / lam_n[r] } else { 0.0 }).collect();
-            let mut rhs: Vec<f64> = rx.iter().map(|v| -v).collect();
-            for (r, row) in rows.iter().enumerate() {
-                let k = if row.soft { d[r] * (d_n[r] * (e[r] - e_n[r]) + rs[r]) / (d[r] + d_n[r]) } else { d[r] * e[r] };
-                row.add_to(&mut rhs, -k);
-            }
-            let dx = factor.solve(rhs);
-            let (mut ds, mut dl, mut dsig, mut dln) = (vec![0.0; m], vec![0.0; m], vec![0.0; m], vec![0.0; m]);
-            for (r, row) in rows.iter().enumerate() {
-                let adx = row.dot(&dx);
-                if row.soft {
-                    dsig[r] = (d[r] * (adx + e[r]) + d_n[r] * e_n[r] - rs[r]) / (d[r] + d_n[r]);
-                    dln[r] = d_n[r] * (e_n[r] - dsig[r]);
-                }
-                dl[r] = d[r] * (adx - dsig[r] + e[r]);
-                ds[r] = (-rc[r] - s[r] * dl[r]) / lam[r];
-            }
-            (dx, ds, dl, dsig, dln)
-        };
-        // How far along a step every slack and dual stays positive.
-        let longest = |ds: &[f64], dl: &[f64], dsig: &[f64], dln: &[f64]| {
-            let mut alpha = 1.0f64;
-            for r in 0..m {
-                for (v, dv) in [(s[r], ds[r]), (lam[r], dl[r]), (sigma[r], dsig[r]), (lam_n[r], dln[r])] {
-                    if dv < 0.0 && v > 0.0 {
-                        alpha = alpha.min(-v / dv);
-                    }
-                }
-            }
-            alpha
-        };
-        let rc: Vec<f64> = s.iter().zip(&lam).map(|(a, b)| a * b).collect();
-        let rc_n: Vec<f64> = (0..m).map(|r| sigma[r] * lam_n[r]).collect();
-        let (_, ds, dl, dsig, dln) = step(&rc, &rc_n);
-        let alpha = longest(&ds, &dl, &dsig, &dln);
-        let moved = |v: &[f64], dv: &[f64]| -> Vec<f64> { v.iter().zip(dv).map(|(a, b)| a + alpha * b).collect() };
-        let mu_aff = gap(&moved(&s, &ds), &moved(&lam, &dl), &moved(&sigma, &dsig), &moved(&lam_n, &dln));
-        let centre = (mu_aff / mu).powi(3) * mu;
-        let rc: Vec<f64> = (0..m).map(|r| s[r] * lam[r] + ds[r] * dl[r] - centre).collect();
-        let rc_n: Vec<f64> = (0..m).map(|r| if rows[r].soft { sigma[r] * lam_n[r] + dsig[r] * dln[r] - centre } else { 0.0 }).collect();
-        let (dx, ds, dl, dsig, dln) = step(&rc, &rc_n);
-        if !dx.iter().chain(&ds).chain(&dl).chain(&dsig).chain(&dln).all(|v| v.is_finite()) {
+        let factor = k.clone().cholesky(1e-12);
+        let newton = Newton { rows, factor: &factor, rx: &rx, rp: &rp, rs: &rs, d: &d, d_n: &d_n, s: &s, lam: &lam, lam_n: &lam_n };
+        // Predictor: towards complementarity 0.
+        for r in 0..m {
+            rc[r] = s[r] * lam[r];
+            rc_n[r] = sigma[r] * lam_n[r];
+        }
+        newton.step(&rc, &rc_n, &mut affine);
+        let alpha = affine.longest(&s, &lam, &sigma, &lam_n);
+        let mut gap_affine = 0.0;
+        for r in 0..m {
+            gap_affine += (s[r] + alpha * affine.ds[r]) * (lam[r] + alpha * affine.dl[r]) + (sigma[r] + alpha * affine.dsig[r]) * (lam_n[r] + alpha * affine.dln[r]);
+        }
+        // Corrector: towards a centre chosen by how far the predictor got.
+        let centre = (gap_affine / count / mu).powi(3) * mu;
+        for r in 0..m {
+            rc[r] = s[r] * lam[r] + affine.ds[r] * affine.dl[r] - centre;
+            rc_n[r] = if rows[r].soft { sigma[r] * lam_n[r] + affine.dsig[r] * affine.dln[r] - centre } else { 0.0 };
+        }
+        newton.step(&rc, &rc_n, &mut step);
+        if !step.finite() {
             return (worst(&rp) <= PRIMAL && mu <= GAP_STALLED).then(|| done(x)).flatten();
         }
-        let alpha = (0.99 * longest(&ds, &dl, &dsig, &dln)).min(1.0);
-        for (v, dv) in x.iter_mut().zip(&dx) {
+        let alpha = (0.99 * step.longest(&s, &lam, &sigma, &lam_n)).min(1.0);
+        for (v, dv) in x.iter_mut().zip(&step.dx) {
             *v += alpha * dv;
         }
         for r in 0..m {
-            s[r] += alpha * ds[r];
-            lam[r] += alpha * dl[r];
-            if rows[r].soft {
-                sigma[r] += alpha * dsig[r];
-                lam_n[r] += alpha * dln[r];
-            }
+            s[r] += alpha * step.ds[r];
+            lam[r] += alpha * step.dl[r];
+            sigma[r] += alpha * step.dsig[r];
+            lam_n[r] += alpha * step.dln[r];
         }
     }
     None
+}
+
+/// A Newton step: unknowns, rows' slacks and duals, σ and its bound's dual.
+struct Step {
+    dx: Vec<f64>,
+    ds: Vec<f64>,
+    dl: Vec<f64>,
+    dsig: Vec<f64>,
+    dln: Vec<f64>,
+}
+
+impl Step {
+    fn zeros(n: usize, m: usize) -> Step {
+        Step { dx: vec![0.0; n], ds: vec![0.0; m], dl: vec![0.0; m], dsig: vec![0.0; m], dln: vec![0.0; m] }
+    }
+
+    fn finite(&self) -> bool {
+        [&self.dx, &self.ds, &self.dl, &self.dsig, &self.dln].iter().all(|v| v.iter().all(|x| x.is_finite()))
+    }
+
+    /// How far along the step every slack and dual stays positive (≤ 1).
+    fn longest(&self, s: &[f64], lam: &[f64], sigma: &[f64], lam_n: &[f64]) -> f64 {
+        let mut alpha = 1.0f64;
+        for (v, dv) in [(s, &self.ds), (lam, &self.dl), (sigma, &self.dsig), (lam_n, &self.dln)] {
+            for (&v, &dv) in v.iter().zip(dv.iter()) {
+                if dv < 0.0 && v > 0.0 {
+                    alpha = alpha.min(-v / dv);
+                }
+            }
+        }
+        alpha
+    }
+}
+
+/// One iterate's linearisation: the factored normal equations and what
+/// the step's other parts follow from.
+struct Newton<'a> {
+    rows: &'a [Row],
+    factor: &'a Banded,
+    rx: &'a [f64],
+    rp: &'a [f64],
+    rs: &'a [f64],
+    d: &'a [f64],
+    d_n: &'a [f64],
+    s: &'a [f64],
+    lam: &'a [f64],
+    lam_n: &'a [f64],
+}
+
+impl Newton<'_> {
+    /// The step towards complementarity targets `rc` (rows) and `rc_n`
+    /// (σ's bounds), into `out`.
+    fn step(&self, rc: &[f64], rc_n: &[f64], out: &mut Step) {
+        let (d, d_n) = (self.d, self.d_n);
+        let mut rhs: Vec<f64> = self.rx.iter().map(|v| -v).collect();
+        for (r, row) in self.rows.iter().enumerate() {
+            let e = self.rp[r] - rc[r] / self.lam[r];
+            let k = if row.soft {
+                let e_n = -rc_n[r] / self.lam_n[r];
+                d[r] * (d_n[r] * (e - e_n) + self.rs[r]) / (d[r] + d_n[r])
+            } else {
+                d[r] * e
+            };
+            row.add_to(&mut rhs, -k);
+        }
+        out.dx = self.factor.solve(rhs);
+        for (r, row) in self.rows.iter().enumerate() {
+            let adx = row.dot(&out.dx);
+            let e = self.rp[r] - rc[r] / self.lam[r];
+            if row.soft {
+                let e_n = -rc_n[r] / self.lam_n[r];
+                out.dsig[r] = (d[r] * (adx + e) + d_n[r] * e_n - self.rs[r]) / (d[r] + d_n[r]);
+                out.dln[r] = d_n[r] * (e_n - out.dsig[r]);
+            }
+            out.dl[r] = d[r] * (adx - out.dsig[r] + e);
+            out.ds[r] = (-rc[r] - self.s[r] * out.dl[r]) / self.lam[r];
+        }
+    }
 }
 
 #[cfg(test)]
