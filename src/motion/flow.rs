@@ -277,16 +277,18 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     let his: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, sm.hi[i], sm.slack)).collect();
     let los: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, -sm.lo[i], sm.slack)).collect();
     let (keep_hi, keep_lo) = (binding(&his, lim.velocity, slacks), binding(&los, lim.velocity, slacks));
-    // Which slack each soft row widens.
+    // Which slack each soft row widens. The corridor rows in half fields
+    // (their slacks priced to match): rows of similar size, fewer steps.
+    let unit = s.half.max(1.0);
     let mut widens: Vec<Option<usize>> = vec![None; rows.len()];
     for (k, sm) in samples.iter().enumerate() {
-        let basis: Vec<(usize, f64)> = basis(m, h, sm.t - t0).into_iter().map(|(c, w)| (unknown(c), w)).collect();
+        let basis: Vec<(usize, f64)> = basis(m, h, sm.t - t0).into_iter().map(|(c, w)| (unknown(c), w / unit)).collect();
         if keep_hi[k] {
-            rows.extend(Row::new(&basis, sm.hi[i], true, n));
+            rows.extend(Row::new(&basis, sm.hi[i] / unit, true, n));
         }
         if keep_lo[k] {
             let down: Vec<(usize, f64)> = basis.iter().map(|&(c, w)| (c, -w)).collect();
-            rows.extend(Row::new(&down, -sm.lo[i], true, n));
+            rows.extend(Row::new(&down, -sm.lo[i] / unit, true, n));
         }
         widens.resize(rows.len(), Some(sm.slack));
     }
@@ -301,7 +303,7 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     // From the stage standing still mid-corridor (every hard row holds).
     let mid = samples.iter().map(|sm| 0.5 * (sm.lo[i] + sm.hi[i])).sum::<f64>() / samples.len().max(1) as f64;
     let start = mid.clamp(0.25 * travel, 0.75 * travel);
-    let mut solved = super::qp::solve(&p, &rows, 1.0, vec![start; n]).ok_or_else(fail)?;
+    let mut solved = super::qp::solve(&p, &rows, unit, vec![start; n]).ok_or_else(fail)?;
     // The travel rarely binds (the corridor lies within it): its rows only
     // where the stage left it without them.
     if solved.x.iter().any(|&x| !(0.0..=travel).contains(&x)) {
@@ -311,14 +313,14 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
             rows.extend(Row::new(&[(k, 1.0)], travel, false, n));
         }
         widens.resize(rows.len(), None);
-        solved = super::qp::solve(&p, &rows, 1.0, vec![start; n]).ok_or_else(fail)?;
+        solved = super::qp::solve(&p, &rows, unit, vec![start; n]).ok_or_else(fail)?;
         solved.slack.truncate(corridor);
     }
     let mut out: Vec<f64> = (0..m).map(|k| solved.x[unknown(k)]).collect();
     let mut short = vec![0.0f64; slacks];
     for (r, sigma) in solved.slack.iter().enumerate() {
         if let Some(g) = widens[r] {
-            short[g] = short[g].max(*sigma);
+            short[g] = short[g].max(sigma * unit);
         }
     }
     out.extend(short);
