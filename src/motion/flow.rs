@@ -180,8 +180,9 @@ fn groups(tcp: &TcpPath) -> usize {
     tcp.pieces.iter().map(|p| p.group + 1).max().unwrap_or(1)
 }
 
-/// A time where the stage must be within `[lo, hi]` on each axis, and the
-/// slack that may widen that (the first or second half of a field's time).
+/// A time where the stage must be within `[lo, hi]` on each axis, and
+/// which shortfall a slack here counts towards (the first or second half of
+/// a field's time).
 struct Sample {
     t: f64,
     lo: [f64; 2],
