@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use laserd::config::{MachineConfig, DEFAULT_CONFIG_PATH};
 use laserd::plan::PlannerKind;
 use laserd::run;
+use laserd_sim::controller::Faults;
 
 fn data() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/galvo")
@@ -101,4 +102,29 @@ fn hga_is_never_worse_than_hha_and_keeps_to_its_time_limit() {
     check_plan("hga", &hga, half);
     assert!(hga.report.idle_stroke_mm <= once.report.idle_stroke_mm + 1e-9, "hga {} vs hha {}", hga.report.idle_stroke_mm, once.report.idle_stroke_mm);
     assert!(hga.report.plan_time_s <= 2.0 + 1.0, "hga ran {} s with a 2 s limit", hga.report.plan_time_s);
+}
+
+/// Fields far apart on the fly (`tests/data/flow/`, from `laserd gen
+/// galvo`): the stage flows through the field changes, within every limit
+/// as the simulator checks them, and the job stays near its bound (bursts
+/// alone took 1.25 and 1.21 × the bound here, the first flowing stage as
+/// well).
+#[test]
+fn sparse_fields_flow_on_the_fly_within_the_limits_near_the_bound() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let machine = MachineConfig::load(Some(&root.join(DEFAULT_CONFIG_PATH))).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for case in ["sparse-mixed-50-s3", "sparse-mixed-80-s4"] {
+        let planned = run::plan(&root.join(format!("tests/data/flow/{case}.svg")), &machine, PlannerKind::Auto, None).unwrap();
+        let report = &planned.report;
+        let ratio = report.trajectory_time_s / report.lower_bound_s;
+        assert!(ratio <= 1.15, "{case}: {} s, {ratio} × the bound", report.trajectory_time_s);
+        assert!(report.stage_flow.is_some_and(|f| f >= 0.5), "{case}: {:?}", report.stage_flow);
+        let dry = run::dry_run(&planned, &machine, &dir.path().join(format!("{case}.mcap")), Faults::default()).unwrap();
+        let sim = dry.report.sim.as_ref().unwrap();
+        assert_eq!(sim.limit_violations, 0, "{case}: {sim:?}");
+        assert!(sim.peak_field_use.unwrap() <= 1.0 && sim.peak_stage_use <= 1.0, "{case}: {sim:?}");
+        assert!(sim.max_tcp_deviation_mm.unwrap() <= 0.02, "{case}: {sim:?}");
+        assert!(dry.outcome.completed, "{case}: {:?}", dry.outcome);
+    }
 }

@@ -1,32 +1,24 @@
 //! On the fly: the stage planned over the whole job, flowing through the scan
 //! fields at speed instead of resting in each.
 //!
-//! Each stage axis is planned alone on a time grid of step `h` over the TCP's
-//! plan. At each grid time the TCP's box over the neighbouring grid times,
-//! widened by the usable half field, is the corridor the stage must be in.
-//! Three steps, repeated:
-//! 1. A string: grid positions inside the corridor (less a margin) that move
-//!    at most `V·h` a step, found by a forward pass (the reachable
-//!    intervals), a backward pass (those from which the end is reachable)
-//!    and a walk towards each interval's middle.
-//! 2. Two centred moving averages of the string, `n2` and then `n3` steps
-//!    long, are the control points of a uniform cubic B-spline: the stage.
-//!    A B-spline's derivatives are B-splines of the control points'
-//!    differences, so they stay within those differences over `h`, `h²`,
-//!    `h³`; the averages bound them by `V`, `2V/(n2·h)` and
-//!    `4V/(n2·n3·h²)`, and `n2`, `n3` are chosen long enough for `A` and `J`.
-//!    The limits therefore hold by construction, whatever the corridor.
-//! 3. The spline is checked against the TCP on the split's fine windows; where
-//!    it leaves the field (the averages cut corners) the margin of step 1 is
-//!    raised around that time by the excess, and all is planned again.
+//! Each stage axis is one convex problem (a QP whose rows are banded,
+//! solved by `qp`'s interior point method). The unknowns are the control points of a uniform
+//! cubic B-spline (step `h` of a few ms). A B-spline's velocity,
+//! acceleration and jerk are B-splines of the control points' first, second
+//! and third differences over `h`, `h²`, `h³`, so bounding those differences
+//! by V, A and J is linear and keeps the limits (exactly so for A and J).
+//! The field corridor is linear too: at the ends of the split's windows the
+//! spline (a fixed mix of four control points) lies within the TCP's box
+//! over the window widened by the usable half field, less how far the spline
+//! may bow in between. The first and last three control points are equal:
+//! the stage starts and ends at rest.
 //!
-//! Where no string exists (the stage cannot reach the next field in time) or
-//! the repairs do not converge, the plan names the times (the forward pass
-//! goes on from the corridor's edge nearest the reach, so that one plan
-//! names every place the stage falls behind): the caller slows the TCP at
-//! the field changes there, and plans again. The string is held
-//! still over the first and last `n2 + n3` steps, so that the stage starts and
-//! ends at rest with the TCP (no motion before the job's clock starts).
+//! Where no such stage exists (it cannot reach the next field in time), the
+//! corridor gives: a slack per sample widens it at a cost, and the largest
+//! in each half of a field's time names the field change where the stage
+//! falls behind and by how far. The caller slows the TCP there and plans
+//! again. A small smoothing term (squared accelerations) picks one stage among
+//! the feasible ones.
 
 use super::stage::{windows, SplitSettings, Window};
 use super::tcp::TcpPath;
@@ -64,8 +56,10 @@ impl Flow {
         self.position(self.t0)
     }
 
+    /// When the stage has come to rest (the last three control points are
+    /// equal: the spline is still from the second last on).
     pub fn end_time(&self) -> f64 {
-        self.t0 + self.h * self.control[0].len().saturating_sub(1) as f64
+        self.t0 + self.h * self.control[0].len().saturating_sub(2) as f64
     }
 
     pub fn shift(&mut self, dt: f64) {
@@ -87,129 +81,298 @@ impl Flow {
     }
 }
 
-/// Grid step: a millisecond, longer on very long jobs (at most this many steps).
-const STEP: f64 = 1.0e-3;
-const MOST_STEPS: f64 = 2.0e6;
-/// Rounds of raising the margin before the plan gives up.
-const REPAIRS: usize = 40;
-/// Added to each raise of the margin (mm), so that repairs end.
-const REPAIR_SLACK: f64 = 0.02;
+/// Target step between control points (s): fine enough for the stage's
+/// jerk ramps (`A/J` is tens of ms), coarse enough for a small problem.
+const STEP: f64 = 5.0e-3;
+/// Most control points per axis: longer jobs get a coarser spline, up to
+/// `COARSEST` times the step; beyond that (or with more than `MOST_SAMPLES`
+/// corridor samples) the flow is not planned (the bursts are): the solve's
+/// time and memory grow with the problem.
+const MOST_STEPS: f64 = 2.0e4;
+const COARSEST: f64 = 4.0;
+const MOST_SAMPLES: usize = 400_000;
+/// Kept between the planned stage and the field's edge (mm): the program's
+/// rounding and the solver's tolerance.
+const EDGE: f64 = 0.01;
+/// Slack below this (mm) is the solver's tolerance, not a shortfall.
+const SLACK_TOLERANCE: f64 = 1.0e-3;
+/// Weight of the smoothing term (squared acceleration, as a share of the
+/// limit, summed) against a millimetre of slack.
+const SMOOTH: f64 = 1.0e-4;
 
-/// Plans the stage for `tcp`, or names the times where it cannot keep up.
-pub fn plan(tcp: &TcpPath, s: &SplitSettings) -> Result<Flow, Vec<f64>> {
-    let duration = tcp.duration();
-    let steps = ((duration / STEP).ceil() as usize).clamp(1, MOST_STEPS as usize);
-    let h = duration.max(1e-9) / steps as f64;
-    let n = steps + 1;
-    let (v, a, j) = (s.burst.velocity, s.burst.acceleration, s.burst.jerk);
-    let odd = |x: f64| {
-        let k = x.ceil().max(1.0) as usize;
-        k | 1
-    };
-    let n2 = odd(2.0 * v / (a * h));
-    let n3 = odd(4.0 * v / (n2 as f64 * j * h * h));
-    // Before and after the TCP's plan it stands at its first and last point,
-    // where the stage may start early and settle late.
-    let pad = n2 + n3;
-    let total = n + 2 * pad;
-    let time = |k: usize| (k as f64 - pad as f64) * h;
-    let tcp_at: Vec<Point> = (0..total).map(|k| tcp.position(time(k).clamp(0.0, duration))).collect();
-    let mut wins = windows(tcp, super::stage::window_length(tcp));
-    for (k, p) in tcp_at.iter().enumerate() {
-        if k < pad || k >= pad + n {
-            let t = time(k);
-            wins.push(Window { t0: t, t1: t + h, lo: [p.x, p.y], hi: [p.x, p.y] });
-        }
-    }
-    let travel = [s.travel.0, s.travel.1];
-    let mut control: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
-    let mut behind = Vec::new();
-    for i in 0..2 {
-        // The corridor at each grid time.
-        let mut lo = vec![0.0; total];
-        let mut hi = vec![0.0; total];
-        for k in 0..total {
-            let (mut l, mut u) = (f64::NEG_INFINITY, f64::INFINITY);
-            for p in &tcp_at[k.saturating_sub(1)..=(k + 1).min(total - 1)] {
-                l = l.max(p[i] - s.half);
-                u = u.min(p[i] + s.half);
-            }
-            lo[k] = l.max(0.0);
-            hi[k] = u.min(travel[i]);
-        }
-        match plan_axis(&lo, &hi, &wins, i, pad, -(pad as f64) * h, h, v * h, n2, n3, s.half, a) {
-            Ok(c) => control[i] = c,
-            Err(times) => behind.extend(times),
-        }
-    }
-    if behind.is_empty() {
-        // Ends where both axes have come to rest.
-        let last = control.iter().map(|c| c.iter().rposition(|&x| (x - c[c.len() - 1]).abs() > 1e-12).map_or(0, |k| k + 3)).max().unwrap_or(0);
-        for c in &mut control {
-            c.truncate((last + 1).min(c.len()));
-        }
-        let mut flow = Flow { moves_from: 0.0, t0: -(pad as f64) * h, h, control };
-        flow.moves_from = flow.first_motion();
-        Ok(flow)
-    } else {
-        behind.sort_by(f64::total_cmp);
-        Err(behind)
-    }
+/// Where the stage falls behind: per field change, by how far.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Behind {
+    /// `(g, f, mm)`: the stage reaches field `g` (a group index) too late,
+    /// or leaves the field before it too early, by `mm` at most, the shortfall
+    /// being in field `f` (`g` or the one before).
+    pub into: Vec<(usize, usize, f64)>,
+    /// Short at the start (the stage cannot follow the first field from
+    /// rest) and at the end (it cannot stop with the TCP), mm; infinite
+    /// when the job is too long to plan this way or the solver failed.
+    pub start: f64,
+    pub end: f64,
 }
 
-/// One axis: the control points, or the times where the stage falls behind.
-#[allow(clippy::too_many_arguments)]
-fn plan_axis(lo: &[f64], hi: &[f64], wins: &[Window], i: usize, pad: usize, t0: f64, h: f64, step: f64, n2: usize, n3: usize, half: f64, a: f64) -> Result<Vec<f64>, Vec<f64>> {
-    let n = lo.len();
-    let mut margin_lo = vec![0.0; n];
-    let mut margin_hi = vec![0.0; n];
-    let reach = n2 / 2 + n3 / 2 + 2;
-    for _ in 0..REPAIRS {
-        let l: Vec<f64> = (0..n).map(|k| lo[k] + margin_lo[k]).collect();
-        let u: Vec<f64> = (0..n).map(|k| hi[k] - margin_hi[k]).collect();
-        let mut string = string(&l, &u, step).map_err(|short| short.iter().map(|&k| t0 + k as f64 * h).collect::<Vec<_>>())?;
-        // Still before and after the TCP (the pads), so that the stage starts
-        // and settles as late and as early as the averages allow.
-        let (first, last) = (string[pad], string[n - 1 - pad]);
-        string[..pad].fill(first);
-        string[n - pad..].fill(last);
-        let c = average(&average(&string, n2), n3);
-        // Spline on each window: its ends, and how far a curve with this
-        // acceleration bows between them.
-        let mut raise_lo = vec![0.0f64; n];
-        let mut raise_hi = vec![0.0f64; n];
-        let mut any = false;
-        for w in wins {
-            let (s0, s1) = (spline(&c, h, w.t0 - t0), spline(&c, h, w.t1 - t0));
-            let bow = a * (w.t1 - w.t0).powi(2) / 8.0 + 1e-9;
-            let (smin, smax) = (s0.min(s1) - bow, s0.max(s1) + bow);
-            let low = w.hi[i] - half - smin;
-            let high = smax - (w.lo[i] + half);
-            if low <= 0.0 && high <= 0.0 {
-                continue;
-            }
-            any = true;
-            let k = ((0.5 * (w.t0 + w.t1) - t0) / h).round().max(0.0) as usize;
-            for q in k.saturating_sub(reach)..=(k + reach).min(n - 1) {
-                if low > 0.0 {
-                    raise_lo[q] = raise_lo[q].max(low + REPAIR_SLACK);
-                }
-                if high > 0.0 {
-                    raise_hi[q] = raise_hi[q].max(high + REPAIR_SLACK);
-                }
+/// Plans the stage for `tcp`, standing still for `pads.0` before the TCP
+/// starts and `pads.1` after it ends (the TCP waits at its ends meanwhile), or
+/// names where it cannot keep up.
+pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, Behind> {
+    let duration = tcp.duration();
+    let (pre, post) = pads;
+    let span = duration + pre + post;
+    let steps = ((span / STEP).ceil()).clamp(2.0, MOST_STEPS) as usize;
+    let h = span.max(1e-9) / steps as f64;
+    let too_big = Behind { into: Vec::new(), start: f64::INFINITY, end: f64::INFINITY };
+    if h > COARSEST * STEP {
+        return Err(too_big);
+    }
+    // Control point k at time t0 + k·h; the first and last three equal (at
+    // rest before -pre and after duration + post).
+    let t0 = -pre - h;
+    let m = steps + 3;
+    let samples = samples(tcp, pads, h, s.half, s.burst.acceleration);
+    if samples.len() > MOST_SAMPLES {
+        return Err(too_big);
+    }
+    let slacks = 2 * groups(tcp);
+    let travel = [s.travel.0, s.travel.1];
+    let mut control: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
+    let mut short = vec![0.0f64; slacks];
+    // The axes are independent problems: one each on two cores.
+    let solved = crate::parallel::tasks(2, crate::parallel::threads().unwrap_or(1), |i| solve_axis(&samples, i, t0, h, m, slacks, travel[i], s));
+    for (c, x) in control.iter_mut().zip(solved) {
+        let x = x?;
+        for (total, &sigma) in short.iter_mut().zip(&x[m..]) {
+            *total = total.max(sigma);
+        }
+        *c = x[..m].to_vec();
+    }
+    if short.iter().all(|&x| x <= SLACK_TOLERANCE) {
+        let mut flow = Flow { moves_from: 0.0, t0, h, control };
+        flow.moves_from = flow.first_motion();
+        return Ok(flow);
+    }
+    let mut behind = Behind { into: Vec::new(), start: 0.0, end: 0.0 };
+    let used: Vec<usize> = (0..slacks / 2).filter(|&g| tcp.pieces.iter().any(|p| p.group == g)).collect();
+    for (k, &g) in used.iter().enumerate() {
+        let (into, out) = (short[2 * g], short[2 * g + 1]);
+        if into > SLACK_TOLERANCE {
+            if k == 0 {
+                behind.start = into;
+            } else {
+                behind.into.push((g, g, into));
             }
         }
-        if !any {
-            return Ok(c);
-        }
-        for k in 0..n {
-            margin_lo[k] += raise_lo[k];
-            margin_hi[k] += raise_hi[k];
+        if out > SLACK_TOLERANCE {
+            match used.get(k + 1) {
+                Some(&next) => behind.into.push((next, g, out)),
+                None => behind.end = out,
+            }
         }
     }
-    // Still outside after every repair: where the margin grew most.
-    let worst = (0..n).max_by(|&x, &y| (margin_lo[x] + margin_hi[x]).total_cmp(&(margin_lo[y] + margin_hi[y]))).unwrap_or(0);
-    Err(vec![t0 + worst as f64 * h])
+    behind.into.sort_by(|a, b| a.0.cmp(&b.0).then(b.2.total_cmp(&a.2)));
+    behind.into.dedup_by_key(|x| x.0);
+    Err(behind)
+}
+
+fn groups(tcp: &TcpPath) -> usize {
+    tcp.pieces.iter().map(|p| p.group + 1).max().unwrap_or(1)
+}
+
+/// A time where the stage must be within `[lo, hi]` on each axis, and
+/// which shortfall a slack here counts towards (the first or second half of
+/// a field's time).
+struct Sample {
+    t: f64,
+    lo: [f64; 2],
+    hi: [f64; 2],
+    slack: usize,
+}
+
+/// The corridor at the ends of the split's windows (no longer than `h`),
+/// narrowed by how far the spline may bow between them and by `EDGE`.
+fn samples(tcp: &TcpPath, pads: (f64, f64), h: f64, half: f64, a: f64) -> Vec<Sample> {
+    let duration = tcp.duration();
+    let groups = groups(tcp);
+    let mut span = vec![(f64::INFINITY, f64::NEG_INFINITY); groups];
+    for p in &tcp.pieces {
+        let s = &mut span[p.group];
+        *s = (s.0.min(p.start), s.1.max(p.end_time()));
+    }
+    let first = tcp.pieces.first().map_or(0, |p| p.group);
+    let last = tcp.pieces.last().map_or(0, |p| p.group);
+    let slack_at = |t: f64| {
+        if t <= 0.0 {
+            return 2 * first;
+        }
+        if t >= duration {
+            return 2 * last + 1;
+        }
+        let g = tcp.pieces[tcp.index_at(t)].group;
+        2 * g + usize::from(t >= 0.5 * (span[g].0 + span[g].1))
+    };
+    let mut wins = windows(tcp, h);
+    // The pads, the TCP still at its ends: windows of `h` too (the bow
+    // allowed between samples grows with the square of the window).
+    for (t, p, length) in [(-pads.0, tcp.position(0.0), pads.0), (duration, tcp.position(duration), pads.1)] {
+        let parts = (length / h).ceil() as usize;
+        for k in 0..parts {
+            let (t0, t1) = (t + length * k as f64 / parts as f64, t + length * (k + 1) as f64 / parts as f64);
+            wins.push(Window { t0, t1, lo: [p.x, p.y], hi: [p.x, p.y] });
+        }
+    }
+    let mut out: Vec<Sample> = Vec::with_capacity(2 * wins.len());
+    for w in &wins {
+        let bow = a * (w.t1 - w.t0).powi(2) / 8.0 + EDGE;
+        let lo = [w.hi[0] - half + bow, w.hi[1] - half + bow];
+        let hi = [w.lo[0] + half - bow, w.lo[1] + half - bow];
+        for t in [w.t0, w.t1] {
+            out.push(Sample { t, lo, hi, slack: slack_at(t.clamp(0.0, duration)) });
+        }
+    }
+    out.sort_by(|x, y| x.t.total_cmp(&y.t));
+    // One sample per time: the windows meeting there both hold.
+    let mut merged: Vec<Sample> = Vec::with_capacity(out.len() / 2 + 1);
+    for s in out {
+        match merged.last_mut() {
+            Some(m) if (m.t - s.t).abs() < 1e-12 => {
+                for i in 0..2 {
+                    m.lo[i] = m.lo[i].max(s.lo[i]);
+                    m.hi[i] = m.hi[i].min(s.hi[i]);
+                }
+            }
+            _ => merged.push(s),
+        }
+    }
+    merged
+}
+
+/// One axis as a convex problem: the control points (and the slacks that
+/// widen the corridor, as little as possible) such that the control points'
+/// first, second and third differences keep `V·h`, `A·h²`, `J·h³` (then the
+/// spline keeps V, A and J), inside the travel, and the spline inside the
+/// corridor at every sample. Returns control points then, per slack, the
+/// most its samples needed.
+#[allow(clippy::too_many_arguments)]
+fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: usize, travel: f64, s: &SplitSettings) -> Result<Vec<f64>, Behind> {
+    use super::qp::{Banded, Row};
+    let fail = || Behind { into: Vec::new(), start: f64::INFINITY, end: f64::INFINITY };
+    // The unknowns: control points 2..m-3; the first and last three equal
+    // (at rest at both ends), so control point k is unknown clamp(k − 2).
+    let n = m.checked_sub(4).filter(|&n| n > 0).ok_or_else(fail)?;
+    let unknown = |k: usize| k.saturating_sub(2).min(n - 1);
+    let terms = |k0: usize, weights: &[f64]| -> Vec<(usize, f64)> { weights.iter().enumerate().map(|(j, &w)| (unknown(k0 + j), w)).collect() };
+    let mut rows = Vec::new();
+    let lim = s.burst;
+    // Each difference row scaled to a bound of 1.
+    let diffs: [(&[f64], f64); 3] = [(&[-1.0, 1.0], lim.velocity * h), (&[1.0, -2.0, 1.0], lim.acceleration * h * h), (&[-1.0, 3.0, -3.0, 1.0], lim.jerk * h * h * h)];
+    for (weights, bound) in diffs {
+        let scaled: Vec<f64> = weights.iter().map(|w| w / bound).collect();
+        let negated: Vec<f64> = scaled.iter().map(|w| -w).collect();
+        for k in 0..=m - weights.len() {
+            rows.extend(Row::new(&terms(k, &scaled), 1.0, false, n));
+            rows.extend(Row::new(&terms(k, &negated), 1.0, false, n));
+        }
+    }
+    let his: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, sm.hi[i], sm.slack)).collect();
+    let los: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, -sm.lo[i], sm.slack)).collect();
+    let (keep_hi, keep_lo) = (binding(&his, lim.velocity, slacks), binding(&los, lim.velocity, slacks));
+    // Which slack each soft row widens. The corridor rows in half fields
+    // (their slacks priced to match): rows of similar size, fewer steps.
+    let unit = s.half.max(1.0);
+    let mut widens: Vec<Option<usize>> = vec![None; rows.len()];
+    for (k, sm) in samples.iter().enumerate() {
+        let basis: Vec<(usize, f64)> = basis(m, h, sm.t - t0).into_iter().map(|(c, w)| (unknown(c), w / unit)).collect();
+        if keep_hi[k] {
+            rows.extend(Row::new(&basis, sm.hi[i] / unit, true, n));
+        }
+        if keep_lo[k] {
+            let down: Vec<(usize, f64)> = basis.iter().map(|&(c, w)| (c, -w)).collect();
+            rows.extend(Row::new(&down, -sm.lo[i] / unit, true, n));
+        }
+        widens.resize(rows.len(), Some(sm.slack));
+    }
+    // Smoothing: the second differences' squares.
+    let w = SMOOTH / (lim.acceleration * h * h).powi(2);
+    let mut p = Banded::zeros(n);
+    for k in 0..m - 2 {
+        if let Some(r) = Row::new(&terms(k, &[1.0, -2.0, 1.0]), 0.0, false, n) {
+            p.add_row(&r, 2.0 * w);
+        }
+    }
+    // From the stage standing still mid-corridor (every hard row holds).
+    let mid = samples.iter().map(|sm| 0.5 * (sm.lo[i] + sm.hi[i])).sum::<f64>() / samples.len().max(1) as f64;
+    let start = mid.clamp(0.25 * travel, 0.75 * travel);
+    let mut solved = super::qp::solve(&p, &rows, unit, vec![start; n]).ok_or_else(fail)?;
+    // The travel rarely binds (the corridor lies within it): its rows only
+    // where the stage left it without them.
+    if solved.x.iter().any(|&x| !(0.0..=travel).contains(&x)) {
+        let corridor = rows.len();
+        for k in 0..n {
+            rows.extend(Row::new(&[(k, -1.0)], 0.0, false, n));
+            rows.extend(Row::new(&[(k, 1.0)], travel, false, n));
+        }
+        widens.resize(rows.len(), None);
+        solved = super::qp::solve(&p, &rows, unit, vec![start; n]).ok_or_else(fail)?;
+        solved.slack.truncate(corridor);
+    }
+    let mut out: Vec<f64> = (0..m).map(|k| solved.x[unknown(k)]).collect();
+    let mut short = vec![0.0f64; slacks];
+    for (r, sigma) in solved.slack.iter().enumerate() {
+        if let Some(g) = widens[r] {
+            short[g] = short[g].max(sigma * unit);
+        }
+    }
+    out.extend(short);
+    Ok(out)
+}
+
+/// Which bounds `x(t) ≤ bound` (samples `(t, bound, slack)`, sorted by
+/// time) can bind: one is implied by another of the same slack where
+/// `bound' + V·|t − t'| ≤ bound`, since the spline moves at most `V`. Fewer
+/// rows, the same solution.
+fn binding(bounds: &[(f64, f64, usize)], v: f64, slacks: usize) -> Vec<bool> {
+    let mut keep = vec![true; bounds.len()];
+    // The tightest bound implied from earlier (then later) samples, per slack.
+    let mut best = vec![f64::INFINITY; slacks];
+    for (k, &(t, bound, slack)) in bounds.iter().enumerate() {
+        if best[slack] + v * t <= bound - TIGHTER {
+            keep[k] = false;
+        }
+        best[slack] = best[slack].min(bound - v * t);
+    }
+    best.fill(f64::INFINITY);
+    for (k, &(t, bound, slack)) in bounds.iter().enumerate().rev() {
+        if best[slack] - v * t <= bound - TIGHTER {
+            keep[k] = false;
+        }
+        best[slack] = best[slack].min(bound + v * t);
+    }
+    keep
+}
+
+/// A bound is dropped only where another implies it by this much (mm): the
+/// solver's tolerance on the speed rows.
+const TIGHTER: f64 = 1.0e-6;
+
+/// The spline's weights on the control points at time `t` (from control
+/// point 0), indices clamped to the `m` points as `spline` does.
+fn basis(m: usize, h: f64, t: f64) -> Vec<(usize, f64)> {
+    let u = (t / h).clamp(0.0, (m - 1) as f64);
+    let k = (u.floor() as usize).min(m - 1) as isize;
+    let f = u - k as f64;
+    let g = 1.0 - f;
+    let w = [g * g * g, 3.0 * f * f * f - 6.0 * f * f + 4.0, -3.0 * f * f * f + 3.0 * f * f + 3.0 * f + 1.0, f * f * f];
+    let mut out: Vec<(usize, f64)> = Vec::with_capacity(4);
+    for (j, wj) in w.iter().enumerate() {
+        let c = (k - 1 + j as isize).clamp(0, m as isize - 1) as usize;
+        match out.iter_mut().find(|x| x.0 == c) {
+            Some(x) => x.1 += wj / 6.0,
+            None => out.push((c, wj / 6.0)),
+        }
+    }
+    out
 }
 
 /// The spline of control points `c` (step `h`, from time 0) at `t`.
@@ -227,110 +390,83 @@ fn spline(c: &[f64], h: f64, t: f64) -> f64 {
     (g * g * g * at(k - 1) + (3.0 * f * f * f - 6.0 * f * f + 4.0) * at(k) + (-3.0 * f * f * f + 3.0 * f * f + 3.0 * f + 1.0) * at(k + 1) + f * f * f * at(k + 2)) / 6.0
 }
 
-/// Positions within `[lo, hi]` moving at most `step` from one to the next,
-/// each as near its reachable interval's middle as the step allows. `Err`:
-/// the grid times no string reaches (the pass goes on from the corridor's
-/// edge nearest the reach).
-fn string(lo: &[f64], hi: &[f64], step: f64) -> Result<Vec<f64>, Vec<usize>> {
-    let n = lo.len();
-    let mut f = Vec::with_capacity(n);
-    let mut prev: Option<(f64, f64)> = None;
-    let mut short = Vec::new();
-    for k in 0..n {
-        let (mut l, mut u) = (lo[k], hi[k]);
-        if let Some((pl, pu)) = prev {
-            if lo[k] > pu + step + 1e-12 {
-                short.push(k);
-                u = lo[k];
-            } else if hi[k] < pl - step - 1e-12 {
-                short.push(k);
-                l = hi[k];
-            } else {
-                l = l.max(pl - step);
-                u = u.min(pu + step);
-            }
-        }
-        let u = u.max(l);
-        f.push((l, u));
-        prev = Some((l, u));
-    }
-    if !short.is_empty() {
-        return Err(short);
-    }
-    for k in (0..n.saturating_sub(1)).rev() {
-        let (nl, nu) = f[k + 1];
-        let (l, u) = f[k];
-        let (l2, u2) = (l.max(nl - step), u.min(nu + step));
-        f[k] = (l2, u2.max(l2));
-    }
-    let mut out = Vec::with_capacity(n);
-    let mut at = 0.5 * (f[0].0 + f[0].1);
-    for (k, &(l, u)) in f.iter().enumerate() {
-        let (l, u) = if k == 0 { (l, u) } else { (l.max(at - step), u.min(at + step)) };
-        at = (0.5 * (f[k].0 + f[k].1)).clamp(l, u.max(l));
-        out.push(at);
-    }
-    Ok(out)
-}
-
-/// Centred moving average over `w` (odd) values; beyond the ends the end values.
-fn average(x: &[f64], w: usize) -> Vec<f64> {
-    let n = x.len();
-    let m = (w / 2) as isize;
-    let at = |j: isize| x[j.clamp(0, n as isize - 1) as usize];
-    let mut out = Vec::with_capacity(n);
-    let mut sum: f64 = (-m..=m).map(at).sum();
-    for k in 0..n as isize {
-        out.push(sum / w as f64);
-        sum += at(k + m + 1) - at(k - m);
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::Limits;
 
-    #[test]
-    fn averaged_strings_keep_the_differences_the_limits_need() {
-        // A string zig-zagging at full step: its averages' differences stay
-        // within the bounds that make the spline keep V, A and J.
-        let (h, v, a, j) = (1e-3, 400.0, 4000.0, 2.0e5);
-        let step = v * h;
-        // A triangle wave (300 steps up, 300 down) with still ends, as the
-        // flow's strings have.
-        let tri = |k: usize| if k % 600 < 300 { (k % 600) as f64 } else { (600 - k % 600) as f64 };
-        let x: Vec<f64> = (0..2400).map(|k| if (300..2100).contains(&k) { step * tri(k - 300) } else { 0.0 }).collect();
-        let n2 = ((2.0 * v / (a * h)).ceil() as usize) | 1;
-        let n3 = ((4.0 * v / (n2 as f64 * j * h * h)).ceil() as usize) | 1;
-        let c = average(&average(&x, n2), n3);
-        let d1: Vec<f64> = c.windows(2).map(|w| w[1] - w[0]).collect();
-        let d2: Vec<f64> = d1.windows(2).map(|w| w[1] - w[0]).collect();
-        let d3: Vec<f64> = d2.windows(2).map(|w| w[1] - w[0]).collect();
-        let big = |d: &[f64]| d.iter().fold(0.0f64, |m, x| m.max(x.abs()));
-        assert!(big(&d1) / h <= v * (1.0 + 1e-9), "{}", big(&d1) / h);
-        assert!(big(&d2) / (h * h) <= a * (1.0 + 1e-9), "{}", big(&d2) / (h * h));
-        assert!(big(&d3) / (h * h * h) <= j * (1.0 + 1e-9), "{}", big(&d3) / (h * h * h));
-        assert!(big(&d2) / (h * h) > 0.3 * a, "the test zig-zags hard enough to matter");
+    /// The field corridor of a TCP that marks moving at `drift` mm/s until
+    /// `switch`, then `to` mm further along the axis (both axes alike).
+    fn corridor(drift: f64, switch: f64, to: f64, end: f64, half: f64) -> Vec<Sample> {
+        (0..=(end / 1e-3) as usize)
+            .map(|k| {
+                let t = k as f64 * 1e-3;
+                let (tcp, slack) = if t < switch { (100.0 + drift * t, 1) } else { (100.0 + drift * t + to, 2) };
+                Sample { t, lo: [tcp - half; 2], hi: [tcp + half; 2], slack }
+            })
+            .collect()
+    }
+
+    fn settings() -> SplitSettings {
+        SplitSettings { half: 32.0, travel: (300.0, 300.0), burst: Limits { velocity: 400.0, acceleration: 4000.0, jerk: 2.0e5 } }
     }
 
     #[test]
-    fn a_string_keeps_its_corridor_and_step_or_names_where_it_cannot() {
-        let lo = [0.0, 0.0, 2.5, 5.0, 5.0];
-        let hi = [1.0, 1.0, 9.0, 9.0, 9.0];
-        let s = string(&lo, &hi, 2.0).unwrap();
-        for k in 0..5 {
-            assert!(s[k] >= lo[k] - 1e-12 && s[k] <= hi[k] + 1e-12);
-            if k > 0 {
-                assert!((s[k] - s[k - 1]).abs() <= 2.0 + 1e-12);
-            }
+    fn the_stage_keeps_its_limits_and_corridor_or_names_the_shortfall() {
+        let s = settings();
+        let (h, end) = (5e-3, 1.0);
+        let steps = (end / h) as usize;
+        let m = steps + 3;
+        let t0 = -h;
+        // The TCP drifting 60 mm/s, fields 50 mm apart (they overlap): the
+        // stage can follow, and must move by at least 46 mm.
+        let samples = corridor(60.0, 0.5, 50.0, end, s.half);
+        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s).unwrap();
+        let c = &x[..m];
+        assert!(x[m..].iter().all(|&sigma| sigma <= SLACK_TOLERANCE), "feasible: no slack {:?}", &x[m..]);
+        let diffs = |d: &[f64]| d.windows(2).map(|w| w[1] - w[0]).collect::<Vec<f64>>();
+        let (d1, d2, d3) = (diffs(c), diffs(&diffs(c)), diffs(&diffs(&diffs(c))));
+        let big = |d: &[f64]| d.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        let tol = 1.0 + 1e-6;
+        assert!(big(&d1) <= s.burst.velocity * h * tol, "V {}", big(&d1) / h);
+        assert!(big(&d2) <= s.burst.acceleration * h * h * tol, "A {}", big(&d2) / (h * h));
+        assert!(big(&d3) <= s.burst.jerk * h * h * h * tol, "J {}", big(&d3) / (h * h * h));
+        // It moves far, within the field of the TCP at every sample, from
+        // rest to rest.
+        assert!(spline(c, h, end - t0) - spline(c, h, 0.0 - t0) >= 46.0 - 1e-6);
+        for sm in &samples {
+            let p = spline(c, h, sm.t - t0);
+            assert!(p >= sm.lo[0] - 1e-6 && p <= sm.hi[0] + 1e-6, "t={}: {p} outside {}..{}", sm.t, sm.lo[0], sm.hi[0]);
         }
-        // Every place it falls behind, in one pass: short at 2, and from
-        // there (2.5) at 3; from there (5) the end is reachable.
-        assert_eq!(string(&lo, &hi, 1.0), Err(vec![2, 3]));
-        // The same going down.
-        let far = [10.0, 10.0, 5.0, 0.0, 0.0];
-        assert_eq!(string(&far, &far, 1.0), Err(vec![2, 3]));
-        assert_eq!(string(&far, &far, 5.0).map(|s| s.len()), Ok(5));
+        assert!((c[0] - c[2]).abs() < 1e-6 && (c[m - 1] - c[m - 3]).abs() < 1e-6, "at rest at both ends");
+        // 200 mm at once: the fields are 136 mm apart, which the slacks on
+        // both sides of the change bridge, and no more.
+        let samples = corridor(0.0, 0.5, 200.0, end, s.half);
+        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s).unwrap();
+        let short = x[m + 1] + x[m + 2];
+        // (less what the stage moves between two samples, at most V·1 ms)
+        assert!((136.0 - 0.4 - 1e-6..=136.0 + 1e-6).contains(&short), "{:?}", &x[m..]);
+        assert!(x[m] <= SLACK_TOLERANCE && x[m + 3] <= SLACK_TOLERANCE, "nowhere else: {:?}", &x[m..]);
+    }
+
+    #[test]
+    fn a_bound_is_dropped_only_where_a_tighter_one_nearby_implies_it() {
+        // V = 100 mm/s: within 1 ms the spline moves at most 0.1 mm.
+        let bounds = [(0.0, 5.0, 0), (0.001, 5.2, 0), (0.001, 1.0, 1), (0.002, 5.15, 0), (0.003, 4.95, 0)];
+        let keep = binding(&bounds, 100.0, 2);
+        // 5.2 ≥ 5 + 0.1; 5.15 ≥ 4.95 + 0.1; the other slack's bound stands alone.
+        assert_eq!(keep, [true, false, true, false, true]);
+    }
+
+    #[test]
+    fn the_basis_sums_to_one_and_matches_the_spline() {
+        let c: Vec<f64> = (0..12).map(|k| (k as f64 * 0.7).sin() * 10.0).collect();
+        for k in 0..=110 {
+            let t = k as f64 * 0.1 * 2e-3;
+            let b = basis(c.len(), 2e-3, t);
+            assert!((b.iter().map(|x| x.1).sum::<f64>() - 1.0).abs() < 1e-12);
+            let v: f64 = b.iter().map(|&(j, w)| w * c[j]).sum();
+            assert!((v - spline(&c, 2e-3, t)).abs() < 1e-9, "t={t}");
+        }
     }
 }
