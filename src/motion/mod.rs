@@ -365,11 +365,16 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
 
 /// Rounds of planning the flow, slowing where it falls behind, at most.
 const FLOW_ROUNDS: usize = 24;
-/// Each round a field change where the stage falls behind by `d` mm takes
-/// `SLOWING · d / V + SLOWING_FLOOR` longer (V: the stage's burst speed).
-/// (1.0: fewer rounds than 0.7 with the banded QP, SC82C24 1.342 × the bound.)
-const SLOWING: f64 = 1.0;
+/// A field change where the stage falls behind by `d` mm takes
+/// `SLOWING · d / V + SLOWING_FLOOR` longer (V: the stage's burst speed), the
+/// first time; after that by a secant step (`flowing`). (0.8: SC82C24 5
+/// rounds per build, 1.345 × the bound; 0.7 and 1.2 end in a failed solve
+/// there, 0.9 and 1.0 take 4-6 rounds at 1.347-1.350.)
+const SLOWING: f64 = 0.8;
 const SLOWING_FLOOR: f64 = 2.0e-3;
+/// A change whose shortfall kept more than this share after it was slowed
+/// is not where the stage is short: its neighbours are slowed instead.
+const STUCK: f64 = 0.8;
 
 /// The share of `sequence`'s field changes not `slowed` (`None` without any).
 fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
@@ -427,42 +432,54 @@ fn flowing(
         }
     };
     // Per field: how long the jump into it takes, where slowed; how far the
-    // stage fell behind at the change into it last round.
+    // stage fell behind at the change into it last round, and how much longer
+    // that change was made for it (then how much a second bought, below).
     let mut slowed: Vec<Option<f64>> = vec![None; groups];
-    let mut short: Vec<Option<f64>> = vec![None; groups];
+    let mut short: Vec<Option<(f64, f64)>> = vec![None; groups];
     let mut pads = (0.0, 0.0);
     let burst_speed = split.burst.velocity;
     let longer = |mm: f64| SLOWING * mm / burst_speed + SLOWING_FLOOR;
     let next_field = |f: usize| (f + 1..groups).find(|&k| !sequence.groups[k].paths.is_empty());
     let mut found = None;
-    for _ in 0..FLOW_ROUNDS {
+    for round in 0..FLOW_ROUNDS {
         let Some((tcp, planned)) = attempt(&slowed, pads)? else { return Ok(None) };
         let behind = match planned {
             Ok(f) => {
+                tracing::debug!(round, "the stage flows");
                 found = Some((tcp, f));
                 break;
             }
             Err(behind) => behind,
         };
+        tracing::debug!(round, changes = behind.into.len(), worst = behind.into.iter().map(|x| x.2).fold(0.0, f64::max), "the stage falls behind");
         if behind.start > 0.0 {
             pads.0 += longer(behind.start);
         }
         if behind.end > 0.0 {
             pads.1 += longer(behind.end);
         }
+        let mut now: Vec<Option<(f64, f64)>> = vec![None; groups];
         for (g, f, mm) in behind.into {
-            // The jump into `g` takes longer; where that did not help, both
-            // jumps next to the field where the stage is short.
-            let stuck = short[g].is_some_and(|before| mm > 0.8 * before);
-            short[g] = Some(mm);
+            // The jump into `g` takes longer: by the shortfall over what the
+            // last slowing of it bought per second (a secant step), or at
+            // first over the stage's speed. Where slowing it did not help,
+            // both jumps next to the field where the stage is short.
+            let stuck = short[g].is_some_and(|(before, _)| mm > STUCK * before);
+            let rate = short[g].filter(|&(_, added)| added > 0.0).map(|(before, added)| ((before - mm) / added).min(burst_speed));
+            let extra = match rate {
+                Some(rate) if !stuck => mm / rate + SLOWING_FLOOR,
+                _ => longer(mm),
+            };
             let around = [Some(f).filter(|&f| f > first_group), next_field(f)];
             let changes = if stuck { around } else { [Some(g), None] };
+            now[g] = Some((mm, if stuck { 0.0 } else { extra }));
             for k in changes.into_iter().flatten() {
                 let Some(took) = slowed[k].or_else(|| field_change(&tcp, k)) else { continue };
-                tracing::debug!(field = k + 1, mm, took, "the stage cannot flow into this field: the TCP slows for it");
-                slowed[k] = Some(took + longer(mm));
+                tracing::debug!(field = k + 1, mm, took, extra, "the stage cannot flow into this field: the TCP slows for it");
+                slowed[k] = Some(took + extra);
             }
         }
+        short = now;
     }
     let Some((tcp, f)) = found else { return Ok(None) };
     let stage_flow = flow_share(sequence, slowed.iter().filter(|s| s.is_some()).count());
