@@ -409,9 +409,7 @@ fn flowing(
         let marked = mark_all(&mut b, job, sequence, machine, runs, |b, g| {
             if let Some(took) = slowed[g] {
                 let entry = sequence.groups[g].paths[0].start();
-                b.stop(g)?;
-                let d = entry - b.position;
-                b.jump_within(g, entry, stretched(d.x.abs().max(d.y.abs()), took, settings.axis)?)?;
+                b.jump_slowed(g, entry, took)?;
             }
             Ok(())
         });
@@ -525,16 +523,6 @@ fn field_change(tcp: &TcpPath, g: usize) -> Option<f64> {
     let first = tcp.pieces.iter().position(|p| p.group == g && p.is_marking())?;
     let before = tcp.pieces[..first].iter().rposition(|p| p.is_marking())?;
     Some(tcp.pieces[first].start - tcp.pieces[before].end_time())
-}
-
-/// Limits under which a rest-to-rest move over `distance` (its larger
-/// axis) takes `took`, at least as long as within `axis`: `axis` time-scaled
-/// (velocity by k, acceleration by k², jerk by k³ make the same move 1/k as
-/// long).
-fn stretched(distance: f64, took: f64, axis: Limits) -> Result<Limits> {
-    let fastest = rest_to_rest_time(distance, axis)?;
-    let k = if took > fastest { fastest / took } else { 1.0 };
-    Ok(Limits { velocity: axis.velocity * k, acceleration: axis.acceleration * k * k, jerk: axis.jerk * k * k * k })
 }
 
 /// The approach of an on-the-fly job: the stage carries the centred scanner

@@ -177,6 +177,19 @@ impl FreeMove {
         Ok(FreeMove { from, to, duration, table })
     }
 
+    /// The same path taking `took` (at least as long as this move): time
+    /// scaled by k = duration/took, velocities by k, accelerations by k².
+    /// Ruckig with V·k, A·k², J·k³ plans exactly this, without sampling
+    /// the move again.
+    pub fn slowed(&self, took: f64) -> FreeMove {
+        if !(took > self.duration) || self.duration <= 0.0 {
+            return self.clone();
+        }
+        let k = self.duration / took;
+        let table = self.table.iter().map(|&(p, v, a)| (p, v * k, a * (k * k))).collect();
+        FreeMove { from: self.from, to: self.to, duration: took, table }
+    }
+
     /// (position, velocity, acceleration) `t` seconds into the move (clamped).
     pub fn at(&self, t: f64) -> (Point, Vector2<f64>, Vector2<f64>) {
         let steps = self.table.len() - 1;
@@ -212,6 +225,28 @@ pub fn rest_to_rest_time(distance: f64, limits: Limits) -> Result<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_slowed_move_is_the_move_planned_within_time_scaled_limits() {
+        let axis = Limits { velocity: 2000.0, acceleration: 1.0e6, jerk: 1.0e9 };
+        let (from, to) = (Point::new(1.0, 2.0), Point::new(31.0, -12.0));
+        let fast = FreeMove::new(from, Vector2::zeros(), to, Vector2::zeros(), axis).unwrap();
+        let took = 2.5 * fast.duration;
+        let slow = fast.slowed(took);
+        let k = fast.duration / took;
+        let scaled = Limits { velocity: axis.velocity * k, acceleration: axis.acceleration * k * k, jerk: axis.jerk * k * k * k };
+        let planned = FreeMove::new(from, Vector2::zeros(), to, Vector2::zeros(), scaled).unwrap();
+        assert!((slow.duration - took).abs() < 1e-12 && (planned.duration - took).abs() < 1e-9 * took, "{} {} {}", slow.duration, planned.duration, took);
+        for j in 0..=1000 {
+            let t = took * j as f64 / 1000.0;
+            let ((p, v, a), (q, w, b)) = (slow.at(t), planned.at(t));
+            assert!((p - q).norm() < 1e-6, "position at {t}: {p:?} vs {q:?}");
+            assert!((v - w).norm() < 1e-6 * scaled.velocity, "velocity at {t}: {v:?} vs {w:?}");
+            assert!((a - b).norm() < 0.07 * scaled.acceleration, "acceleration at {t}: {a:?} vs {b:?}");
+        }
+        // Never faster than the move itself.
+        assert_eq!(fast.slowed(0.5 * fast.duration).duration, fast.duration);
+    }
 
     #[test]
     fn rest_to_rest_respects_limits_and_ends_at_rest() {

@@ -545,14 +545,24 @@ impl TcpBuilder {
         Ok(())
     }
 
-    /// A laser-off move from rest to rest at `to` within `axis` (not cached:
-    /// the cache holds moves at the settings' limits).
-    pub fn jump_within(&mut self, group: usize, to: Point, axis: Limits) -> Result<()> {
+    /// A laser-off move from rest to rest at `to` taking `took` (or as long
+    /// as it must): the fastest such move (cached) time-scaled.
+    pub fn jump_slowed(&mut self, group: usize, to: Point, took: f64) -> Result<()> {
         self.stop(group)?;
         if (to - self.position).norm() < 1e-9 {
             return Ok(());
         }
-        let m = FreeMove::new(self.position, Vector2::zeros(), to, Vector2::zeros(), axis)?;
+        let key = move_key(self.position, Vector2::zeros(), to, Vector2::zeros());
+        let cached = self.cache.borrow().moves.get(&key).cloned();
+        let fastest = match cached {
+            Some(m) => m,
+            None => {
+                let m = FreeMove::new(self.position, Vector2::zeros(), to, Vector2::zeros(), self.settings.axis)?;
+                self.cache.borrow_mut().moves.insert(key, m.clone());
+                m
+            }
+        };
+        let m = fastest.slowed(took);
         let d = m.duration;
         self.push(PieceKind::Jump, group, Motion::Free(m), d);
         self.time += d;
