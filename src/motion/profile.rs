@@ -241,7 +241,7 @@ mod tests {
             let t = took * j as f64 / 1000.0;
             let ((p, v, a), (q, w, b)) = (slow.at(t), planned.at(t));
             assert!((p - q).norm() < 1e-6, "position at {t}: {p:?} vs {q:?}");
-            assert!((v - w).norm() < 1e-6 * scaled.velocity, "velocity at {t}: {v:?} vs {w:?}");
+            assert!((v - w).norm() < 1e-4 * scaled.velocity, "velocity at {t}: {v:?} vs {w:?}");
             assert!((a - b).norm() < 0.07 * scaled.acceleration, "acceleration at {t}: {a:?} vs {b:?}");
         }
         // Never faster than the move itself.
