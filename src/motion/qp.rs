@@ -142,10 +142,11 @@ pub struct Solution {
 const MOST_STEPS: usize = 80;
 /// Converged: the rows' residual, the optimality residuals and the mean
 /// complementarity below these (the rows hold to far below a micrometre; a
-/// slack that should be 0 comes out about `GAP / w`).
+/// slack that should be 0 comes out about `GAP / w`: for the flow ~1e-5 mm,
+/// far below its shortfall tolerance; 1e-6 gave the same plans, ~5 % slower).
 const PRIMAL: f64 = 1.0e-9;
 const DUAL: f64 = 1.0e-5;
-const GAP: f64 = 1.0e-6;
+const GAP: f64 = 1.0e-5;
 /// Where the normal equations get too ill-conditioned to step on, a point
 /// whose rows hold and whose mean complementarity is below this is taken.
 const GAP_STALLED: f64 = 1.0e-5;
@@ -373,8 +374,8 @@ mod tests {
         .flatten()
         .collect();
         let solved = solve(&Banded::zeros(n), &rows, 1.0, vec![-1.0, -1.0]).expect("solved");
-        assert!((solved.x[0] - 0.0).abs() < 1e-6 && (solved.x[1] - 1.0).abs() < 1e-6, "{:?}", solved.x);
-        assert!((solved.slack[3] - 2.0).abs() < 1e-6, "{:?}", solved.slack);
+        assert!((solved.x[0] - 0.0).abs() < 1e-5 && (solved.x[1] - 1.0).abs() < 1e-5, "{:?}", solved.x);
+        assert!((solved.slack[3] - 2.0).abs() < 1e-5, "{:?}", solved.slack);
         // A hard row that does not hold at the start: refused.
         assert!(solve(&Banded::zeros(n), &rows, 1.0, vec![1.0, 1.0]).is_none());
     }
