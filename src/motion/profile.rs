@@ -182,7 +182,7 @@ impl FreeMove {
     /// Ruckig with V·k, A·k², J·k³ plans exactly this, without sampling
     /// the move again.
     pub fn slowed(&self, took: f64) -> FreeMove {
-        if !(took > self.duration) || self.duration <= 0.0 {
+        if took.is_nan() || took <= self.duration || self.duration <= 0.0 {
             return self.clone();
         }
         let k = self.duration / took;

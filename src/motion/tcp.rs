@@ -527,22 +527,26 @@ impl TcpBuilder {
         if (to - self.position).norm() < 1e-9 && (velocity - self.velocity).norm() < 1e-9 {
             return Ok(());
         }
-        let key = move_key(self.position, self.velocity, to, velocity);
-        let cached = self.cache.borrow().moves.get(&key).cloned();
-        let m = match cached {
-            Some(m) => m,
-            None => {
-                let m = FreeMove::new(self.position, self.velocity, to, velocity, self.settings.axis)?;
-                self.cache.borrow_mut().moves.insert(key, m.clone());
-                m
-            }
-        };
+        let m = self.fastest(to, velocity)?;
         let d = m.duration;
         self.push(kind, group, Motion::Free(m), d);
         self.time += d;
         self.position = to;
         self.velocity = velocity;
         Ok(())
+    }
+
+    /// The fastest free move from here to `to`, arriving at `velocity`,
+    /// within the settings' limits (cached).
+    fn fastest(&self, to: Point, velocity: Vector2<f64>) -> Result<FreeMove> {
+        let key = move_key(self.position, self.velocity, to, velocity);
+        let cached = self.cache.borrow().moves.get(&key).cloned();
+        if let Some(m) = cached {
+            return Ok(m);
+        }
+        let m = FreeMove::new(self.position, self.velocity, to, velocity, self.settings.axis)?;
+        self.cache.borrow_mut().moves.insert(key, m.clone());
+        Ok(m)
     }
 
     /// A laser-off move from rest to rest at `to` taking `took` (or as long
@@ -552,17 +556,7 @@ impl TcpBuilder {
         if (to - self.position).norm() < 1e-9 {
             return Ok(());
         }
-        let key = move_key(self.position, Vector2::zeros(), to, Vector2::zeros());
-        let cached = self.cache.borrow().moves.get(&key).cloned();
-        let fastest = match cached {
-            Some(m) => m,
-            None => {
-                let m = FreeMove::new(self.position, Vector2::zeros(), to, Vector2::zeros(), self.settings.axis)?;
-                self.cache.borrow_mut().moves.insert(key, m.clone());
-                m
-            }
-        };
-        let m = fastest.slowed(took);
+        let m = self.fastest(to, Vector2::zeros())?.slowed(took);
         let d = m.duration;
         self.push(PieceKind::Jump, group, Motion::Free(m), d);
         self.time += d;
