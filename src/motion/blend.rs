@@ -177,12 +177,11 @@ impl Turn {
     fn extent(&self, w: f64) -> (f64, f64) {
         let (tj, ta) = self.phases(w);
         let duration = 2.0 * tj + ta;
-        let product = w * duration;
         if duration <= 0.0 {
             return (0.0, 0.0);
         }
-        let r = tj / duration;
-        let cut = if ta > 0.0 { self.cut_of_shape(r) } else { self.pure_cut };
+        let product = w * duration;
+        let cut = if ta > 0.0 { self.cut_of_shape(tj / duration) } else { self.pure_cut };
         (cut * product, product)
     }
 
@@ -213,7 +212,7 @@ impl Turn {
 /// lasting 1, its jerk phases `r` long each (0.5: pure jerk; the second
 /// half mirrors the first).
 fn ramp_in_distance(t: f64, r: f64) -> f64 {
-    // Peak acceleration and jerk of the shape.
+    // Peak acceleration of the shape (its jerk: peak / r).
     let peak = 1.0 / (1.0 - r);
     let first = |y: f64| {
         if y <= r {
