@@ -118,25 +118,46 @@ pub(super) fn push_change(p: &mut Profile, to: f64, lim: &Limits) {
     p.push(tj, -j);
 }
 
-/// A turn from direction `a` to `b` (unit vectors): its duration per unit
-/// speed and per square root of speed, and its corner cut per unit of
-/// speed × duration (the path's shape scales with both).
+/// A turn from direction `a` to `b` (unit vectors). The velocity changes
+/// by w·(b − a) along a symmetric S-curve: per axis the time-optimal change
+/// within the acceleration and jerk (`change_phases`), so a pure-jerk
+/// S-curve while the change is small and one with a constant-acceleration
+/// middle where the jerk would allow more than the acceleration. The path's
+/// shape, and so its corner cut per unit of speed × duration, depends on
+/// that split.
 struct Turn {
-    per_speed: f64,
-    per_root: f64,
-    cut: f64,
+    a: Vector2<f64>,
+    b: Vector2<f64>,
+    /// The largest per-axis component of b − a.
+    share: f64,
+    axis: Limits,
+    /// Corner cut per unit of speed × duration of the pure-jerk S-curve.
+    pure_cut: f64,
 }
 
 impl Turn {
     fn new(a: Vector2<f64>, b: Vector2<f64>, axis: &Limits) -> Turn {
-        // The velocity changes by w·(b − a): per axis within the acceleration
-        // (a pure-jerk S-curve peaks at 2·Δ/T) and the jerk (4·Δ/T²).
         let d = b - a;
-        let m = d.x.abs().max(d.y.abs());
-        let per_speed = 2.0 * m / axis.acceleration;
-        let per_root = 2.0 * (m / axis.jerk).sqrt();
-        // Where the TCP is during the turn (w = T = 1), against the two
-        // legs taken as rays from the vertex.
+        let share = d.x.abs().max(d.y.abs());
+        let mut turn = Turn { a, b, share, axis: *axis, pure_cut: 0.0 };
+        turn.pure_cut = turn.cut_of_shape(0.5);
+        turn
+    }
+
+    /// Jerk and constant-acceleration phases of the turn at speed `w`.
+    fn phases(&self, w: f64) -> (f64, f64) {
+        change_phases(self.share * w, &self.axis)
+    }
+
+    fn duration(&self, w: f64) -> f64 {
+        let (tj, ta) = self.phases(w);
+        2.0 * tj + ta
+    }
+
+    /// Where the TCP is during a turn of shape `r` (each jerk phase's share
+    /// of the duration) with w = T = 1, against the two legs taken as rays
+    /// from the vertex: the largest distance.
+    fn cut_of_shape(&self, r: f64) -> f64 {
         let ray = |q: Vector2<f64>, u: Vector2<f64>| {
             let along = q.dot(&u).max(0.0);
             (q - u * along).norm()
@@ -144,30 +165,62 @@ impl Turn {
         let mut cut: f64 = 0.0;
         for k in 1..16 {
             let t = k as f64 / 16.0;
-            let covered = ramp_in_distance(t);
+            let covered = ramp_in_distance(t, r);
             let left = 0.5 - t + covered;
-            let q = b * covered - a * left;
-            cut = cut.max(ray(q, -a).min(ray(q, b)));
+            let q = self.b * covered - self.a * left;
+            cut = cut.max(ray(q, -self.a).min(ray(q, self.b)));
         }
-        Turn { per_speed, per_root, cut }
+        cut
     }
 
-    fn duration(&self, w: f64) -> f64 {
-        (self.per_speed * w).max(self.per_root * w.sqrt())
+    /// Corner cut and speed × duration of the turn at speed `w`.
+    fn extent(&self, w: f64) -> (f64, f64) {
+        let (tj, ta) = self.phases(w);
+        let duration = 2.0 * tj + ta;
+        if duration <= 0.0 {
+            return (0.0, 0.0);
+        }
+        let product = w * duration;
+        let cut = if ta > 0.0 { self.cut_of_shape(tj / duration) } else { self.pure_cut };
+        (cut * product, product)
     }
 
-    /// The highest speed whose turn takes at most `product` of speed × duration.
-    fn speed_for(&self, product: f64) -> f64 {
-        let by_acc = if self.per_speed > 0.0 { (product / self.per_speed).sqrt() } else { f64::INFINITY };
-        let by_jerk = if self.per_root > 0.0 { (product / self.per_root).powf(2.0 / 3.0) } else { f64::INFINITY };
-        by_acc.min(by_jerk)
+    /// The highest speed (at most `cap`) whose turn cuts the corner by at
+    /// most `tolerance` and takes at most `span` of speed × duration.
+    fn speed_for(&self, tolerance: f64, span: f64, cap: f64) -> f64 {
+        if self.share <= 0.0 {
+            return cap;
+        }
+        // Pure jerk (closed form) while the change stays below A²/J.
+        let product = (tolerance / self.pure_cut.max(1e-12)).min(span);
+        let by_jerk = (product / (2.0 * (self.share / self.axis.jerk).sqrt())).powf(2.0 / 3.0);
+        let pure_up_to = self.axis.acceleration * self.axis.acceleration / (self.axis.jerk * self.share);
+        if by_jerk <= pure_up_to {
+            return by_jerk.min(cap);
+        }
+        if cap <= pure_up_to {
+            return cap;
+        }
+        largest(pure_up_to, cap, &|w| {
+            let (cut, product) = self.extent(w);
+            cut <= tolerance && product <= span
+        })
     }
 }
 
-/// Distance covered `t` into a pure-jerk ramp from rest to speed 1 lasting 1
-/// (jerk 4; the second half mirrors the first).
-fn ramp_in_distance(t: f64) -> f64 {
-    let first = |y: f64| 4.0 * y * y * y / 6.0;
+/// Distance covered `t` into a symmetric S-curve ramp from rest to speed 1
+/// lasting 1, its jerk phases `r` long each (0.5: pure jerk; the second
+/// half mirrors the first).
+fn ramp_in_distance(t: f64, r: f64) -> f64 {
+    // Peak acceleration of the shape (its jerk: peak / r).
+    let peak = 1.0 / (1.0 - r);
+    let first = |y: f64| {
+        if y <= r {
+            peak / r * y * y * y / 6.0
+        } else {
+            peak * r * r / 6.0 + peak * r / 2.0 * (y - r) + peak * (y - r) * (y - r) / 2.0
+        }
+    };
     if t <= 0.5 {
         first(t)
     } else {
@@ -247,8 +300,8 @@ fn plan_legs(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector
     w[n] = exit.map_or(0.0, |c| hand_over_speed(s, c, dirs[n - 1], &limits[n - 1]));
     for i in 1..n {
         let turn = Turn::new(dirs[i - 1], dirs[i], &s.axis);
-        let product = (s.corner_tolerance / turn.cut.max(1e-12)).min(lengths[i - 1].min(lengths[i]));
-        w[i] = turn.speed_for(product).min(limits[i - 1].velocity).min(limits[i].velocity);
+        let cap = limits[i - 1].velocity.min(limits[i].velocity);
+        w[i] = turn.speed_for(s.corner_tolerance, lengths[i - 1].min(lengths[i]), cap);
         turns[i] = Some(turn);
     }
     // Half a turn's length on each leg; leg k fits when its speed change
@@ -273,7 +326,9 @@ fn plan_legs(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector
         let mut start = 0.0;
         for k in 0..n {
             let lim = &limits[k];
-            let (t_in, t_out) = (turns[k].as_ref().map_or(0.0, |t| t.duration(w[k])), turns[k + 1].as_ref().map_or(0.0, |t| t.duration(w[k + 1])));
+            let phases = |i: usize| turns[i].as_ref().map_or((0.0, 0.0), |t| t.phases(w[i]));
+            let ((tj_in, ta_in), (tj_out, ta_out)) = (phases(k), phases(k + 1));
+            let (t_in, t_out) = (2.0 * tj_in + ta_in, 2.0 * tj_out + ta_out);
             let inner = (lengths[k] - 0.5 * w[k] * t_in - 0.5 * w[k + 1] * t_out).max(0.0);
             // The fastest peak whose ramps fit between the turns.
             let low = w[k].max(w[k + 1]);
@@ -282,9 +337,10 @@ fn plan_legs(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector
             // At the run's start, the speed handed over by the laser-off move.
             let mut p = Profile::new(if t_in > 0.0 { 0.0 } else { w[k] });
             if t_in > 0.0 {
-                let j = 4.0 * w[k] / (t_in * t_in);
-                p.push(0.5 * t_in, j);
-                p.push(0.5 * t_in, -j);
+                let j = w[k] / (tj_in * (tj_in + ta_in));
+                p.push(tj_in, j);
+                p.push(ta_in, 0.0);
+                p.push(tj_in, -j);
             }
             push_change(&mut p, peak, lim);
             let cruise = inner - change_distance(w[k], peak, lim) - change_distance(w[k + 1], peak, lim);
@@ -293,9 +349,10 @@ fn plan_legs(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector
             }
             push_change(&mut p, w[k + 1], lim);
             if t_out > 0.0 {
-                let j = 4.0 * w[k + 1] / (t_out * t_out);
-                p.push(0.5 * t_out, -j);
-                p.push(0.5 * t_out, j);
+                let j = w[k + 1] / (tj_out * (tj_out + ta_out));
+                p.push(tj_out, -j);
+                p.push(ta_out, 0.0);
+                p.push(tj_out, j);
             }
             let duration = p.duration;
             legs.push((start, duration, Motion::Profile { from: points[k], dir: dirs[k], profile: p }));
@@ -450,6 +507,29 @@ mod tests {
             let stops = b.path.duration();
             assert!(through <= stops + 1e-9, "side {side} at {speed}: {through} s through the corners, {stops} s stopping");
         }
+    }
+
+    #[test]
+    fn without_a_jerk_limit_a_right_angle_turns_at_full_acceleration() {
+        // A jerk far above what the turn needs: its acceleration has a
+        // constant middle (per axis the time-optimal change) instead of a
+        // pure-jerk peak, so the corner is nearly a parabola at the axes'
+        // acceleration, entered at w = √(8·A·δ) and passed at 0.71·w within
+        // the tolerance δ (the pure-jerk turn passed it at 12.1 mm/s here).
+        let s = TcpSettings { axis: Limits { jerk: 1e9, ..settings().axis }, ..settings() };
+        let square = [Point::new(10.0, 10.0), Point::new(40.0, 10.0), Point::new(40.0, 40.0), Point::new(10.0, 40.0), Point::new(10.0, 10.0)];
+        let mut b = TcpBuilder::new(s, square[0], 0.0);
+        b.mark(0, 0, &square, 200.0, 100.0, 0.0, 0.0).unwrap();
+        b.stop(0).unwrap();
+        let path = b.path;
+        let parabola = (8.0 * s.axis.acceleration * s.corner_tolerance).sqrt();
+        let marks: Vec<_> = path.pieces.iter().filter(|p| p.is_marking()).collect();
+        assert_eq!(marks.len(), 4);
+        for m in &marks[1..] {
+            let slowest = (0..100).map(|k| speed_at(&path, m.start + 1e-4 * k as f64)).fold(f64::INFINITY, f64::min);
+            assert!(slowest >= 0.9 * std::f64::consts::FRAC_1_SQRT_2 * parabola, "{slowest} mm/s through a right angle (parabola: {parabola} mm/s at its ends)");
+        }
+        check(&path, &square);
     }
 
     #[test]
