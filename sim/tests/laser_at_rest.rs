@@ -209,6 +209,24 @@ fn stream_counting(s: &mut Sim, lines: &[String], rx: usize, t_end: f64) {
     s.run_until(t_end);
 }
 
+/// Jumps to X10, pierces there, then cuts `cut` (G93 lines), streamed with
+/// character counting into 128 bytes: the simulator, and the X of every stop
+/// after the dwell.
+fn pierce_then_cut(cut: Vec<String>) -> (Sim, Vec<f64>) {
+    let mut lines = vec!["G93 M4 S0".to_string()];
+    lines.extend(smooth_move(0.0, 10.0, 0.2, 20));
+    lines.extend(["G1M3S1000F60", "G4P0.2", "M4 S1000"].map(String::from));
+    lines.extend(cut);
+    lines.push("M5".to_string());
+    let mut s = Sim::new(flatbed());
+    stream_counting(&mut s, &lines, 128, 5.0);
+    assert!(s.responses().iter().all(|r| r.1 == Response::Ok) && s.responses().len() == lines.len(), "{:?}", s.texts());
+    let dwell_end = s.knots.iter().find(|k| k.line == 23).expect("the dwell ends with a knot of its line").t;
+    let cut: Vec<&Knot> = s.knots.iter().filter(|k| k.t > dwell_end + 1e-9).collect();
+    let stops = cut.windows(2).filter(|w| w[0].pos == w[1].pos && w[1].t > w[0].t).map(|w| w[0].pos[0]).collect();
+    (s, stops)
+}
+
 #[test]
 fn after_a_pierce_the_cut_waits_for_its_rest_point_though_the_dwell_held_the_link() {
     // A jump to X10, a pierce there, then a cut of two rest-to-rest moves of
@@ -217,22 +235,11 @@ fn after_a_pierce_the_cut_waits_for_its_rest_point_though_the_dwell_held_the_lin
     // first few blocks of the cut are in when the dwell ends, and the link has
     // been quiet for longer than `LINK_SILENCE_START`: not because the stream
     // ended, but because the buffer was full.
-    let mut lines = vec!["G93 M4 S0".to_string()];
-    lines.extend(smooth_move(0.0, 10.0, 0.2, 20));
-    lines.extend(["G1M3S1000F60", "G4P0.2", "M4 S1000"].map(String::from));
-    lines.extend(smooth_move(10.0, 13.0, 0.0965, 15));
-    lines.extend(smooth_move(13.0, 16.0, 0.0965, 15));
-    lines.push("M5".to_string());
-    let mut s = Sim::new(flatbed());
-    stream_counting(&mut s, &lines, 128, 5.0);
-    assert!(s.responses().iter().all(|r| r.1 == Response::Ok) && s.responses().len() == lines.len(), "{:?}", s.texts());
+    let (s, stops) = pierce_then_cut([smooth_move(10.0, 13.0, 0.0965, 15), smooth_move(13.0, 16.0, 0.0965, 15)].concat());
     assert_eq!(s.ctl.position(), vec![16.0, 0.0, 0.0], "Grbl adds Y and Z to an X-only config");
 
     // The cut ran only once its rest point was queued: it never stops inside
     // a move, so the machine stays within every limit.
-    let dwell_end = s.knots.iter().find(|k| k.line == 23).expect("the dwell ends with a knot of its line").t;
-    let cut: Vec<&Knot> = s.knots.iter().filter(|k| k.t > dwell_end + 1e-9).collect();
-    let stops: Vec<f64> = cut.windows(2).filter(|w| w[0].pos == w[1].pos && w[1].t > w[0].t).map(|w| w[0].pos[0]).collect();
     assert!(stops.iter().all(|x| [10.0, 13.0].iter().any(|r| (x - r).abs() < 1e-6)), "stopped inside a move at X {stops:?}");
     let mut checker = laserd_sim::limits::LimitChecker::new(&flatbed().axes);
     s.knots.iter().for_each(|k| checker.push(k));
@@ -249,17 +256,8 @@ fn a_cut_fed_as_fast_as_it_runs_goes_on_through_its_block_ends() {
     // full planner is why the cut runs; the block that just ended still held
     // its slot, so Grbl's stepper goes on into the next block, and it must not
     // stop there (each such stop shows as a jerk far beyond the limit).
-    let mut lines = vec!["G93 M4 S0".to_string()];
-    lines.extend(smooth_move(0.0, 10.0, 0.2, 20));
-    lines.extend(["G1M3S1000F60", "G4P0.2", "M4 S1000"].map(String::from));
-    lines.extend(smooth_move(10.0, 20.0, 0.158, 80));
-    lines.push("M5".to_string());
-    let mut s = Sim::new(flatbed());
-    stream_counting(&mut s, &lines, 128, 5.0);
+    let (s, stops) = pierce_then_cut(smooth_move(10.0, 20.0, 0.158, 80));
     assert_eq!(s.ctl.position(), vec![20.0, 0.0, 0.0]);
-    let dwell_end = s.knots.iter().find(|k| k.line == 23).expect("the dwell ends with a knot of its line").t;
-    let cut: Vec<&Knot> = s.knots.iter().filter(|k| k.t > dwell_end + 1e-9).collect();
-    let stops: Vec<f64> = cut.windows(2).filter(|w| w[0].pos == w[1].pos && w[1].t > w[0].t).map(|w| w[0].pos[0]).collect();
     assert!(stops.iter().all(|x| (x - 10.0).abs() < 1e-6 || (x - 20.0).abs() < 1e-6), "stopped inside the cut at X {stops:?}");
     let mut checker = laserd_sim::limits::LimitChecker::new(&flatbed().axes);
     s.knots.iter().for_each(|k| checker.push(k));
