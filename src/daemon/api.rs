@@ -144,7 +144,9 @@ async fn submit(State(d): State<Arc<Daemon>>, Query(q): Query<SubmitQuery>, head
 }
 
 async fn remove_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> ApiResult<impl IntoResponse> {
-    d.remove(&id)?;
+    // Blocking: it waits for the job's planning process to be gone.
+    let removed = id.clone();
+    tokio::task::spawn_blocking(move || d.remove(&removed)).await.map_err(|e| Error::Io(format!("job {id}: removal stopped: {e}")))??;
     Ok(Json(serde_json::json!({ "removed": id })))
 }
 

@@ -130,10 +130,21 @@ impl Daemon {
 
     /// Deletes a job that is not running; one being planned is stopped first.
     pub fn remove(&self, id: &str) -> Result<()> {
+        let is_planning = || matches!(&*self.planning_now.lock().unwrap_or_else(|e| e.into_inner()), Some((planning, _)) if planning == id);
         if let Some((planning, cancel)) = &*self.planning_now.lock().unwrap_or_else(|e| e.into_inner()) {
             if planning == id {
                 cancel.store(true, Ordering::Relaxed);
             }
+        }
+        // The planning process writes into the job's folder until it is
+        // killed and reaped (within one poll of its watcher): the folder is
+        // removed after that, or its removal races the process's writes.
+        let asked = std::time::Instant::now();
+        while is_planning() {
+            if asked.elapsed() > std::time::Duration::from_secs(10) {
+                return Err(Error::Conflict(format!("job {id}: its planning did not stop within 10 s; try again")));
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
         }
         self.store().remove(id)?;
         self.queue_changed();
