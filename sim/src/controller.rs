@@ -298,7 +298,8 @@ pub struct Controller {
     /// When the last byte arrived.
     last_rx_t: f64,
     /// When an answered line last made room in an RX too full for another
-    /// line: a sender waiting for room may send again from then.
+    /// line of the longest length the controller takes: a sender waiting
+    /// for room may send again from then.
     last_room_t: f64,
     /// Longest line received so far (bytes, terminator included).
     longest_line: usize,

@@ -263,3 +263,21 @@ fn a_cut_fed_as_fast_as_it_runs_goes_on_through_its_block_ends() {
     s.knots.iter().for_each(|k| checker.push(k));
     assert_eq!(checker.finish().violations, 0);
 }
+
+#[test]
+fn after_a_pierce_a_line_longer_than_any_before_still_holds_the_cut() {
+    // As above, but the fourth line of the cut is longer than every line
+    // before it (an arc's words are): when the dwell ends the receive buffer
+    // has room for a line as long as the longest seen so far, yet not for
+    // this one, so the sender was still waiting. The cut must not take the
+    // quiet link for the stream's end, start without its rest point, and
+    // stop inside the move when the blocks after the first few come late.
+    let mut cut = [smooth_move(10.0, 13.0, 0.0965, 15), smooth_move(13.0, 16.0, 0.0965, 15)].concat();
+    cut[3].push_str(" (a comment as long as an arc's words)");
+    let (s, stops) = pierce_then_cut(cut);
+    assert_eq!(s.ctl.position(), vec![16.0, 0.0, 0.0]);
+    assert!(stops.iter().all(|x| [10.0, 13.0].iter().any(|r| (x - r).abs() < 1e-6)), "stopped inside a move at X {stops:?}");
+    let mut checker = laserd_sim::limits::LimitChecker::new(&flatbed().axes);
+    s.knots.iter().for_each(|k| checker.push(k));
+    assert_eq!(checker.finish().violations, 0);
+}

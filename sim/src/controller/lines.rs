@@ -182,8 +182,15 @@ impl Controller {
     /// A line is answered: `len` of its bytes leave RX, `taken` had left it
     /// before (the sender counts them in flight until the answer all the same).
     fn drop_rx(&mut self, len: usize, taken: usize) {
-        // (Room for another line of the longest yet: the sender was not waiting.)
-        if self.rx_capacity().saturating_sub(self.rx.len() + taken) < self.longest_line {
+        // With room for a line as long as any the controller takes (or the
+        // longest yet, were it longer), the sender was not waiting. Less room
+        // than the longest line *so far* is not enough: the next may be longer
+        // (an arc's line after those of a straight cut), and the sender waits.
+        let max_line = match self.cfg.flavor {
+            Flavor::Grbl => crate::gcode::MAX_LINE,
+            Flavor::Grblhal => crate::gcode::MAX_LINE_HAL,
+        } + 1;
+        if self.rx_capacity().saturating_sub(self.rx.len() + taken) < self.longest_line.max(max_line) {
             self.last_room_t = self.now;
         }
         self.take_rx(len);

@@ -28,8 +28,9 @@
 //! line needs motion to end, or when the link has been silent for
 //! `LINK_SILENCE_START` (a stream that never comes to rest must still run).
 //! Silent means the sender could have sent and did not: the time counts from
-//! the last byte received or, when the receive buffer had less room than a
-//! line, from the `ok` that made room, whichever is later. A sender counting
+//! the last byte received or, when the receive buffer had less room than the
+//! longest line the controller takes, from the `ok` that made room, whichever
+//! is later. A sender counting
 //! characters waits for that `ok` (a `G4` holds its bytes and those behind it
 //! until its `ok`, after the dwell), so a link quiet then is not the stream's end.
 //! A feed hold (or a door) slows the program clock to a stop along the path,
@@ -334,7 +335,8 @@ impl Controller {
 
     /// Since when the link has been silent: the last byte received, or the
     /// last answer that made room in a receive buffer too full for another
-    /// line, whichever came later. A sender counting characters that finds
+    /// line (of the longest length the controller takes: the controller
+    /// cannot know how long the sender's next line is), whichever came later. A sender counting characters that finds
     /// the buffer full waits for an `ok` (a `G4` keeps its bytes, and those of
     /// the lines behind it, there until its `ok`, after the dwell), so a link
     /// quiet while the controller holds its buffer is waiting, not done. Were
