@@ -269,10 +269,8 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     let diffs: [(&[f64], f64); 3] = [(&[-1.0, 1.0], lim.velocity * h), (&[1.0, -2.0, 1.0], lim.acceleration * h * h), (&[-1.0, 3.0, -3.0, 1.0], lim.jerk * h * h * h)];
     for (weights, bound) in diffs {
         let scaled: Vec<f64> = weights.iter().map(|w| w / bound).collect();
-        let negated: Vec<f64> = scaled.iter().map(|w| -w).collect();
         for k in 0..=m - weights.len() {
-            rows.extend(Row::new(&terms(k, &scaled), 1.0, false, n));
-            rows.extend(Row::new(&terms(k, &negated), 1.0, false, n));
+            rows.extend(Row::between(&terms(k, &scaled), Some(-1.0), Some(1.0), false, n));
         }
     }
     let his: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, sm.hi[i], sm.slack)).collect();
@@ -284,13 +282,8 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     let mut widens: Vec<Option<usize>> = vec![None; rows.len()];
     for (k, sm) in samples.iter().enumerate() {
         let basis: Vec<(usize, f64)> = basis(m, h, sm.t - t0).into_iter().map(|(c, w)| (unknown(c), w / unit)).collect();
-        if keep_hi[k] {
-            rows.extend(Row::new(&basis, sm.hi[i] / unit, true, n));
-        }
-        if keep_lo[k] {
-            let down: Vec<(usize, f64)> = basis.iter().map(|&(c, w)| (c, -w)).collect();
-            rows.extend(Row::new(&down, -sm.lo[i] / unit, true, n));
-        }
+        let (lo, hi) = (keep_lo[k].then_some(sm.lo[i] / unit), keep_hi[k].then_some(sm.hi[i] / unit));
+        rows.extend(Row::between(&basis, lo, hi, true, n));
         widens.resize(rows.len(), Some(sm.slack));
     }
     // Smoothing: the second differences' squares.
@@ -310,8 +303,7 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     if solved.x.iter().any(|&x| !(0.0..=travel).contains(&x)) {
         let corridor = rows.len();
         for k in 0..n {
-            rows.extend(Row::new(&[(k, -1.0)], 0.0, false, n));
-            rows.extend(Row::new(&[(k, 1.0)], travel, false, n));
+            rows.extend(Row::between(&[(k, 1.0)], Some(0.0), Some(travel), false, n));
         }
         widens.resize(rows.len(), None);
         solved = super::qp::solve(&p, &rows, unit, vec![start; n]).ok_or_else(fail)?;
@@ -321,7 +313,7 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     let mut short = vec![0.0f64; slacks];
     for (r, sigma) in solved.slack.iter().enumerate() {
         if let Some(g) = widens[r] {
-            short[g] = short[g].max(sigma * unit);
+            short[g] = short[g].max(sigma[0].max(sigma[1]) * unit);
         }
     }
     out.extend(short);

@@ -6,34 +6,52 @@
 //! milliseconds, where a general sparse solver factorises a much larger
 //! system each step.
 //!
-//! minimise ½ xᵀPx + w·Σσ  subject to  aᵣ·x ≤ bᵣ (hard rows) and
-//! aᵣ·x − σᵣ ≤ bᵣ, σᵣ ≥ 0 (soft rows: each has its own slack σᵣ, priced `w`).
+//! minimise ½ xᵀPx + w·Σσ  subject to, per row and each of its sides,
+//! aᵣ·x ≤ bᵣ / aᵣ·x ≥ bᵣ (hard) or the same widened by its own slack
+//! σ ≥ 0 (soft, priced `w`). A row bounded on both sides is one row: its
+//! vector enters the normal equations and the residuals once.
 //! Plain arithmetic in a fixed order: the same result on any machine.
 
 /// Consecutive unknowns a row may touch.
 pub const BAND: usize = 4;
 
-/// `a·x[first..first + BAND] ≤ b` (or `− σ` for a soft row).
+/// `a·x[first..first + BAND]` bounded above (`sides[0]`: `≤ b`) and/or
+/// below (`sides[1]`, kept as `−a·x ≤ b`).
 #[derive(Debug, Clone)]
 pub struct Row {
     first: usize,
     a: [f64; BAND],
+    sides: [Option<Side>; 2],
+}
+
+/// One bound of a row (in the `≤` form), hard or widened by a slack.
+#[derive(Debug, Clone, Copy)]
+struct Side {
     b: f64,
     soft: bool,
 }
 
+/// The sign a side's row vector carries (`≤` then `≥`).
+const SIGN: [f64; 2] = [1.0, -1.0];
+
 impl Row {
-    /// A row from its terms `(unknown, weight)`, which must lie within
-    /// `BAND` consecutive unknowns of `n`; `None` when every weight is zero
-    /// (the row says nothing).
+    /// The row `a·x ≤ b` from its terms `(unknown, weight)`, which must lie
+    /// within `BAND` consecutive unknowns of `n`; `None` when every weight is
+    /// zero (the row says nothing).
     pub fn new(terms: &[(usize, f64)], b: f64, soft: bool, n: usize) -> Option<Row> {
-        let lo = terms.iter().filter(|t| t.1 != 0.0).map(|t| t.0).min()?;
-        let first = lo.min(n.saturating_sub(BAND));
+        Row::between(terms, None, Some(b), soft, n)
+    }
+
+    /// The row `lo ≤ a·x ≤ hi` (either bound may be absent, not both).
+    pub fn between(terms: &[(usize, f64)], lo: Option<f64>, hi: Option<f64>, soft: bool, n: usize) -> Option<Row> {
+        let lo_index = terms.iter().filter(|t| t.1 != 0.0).map(|t| t.0).min()?;
+        let first = lo_index.min(n.saturating_sub(BAND));
         let mut a = [0.0; BAND];
         for &(j, w) in terms {
             a[j - first] += w;
         }
-        a.iter().any(|&w| w != 0.0).then_some(Row { first, a, b, soft })
+        let sides = [hi.map(|b| Side { b, soft }), lo.map(|b| Side { b: -b, soft })];
+        (a.iter().any(|&w| w != 0.0) && sides.iter().any(Option::is_some)).then_some(Row { first, a, sides })
     }
 
     fn dot(&self, x: &[f64]) -> f64 {
@@ -131,11 +149,12 @@ impl Banded {
     }
 }
 
-/// The solution: the unknowns, and per row its slack (0 for hard rows).
+/// The solution: the unknowns, and per row the slack of each side (`≤`
+/// then `≥`; 0 for hard or absent sides).
 #[derive(Debug, Clone)]
 pub struct Solution {
     pub x: Vec<f64>,
-    pub slack: Vec<f64>,
+    pub slack: Vec<[f64; 2]>,
 }
 
 /// Most steps; a problem not solved by then is reported unsolved.
@@ -151,113 +170,103 @@ const GAP: f64 = 1.0e-5;
 /// whose rows hold and whose mean complementarity is below this is taken.
 const GAP_STALLED: f64 = 1.0e-5;
 
+/// The iterate, per side `j = 2·row + side`: its slack `s` (b − a·x [+ σ]),
+/// dual `lam`, and for a soft side `sigma` and the dual `lam_n` of σ ≥ 0
+/// (whose slack is σ itself). Absent sides stay zero.
+struct Iterate {
+    x: Vec<f64>,
+    s: Vec<f64>,
+    lam: Vec<f64>,
+    sigma: Vec<f64>,
+    lam_n: Vec<f64>,
+}
+
 /// Minimises `½xᵀPx + w·Σσ` over the rows from `x0`, a point where every
-/// hard row holds strictly (soft rows need not). `None` when the method does
-/// not converge.
+/// hard side holds strictly (soft ones need not). `None` when the method
+/// does not converge.
 pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution> {
-    let m = rows.len();
-    let mut x = x0;
-    // Per row: its slack s (b − a·x [+ σ]) and dual λ; per soft row also σ,
-    // σ's own bound's slack (= σ) and dual (0 for hard rows).
-    let mut s = vec![0.0; m];
-    let mut lam = vec![0.0; m];
-    let mut sigma = vec![0.0; m];
-    let mut lam_n = vec![0.0; m];
+    let sides = 2 * rows.len();
+    let mut it = Iterate { x: x0, s: vec![0.0; sides], lam: vec![0.0; sides], sigma: vec![0.0; sides], lam_n: vec![0.0; sides] };
+    let mut count = 0.0;
     for (r, row) in rows.iter().enumerate() {
-        let room = row.b - row.dot(&x);
-        if row.soft {
-            sigma[r] = (-room).max(0.0) + 1.0;
-            s[r] = room + sigma[r];
-            lam[r] = 0.5 * w;
-            lam_n[r] = 0.5 * w;
-        } else {
-            if room <= 0.0 {
-                return None;
+        let ax = row.dot(&it.x);
+        for (k, side) in row.sides.iter().enumerate() {
+            let Some(side) = side else { continue };
+            let (j, room) = (2 * r + k, side.b - SIGN[k] * ax);
+            if side.soft {
+                it.sigma[j] = (-room).max(0.0) + 1.0;
+                it.s[j] = room + it.sigma[j];
+                it.lam[j] = 0.5 * w;
+                it.lam_n[j] = 0.5 * w;
+                count += 2.0;
+            } else {
+                if room <= 0.0 {
+                    return None;
+                }
+                it.s[j] = room;
+                it.lam[j] = 1.0;
+                count += 1.0;
             }
-            s[r] = room;
-            lam[r] = 1.0;
         }
     }
-    let count = (m + rows.iter().filter(|r| r.soft).count()) as f64;
-    let worst = |v: &[f64]| v.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-    let (mut rp, mut rs, mut d, mut d_n) = (vec![0.0; m], vec![0.0; m], vec![0.0; m], vec![0.0; m]);
-    let (mut rc, mut rc_n) = (vec![0.0; m], vec![0.0; m]);
-    let (mut affine, mut step) = (Step::zeros(x.len(), m), Step::zeros(x.len(), m));
-    let mut k = p.clone();
+    let mut lin = Linear::new(p, sides);
+    let (mut affine, mut step) = (Step::zeros(it.x.len(), sides), Step::zeros(it.x.len(), sides));
     // Steps in a row that barely lowered the complementarity.
     let (mut stalled, mut last_mu) = (0, f64::INFINITY);
     for _ in 0..MOST_STEPS {
-        // Residuals: dual (x, σ), primal (rows; σ's bound holds by
-        // construction: its slack is σ itself).
-        let mut rx = p.mul(&x);
-        let mut gap = 0.0;
-        for (r, row) in rows.iter().enumerate() {
-            row.add_to(&mut rx, lam[r]);
-            rp[r] = row.dot(&x) - sigma[r] + s[r] - row.b;
-            rs[r] = if row.soft { w - lam[r] - lam_n[r] } else { 0.0 };
-            gap += s[r] * lam[r] + sigma[r] * lam_n[r];
-        }
-        let mu = gap / count;
-        let done = |x: Vec<f64>| Some(Solution { x, slack: sigma.clone() });
-        if worst(&rp) <= PRIMAL && worst(&rx) <= DUAL && worst(&rs) <= DUAL && mu <= GAP {
-            return done(x);
+        let residuals = lin.linearise(p, rows, w, &it);
+        let mu = residuals.gap / count;
+        let stalled_result = |it: Iterate| (residuals.primal <= PRIMAL && mu <= GAP_STALLED).then(|| it.solution());
+        if residuals.primal <= PRIMAL && residuals.dual <= DUAL && mu <= GAP {
+            return Some(it.solution());
         }
         stalled = if mu > 0.9 * last_mu { stalled + 1 } else { 0 };
         last_mu = mu;
         if stalled >= 3 {
-            return (worst(&rp) <= PRIMAL && mu <= GAP_STALLED).then(|| done(x)).flatten();
+            return stalled_result(it);
         }
-        // The normal equations' matrix: P + Σ dᵣ aᵣaᵣᵀ (a soft row's weight
-        // with its σ eliminated).
-        k.band.clone_from(&p.band);
-        for (r, row) in rows.iter().enumerate() {
-            d[r] = lam[r] / s[r];
-            let weight = if row.soft {
-                d_n[r] = lam_n[r] / sigma[r];
-                d[r] * d_n[r] / (d[r] + d_n[r])
-            } else {
-                d[r]
-            };
-            k.add_row(row, weight);
-        }
-        let factor = k.clone().cholesky(1e-12);
-        let newton = Newton { rows, factor: &factor, rx: &rx, rp: &rp, rs: &rs, d: &d, d_n: &d_n, s: &s, lam: &lam, lam_n: &lam_n };
+        lin.factor = lin.k.clone().cholesky(1e-12);
         // Predictor: towards complementarity 0.
-        for r in 0..m {
-            rc[r] = s[r] * lam[r];
-            rc_n[r] = sigma[r] * lam_n[r];
-        }
-        newton.step(&rc, &rc_n, &mut affine);
-        let alpha = affine.longest(&s, &lam, &sigma, &lam_n);
+        let alpha = lin.step(rows, &it, 0.0, None, &mut affine);
         let mut gap_affine = 0.0;
-        for r in 0..m {
-            gap_affine += (s[r] + alpha * affine.ds[r]) * (lam[r] + alpha * affine.dl[r]) + (sigma[r] + alpha * affine.dsig[r]) * (lam_n[r] + alpha * affine.dln[r]);
+        for (r, row) in rows.iter().enumerate() {
+            for (k, side) in row.sides.iter().enumerate() {
+                let Some(side) = side else { continue };
+                let j = 2 * r + k;
+                gap_affine += (it.s[j] + alpha * affine.ds[j]) * (it.lam[j] + alpha * affine.dl[j]);
+                if side.soft {
+                    gap_affine += (it.sigma[j] + alpha * affine.dsig[j]) * (it.lam_n[j] + alpha * affine.dln[j]);
+                }
+            }
         }
         // Corrector: towards a centre chosen by how far the predictor got.
         let centre = (gap_affine / count / mu).powi(3) * mu;
-        for r in 0..m {
-            rc[r] = s[r] * lam[r] + affine.ds[r] * affine.dl[r] - centre;
-            rc_n[r] = if rows[r].soft { sigma[r] * lam_n[r] + affine.dsig[r] * affine.dln[r] - centre } else { 0.0 };
+        let alpha = lin.step(rows, &it, centre, Some(&affine), &mut step);
+        if !alpha.is_finite() {
+            return stalled_result(it);
         }
-        newton.step(&rc, &rc_n, &mut step);
-        if !step.finite() {
-            return (worst(&rp) <= PRIMAL && mu <= GAP_STALLED).then(|| done(x)).flatten();
-        }
-        let alpha = (0.99 * step.longest(&s, &lam, &sigma, &lam_n)).min(1.0);
-        for (v, dv) in x.iter_mut().zip(&step.dx) {
+        let alpha = (0.99 * alpha).min(1.0);
+        for (v, dv) in it.x.iter_mut().zip(&step.dx) {
             *v += alpha * dv;
         }
-        for r in 0..m {
-            s[r] += alpha * step.ds[r];
-            lam[r] += alpha * step.dl[r];
-            sigma[r] += alpha * step.dsig[r];
-            lam_n[r] += alpha * step.dln[r];
+        for j in 0..sides {
+            it.s[j] += alpha * step.ds[j];
+            it.lam[j] += alpha * step.dl[j];
+            it.sigma[j] += alpha * step.dsig[j];
+            it.lam_n[j] += alpha * step.dln[j];
         }
     }
     None
 }
 
-/// A Newton step: unknowns, rows' slacks and duals, σ and its bound's dual.
+impl Iterate {
+    fn solution(self) -> Solution {
+        let slack = self.sigma.chunks_exact(2).map(|s| [s[0], s[1]]).collect();
+        Solution { x: self.x, slack }
+    }
+}
+
+/// A Newton step: unknowns, sides' slacks and duals, σ and its bound's dual.
 struct Step {
     dx: Vec<f64>,
     ds: Vec<f64>,
@@ -267,70 +276,137 @@ struct Step {
 }
 
 impl Step {
-    fn zeros(n: usize, m: usize) -> Step {
-        Step { dx: vec![0.0; n], ds: vec![0.0; m], dl: vec![0.0; m], dsig: vec![0.0; m], dln: vec![0.0; m] }
+    fn zeros(n: usize, sides: usize) -> Step {
+        Step { dx: vec![0.0; n], ds: vec![0.0; sides], dl: vec![0.0; sides], dsig: vec![0.0; sides], dln: vec![0.0; sides] }
+    }
+}
+
+/// The largest residuals and the complementarity of an iterate.
+struct Residuals {
+    primal: f64,
+    dual: f64,
+    gap: f64,
+}
+
+/// One iterate's linearisation: its residuals, the normal equations (and
+/// their factor) and, per side, what the step's other parts follow from.
+struct Linear {
+    k: Banded,
+    factor: Banded,
+    /// Dual residual of the unknowns (`Px + Σ ±λ a`).
+    rx: Vec<f64>,
+    /// Per side: primal residual, σ's dual residual, `λ/s`, `λₙ/σ`,
+    /// `1/λ`, `1/λₙ`, `1/(d + dₙ)`, and the step's `e`, `eₙ` (kept from
+    /// the right-hand side for the back substitution).
+    rp: Vec<f64>,
+    rs: Vec<f64>,
+    d: Vec<f64>,
+    d_n: Vec<f64>,
+    inv_lam: Vec<f64>,
+    inv_lam_n: Vec<f64>,
+    inv_sum: Vec<f64>,
+    e: Vec<f64>,
+    e_n: Vec<f64>,
+}
+
+impl Linear {
+    fn new(p: &Banded, sides: usize) -> Linear {
+        let z = || vec![0.0; sides];
+        Linear { k: p.clone(), factor: p.clone(), rx: Vec::new(), rp: z(), rs: z(), d: z(), d_n: z(), inv_lam: z(), inv_lam_n: z(), inv_sum: z(), e: z(), e_n: z() }
     }
 
-    fn finite(&self) -> bool {
-        [&self.dx, &self.ds, &self.dl, &self.dsig, &self.dln].iter().all(|v| v.iter().all(|x| x.is_finite()))
-    }
-
-    /// How far along the step every slack and dual stays positive (≤ 1).
-    fn longest(&self, s: &[f64], lam: &[f64], sigma: &[f64], lam_n: &[f64]) -> f64 {
-        let mut alpha = 1.0f64;
-        for (v, dv) in [(s, &self.ds), (lam, &self.dl), (sigma, &self.dsig), (lam_n, &self.dln)] {
-            for (&v, &dv) in v.iter().zip(dv.iter()) {
-                if dv < 0.0 && v > 0.0 {
-                    alpha = alpha.min(-v / dv);
+    /// Residuals of `it` and the normal equations' matrix `P + Σ wⱼ aaᵀ`
+    /// (a soft side's weight with its σ eliminated), in one pass over the
+    /// rows.
+    fn linearise(&mut self, p: &Banded, rows: &[Row], w: f64, it: &Iterate) -> Residuals {
+        self.rx = p.mul(&it.x);
+        self.k.band.clone_from(&p.band);
+        let (mut primal, mut dual, mut gap) = (0.0f64, 0.0f64, 0.0);
+        for (r, row) in rows.iter().enumerate() {
+            let ax = row.dot(&it.x);
+            let (mut net_lam, mut weight) = (0.0, 0.0);
+            for (k, side) in row.sides.iter().enumerate() {
+                let Some(side) = side else { continue };
+                let j = 2 * r + k;
+                let (s, lam, sigma, lam_n) = (it.s[j], it.lam[j], it.sigma[j], it.lam_n[j]);
+                self.rp[j] = SIGN[k] * ax - sigma + s - side.b;
+                primal = primal.max(self.rp[j].abs());
+                net_lam += SIGN[k] * lam;
+                gap += s * lam + sigma * lam_n;
+                self.d[j] = lam / s;
+                self.inv_lam[j] = 1.0 / lam;
+                if side.soft {
+                    self.rs[j] = w - lam - lam_n;
+                    dual = dual.max(self.rs[j].abs());
+                    self.d_n[j] = lam_n / sigma;
+                    self.inv_lam_n[j] = 1.0 / lam_n;
+                    self.inv_sum[j] = 1.0 / (self.d[j] + self.d_n[j]);
+                    weight += self.d[j] * self.d_n[j] * self.inv_sum[j];
+                } else {
+                    weight += self.d[j];
                 }
             }
+            row.add_to(&mut self.rx, net_lam);
+            self.k.add_row(row, weight);
         }
-        alpha
+        dual = self.rx.iter().fold(dual, |a, b| a.max(b.abs()));
+        Residuals { primal, dual, gap }
     }
-}
 
-/// One iterate's linearisation: the factored normal equations and what
-/// the step's other parts follow from.
-struct Newton<'a> {
-    rows: &'a [Row],
-    factor: &'a Banded,
-    rx: &'a [f64],
-    rp: &'a [f64],
-    rs: &'a [f64],
-    d: &'a [f64],
-    d_n: &'a [f64],
-    s: &'a [f64],
-    lam: &'a [f64],
-    lam_n: &'a [f64],
-}
-
-impl Newton<'_> {
-    /// The step towards complementarity targets `rc` (rows) and `rc_n`
-    /// (σ's bounds), into `out`.
-    fn step(&self, rc: &[f64], rc_n: &[f64], out: &mut Step) {
-        let (d, d_n) = (self.d, self.d_n);
+    /// The step towards complementarity `centre` (with Mehrotra's second
+    /// order term from `affine`, if given), into `out`; returns how far
+    /// along it every slack and dual stays positive (≤ 1; not finite when
+    /// the step is not).
+    fn step(&mut self, rows: &[Row], it: &Iterate, centre: f64, affine: Option<&Step>, out: &mut Step) -> f64 {
         let mut rhs: Vec<f64> = self.rx.iter().map(|v| -v).collect();
-        for (r, row) in self.rows.iter().enumerate() {
-            let e = self.rp[r] - rc[r] / self.lam[r];
-            let k = if row.soft {
-                let e_n = -rc_n[r] / self.lam_n[r];
-                d[r] * (d_n[r] * (e - e_n) + self.rs[r]) / (d[r] + d_n[r])
-            } else {
-                d[r] * e
-            };
-            row.add_to(&mut rhs, -k);
+        for (r, row) in rows.iter().enumerate() {
+            let mut net = 0.0;
+            for (k, side) in row.sides.iter().enumerate() {
+                let Some(side) = side else { continue };
+                let j = 2 * r + k;
+                let (d, d_n) = (self.d[j], self.d_n[j]);
+                let rc = it.s[j] * it.lam[j] + affine.map_or(0.0, |a| a.ds[j] * a.dl[j]) - centre;
+                self.e[j] = self.rp[j] - rc * self.inv_lam[j];
+                let k_side = if side.soft {
+                    let rc_n = it.sigma[j] * it.lam_n[j] + affine.map_or(0.0, |a| a.dsig[j] * a.dln[j]) - centre;
+                    self.e_n[j] = -rc_n * self.inv_lam_n[j];
+                    d * (d_n * (self.e[j] - self.e_n[j]) + self.rs[j]) * self.inv_sum[j]
+                } else {
+                    d * self.e[j]
+                };
+                net += SIGN[k] * k_side;
+            }
+            row.add_to(&mut rhs, -net);
         }
         out.dx = self.factor.solve(rhs);
-        for (r, row) in self.rows.iter().enumerate() {
+        let mut alpha = 1.0f64;
+        let mut finite = out.dx.iter().all(|v| v.is_finite());
+        let longest = |alpha: f64, v: f64, dv: f64| if dv < 0.0 && v > 0.0 { alpha.min(-v / dv) } else { alpha };
+        for (r, row) in rows.iter().enumerate() {
             let adx = row.dot(&out.dx);
-            let e = self.rp[r] - rc[r] / self.lam[r];
-            if row.soft {
-                let e_n = -rc_n[r] / self.lam_n[r];
-                out.dsig[r] = (d[r] * (adx + e) + d_n[r] * e_n - self.rs[r]) / (d[r] + d_n[r]);
-                out.dln[r] = d_n[r] * (e_n - out.dsig[r]);
+            for (k, side) in row.sides.iter().enumerate() {
+                let Some(side) = side else { continue };
+                let j = 2 * r + k;
+                let (d, d_n, e) = (self.d[j], self.d_n[j], self.e[j]);
+                let adx = SIGN[k] * adx;
+                if side.soft {
+                    let e_n = self.e_n[j];
+                    out.dsig[j] = (d * (adx + e) + d_n * e_n - self.rs[j]) * self.inv_sum[j];
+                    out.dln[j] = d_n * (e_n - out.dsig[j]);
+                    alpha = longest(longest(alpha, it.sigma[j], out.dsig[j]), it.lam_n[j], out.dln[j]);
+                    finite &= out.dsig[j].is_finite() && out.dln[j].is_finite();
+                }
+                out.dl[j] = d * (adx - out.dsig[j] + e);
+                // s·dλ + λ·ds = −rc, with rc = λ·(rp − e).
+                out.ds[j] = -(self.rp[j] - e) - it.s[j] * out.dl[j] * self.inv_lam[j];
+                alpha = longest(longest(alpha, it.s[j], out.ds[j]), it.lam[j], out.dl[j]);
+                finite &= out.dl[j].is_finite() && out.ds[j].is_finite();
             }
-            out.dl[r] = d[r] * (adx - out.dsig[r] + e);
-            out.ds[r] = (-rc[r] - self.s[r] * out.dl[r]) / self.lam[r];
+        }
+        if finite {
+            alpha
+        } else {
+            f64::NAN
         }
     }
 }
@@ -365,17 +441,16 @@ mod tests {
         // soft: the best has x0 = 0, x1 = 1, σ = 2 (cost 2, no quadratic).
         let n = 2;
         let rows: Vec<Row> = [
-            Row::new(&[(0, -1.0), (1, 1.0)], 1.0, false, n),
-            Row::new(&[(0, 1.0), (1, -1.0)], 1.0, false, n),
+            Row::between(&[(0, -1.0), (1, 1.0)], Some(-1.0), Some(1.0), false, n),
             Row::new(&[(0, 1.0)], 0.0, false, n),
-            Row::new(&[(1, -1.0)], -3.0, true, n),
+            Row::between(&[(1, 1.0)], Some(3.0), None, true, n),
         ]
         .into_iter()
         .flatten()
         .collect();
         let solved = solve(&Banded::zeros(n), &rows, 1.0, vec![-1.0, -1.0]).expect("solved");
         assert!((solved.x[0] - 0.0).abs() < 1e-5 && (solved.x[1] - 1.0).abs() < 1e-5, "{:?}", solved.x);
-        assert!((solved.slack[3] - 2.0).abs() < 1e-5, "{:?}", solved.slack);
+        assert!((solved.slack[2][1] - 2.0).abs() < 1e-5 && solved.slack[2][0] == 0.0, "{:?}", solved.slack);
         // A hard row that does not hold at the start: refused.
         assert!(solve(&Banded::zeros(n), &rows, 1.0, vec![1.0, 1.0]).is_none());
     }
