@@ -345,7 +345,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
                 }
                 // Bursts alone carry the TCP somewhere: the stage planned over
                 // the whole job may flow there; the faster of the two.
-                return Ok(match flowing(job, sequence, machine, start, first, &split, settings, &mut runs)? {
+                return Ok(match flowing(job, sequence, machine, start, first, &split, settings, &mut runs, cache)? {
                     Some(flow) if flow.job_time() < bursts.job_time() => flow,
                     _ => bursts,
                 });
@@ -386,7 +386,8 @@ fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
 /// stage falls behind, the field change there is slowed (the TCP stops and
 /// jumps to the next field's first point time-scaled, taking longer by what
 /// the stage is short of), and at the ends the TCP waits; all is planned
-/// again. `None` when that does not settle it.
+/// again. `None` when that does not settle it. `cache`: the corners and
+/// moves the bursts' plan made (the same settings: round 0 plans none anew).
 #[allow(clippy::too_many_arguments)]
 fn flowing(
     job: &Job,
@@ -397,11 +398,11 @@ fn flowing(
     split: &SplitSettings,
     settings: TcpSettings,
     runs: &mut Option<Vec<Option<Run>>>,
+    mut cache: tcp::PlanCache,
 ) -> Result<Option<Trajectory>> {
     let groups = sequence.groups.len();
     let first_group = sequence.groups.iter().position(|g| !g.paths.is_empty()).unwrap_or(0);
     let stage_limits = machine.stage_limits().scaled(machine.motion.limit_margin);
-    let mut cache = tcp::PlanCache::default();
     // The TCP with the jumps into the fields `slowed` taking that long, and
     // the flow for it (or where it falls behind). `None`: no flow for this job.
     let mut attempt = |slowed: &[Option<f64>], pads: (f64, f64)| -> Result<Option<(TcpPath, std::result::Result<flow::Flow, flow::Behind>)>> {

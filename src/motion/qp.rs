@@ -110,10 +110,11 @@ impl Banded {
         }
     }
 
-    /// Cholesky factor (`LLᵀ`, `L` in the same banded layout), each pivot
-    /// kept at least `floor` times its diagonal entry (the matrix is positive
+    /// Cholesky factor (`LLᵀ`, `L` in the same banded layout but with
+    /// `1/Lᵢᵢ` on the diagonal: the substitutions multiply), each pivot kept
+    /// at least `floor` times its diagonal entry (the matrix is positive
     /// semi-definite at worst; rounding may leave a pivot near zero).
-    fn cholesky(mut self, floor: f64) -> Banded {
+    fn cholesky(&mut self, floor: f64) {
         let n = self.band.len();
         for i in 0..n {
             for k in 0..BAND {
@@ -124,28 +125,26 @@ impl Banded {
                 for c in i.saturating_sub(BAND - 1)..j {
                     sum -= self.band[i][c + BAND - 1 - i] * self.band[j][c + BAND - 1 - j];
                 }
-                self.band[i][k] = if j == i { sum.max(floor * entry).max(f64::MIN_POSITIVE).sqrt() } else { sum / self.band[j][BAND - 1] };
+                self.band[i][k] = if j == i { 1.0 / sum.max(floor * entry).max(f64::MIN_POSITIVE).sqrt() } else { sum * self.band[j][BAND - 1] };
             }
         }
-        self
     }
 
-    /// Solves `LLᵀx = y` with `self` the factor.
-    fn solve(&self, mut y: Vec<f64>) -> Vec<f64> {
+    /// Solves `LLᵀx = y` in place with `self` the factor.
+    fn solve(&self, y: &mut [f64]) {
         let n = y.len();
         for i in 0..n {
             for c in i.saturating_sub(BAND - 1)..i {
                 y[i] -= self.band[i][c + BAND - 1 - i] * y[c];
             }
-            y[i] /= self.band[i][BAND - 1];
+            y[i] *= self.band[i][BAND - 1];
         }
         for i in (0..n).rev() {
-            y[i] /= self.band[i][BAND - 1];
+            y[i] *= self.band[i][BAND - 1];
             for c in i.saturating_sub(BAND - 1)..i {
                 y[c] -= self.band[i][c + BAND - 1 - i] * y[i];
             }
         }
-        y
     }
 }
 
@@ -225,7 +224,8 @@ pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution>
         if stalled >= 3 {
             return stalled_result(it);
         }
-        lin.factor = lin.k.clone().cholesky(1e-12);
+        lin.factor.band.clone_from(&lin.k.band);
+        lin.factor.cholesky(1e-12);
         // Predictor: towards complementarity 0.
         let alpha = lin.step(rows, &it, 0.0, None, &mut affine);
         let mut gap_affine = 0.0;
@@ -358,7 +358,10 @@ impl Linear {
     /// along it every slack and dual stays positive (≤ 1; not finite when
     /// the step is not).
     fn step(&mut self, rows: &[Row], it: &Iterate, centre: f64, affine: Option<&Step>, out: &mut Step) -> f64 {
-        let mut rhs: Vec<f64> = self.rx.iter().map(|v| -v).collect();
+        let rhs = &mut out.dx;
+        for (v, r) in rhs.iter_mut().zip(&self.rx) {
+            *v = -r;
+        }
         for (r, row) in rows.iter().enumerate() {
             let mut net = 0.0;
             for (k, side) in row.sides.iter().enumerate() {
@@ -376,12 +379,13 @@ impl Linear {
                 };
                 net += SIGN[k] * k_side;
             }
-            row.add_to(&mut rhs, -net);
+            row.add_to(rhs, -net);
         }
-        out.dx = self.factor.solve(rhs);
+        self.factor.solve(&mut out.dx);
         let mut alpha = 1.0f64;
         let mut finite = out.dx.iter().all(|v| v.is_finite());
-        let longest = |alpha: f64, v: f64, dv: f64| if dv < 0.0 && v > 0.0 { alpha.min(-v / dv) } else { alpha };
+        // (dividing only where the step would cross zero before `alpha`)
+        let longest = |alpha: f64, v: f64, dv: f64| if v + alpha * dv < 0.0 && v > 0.0 { alpha.min(-v / dv) } else { alpha };
         for (r, row) in rows.iter().enumerate() {
             let adx = row.dot(&out.dx);
             for (k, side) in row.sides.iter().enumerate() {
@@ -429,7 +433,10 @@ mod tests {
         }
         let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.9).cos()).collect();
         let y = k.mul(&x);
-        let back = k.clone().cholesky(1e-14).solve(y);
+        let mut back = y;
+        let mut factor = k.clone();
+        factor.cholesky(1e-14);
+        factor.solve(&mut back);
         for (a, b) in x.iter().zip(&back) {
             assert!((a - b).abs() < 1e-12, "{a} vs {b}");
         }
