@@ -169,47 +169,49 @@ const GAP: f64 = 1.0e-5;
 /// whose rows hold and whose mean complementarity is below this is taken.
 const GAP_STALLED: f64 = 1.0e-5;
 
-/// The iterate, per side `j = 2·row + side`: its slack `s` (b − a·x [+ σ]),
+/// Per side of a row (or its step): the side's slack `s` (b − a·x [+ σ]),
 /// dual `lam`, and for a soft side `sigma` and the dual `lam_n` of σ ≥ 0
-/// (whose slack is σ itself). Absent sides stay zero.
+/// (whose slack is σ itself). Zero for hard parts and absent sides.
+#[derive(Debug, Clone, Copy, Default)]
+struct Var {
+    s: f64,
+    lam: f64,
+    sigma: f64,
+    lam_n: f64,
+}
+
+/// The iterate: the unknowns and, per row, its sides.
 struct Iterate {
     x: Vec<f64>,
-    s: Vec<f64>,
-    lam: Vec<f64>,
-    sigma: Vec<f64>,
-    lam_n: Vec<f64>,
+    v: Vec<[Var; 2]>,
 }
 
 /// Minimises `½xᵀPx + w·Σσ` over the rows from `x0`, a point where every
 /// hard side holds strictly (soft ones need not). `None` when the method
 /// does not converge.
 pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution> {
-    let sides = 2 * rows.len();
-    let mut it = Iterate { x: x0, s: vec![0.0; sides], lam: vec![0.0; sides], sigma: vec![0.0; sides], lam_n: vec![0.0; sides] };
+    let mut it = Iterate { x: x0, v: vec![[Var::default(); 2]; rows.len()] };
     let mut count = 0.0;
-    for (r, row) in rows.iter().enumerate() {
+    for (row, v) in rows.iter().zip(it.v.iter_mut()) {
         let ax = row.dot(&it.x);
-        for (k, side) in row.sides.iter().enumerate() {
+        for (k, (side, v)) in row.sides.iter().zip(v.iter_mut()).enumerate() {
             let Some(side) = side else { continue };
-            let (j, room) = (2 * r + k, side.b - SIGN[k] * ax);
+            let room = side.b - SIGN[k] * ax;
             if side.soft {
-                it.sigma[j] = (-room).max(0.0) + 1.0;
-                it.s[j] = room + it.sigma[j];
-                it.lam[j] = 0.5 * w;
-                it.lam_n[j] = 0.5 * w;
+                let sigma = (-room).max(0.0) + 1.0;
+                *v = Var { s: room + sigma, lam: 0.5 * w, sigma, lam_n: 0.5 * w };
                 count += 2.0;
             } else {
                 if room <= 0.0 {
                     return None;
                 }
-                it.s[j] = room;
-                it.lam[j] = 1.0;
+                *v = Var { s: room, lam: 1.0, sigma: 0.0, lam_n: 0.0 };
                 count += 1.0;
             }
         }
     }
-    let mut lin = Linear::new(p, sides);
-    let (mut affine, mut step) = (Step::zeros(it.x.len(), sides), Step::zeros(it.x.len(), sides));
+    let mut lin = Linear::new(p, rows.len());
+    let (mut affine, mut step) = (Step::zeros(it.x.len(), rows.len()), Step::zeros(it.x.len(), rows.len()));
     // Steps in a row that barely lowered the complementarity.
     let (mut stalled, mut last_mu) = (0, f64::INFINITY);
     for _ in 0..MOST_STEPS {
@@ -229,13 +231,12 @@ pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution>
         // Predictor: towards complementarity 0.
         let alpha = lin.step(rows, &it, 0.0, None, &mut affine);
         let mut gap_affine = 0.0;
-        for (r, row) in rows.iter().enumerate() {
-            for (k, side) in row.sides.iter().enumerate() {
+        for ((row, v), dv) in rows.iter().zip(&it.v).zip(&affine.dv) {
+            for ((side, v), dv) in row.sides.iter().zip(v).zip(dv) {
                 let Some(side) = side else { continue };
-                let j = 2 * r + k;
-                gap_affine += (it.s[j] + alpha * affine.ds[j]) * (it.lam[j] + alpha * affine.dl[j]);
+                gap_affine += (v.s + alpha * dv.s) * (v.lam + alpha * dv.lam);
                 if side.soft {
-                    gap_affine += (it.sigma[j] + alpha * affine.dsig[j]) * (it.lam_n[j] + alpha * affine.dln[j]);
+                    gap_affine += (v.sigma + alpha * dv.sigma) * (v.lam_n + alpha * dv.lam_n);
                 }
             }
         }
@@ -249,11 +250,11 @@ pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution>
         for (v, dv) in it.x.iter_mut().zip(&step.dx) {
             *v += alpha * dv;
         }
-        for j in 0..sides {
-            it.s[j] += alpha * step.ds[j];
-            it.lam[j] += alpha * step.dl[j];
-            it.sigma[j] += alpha * step.dsig[j];
-            it.lam_n[j] += alpha * step.dln[j];
+        for (v, dv) in it.v.iter_mut().flatten().zip(step.dv.iter().flatten()) {
+            v.s += alpha * dv.s;
+            v.lam += alpha * dv.lam;
+            v.sigma += alpha * dv.sigma;
+            v.lam_n += alpha * dv.lam_n;
         }
     }
     None
@@ -261,23 +262,20 @@ pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution>
 
 impl Iterate {
     fn solution(self) -> Solution {
-        let slack = self.sigma.chunks_exact(2).map(|s| [s[0], s[1]]).collect();
+        let slack = self.v.iter().map(|v| [v[0].sigma, v[1].sigma]).collect();
         Solution { x: self.x, slack }
     }
 }
 
-/// A Newton step: unknowns, sides' slacks and duals, σ and its bound's dual.
+/// A Newton step: the unknowns' and the sides' parts.
 struct Step {
     dx: Vec<f64>,
-    ds: Vec<f64>,
-    dl: Vec<f64>,
-    dsig: Vec<f64>,
-    dln: Vec<f64>,
+    dv: Vec<[Var; 2]>,
 }
 
 impl Step {
-    fn zeros(n: usize, sides: usize) -> Step {
-        Step { dx: vec![0.0; n], ds: vec![0.0; sides], dl: vec![0.0; sides], dsig: vec![0.0; sides], dln: vec![0.0; sides] }
+    fn zeros(n: usize, rows: usize) -> Step {
+        Step { dx: vec![0.0; n], dv: vec![[Var::default(); 2]; rows] }
     }
 }
 
@@ -288,6 +286,22 @@ struct Residuals {
     gap: f64,
 }
 
+/// Per side, what a step follows from: the primal residual, σ's dual
+/// residual, `λ/s`, `λₙ/σ`, `1/λ`, `1/λₙ`, `1/(d + dₙ)`, and the step's
+/// `e`, `eₙ` (kept from the right-hand side for the back substitution).
+#[derive(Debug, Clone, Copy, Default)]
+struct SideLinear {
+    rp: f64,
+    rs: f64,
+    d: f64,
+    d_n: f64,
+    inv_lam: f64,
+    inv_lam_n: f64,
+    inv_sum: f64,
+    e: f64,
+    e_n: f64,
+}
+
 /// One iterate's linearisation: its residuals, the normal equations (and
 /// their factor) and, per side, what the step's other parts follow from.
 struct Linear {
@@ -295,24 +309,12 @@ struct Linear {
     factor: Banded,
     /// Dual residual of the unknowns (`Px + Σ ±λ a`).
     rx: Vec<f64>,
-    /// Per side: primal residual, σ's dual residual, `λ/s`, `λₙ/σ`,
-    /// `1/λ`, `1/λₙ`, `1/(d + dₙ)`, and the step's `e`, `eₙ` (kept from
-    /// the right-hand side for the back substitution).
-    rp: Vec<f64>,
-    rs: Vec<f64>,
-    d: Vec<f64>,
-    d_n: Vec<f64>,
-    inv_lam: Vec<f64>,
-    inv_lam_n: Vec<f64>,
-    inv_sum: Vec<f64>,
-    e: Vec<f64>,
-    e_n: Vec<f64>,
+    sides: Vec<[SideLinear; 2]>,
 }
 
 impl Linear {
-    fn new(p: &Banded, sides: usize) -> Linear {
-        let z = || vec![0.0; sides];
-        Linear { k: p.clone(), factor: p.clone(), rx: Vec::new(), rp: z(), rs: z(), d: z(), d_n: z(), inv_lam: z(), inv_lam_n: z(), inv_sum: z(), e: z(), e_n: z() }
+    fn new(p: &Banded, rows: usize) -> Linear {
+        Linear { k: p.clone(), factor: p.clone(), rx: Vec::new(), sides: vec![[SideLinear::default(); 2]; rows] }
     }
 
     /// Residuals of `it` and the normal equations' matrix `P + Σ wⱼ aaᵀ`
@@ -322,28 +324,26 @@ impl Linear {
         self.rx = p.mul(&it.x);
         self.k.band.clone_from(&p.band);
         let (mut primal, mut dual, mut gap) = (0.0f64, 0.0f64, 0.0);
-        for (r, row) in rows.iter().enumerate() {
+        for ((row, v), l) in rows.iter().zip(&it.v).zip(self.sides.iter_mut()) {
             let ax = row.dot(&it.x);
             let (mut net_lam, mut weight) = (0.0, 0.0);
-            for (k, side) in row.sides.iter().enumerate() {
+            for (k, ((side, v), l)) in row.sides.iter().zip(v).zip(l.iter_mut()).enumerate() {
                 let Some(side) = side else { continue };
-                let j = 2 * r + k;
-                let (s, lam, sigma, lam_n) = (it.s[j], it.lam[j], it.sigma[j], it.lam_n[j]);
-                self.rp[j] = SIGN[k] * ax - sigma + s - side.b;
-                primal = primal.max(self.rp[j].abs());
-                net_lam += SIGN[k] * lam;
-                gap += s * lam + sigma * lam_n;
-                self.d[j] = lam / s;
-                self.inv_lam[j] = 1.0 / lam;
+                l.rp = SIGN[k] * ax - v.sigma + v.s - side.b;
+                primal = primal.max(l.rp.abs());
+                net_lam += SIGN[k] * v.lam;
+                gap += v.s * v.lam + v.sigma * v.lam_n;
+                l.d = v.lam / v.s;
+                l.inv_lam = 1.0 / v.lam;
                 if side.soft {
-                    self.rs[j] = w - lam - lam_n;
-                    dual = dual.max(self.rs[j].abs());
-                    self.d_n[j] = lam_n / sigma;
-                    self.inv_lam_n[j] = 1.0 / lam_n;
-                    self.inv_sum[j] = 1.0 / (self.d[j] + self.d_n[j]);
-                    weight += self.d[j] * self.d_n[j] * self.inv_sum[j];
+                    l.rs = w - v.lam - v.lam_n;
+                    dual = dual.max(l.rs.abs());
+                    l.d_n = v.lam_n / v.sigma;
+                    l.inv_lam_n = 1.0 / v.lam_n;
+                    l.inv_sum = 1.0 / (l.d + l.d_n);
+                    weight += l.d * l.d_n * l.inv_sum;
                 } else {
-                    weight += self.d[j];
+                    weight += l.d;
                 }
             }
             row.add_to(&mut self.rx, net_lam);
@@ -362,20 +362,20 @@ impl Linear {
         for (v, r) in rhs.iter_mut().zip(&self.rx) {
             *v = -r;
         }
-        for (r, row) in rows.iter().enumerate() {
+        let none = [Var::default(); 2];
+        for (r, ((row, v), l)) in rows.iter().zip(&it.v).zip(self.sides.iter_mut()).enumerate() {
+            let second = affine.map_or(&none, |a| &a.dv[r]);
             let mut net = 0.0;
-            for (k, side) in row.sides.iter().enumerate() {
+            for (k, (((side, v), l), da)) in row.sides.iter().zip(v).zip(l.iter_mut()).zip(second).enumerate() {
                 let Some(side) = side else { continue };
-                let j = 2 * r + k;
-                let (d, d_n) = (self.d[j], self.d_n[j]);
-                let rc = it.s[j] * it.lam[j] + affine.map_or(0.0, |a| a.ds[j] * a.dl[j]) - centre;
-                self.e[j] = self.rp[j] - rc * self.inv_lam[j];
+                let rc = v.s * v.lam + da.s * da.lam - centre;
+                l.e = l.rp - rc * l.inv_lam;
                 let k_side = if side.soft {
-                    let rc_n = it.sigma[j] * it.lam_n[j] + affine.map_or(0.0, |a| a.dsig[j] * a.dln[j]) - centre;
-                    self.e_n[j] = -rc_n * self.inv_lam_n[j];
-                    d * (d_n * (self.e[j] - self.e_n[j]) + self.rs[j]) * self.inv_sum[j]
+                    let rc_n = v.sigma * v.lam_n + da.sigma * da.lam_n - centre;
+                    l.e_n = -rc_n * l.inv_lam_n;
+                    l.d * (l.d_n * (l.e - l.e_n) + l.rs) * l.inv_sum
                 } else {
-                    d * self.e[j]
+                    l.d * l.e
                 };
                 net += SIGN[k] * k_side;
             }
@@ -386,25 +386,22 @@ impl Linear {
         let mut finite = out.dx.iter().all(|v| v.is_finite());
         // (dividing only where the step would cross zero before `alpha`)
         let longest = |alpha: f64, v: f64, dv: f64| if v + alpha * dv < 0.0 && v > 0.0 { alpha.min(-v / dv) } else { alpha };
-        for (r, row) in rows.iter().enumerate() {
+        for ((row, v), (l, o)) in rows.iter().zip(&it.v).zip(self.sides.iter().zip(out.dv.iter_mut())) {
             let adx = row.dot(&out.dx);
-            for (k, side) in row.sides.iter().enumerate() {
+            for (k, (((side, v), l), o)) in row.sides.iter().zip(v).zip(l).zip(o.iter_mut()).enumerate() {
                 let Some(side) = side else { continue };
-                let j = 2 * r + k;
-                let (d, d_n, e) = (self.d[j], self.d_n[j], self.e[j]);
                 let adx = SIGN[k] * adx;
                 if side.soft {
-                    let e_n = self.e_n[j];
-                    out.dsig[j] = (d * (adx + e) + d_n * e_n - self.rs[j]) * self.inv_sum[j];
-                    out.dln[j] = d_n * (e_n - out.dsig[j]);
-                    alpha = longest(longest(alpha, it.sigma[j], out.dsig[j]), it.lam_n[j], out.dln[j]);
-                    finite &= out.dsig[j].is_finite() && out.dln[j].is_finite();
+                    o.sigma = (l.d * (adx + l.e) + l.d_n * l.e_n - l.rs) * l.inv_sum;
+                    o.lam_n = l.d_n * (l.e_n - o.sigma);
+                    alpha = longest(longest(alpha, v.sigma, o.sigma), v.lam_n, o.lam_n);
+                    finite &= o.sigma.is_finite() && o.lam_n.is_finite();
                 }
-                out.dl[j] = d * (adx - out.dsig[j] + e);
+                o.lam = l.d * (adx - o.sigma + l.e);
                 // s·dλ + λ·ds = −rc, with rc = λ·(rp − e).
-                out.ds[j] = -(self.rp[j] - e) - it.s[j] * out.dl[j] * self.inv_lam[j];
-                alpha = longest(longest(alpha, it.s[j], out.ds[j]), it.lam[j], out.dl[j]);
-                finite &= out.dl[j].is_finite() && out.ds[j].is_finite();
+                o.s = -(l.rp - l.e) - v.s * o.lam * l.inv_lam;
+                alpha = longest(longest(alpha, v.s, o.s), v.lam, o.lam);
+                finite &= o.lam.is_finite() && o.s.is_finite();
             }
         }
         if finite {
