@@ -108,24 +108,33 @@ pub struct Behind {
     /// being in field `f` (`g` or the one before).
     pub into: Vec<(usize, usize, f64)>,
     /// Short at the start (the stage cannot follow the first field from
-    /// rest) and at the end (it cannot stop with the TCP), mm; infinite
-    /// when the job is too long to plan this way or the solver failed.
+    /// rest) and at the end (it cannot stop with the TCP), mm.
     pub start: f64,
     pub end: f64,
+}
+
+/// Why there is no flow for a TCP.
+#[derive(Debug, Clone, PartialEq)]
+pub enum NoFlow {
+    /// The stage falls behind there.
+    Behind(Behind),
+    /// The job is too long to plan this way.
+    TooLong,
+    /// The solver did not converge (an ill-conditioned problem).
+    Unsolved,
 }
 
 /// Plans the stage for `tcp`, standing still for `pads.0` before the TCP
 /// starts and `pads.1` after it ends (the TCP waits at its ends meanwhile), or
 /// names where it cannot keep up.
-pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, Behind> {
+pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, NoFlow> {
     let duration = tcp.duration();
     let (pre, post) = pads;
     let span = duration + pre + post;
     let steps = ((span / STEP).ceil()).clamp(2.0, MOST_STEPS) as usize;
     let h = span.max(1e-9) / steps as f64;
-    let too_big = Behind { into: Vec::new(), start: f64::INFINITY, end: f64::INFINITY };
     if h > COARSEST * STEP {
-        return Err(too_big);
+        return Err(NoFlow::TooLong);
     }
     // Control point k at time t0 + k·h; the first and last three equal (at
     // rest before -pre and after duration + post).
@@ -133,7 +142,7 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, 
     let m = steps + 3;
     let samples = samples(tcp, pads, h, s.half, s.burst.acceleration);
     if samples.len() > MOST_SAMPLES {
-        return Err(too_big);
+        return Err(NoFlow::TooLong);
     }
     let slacks = 2 * groups(tcp);
     let travel = [s.travel.0, s.travel.1];
@@ -142,7 +151,7 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, 
     // The axes are independent problems: one each on two cores.
     let solved = crate::parallel::tasks(2, crate::parallel::threads().unwrap_or(1), |i| solve_axis(&samples, i, t0, h, m, slacks, travel[i], s));
     for (c, x) in control.iter_mut().zip(solved) {
-        let x = x?;
+        let x = x.ok_or(NoFlow::Unsolved)?;
         for (total, &sigma) in short.iter_mut().zip(&x[m..]) {
             *total = total.max(sigma);
         }
@@ -173,7 +182,7 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, 
     }
     behind.into.sort_by(|a, b| a.0.cmp(&b.0).then(b.2.total_cmp(&a.2)));
     behind.into.dedup_by_key(|x| x.0);
-    Err(behind)
+    Err(NoFlow::Behind(behind))
 }
 
 fn groups(tcp: &TcpPath) -> usize {
@@ -255,12 +264,11 @@ fn samples(tcp: &TcpPath, pads: (f64, f64), h: f64, half: f64, a: f64) -> Vec<Sa
 /// corridor at every sample. Returns control points then, per slack, the
 /// most its samples needed.
 #[allow(clippy::too_many_arguments)]
-fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: usize, travel: f64, s: &SplitSettings) -> Result<Vec<f64>, Behind> {
+fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: usize, travel: f64, s: &SplitSettings) -> Option<Vec<f64>> {
     use super::qp::{Banded, Row};
-    let fail = || Behind { into: Vec::new(), start: f64::INFINITY, end: f64::INFINITY };
     // The unknowns: control points 2..m-3; the first and last three equal
     // (at rest at both ends), so control point k is unknown clamp(k − 2).
-    let n = m.checked_sub(4).filter(|&n| n > 0).ok_or_else(fail)?;
+    let n = m.checked_sub(4).filter(|&n| n > 0)?;
     let unknown = |k: usize| k.saturating_sub(2).min(n - 1);
     let terms = |k0: usize, weights: &[f64]| -> Vec<(usize, f64)> { weights.iter().enumerate().map(|(j, &w)| (unknown(k0 + j), w)).collect() };
     let mut rows = Vec::new();
@@ -297,7 +305,7 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     // From the stage standing still mid-corridor (every hard row holds).
     let mid = samples.iter().map(|sm| 0.5 * (sm.lo[i] + sm.hi[i])).sum::<f64>() / samples.len().max(1) as f64;
     let start = mid.clamp(0.25 * travel, 0.75 * travel);
-    let mut solved = super::qp::solve(&p, &rows, unit, vec![start; n]).ok_or_else(fail)?;
+    let mut solved = super::qp::solve(&p, &rows, unit, vec![start; n])?;
     // The travel rarely binds (the corridor lies within it): its rows only
     // where the stage left it without them.
     if solved.x.iter().any(|&x| !(0.0..=travel).contains(&x)) {
@@ -306,7 +314,7 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
             rows.extend(Row::between(&[(k, 1.0)], Some(0.0), Some(travel), false, n));
         }
         widens.resize(rows.len(), None);
-        solved = super::qp::solve(&p, &rows, unit, vec![start; n]).ok_or_else(fail)?;
+        solved = super::qp::solve(&p, &rows, unit, vec![start; n])?;
         solved.slack.truncate(corridor);
     }
     let mut out: Vec<f64> = (0..m).map(|k| solved.x[unknown(k)]).collect();
@@ -317,7 +325,7 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
         }
     }
     out.extend(short);
-    Ok(out)
+    Some(out)
 }
 
 /// Which bounds `x(t) ≤ bound` (samples `(t, bound, slack)`, sorted by
