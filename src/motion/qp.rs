@@ -130,20 +130,22 @@ impl Banded {
         }
     }
 
-    /// Solves `LLᵀx = y` in place with `self` the factor.
+    /// Solves `LLᵀx = y` in place with `self` the factor. (Each unknown
+    /// depends on the three before (after) it, kept in registers: the
+    /// substitutions are a chain of dependent steps.)
     fn solve(&self, y: &mut [f64]) {
-        let n = y.len();
-        for i in 0..n {
-            for c in i.saturating_sub(BAND - 1)..i {
-                y[i] -= self.band[i][c + BAND - 1 - i] * y[c];
-            }
-            y[i] *= self.band[i][BAND - 1];
+        const { assert!(BAND == 4) };
+        let (mut y1, mut y2, mut y3) = (0.0, 0.0, 0.0);
+        for (v, l) in y.iter_mut().zip(&self.band) {
+            *v = (*v - l[0] * y3 - l[1] * y2 - l[2] * y1) * l[3];
+            (y3, y2, y1) = (y2, y1, *v);
         }
-        for i in (0..n).rev() {
-            y[i] *= self.band[i][BAND - 1];
-            for c in i.saturating_sub(BAND - 1)..i {
-                y[c] -= self.band[i][c + BAND - 1 - i] * y[i];
-            }
+        // Lᵀ: column c of L below the diagonal is L[c+1][2], L[c+2][1], L[c+3][0].
+        let entry = |i: usize, k: usize| self.band.get(i).map_or(0.0, |l| l[k]);
+        let (mut x1, mut x2, mut x3) = (0.0, 0.0, 0.0);
+        for c in (0..y.len()).rev() {
+            y[c] = (y[c] - entry(c + 3, 0) * x3 - entry(c + 2, 1) * x2 - entry(c + 1, 2) * x1) * self.band[c][3];
+            (x3, x2, x1) = (x2, x1, y[c]);
         }
     }
 }
