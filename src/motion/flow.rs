@@ -113,6 +113,10 @@ pub struct Behind {
     pub end: f64,
 }
 
+/// Buffers of the two axes' solves, kept from one plan to the next.
+#[derive(Debug, Default)]
+pub struct Workspace([std::sync::Mutex<super::qp::Workspace>; 2]);
+
 /// Why there is no flow for a TCP.
 #[derive(Debug, Clone, PartialEq)]
 pub enum NoFlow {
@@ -127,7 +131,7 @@ pub enum NoFlow {
 /// Plans the stage for `tcp`, standing still for `pads.0` before the TCP
 /// starts and `pads.1` after it ends (the TCP waits at its ends meanwhile), or
 /// names where it cannot keep up.
-pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, NoFlow> {
+pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64), space: &Workspace) -> Result<Flow, NoFlow> {
     let duration = tcp.duration();
     let (pre, post) = pads;
     let span = duration + pre + post;
@@ -149,7 +153,10 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, 
     let mut control: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
     let mut short = vec![0.0f64; slacks];
     // The axes are independent problems: one each on two cores.
-    let solved = crate::parallel::tasks(2, crate::parallel::threads().unwrap_or(1), |i| solve_axis(&samples, i, t0, h, m, slacks, travel[i], s));
+    let solved = crate::parallel::tasks(2, crate::parallel::threads().unwrap_or(1), |i| {
+        let mut space = space.0[i].lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        solve_axis(&samples, i, t0, h, m, slacks, travel[i], s, &mut space)
+    });
     for (c, x) in control.iter_mut().zip(solved) {
         let x = x.ok_or(NoFlow::Unsolved)?;
         for (total, &sigma) in short.iter_mut().zip(&x[m..]) {
@@ -264,7 +271,7 @@ fn samples(tcp: &TcpPath, pads: (f64, f64), h: f64, half: f64, a: f64) -> Vec<Sa
 /// corridor at every sample. Returns control points then, per slack, the
 /// most its samples needed.
 #[allow(clippy::too_many_arguments)]
-fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: usize, travel: f64, s: &SplitSettings) -> Option<Vec<f64>> {
+fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: usize, travel: f64, s: &SplitSettings, space: &mut super::qp::Workspace) -> Option<Vec<f64>> {
     use super::qp::{Banded, Row};
     // The unknowns: control points 2..m-3; the first and last three equal
     // (at rest at both ends), so control point k is unknown clamp(k − 2).
@@ -305,7 +312,7 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     // From the stage standing still mid-corridor (every hard row holds).
     let mid = samples.iter().map(|sm| 0.5 * (sm.lo[i] + sm.hi[i])).sum::<f64>() / samples.len().max(1) as f64;
     let start = mid.clamp(0.25 * travel, 0.75 * travel);
-    let mut solved = super::qp::solve(&p, &rows, unit, vec![start; n])?;
+    let mut solved = super::qp::solve(&p, &rows, unit, vec![start; n], space)?;
     // The travel rarely binds (the corridor lies within it): its rows only
     // where the stage left it without them.
     if solved.x.iter().any(|&x| !(0.0..=travel).contains(&x)) {
@@ -314,7 +321,7 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
             rows.extend(Row::between(&[(k, 1.0)], Some(0.0), Some(travel), false, n));
         }
         widens.resize(rows.len(), None);
-        solved = super::qp::solve(&p, &rows, unit, vec![start; n])?;
+        solved = super::qp::solve(&p, &rows, unit, vec![start; n], space)?;
         solved.slack.truncate(corridor);
     }
     let mut out: Vec<f64> = (0..m).map(|k| solved.x[unknown(k)]).collect();
@@ -421,7 +428,7 @@ mod tests {
         // The TCP drifting 60 mm/s, fields 50 mm apart (they overlap): the
         // stage can follow, and must move by at least 46 mm.
         let samples = corridor(60.0, 0.5, 50.0, end, s.half);
-        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s).unwrap();
+        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s, &mut Default::default()).unwrap();
         let c = &x[..m];
         assert!(x[m..].iter().all(|&sigma| sigma <= SLACK_TOLERANCE), "feasible: no slack {:?}", &x[m..]);
         let diffs = |d: &[f64]| d.windows(2).map(|w| w[1] - w[0]).collect::<Vec<f64>>();
@@ -442,7 +449,7 @@ mod tests {
         // 200 mm at once: the fields are 136 mm apart, which the slacks on
         // both sides of the change bridge, and no more.
         let samples = corridor(0.0, 0.5, 200.0, end, s.half);
-        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s).unwrap();
+        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s, &mut Default::default()).unwrap();
         let short = x[m + 1] + x[m + 2];
         // (less what the stage moves between two samples, at most V·1 ms)
         assert!((136.0 - 0.4 - 1e-6..=136.0 + 1e-6).contains(&short), "{:?}", &x[m..]);

@@ -295,7 +295,7 @@ fn step_and_scan(job: &Job, sequence: &Sequence, machine: &MachineConfig, start:
 
 /// Plans the flowing stage for a TCP and its pads: `flow::plan` (a seam for
 /// tests).
-type FlowPlanner<'a> = &'a dyn Fn(&TcpPath, &SplitSettings, (f64, f64)) -> std::result::Result<flow::Flow, flow::NoFlow>;
+type FlowPlanner<'a> = &'a dyn Fn(&TcpPath, &SplitSettings, (f64, f64), &flow::Workspace) -> std::result::Result<flow::Flow, flow::NoFlow>;
 
 fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Point, planner: FlowPlanner) -> Result<Trajectory> {
     let sc = machine.scanner.as_ref().expect("checked by Mode::check");
@@ -412,6 +412,7 @@ fn flowing(
     let groups = sequence.groups.len();
     let first_group = sequence.groups.iter().position(|g| !g.paths.is_empty()).unwrap_or(0);
     let stage_limits = machine.stage_limits().scaled(machine.motion.limit_margin);
+    let space = flow::Workspace::default();
     // The TCP with the jumps into the fields `slowed` taking that long, and
     // the flow for it (or where it falls behind). `None`: no flow for this job.
     let mut attempt = |slowed: &[Option<f64>], pads: (f64, f64)| -> Result<Option<(TcpPath, std::result::Result<flow::Flow, flow::NoFlow>)>> {
@@ -434,7 +435,7 @@ fn flowing(
             // not plan such stops, the bursts do.
             return Ok(None);
         }
-        match planner(&tcp, split, pads) {
+        match planner(&tcp, split, pads, &space) {
             Err(flow::NoFlow::TooLong) => Ok(None),
             planned => Ok(Some((tcp, planned))),
         }
@@ -796,12 +797,12 @@ mod tests {
         // the round is planned again with its slowings grown, and the stage
         // still flows, within its limits.
         let calls = std::cell::Cell::new(0);
-        let failing = |tcp: &TcpPath, split: &SplitSettings, pads: (f64, f64)| {
+        let failing = |tcp: &TcpPath, split: &SplitSettings, pads: (f64, f64), space: &flow::Workspace| {
             calls.set(calls.get() + 1);
             if calls.get() == 2 {
                 return Err(flow::NoFlow::Unsolved);
             }
-            flow::plan(tcp, split, pads)
+            flow::plan(tcp, split, pads, space)
         };
         let tr = on_the_fly(&j, &seq, &machine, Point::origin(), &failing).unwrap();
         assert!(calls.get() > 2, "rounds after the failed one: {}", calls.get());
@@ -809,7 +810,7 @@ mod tests {
         check_sampled(&tr, &machine, 2e-5);
         assert!(marked_time(&tr) >= j.mark_length() / 800.0 - 1e-9);
         // Failing in the first round (nothing slowed yet to grow): no flow.
-        let first_fails = |_: &TcpPath, _: &SplitSettings, _: (f64, f64)| Err(flow::NoFlow::Unsolved);
+        let first_fails = |_: &TcpPath, _: &SplitSettings, _: (f64, f64), _: &flow::Workspace| Err(flow::NoFlow::Unsolved);
         let tr = on_the_fly(&j, &seq, &machine, Point::origin(), &first_fails).unwrap();
         assert!(matches!(tr.stage, StagePath::Moves { .. }), "bursts");
     }
