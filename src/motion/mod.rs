@@ -394,7 +394,8 @@ fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
 /// stage falls behind, the field change there is slowed (the TCP stops and
 /// jumps to the next field's first point time-scaled, taking longer by what
 /// the stage is short of), and at the ends the TCP waits; all is planned
-/// again. `None` when that does not settle it. `cache`: the corners and
+/// again (after a round whose solve fails: with that round's slowings
+/// grown). `None` when that does not settle it. `cache`: the corners and
 /// moves the bursts' plan made (the same settings: round 0 plans none anew).
 #[allow(clippy::too_many_arguments)]
 fn flowing(
