@@ -792,11 +792,11 @@ mod tests {
     fn a_round_whose_flow_solve_fails_is_planned_again_with_more_slowing() {
         let machine = MachineConfig::load(None).unwrap();
         let j = far_apart();
-        let (seq, planned) = plan(&j, &machine, Mode::OnTheFly);
-        assert!(matches!(planned.stage, StagePath::Flow { .. }), "the flowing stage is the faster here");
-        // The second round's solve fails (as an ill-conditioned one may):
-        // the round is planned again with its slowings grown, and the stage
-        // still flows, within its limits.
+        let (seq, _) = plan(&j, &machine, Mode::OnTheFly);
+        // (the stage flows here: the test above) The second round's solve
+        // fails (as an ill-conditioned one may): the round is planned again
+        // with its slowings grown, and the stage still flows, within its
+        // limits.
         let calls = std::cell::Cell::new(0);
         let failing = |tcp: &TcpPath, split: &SplitSettings, pads: (f64, f64), space: &flow::Workspace| {
             calls.set(calls.get() + 1);
