@@ -108,24 +108,37 @@ pub struct Behind {
     /// being in field `f` (`g` or the one before).
     pub into: Vec<(usize, usize, f64)>,
     /// Short at the start (the stage cannot follow the first field from
-    /// rest) and at the end (it cannot stop with the TCP), mm; infinite
-    /// when the job is too long to plan this way or the solver failed.
+    /// rest) and at the end (it cannot stop with the TCP), mm.
     pub start: f64,
     pub end: f64,
+}
+
+/// Buffers of the two axes' solves, kept from one plan to the next.
+#[derive(Debug, Default)]
+pub struct Workspace([std::sync::Mutex<super::qp::Workspace>; 2]);
+
+/// Why there is no flow for a TCP.
+#[derive(Debug, Clone, PartialEq)]
+pub enum NoFlow {
+    /// The stage falls behind there.
+    Behind(Behind),
+    /// The job is too long to plan this way.
+    TooLong,
+    /// The solver did not converge (an ill-conditioned problem).
+    Unsolved,
 }
 
 /// Plans the stage for `tcp`, standing still for `pads.0` before the TCP
 /// starts and `pads.1` after it ends (the TCP waits at its ends meanwhile), or
 /// names where it cannot keep up.
-pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, Behind> {
+pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64), space: &Workspace) -> Result<Flow, NoFlow> {
     let duration = tcp.duration();
     let (pre, post) = pads;
     let span = duration + pre + post;
     let steps = ((span / STEP).ceil()).clamp(2.0, MOST_STEPS) as usize;
     let h = span.max(1e-9) / steps as f64;
-    let too_big = Behind { into: Vec::new(), start: f64::INFINITY, end: f64::INFINITY };
     if h > COARSEST * STEP {
-        return Err(too_big);
+        return Err(NoFlow::TooLong);
     }
     // Control point k at time t0 + k·h; the first and last three equal (at
     // rest before -pre and after duration + post).
@@ -133,16 +146,19 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, 
     let m = steps + 3;
     let samples = samples(tcp, pads, h, s.half, s.burst.acceleration);
     if samples.len() > MOST_SAMPLES {
-        return Err(too_big);
+        return Err(NoFlow::TooLong);
     }
     let slacks = 2 * groups(tcp);
     let travel = [s.travel.0, s.travel.1];
     let mut control: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
     let mut short = vec![0.0f64; slacks];
     // The axes are independent problems: one each on two cores.
-    let solved = crate::parallel::tasks(2, crate::parallel::threads().unwrap_or(1), |i| solve_axis(&samples, i, t0, h, m, slacks, travel[i], s));
+    let solved = crate::parallel::tasks(2, crate::parallel::threads().unwrap_or(1), |i| {
+        let mut space = space.0[i].lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        solve_axis(&samples, i, t0, h, m, slacks, travel[i], s, &mut space)
+    });
     for (c, x) in control.iter_mut().zip(solved) {
-        let x = x?;
+        let x = x.ok_or(NoFlow::Unsolved)?;
         for (total, &sigma) in short.iter_mut().zip(&x[m..]) {
             *total = total.max(sigma);
         }
@@ -173,7 +189,7 @@ pub fn plan(tcp: &TcpPath, s: &SplitSettings, pads: (f64, f64)) -> Result<Flow, 
     }
     behind.into.sort_by(|a, b| a.0.cmp(&b.0).then(b.2.total_cmp(&a.2)));
     behind.into.dedup_by_key(|x| x.0);
-    Err(behind)
+    Err(NoFlow::Behind(behind))
 }
 
 fn groups(tcp: &TcpPath) -> usize {
@@ -255,12 +271,11 @@ fn samples(tcp: &TcpPath, pads: (f64, f64), h: f64, half: f64, a: f64) -> Vec<Sa
 /// corridor at every sample. Returns control points then, per slack, the
 /// most its samples needed.
 #[allow(clippy::too_many_arguments)]
-fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: usize, travel: f64, s: &SplitSettings) -> Result<Vec<f64>, Behind> {
+fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: usize, travel: f64, s: &SplitSettings, space: &mut super::qp::Workspace) -> Option<Vec<f64>> {
     use super::qp::{Banded, Row};
-    let fail = || Behind { into: Vec::new(), start: f64::INFINITY, end: f64::INFINITY };
     // The unknowns: control points 2..m-3; the first and last three equal
     // (at rest at both ends), so control point k is unknown clamp(k − 2).
-    let n = m.checked_sub(4).filter(|&n| n > 0).ok_or_else(fail)?;
+    let n = m.checked_sub(4).filter(|&n| n > 0)?;
     let unknown = |k: usize| k.saturating_sub(2).min(n - 1);
     let terms = |k0: usize, weights: &[f64]| -> Vec<(usize, f64)> { weights.iter().enumerate().map(|(j, &w)| (unknown(k0 + j), w)).collect() };
     let mut rows = Vec::new();
@@ -269,10 +284,8 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     let diffs: [(&[f64], f64); 3] = [(&[-1.0, 1.0], lim.velocity * h), (&[1.0, -2.0, 1.0], lim.acceleration * h * h), (&[-1.0, 3.0, -3.0, 1.0], lim.jerk * h * h * h)];
     for (weights, bound) in diffs {
         let scaled: Vec<f64> = weights.iter().map(|w| w / bound).collect();
-        let negated: Vec<f64> = scaled.iter().map(|w| -w).collect();
         for k in 0..=m - weights.len() {
-            rows.extend(Row::new(&terms(k, &scaled), 1.0, false, n));
-            rows.extend(Row::new(&terms(k, &negated), 1.0, false, n));
+            rows.extend(Row::between(&terms(k, &scaled), Some(-1.0), Some(1.0), false, n));
         }
     }
     let his: Vec<(f64, f64, usize)> = samples.iter().map(|sm| (sm.t, sm.hi[i], sm.slack)).collect();
@@ -284,13 +297,8 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     let mut widens: Vec<Option<usize>> = vec![None; rows.len()];
     for (k, sm) in samples.iter().enumerate() {
         let basis: Vec<(usize, f64)> = basis(m, h, sm.t - t0).into_iter().map(|(c, w)| (unknown(c), w / unit)).collect();
-        if keep_hi[k] {
-            rows.extend(Row::new(&basis, sm.hi[i] / unit, true, n));
-        }
-        if keep_lo[k] {
-            let down: Vec<(usize, f64)> = basis.iter().map(|&(c, w)| (c, -w)).collect();
-            rows.extend(Row::new(&down, -sm.lo[i] / unit, true, n));
-        }
+        let (lo, hi) = (keep_lo[k].then_some(sm.lo[i] / unit), keep_hi[k].then_some(sm.hi[i] / unit));
+        rows.extend(Row::between(&basis, lo, hi, true, n));
         widens.resize(rows.len(), Some(sm.slack));
     }
     // Smoothing: the second differences' squares.
@@ -304,28 +312,27 @@ fn solve_axis(samples: &[Sample], i: usize, t0: f64, h: f64, m: usize, slacks: u
     // From the stage standing still mid-corridor (every hard row holds).
     let mid = samples.iter().map(|sm| 0.5 * (sm.lo[i] + sm.hi[i])).sum::<f64>() / samples.len().max(1) as f64;
     let start = mid.clamp(0.25 * travel, 0.75 * travel);
-    let mut solved = super::qp::solve(&p, &rows, unit, vec![start; n]).ok_or_else(fail)?;
+    let mut solved = super::qp::solve(&p, &rows, unit, vec![start; n], space)?;
     // The travel rarely binds (the corridor lies within it): its rows only
     // where the stage left it without them.
     if solved.x.iter().any(|&x| !(0.0..=travel).contains(&x)) {
         let corridor = rows.len();
         for k in 0..n {
-            rows.extend(Row::new(&[(k, -1.0)], 0.0, false, n));
-            rows.extend(Row::new(&[(k, 1.0)], travel, false, n));
+            rows.extend(Row::between(&[(k, 1.0)], Some(0.0), Some(travel), false, n));
         }
         widens.resize(rows.len(), None);
-        solved = super::qp::solve(&p, &rows, unit, vec![start; n]).ok_or_else(fail)?;
+        solved = super::qp::solve(&p, &rows, unit, vec![start; n], space)?;
         solved.slack.truncate(corridor);
     }
     let mut out: Vec<f64> = (0..m).map(|k| solved.x[unknown(k)]).collect();
     let mut short = vec![0.0f64; slacks];
     for (r, sigma) in solved.slack.iter().enumerate() {
         if let Some(g) = widens[r] {
-            short[g] = short[g].max(sigma * unit);
+            short[g] = short[g].max(sigma[0].max(sigma[1]) * unit);
         }
     }
     out.extend(short);
-    Ok(out)
+    Some(out)
 }
 
 /// Which bounds `x(t) ≤ bound` (samples `(t, bound, slack)`, sorted by
@@ -421,7 +428,7 @@ mod tests {
         // The TCP drifting 60 mm/s, fields 50 mm apart (they overlap): the
         // stage can follow, and must move by at least 46 mm.
         let samples = corridor(60.0, 0.5, 50.0, end, s.half);
-        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s).unwrap();
+        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s, &mut Default::default()).unwrap();
         let c = &x[..m];
         assert!(x[m..].iter().all(|&sigma| sigma <= SLACK_TOLERANCE), "feasible: no slack {:?}", &x[m..]);
         let diffs = |d: &[f64]| d.windows(2).map(|w| w[1] - w[0]).collect::<Vec<f64>>();
@@ -442,7 +449,7 @@ mod tests {
         // 200 mm at once: the fields are 136 mm apart, which the slacks on
         // both sides of the change bridge, and no more.
         let samples = corridor(0.0, 0.5, 200.0, end, s.half);
-        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s).unwrap();
+        let x = solve_axis(&samples, 0, t0, h, m, 4, s.travel.0, &s, &mut Default::default()).unwrap();
         let short = x[m + 1] + x[m + 2];
         // (less what the stage moves between two samples, at most V·1 ms)
         assert!((136.0 - 0.4 - 1e-6..=136.0 + 1e-6).contains(&short), "{:?}", &x[m..]);

@@ -153,7 +153,7 @@ pub fn build(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode
     match mode {
         Mode::StageOnly => stage_only(job, sequence, machine, start, first),
         Mode::StepAndScan => step_and_scan(job, sequence, machine, start),
-        Mode::OnTheFly => on_the_fly(job, sequence, machine, start),
+        Mode::OnTheFly => on_the_fly(job, sequence, machine, start, &flow::plan),
     }
 }
 
@@ -293,7 +293,11 @@ fn step_and_scan(job: &Job, sequence: &Sequence, machine: &MachineConfig, start:
     Ok(Trajectory { tcp: b.path, stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true, stage_flow: None })
 }
 
-fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Point) -> Result<Trajectory> {
+/// Plans the flowing stage for a TCP and its pads: `flow::plan` (a seam for
+/// tests).
+type FlowPlanner<'a> = &'a dyn Fn(&TcpPath, &SplitSettings, (f64, f64), &flow::Workspace) -> std::result::Result<flow::Flow, flow::NoFlow>;
+
+fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Point, planner: FlowPlanner) -> Result<Trajectory> {
     let sc = machine.scanner.as_ref().expect("checked by Mode::check");
     let settings = tcp_settings(machine, Mode::OnTheFly);
     let margin = machine.motion.limit_margin;
@@ -345,7 +349,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
                 }
                 // Bursts alone carry the TCP somewhere: the stage planned over
                 // the whole job may flow there; the faster of the two.
-                return Ok(match flowing(job, sequence, machine, start, first, &split, settings, &mut runs)? {
+                return Ok(match flowing(job, sequence, machine, start, first, &split, settings, &mut runs, cache, planner)? {
                     Some(flow) if flow.job_time() < bursts.job_time() => flow,
                     _ => bursts,
                 });
@@ -375,6 +379,10 @@ const SLOWING_FLOOR: f64 = 2.0e-3;
 /// A change whose shortfall kept more than this share after it was slowed
 /// is not where the stage is short: its neighbours are slowed instead.
 const STUCK: f64 = 0.8;
+/// Where the flow's solve fails in a later round, the changes that round
+/// slowed take this share of their extra time more (and so on while it
+/// fails).
+const RETRY_MORE: f64 = 0.5;
 
 /// The share of `sequence`'s field changes not `slowed` (`None` without any).
 fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
@@ -386,7 +394,9 @@ fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
 /// stage falls behind, the field change there is slowed (the TCP stops and
 /// jumps to the next field's first point time-scaled, taking longer by what
 /// the stage is short of), and at the ends the TCP waits; all is planned
-/// again. `None` when that does not settle it.
+/// again (after a round whose solve fails: with that round's slowings
+/// grown). `None` when that does not settle it. `cache`: the corners and
+/// moves the bursts' plan made (the same settings: round 0 plans none anew).
 #[allow(clippy::too_many_arguments)]
 fn flowing(
     job: &Job,
@@ -397,14 +407,16 @@ fn flowing(
     split: &SplitSettings,
     settings: TcpSettings,
     runs: &mut Option<Vec<Option<Run>>>,
+    mut cache: tcp::PlanCache,
+    planner: FlowPlanner,
 ) -> Result<Option<Trajectory>> {
     let groups = sequence.groups.len();
     let first_group = sequence.groups.iter().position(|g| !g.paths.is_empty()).unwrap_or(0);
     let stage_limits = machine.stage_limits().scaled(machine.motion.limit_margin);
-    let mut cache = tcp::PlanCache::default();
+    let space = flow::Workspace::default();
     // The TCP with the jumps into the fields `slowed` taking that long, and
     // the flow for it (or where it falls behind). `None`: no flow for this job.
-    let mut attempt = |slowed: &[Option<f64>], pads: (f64, f64)| -> Result<Option<(TcpPath, std::result::Result<flow::Flow, flow::Behind>)>> {
+    let mut attempt = |slowed: &[Option<f64>], pads: (f64, f64)| -> Result<Option<(TcpPath, std::result::Result<flow::Flow, flow::NoFlow>)>> {
         let mut b = TcpBuilder::new(settings, first, 0.0).with_cache(std::mem::take(&mut cache));
         let marked = mark_all(&mut b, job, sequence, machine, runs, |b, g| {
             if let Some(took) = slowed[g] {
@@ -424,8 +436,8 @@ fn flowing(
             // not plan such stops, the bursts do.
             return Ok(None);
         }
-        match flow::plan(&tcp, split, pads) {
-            Err(behind) if !behind.start.is_finite() || !behind.end.is_finite() => Ok(None),
+        match planner(&tcp, split, pads, &space) {
+            Err(flow::NoFlow::TooLong) => Ok(None),
             planned => Ok(Some((tcp, planned))),
         }
     };
@@ -439,6 +451,8 @@ fn flowing(
     let longer = |mm: f64| SLOWING * mm / burst_speed + SLOWING_FLOOR;
     let next_field = |f: usize| (f + 1..groups).find(|&k| !sequence.groups[k].paths.is_empty());
     let mut found = None;
+    // What the last round added: per change slowed, its extra time; pads.
+    let (mut added, mut pads_added): (Vec<(usize, f64)>, (f64, f64)) = (Vec::new(), (0.0, 0.0));
     for round in 0..FLOW_ROUNDS {
         let Some((tcp, planned)) = attempt(&slowed, pads)? else { return Ok(None) };
         let behind = match planned {
@@ -447,15 +461,34 @@ fn flowing(
                 found = Some((tcp, f));
                 break;
             }
-            Err(behind) => behind,
+            Err(flow::NoFlow::Behind(behind)) => behind,
+            Err(_) if added.is_empty() && pads_added == (0.0, 0.0) => return Ok(None),
+            Err(_) => {
+                // The solve failed (ill-conditioned, seen after some
+                // slowings): the last round's slowings grow by half of what
+                // it added, and all is planned again.
+                tracing::debug!(round, "the flow's solve failed: the last slowings grow");
+                for &(k, extra) in &added {
+                    let more = RETRY_MORE * extra;
+                    slowed[k] = slowed[k].map(|took| took + more);
+                    if let Some((_, total)) = short[k].as_mut().filter(|s| s.1 > 0.0) {
+                        *total += more;
+                    }
+                }
+                pads = (pads.0 + RETRY_MORE * pads_added.0, pads.1 + RETRY_MORE * pads_added.1);
+                continue;
+            }
         };
+        added.clear();
+        pads_added = (0.0, 0.0);
         tracing::debug!(round, changes = behind.into.len(), worst = behind.into.iter().map(|x| x.2).fold(0.0, f64::max), "the stage falls behind");
         if behind.start > 0.0 {
-            pads.0 += longer(behind.start);
+            pads_added.0 = longer(behind.start);
         }
         if behind.end > 0.0 {
-            pads.1 += longer(behind.end);
+            pads_added.1 = longer(behind.end);
         }
+        pads = (pads.0 + pads_added.0, pads.1 + pads_added.1);
         let mut now: Vec<Option<(f64, f64)>> = vec![None; groups];
         for (g, f, mm) in behind.into {
             // The jump into `g` takes longer: by the shortfall over what the
@@ -475,6 +508,7 @@ fn flowing(
                 let Some(took) = slowed[k].or_else(|| field_change(&tcp, k)) else { continue };
                 tracing::debug!(field = k + 1, mm, took, extra, "the stage cannot flow into this field: the TCP slows for it");
                 slowed[k] = Some(took + extra);
+                added.push((k, extra));
             }
         }
         short = now;
@@ -727,11 +761,9 @@ mod tests {
         assert!(tr.job_time() <= 1.15 * lb, "{} vs bound {lb}", tr.job_time());
     }
 
-    #[test]
-    fn on_the_fly_the_stage_flows_through_fields_far_apart_within_its_limits() {
-        let machine = MachineConfig::load(None).unwrap();
-        // Small squares in fields 120 mm apart, zig-zagging over the table:
-        // bursts alone carry the TCP at nearly every change.
+    /// Small squares in fields 120 mm apart, zig-zagging over the table:
+    /// bursts alone carry the TCP at nearly every change.
+    fn far_apart() -> Job {
         let mut j = job();
         j.geometries = (0..8)
             .map(|k| {
@@ -739,6 +771,13 @@ mod tests {
                 Geometry { points: vec![Point::new(x, y), Point::new(x + 4.0, y), Point::new(x + 4.0, y + 4.0), Point::new(x, y + 4.0)], closed: true, process: 0, source: format!("sq {k}") }
             })
             .collect();
+        j
+    }
+
+    #[test]
+    fn on_the_fly_the_stage_flows_through_fields_far_apart_within_its_limits() {
+        let machine = MachineConfig::load(None).unwrap();
+        let j = far_apart();
         let (seq, tr) = plan(&j, &machine, Mode::OnTheFly);
         assert!(matches!(tr.stage, StagePath::Flow { .. }), "the flowing stage is the faster here");
         let flow = tr.stage_flow.expect("field changes on the fly");
@@ -747,6 +786,34 @@ mod tests {
         assert!(marked_time(&tr) >= j.mark_length() / 800.0 - 1e-9);
         let lb = lower_bound(&j, &seq, &machine, Mode::OnTheFly).unwrap();
         assert!(lb <= tr.job_time(), "{lb} vs {}", tr.job_time());
+    }
+
+    #[test]
+    fn a_round_whose_flow_solve_fails_is_planned_again_with_more_slowing() {
+        let machine = MachineConfig::load(None).unwrap();
+        let j = far_apart();
+        let (seq, _) = plan(&j, &machine, Mode::OnTheFly);
+        // (the stage flows here: the test above) The second round's solve
+        // fails (as an ill-conditioned one may): the round is planned again
+        // with its slowings grown, and the stage still flows, within its
+        // limits.
+        let calls = std::cell::Cell::new(0);
+        let failing = |tcp: &TcpPath, split: &SplitSettings, pads: (f64, f64), space: &flow::Workspace| {
+            calls.set(calls.get() + 1);
+            if calls.get() == 2 {
+                return Err(flow::NoFlow::Unsolved);
+            }
+            flow::plan(tcp, split, pads, space)
+        };
+        let tr = on_the_fly(&j, &seq, &machine, Point::origin(), &failing).unwrap();
+        assert!(calls.get() > 2, "rounds after the failed one: {}", calls.get());
+        assert!(matches!(tr.stage, StagePath::Flow { .. }), "a failed round gives up the flow");
+        check_sampled(&tr, &machine, 2e-5);
+        assert!(marked_time(&tr) >= j.mark_length() / 800.0 - 1e-9);
+        // Failing in the first round (nothing slowed yet to grow): no flow.
+        let first_fails = |_: &TcpPath, _: &SplitSettings, _: (f64, f64), _: &flow::Workspace| Err(flow::NoFlow::Unsolved);
+        let tr = on_the_fly(&j, &seq, &machine, Point::origin(), &first_fails).unwrap();
+        assert!(matches!(tr.stage, StagePath::Moves { .. }), "bursts");
     }
 
     /// The default machine with a pierce on the `mark` layer.

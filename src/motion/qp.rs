@@ -6,34 +6,52 @@
 //! milliseconds, where a general sparse solver factorises a much larger
 //! system each step.
 //!
-//! minimise ½ xᵀPx + w·Σσ  subject to  aᵣ·x ≤ bᵣ (hard rows) and
-//! aᵣ·x − σᵣ ≤ bᵣ, σᵣ ≥ 0 (soft rows: each has its own slack σᵣ, priced `w`).
+//! minimise ½ xᵀPx + w·Σσ  subject to, per row and each of its sides,
+//! aᵣ·x ≤ bᵣ / aᵣ·x ≥ bᵣ (hard) or the same widened by its own slack
+//! σ ≥ 0 (soft, priced `w`). A row bounded on both sides is one row: its
+//! vector enters the normal equations and the residuals once.
 //! Plain arithmetic in a fixed order: the same result on any machine.
 
 /// Consecutive unknowns a row may touch.
 pub const BAND: usize = 4;
 
-/// `a·x[first..first + BAND] ≤ b` (or `− σ` for a soft row).
+/// `a·x[first..first + BAND]` bounded above (`sides[0]`: `≤ b`) and/or
+/// below (`sides[1]`, kept as `−a·x ≤ b`).
 #[derive(Debug, Clone)]
 pub struct Row {
     first: usize,
     a: [f64; BAND],
+    sides: [Option<Side>; 2],
+}
+
+/// One bound of a row (in the `≤` form), hard or widened by a slack.
+#[derive(Debug, Clone, Copy)]
+struct Side {
     b: f64,
     soft: bool,
 }
 
+/// The sign a side's row vector carries (`≤` then `≥`).
+const SIGN: [f64; 2] = [1.0, -1.0];
+
 impl Row {
-    /// A row from its terms `(unknown, weight)`, which must lie within
-    /// `BAND` consecutive unknowns of `n`; `None` when every weight is zero
-    /// (the row says nothing).
+    /// The row `a·x ≤ b` from its terms `(unknown, weight)`, which must lie
+    /// within `BAND` consecutive unknowns of `n`; `None` when every weight is
+    /// zero (the row says nothing).
     pub fn new(terms: &[(usize, f64)], b: f64, soft: bool, n: usize) -> Option<Row> {
-        let lo = terms.iter().filter(|t| t.1 != 0.0).map(|t| t.0).min()?;
-        let first = lo.min(n.saturating_sub(BAND));
+        Row::between(terms, None, Some(b), soft, n)
+    }
+
+    /// The row `lo ≤ a·x ≤ hi` (either bound may be absent, not both).
+    pub fn between(terms: &[(usize, f64)], lo: Option<f64>, hi: Option<f64>, soft: bool, n: usize) -> Option<Row> {
+        let lo_index = terms.iter().filter(|t| t.1 != 0.0).map(|t| t.0).min()?;
+        let first = lo_index.min(n.saturating_sub(BAND));
         let mut a = [0.0; BAND];
         for &(j, w) in terms {
             a[j - first] += w;
         }
-        a.iter().any(|&w| w != 0.0).then_some(Row { first, a, b, soft })
+        let sides = [hi.map(|b| Side { b, soft }), lo.map(|b| Side { b: -b, soft })];
+        (a.iter().any(|&w| w != 0.0) && sides.iter().any(Option::is_some)).then_some(Row { first, a, sides })
     }
 
     fn dot(&self, x: &[f64]) -> f64 {
@@ -92,10 +110,11 @@ impl Banded {
         }
     }
 
-    /// Cholesky factor (`LLᵀ`, `L` in the same banded layout), each pivot
-    /// kept at least `floor` times its diagonal entry (the matrix is positive
+    /// Cholesky factor (`LLᵀ`, `L` in the same banded layout but with
+    /// `1/Lᵢᵢ` on the diagonal: the substitutions multiply), each pivot kept
+    /// at least `floor` times its diagonal entry (the matrix is positive
     /// semi-definite at worst; rounding may leave a pivot near zero).
-    fn cholesky(mut self, floor: f64) -> Banded {
+    fn cholesky(&mut self, floor: f64) {
         let n = self.band.len();
         for i in 0..n {
             for k in 0..BAND {
@@ -106,36 +125,37 @@ impl Banded {
                 for c in i.saturating_sub(BAND - 1)..j {
                     sum -= self.band[i][c + BAND - 1 - i] * self.band[j][c + BAND - 1 - j];
                 }
-                self.band[i][k] = if j == i { sum.max(floor * entry).max(f64::MIN_POSITIVE).sqrt() } else { sum / self.band[j][BAND - 1] };
+                self.band[i][k] = if j == i { 1.0 / sum.max(floor * entry).max(f64::MIN_POSITIVE).sqrt() } else { sum * self.band[j][BAND - 1] };
             }
         }
-        self
     }
 
-    /// Solves `LLᵀx = y` with `self` the factor.
-    fn solve(&self, mut y: Vec<f64>) -> Vec<f64> {
-        let n = y.len();
-        for i in 0..n {
-            for c in i.saturating_sub(BAND - 1)..i {
-                y[i] -= self.band[i][c + BAND - 1 - i] * y[c];
-            }
-            y[i] /= self.band[i][BAND - 1];
+    /// Solves `LLᵀx = y` in place with `self` the factor. (Each unknown
+    /// depends on the three before (after) it, kept in registers: the
+    /// substitutions are a chain of dependent steps.)
+    fn solve(&self, y: &mut [f64]) {
+        const { assert!(BAND == 4) };
+        let (mut y1, mut y2, mut y3) = (0.0, 0.0, 0.0);
+        for (v, l) in y.iter_mut().zip(&self.band) {
+            *v = (*v - l[0] * y3 - l[1] * y2 - l[2] * y1) * l[3];
+            (y3, y2, y1) = (y2, y1, *v);
         }
-        for i in (0..n).rev() {
-            y[i] /= self.band[i][BAND - 1];
-            for c in i.saturating_sub(BAND - 1)..i {
-                y[c] -= self.band[i][c + BAND - 1 - i] * y[i];
-            }
+        // Lᵀ: column c of L below the diagonal is L[c+1][2], L[c+2][1], L[c+3][0].
+        let entry = |i: usize, k: usize| self.band.get(i).map_or(0.0, |l| l[k]);
+        let (mut x1, mut x2, mut x3) = (0.0, 0.0, 0.0);
+        for c in (0..y.len()).rev() {
+            y[c] = (y[c] - entry(c + 3, 0) * x3 - entry(c + 2, 1) * x2 - entry(c + 1, 2) * x1) * self.band[c][3];
+            (x3, x2, x1) = (x2, x1, y[c]);
         }
-        y
     }
 }
 
-/// The solution: the unknowns, and per row its slack (0 for hard rows).
+/// The solution: the unknowns, and per row the slack of each side (`≤`
+/// then `≥`; 0 for hard or absent sides).
 #[derive(Debug, Clone)]
 pub struct Solution {
     pub x: Vec<f64>,
-    pub slack: Vec<f64>,
+    pub slack: Vec<[f64; 2]>,
 }
 
 /// Most steps; a problem not solved by then is reported unsolved.
@@ -151,186 +171,262 @@ const GAP: f64 = 1.0e-5;
 /// whose rows hold and whose mean complementarity is below this is taken.
 const GAP_STALLED: f64 = 1.0e-5;
 
+/// Per side of a row (or its step): the side's slack `s` (b − a·x [+ σ]),
+/// dual `lam`, and for a soft side `sigma` and the dual `lam_n` of σ ≥ 0
+/// (whose slack is σ itself). Zero for hard parts and absent sides.
+#[derive(Debug, Clone, Copy, Default)]
+struct Var {
+    s: f64,
+    lam: f64,
+    sigma: f64,
+    lam_n: f64,
+}
+
+/// The iterate: the unknowns and, per row, its sides.
+struct Iterate {
+    x: Vec<f64>,
+    v: Vec<[Var; 2]>,
+}
+
+/// Per-side buffers a solve works in, kept from one solve to the next (a
+/// flow's rounds solve problems of about the same size: fresh memory for
+/// each was a sixth of their time, in page faults).
+#[derive(Debug, Default)]
+pub struct Workspace {
+    v: Vec<[Var; 2]>,
+    sides: Vec<[SideLinear; 2]>,
+    affine: Vec<[Var; 2]>,
+    step: Vec<[Var; 2]>,
+}
+
+/// `v` emptied and refilled with `len` zeros (its memory kept).
+fn zeroed<T: Copy + Default>(mut v: Vec<T>, len: usize) -> Vec<T> {
+    v.clear();
+    v.resize(len, T::default());
+    v
+}
+
 /// Minimises `½xᵀPx + w·Σσ` over the rows from `x0`, a point where every
-/// hard row holds strictly (soft rows need not). `None` when the method does
-/// not converge.
-pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>) -> Option<Solution> {
-    let m = rows.len();
-    let mut x = x0;
-    // Per row: its slack s (b − a·x [+ σ]) and dual λ; per soft row also σ,
-    // σ's own bound's slack (= σ) and dual (0 for hard rows).
-    let mut s = vec![0.0; m];
-    let mut lam = vec![0.0; m];
-    let mut sigma = vec![0.0; m];
-    let mut lam_n = vec![0.0; m];
-    for (r, row) in rows.iter().enumerate() {
-        let room = row.b - row.dot(&x);
-        if row.soft {
-            sigma[r] = (-room).max(0.0) + 1.0;
-            s[r] = room + sigma[r];
-            lam[r] = 0.5 * w;
-            lam_n[r] = 0.5 * w;
-        } else {
-            if room <= 0.0 {
-                return None;
+/// hard side holds strictly (soft ones need not), in `space`. `None` when
+/// the method does not converge.
+pub fn solve(p: &Banded, rows: &[Row], w: f64, x0: Vec<f64>, space: &mut Workspace) -> Option<Solution> {
+    let (n, m) = (x0.len(), rows.len());
+    let mut it = Iterate { x: x0, v: zeroed(std::mem::take(&mut space.v), m) };
+    let mut lin = Linear { k: p.clone(), factor: p.clone(), rx: Vec::new(), sides: zeroed(std::mem::take(&mut space.sides), m) };
+    let mut affine = Step { dx: vec![0.0; n], dv: zeroed(std::mem::take(&mut space.affine), m) };
+    let mut step = Step { dx: vec![0.0; n], dv: zeroed(std::mem::take(&mut space.step), m) };
+    let solved = interior_point(p, rows, w, &mut it, &mut lin, &mut affine, &mut step);
+    *space = Workspace { v: it.v, sides: lin.sides, affine: affine.dv, step: step.dv };
+    solved
+}
+
+fn interior_point(p: &Banded, rows: &[Row], w: f64, it: &mut Iterate, lin: &mut Linear, affine: &mut Step, step: &mut Step) -> Option<Solution> {
+    let mut count = 0.0;
+    for (row, v) in rows.iter().zip(it.v.iter_mut()) {
+        let ax = row.dot(&it.x);
+        for (k, (side, v)) in row.sides.iter().zip(v.iter_mut()).enumerate() {
+            let Some(side) = side else { continue };
+            let room = side.b - SIGN[k] * ax;
+            if side.soft {
+                let sigma = (-room).max(0.0) + 1.0;
+                *v = Var { s: room + sigma, lam: 0.5 * w, sigma, lam_n: 0.5 * w };
+                count += 2.0;
+            } else {
+                if room <= 0.0 {
+                    return None;
+                }
+                *v = Var { s: room, lam: 1.0, sigma: 0.0, lam_n: 0.0 };
+                count += 1.0;
             }
-            s[r] = room;
-            lam[r] = 1.0;
         }
     }
-    let count = (m + rows.iter().filter(|r| r.soft).count()) as f64;
-    let worst = |v: &[f64]| v.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-    let (mut rp, mut rs, mut d, mut d_n) = (vec![0.0; m], vec![0.0; m], vec![0.0; m], vec![0.0; m]);
-    let (mut rc, mut rc_n) = (vec![0.0; m], vec![0.0; m]);
-    let (mut affine, mut step) = (Step::zeros(x.len(), m), Step::zeros(x.len(), m));
-    let mut k = p.clone();
     // Steps in a row that barely lowered the complementarity.
     let (mut stalled, mut last_mu) = (0, f64::INFINITY);
     for _ in 0..MOST_STEPS {
-        // Residuals: dual (x, σ), primal (rows; σ's bound holds by
-        // construction: its slack is σ itself).
-        let mut rx = p.mul(&x);
-        let mut gap = 0.0;
-        for (r, row) in rows.iter().enumerate() {
-            row.add_to(&mut rx, lam[r]);
-            rp[r] = row.dot(&x) - sigma[r] + s[r] - row.b;
-            rs[r] = if row.soft { w - lam[r] - lam_n[r] } else { 0.0 };
-            gap += s[r] * lam[r] + sigma[r] * lam_n[r];
-        }
-        let mu = gap / count;
-        let done = |x: Vec<f64>| Some(Solution { x, slack: sigma.clone() });
-        if worst(&rp) <= PRIMAL && worst(&rx) <= DUAL && worst(&rs) <= DUAL && mu <= GAP {
-            return done(x);
+        let residuals = lin.linearise(p, rows, w, it);
+        let mu = residuals.gap / count;
+        let stalled_result = |it: &Iterate| (residuals.primal <= PRIMAL && mu <= GAP_STALLED).then(|| it.solution());
+        if residuals.primal <= PRIMAL && residuals.dual <= DUAL && mu <= GAP {
+            return Some(it.solution());
         }
         stalled = if mu > 0.9 * last_mu { stalled + 1 } else { 0 };
         last_mu = mu;
         if stalled >= 3 {
-            return (worst(&rp) <= PRIMAL && mu <= GAP_STALLED).then(|| done(x)).flatten();
+            return stalled_result(it);
         }
-        // The normal equations' matrix: P + Σ dᵣ aᵣaᵣᵀ (a soft row's weight
-        // with its σ eliminated).
-        k.band.clone_from(&p.band);
-        for (r, row) in rows.iter().enumerate() {
-            d[r] = lam[r] / s[r];
-            let weight = if row.soft {
-                d_n[r] = lam_n[r] / sigma[r];
-                d[r] * d_n[r] / (d[r] + d_n[r])
-            } else {
-                d[r]
-            };
-            k.add_row(row, weight);
-        }
-        let factor = k.clone().cholesky(1e-12);
-        let newton = Newton { rows, factor: &factor, rx: &rx, rp: &rp, rs: &rs, d: &d, d_n: &d_n, s: &s, lam: &lam, lam_n: &lam_n };
+        lin.factor.band.clone_from(&lin.k.band);
+        lin.factor.cholesky(1e-12);
         // Predictor: towards complementarity 0.
-        for r in 0..m {
-            rc[r] = s[r] * lam[r];
-            rc_n[r] = sigma[r] * lam_n[r];
-        }
-        newton.step(&rc, &rc_n, &mut affine);
-        let alpha = affine.longest(&s, &lam, &sigma, &lam_n);
+        let alpha = lin.step(rows, it, 0.0, None, affine);
         let mut gap_affine = 0.0;
-        for r in 0..m {
-            gap_affine += (s[r] + alpha * affine.ds[r]) * (lam[r] + alpha * affine.dl[r]) + (sigma[r] + alpha * affine.dsig[r]) * (lam_n[r] + alpha * affine.dln[r]);
+        for ((row, v), dv) in rows.iter().zip(&it.v).zip(&affine.dv) {
+            for ((side, v), dv) in row.sides.iter().zip(v).zip(dv) {
+                let Some(side) = side else { continue };
+                gap_affine += (v.s + alpha * dv.s) * (v.lam + alpha * dv.lam);
+                if side.soft {
+                    gap_affine += (v.sigma + alpha * dv.sigma) * (v.lam_n + alpha * dv.lam_n);
+                }
+            }
         }
         // Corrector: towards a centre chosen by how far the predictor got.
         let centre = (gap_affine / count / mu).powi(3) * mu;
-        for r in 0..m {
-            rc[r] = s[r] * lam[r] + affine.ds[r] * affine.dl[r] - centre;
-            rc_n[r] = if rows[r].soft { sigma[r] * lam_n[r] + affine.dsig[r] * affine.dln[r] - centre } else { 0.0 };
+        let alpha = lin.step(rows, it, centre, Some(affine), step);
+        if !alpha.is_finite() {
+            return stalled_result(it);
         }
-        newton.step(&rc, &rc_n, &mut step);
-        if !step.finite() {
-            return (worst(&rp) <= PRIMAL && mu <= GAP_STALLED).then(|| done(x)).flatten();
-        }
-        let alpha = (0.99 * step.longest(&s, &lam, &sigma, &lam_n)).min(1.0);
-        for (v, dv) in x.iter_mut().zip(&step.dx) {
+        let alpha = (0.99 * alpha).min(1.0);
+        for (v, dv) in it.x.iter_mut().zip(&step.dx) {
             *v += alpha * dv;
         }
-        for r in 0..m {
-            s[r] += alpha * step.ds[r];
-            lam[r] += alpha * step.dl[r];
-            sigma[r] += alpha * step.dsig[r];
-            lam_n[r] += alpha * step.dln[r];
+        for (v, dv) in it.v.iter_mut().flatten().zip(step.dv.iter().flatten()) {
+            v.s += alpha * dv.s;
+            v.lam += alpha * dv.lam;
+            v.sigma += alpha * dv.sigma;
+            v.lam_n += alpha * dv.lam_n;
         }
     }
     None
 }
 
-/// A Newton step: unknowns, rows' slacks and duals, σ and its bound's dual.
+impl Iterate {
+    fn solution(&self) -> Solution {
+        let slack = self.v.iter().map(|v| [v[0].sigma, v[1].sigma]).collect();
+        Solution { x: self.x.clone(), slack }
+    }
+}
+
+/// A Newton step: the unknowns' and the sides' parts.
 struct Step {
     dx: Vec<f64>,
-    ds: Vec<f64>,
-    dl: Vec<f64>,
-    dsig: Vec<f64>,
-    dln: Vec<f64>,
+    dv: Vec<[Var; 2]>,
 }
 
-impl Step {
-    fn zeros(n: usize, m: usize) -> Step {
-        Step { dx: vec![0.0; n], ds: vec![0.0; m], dl: vec![0.0; m], dsig: vec![0.0; m], dln: vec![0.0; m] }
-    }
 
-    fn finite(&self) -> bool {
-        [&self.dx, &self.ds, &self.dl, &self.dsig, &self.dln].iter().all(|v| v.iter().all(|x| x.is_finite()))
-    }
+/// The largest residuals and the complementarity of an iterate.
+struct Residuals {
+    primal: f64,
+    dual: f64,
+    gap: f64,
+}
 
-    /// How far along the step every slack and dual stays positive (≤ 1).
-    fn longest(&self, s: &[f64], lam: &[f64], sigma: &[f64], lam_n: &[f64]) -> f64 {
-        let mut alpha = 1.0f64;
-        for (v, dv) in [(s, &self.ds), (lam, &self.dl), (sigma, &self.dsig), (lam_n, &self.dln)] {
-            for (&v, &dv) in v.iter().zip(dv.iter()) {
-                if dv < 0.0 && v > 0.0 {
-                    alpha = alpha.min(-v / dv);
+/// Per side, what a step follows from: the primal residual, σ's dual
+/// residual, `λ/s`, `λₙ/σ`, `1/λ`, `1/λₙ`, `1/(d + dₙ)`, and the step's
+/// `e`, `eₙ` (kept from the right-hand side for the back substitution).
+#[derive(Debug, Clone, Copy, Default)]
+struct SideLinear {
+    rp: f64,
+    rs: f64,
+    d: f64,
+    d_n: f64,
+    inv_lam: f64,
+    inv_lam_n: f64,
+    inv_sum: f64,
+    e: f64,
+    e_n: f64,
+}
+
+/// One iterate's linearisation: its residuals, the normal equations (and
+/// their factor) and, per side, what the step's other parts follow from.
+struct Linear {
+    k: Banded,
+    factor: Banded,
+    /// Dual residual of the unknowns (`Px + Σ ±λ a`).
+    rx: Vec<f64>,
+    sides: Vec<[SideLinear; 2]>,
+}
+
+impl Linear {
+    /// Residuals of `it` and the normal equations' matrix `P + Σ wⱼ aaᵀ`
+    /// (a soft side's weight with its σ eliminated), in one pass over the
+    /// rows.
+    fn linearise(&mut self, p: &Banded, rows: &[Row], w: f64, it: &Iterate) -> Residuals {
+        self.rx = p.mul(&it.x);
+        self.k.band.clone_from(&p.band);
+        let (mut primal, mut dual, mut gap) = (0.0f64, 0.0f64, 0.0);
+        for ((row, v), l) in rows.iter().zip(&it.v).zip(self.sides.iter_mut()) {
+            let ax = row.dot(&it.x);
+            let (mut net_lam, mut weight) = (0.0, 0.0);
+            for (k, ((side, v), l)) in row.sides.iter().zip(v).zip(l.iter_mut()).enumerate() {
+                let Some(side) = side else { continue };
+                l.rp = SIGN[k] * ax - v.sigma + v.s - side.b;
+                primal = primal.max(l.rp.abs());
+                net_lam += SIGN[k] * v.lam;
+                gap += v.s * v.lam + v.sigma * v.lam_n;
+                l.d = v.lam / v.s;
+                l.inv_lam = 1.0 / v.lam;
+                if side.soft {
+                    l.rs = w - v.lam - v.lam_n;
+                    dual = dual.max(l.rs.abs());
+                    l.d_n = v.lam_n / v.sigma;
+                    l.inv_lam_n = 1.0 / v.lam_n;
+                    l.inv_sum = 1.0 / (l.d + l.d_n);
+                    weight += l.d * l.d_n * l.inv_sum;
+                } else {
+                    weight += l.d;
                 }
             }
+            row.add_to(&mut self.rx, net_lam);
+            self.k.add_row(row, weight);
         }
-        alpha
+        dual = self.rx.iter().fold(dual, |a, b| a.max(b.abs()));
+        Residuals { primal, dual, gap }
     }
-}
 
-/// One iterate's linearisation: the factored normal equations and what
-/// the step's other parts follow from.
-struct Newton<'a> {
-    rows: &'a [Row],
-    factor: &'a Banded,
-    rx: &'a [f64],
-    rp: &'a [f64],
-    rs: &'a [f64],
-    d: &'a [f64],
-    d_n: &'a [f64],
-    s: &'a [f64],
-    lam: &'a [f64],
-    lam_n: &'a [f64],
-}
-
-impl Newton<'_> {
-    /// The step towards complementarity targets `rc` (rows) and `rc_n`
-    /// (σ's bounds), into `out`.
-    fn step(&self, rc: &[f64], rc_n: &[f64], out: &mut Step) {
-        let (d, d_n) = (self.d, self.d_n);
-        let mut rhs: Vec<f64> = self.rx.iter().map(|v| -v).collect();
-        for (r, row) in self.rows.iter().enumerate() {
-            let e = self.rp[r] - rc[r] / self.lam[r];
-            let k = if row.soft {
-                let e_n = -rc_n[r] / self.lam_n[r];
-                d[r] * (d_n[r] * (e - e_n) + self.rs[r]) / (d[r] + d_n[r])
-            } else {
-                d[r] * e
-            };
-            row.add_to(&mut rhs, -k);
+    /// The step towards complementarity `centre` (with Mehrotra's second
+    /// order term from `affine`, if given), into `out`; returns how far
+    /// along it every slack and dual stays positive (≤ 1; not finite when
+    /// the step is not).
+    fn step(&mut self, rows: &[Row], it: &Iterate, centre: f64, affine: Option<&Step>, out: &mut Step) -> f64 {
+        let rhs = &mut out.dx;
+        for (v, r) in rhs.iter_mut().zip(&self.rx) {
+            *v = -r;
         }
-        out.dx = self.factor.solve(rhs);
-        for (r, row) in self.rows.iter().enumerate() {
-            let adx = row.dot(&out.dx);
-            let e = self.rp[r] - rc[r] / self.lam[r];
-            if row.soft {
-                let e_n = -rc_n[r] / self.lam_n[r];
-                out.dsig[r] = (d[r] * (adx + e) + d_n[r] * e_n - self.rs[r]) / (d[r] + d_n[r]);
-                out.dln[r] = d_n[r] * (e_n - out.dsig[r]);
+        let none = [Var::default(); 2];
+        for (r, ((row, v), l)) in rows.iter().zip(&it.v).zip(self.sides.iter_mut()).enumerate() {
+            let second = affine.map_or(&none, |a| &a.dv[r]);
+            let mut net = 0.0;
+            for (k, (((side, v), l), da)) in row.sides.iter().zip(v).zip(l.iter_mut()).zip(second).enumerate() {
+                let Some(side) = side else { continue };
+                let rc = v.s * v.lam + da.s * da.lam - centre;
+                l.e = l.rp - rc * l.inv_lam;
+                let k_side = if side.soft {
+                    let rc_n = v.sigma * v.lam_n + da.sigma * da.lam_n - centre;
+                    l.e_n = -rc_n * l.inv_lam_n;
+                    l.d * (l.d_n * (l.e - l.e_n) + l.rs) * l.inv_sum
+                } else {
+                    l.d * l.e
+                };
+                net += SIGN[k] * k_side;
             }
-            out.dl[r] = d[r] * (adx - out.dsig[r] + e);
-            out.ds[r] = (-rc[r] - self.s[r] * out.dl[r]) / self.lam[r];
+            row.add_to(rhs, -net);
+        }
+        self.factor.solve(&mut out.dx);
+        let mut alpha = 1.0f64;
+        let mut finite = out.dx.iter().all(|v| v.is_finite());
+        // (dividing only where the step would cross zero before `alpha`)
+        let longest = |alpha: f64, v: f64, dv: f64| if v + alpha * dv < 0.0 && v > 0.0 { alpha.min(-v / dv) } else { alpha };
+        for ((row, v), (l, o)) in rows.iter().zip(&it.v).zip(self.sides.iter().zip(out.dv.iter_mut())) {
+            let adx = row.dot(&out.dx);
+            for (k, (((side, v), l), o)) in row.sides.iter().zip(v).zip(l).zip(o.iter_mut()).enumerate() {
+                let Some(side) = side else { continue };
+                let adx = SIGN[k] * adx;
+                if side.soft {
+                    o.sigma = (l.d * (adx + l.e) + l.d_n * l.e_n - l.rs) * l.inv_sum;
+                    o.lam_n = l.d_n * (l.e_n - o.sigma);
+                    alpha = longest(longest(alpha, v.sigma, o.sigma), v.lam_n, o.lam_n);
+                    finite &= o.sigma.is_finite() && o.lam_n.is_finite();
+                }
+                o.lam = l.d * (adx - o.sigma + l.e);
+                // s·dλ + λ·ds = −rc, with rc = λ·(rp − e).
+                o.s = -(l.rp - l.e) - v.s * o.lam * l.inv_lam;
+                alpha = longest(longest(alpha, v.s, o.s), v.lam, o.lam);
+                finite &= o.lam.is_finite() && o.s.is_finite();
+            }
+        }
+        if finite {
+            alpha
+        } else {
+            f64::NAN
         }
     }
 }
@@ -353,7 +449,10 @@ mod tests {
         }
         let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.9).cos()).collect();
         let y = k.mul(&x);
-        let back = k.clone().cholesky(1e-14).solve(y);
+        let mut back = y;
+        let mut factor = k.clone();
+        factor.cholesky(1e-14);
+        factor.solve(&mut back);
         for (a, b) in x.iter().zip(&back) {
             assert!((a - b).abs() < 1e-12, "{a} vs {b}");
         }
@@ -365,18 +464,21 @@ mod tests {
         // soft: the best has x0 = 0, x1 = 1, σ = 2 (cost 2, no quadratic).
         let n = 2;
         let rows: Vec<Row> = [
-            Row::new(&[(0, -1.0), (1, 1.0)], 1.0, false, n),
-            Row::new(&[(0, 1.0), (1, -1.0)], 1.0, false, n),
+            Row::between(&[(0, -1.0), (1, 1.0)], Some(-1.0), Some(1.0), false, n),
             Row::new(&[(0, 1.0)], 0.0, false, n),
-            Row::new(&[(1, -1.0)], -3.0, true, n),
+            Row::between(&[(1, 1.0)], Some(3.0), None, true, n),
         ]
         .into_iter()
         .flatten()
         .collect();
-        let solved = solve(&Banded::zeros(n), &rows, 1.0, vec![-1.0, -1.0]).expect("solved");
+        let mut space = Workspace::default();
+        let solved = solve(&Banded::zeros(n), &rows, 1.0, vec![-1.0, -1.0], &mut space).expect("solved");
         assert!((solved.x[0] - 0.0).abs() < 1e-5 && (solved.x[1] - 1.0).abs() < 1e-5, "{:?}", solved.x);
-        assert!((solved.slack[3] - 2.0).abs() < 1e-5, "{:?}", solved.slack);
+        assert!((solved.slack[2][1] - 2.0).abs() < 1e-5 && solved.slack[2][0] == 0.0, "{:?}", solved.slack);
         // A hard row that does not hold at the start: refused.
-        assert!(solve(&Banded::zeros(n), &rows, 1.0, vec![1.0, 1.0]).is_none());
+        assert!(solve(&Banded::zeros(n), &rows, 1.0, vec![1.0, 1.0], &mut space).is_none());
+        // The buffers those solves left give the same optimum again.
+        let again = solve(&Banded::zeros(n), &rows, 1.0, vec![-1.0, -1.0], &mut space).expect("solved");
+        assert_eq!((again.x, again.slack), (solved.x, solved.slack));
     }
 }
