@@ -331,18 +331,18 @@ pub fn plan(s: &TcpSettings, points: &[Point], lengths: &[f64], dirs: &[Vector2<
         .map(|f| Curve::compensated(points, f * mean))
         .find(|c| c.deviation(points) <= 0.95 * s.corner_tolerance)?;
     let top = limits.iter().map(|l| l.velocity).fold(f64::INFINITY, f64::min);
+    let (length, reach) = (curve.length(), curve.widest.min(0.5 * curve.length()));
+    let bend = curve.bend(reach, length - reach);
+    let ceiling = top.min(bend.top_speed(&s.axis));
+    // Within a window of its ends, where the windows narrow, the curve
+    // bends more sharply than inside: there it starts and ends no faster
+    // than it could run at a constant speed (a little below).
+    let ends = [curve.bend(0.0, reach), curve.bend(length - reach, length)].map(|b| 0.9 * b.top_speed(&s.axis));
+    let (entry, exit) = (entry.min(ends[0]), exit.min(ends[1]));
     // Cruises in steps of 1/CRUISES of the fastest the curvature allows,
     // ramps taking several shares of what it leaves: the fastest profile
     // within the limits (the highest cruise leaves its ramps little
     // acceleration).
-    // Within a window of its ends, where the windows narrow, the curve
-    // bends more sharply than inside: there it starts and ends no faster
-    // than it could run at a constant speed (a little below).
-    let (length, reach) = (curve.length(), curve.widest.min(0.5 * curve.length()));
-    let bend = curve.bend(reach, length - reach);
-    let ceiling = top.min(bend.top_speed(&s.axis));
-    let ends = [curve.bend(0.0, reach), curve.bend(length - reach, length)].map(|b| 0.9 * b.top_speed(&s.axis));
-    let (entry, exit) = (entry.min(ends[0]), exit.min(ends[1]));
     let mut profiles: Vec<Profile> = (0..CRUISES)
         .flat_map(|k| RAMP_SHARES.map(|share| (ceiling * (1.0 - k as f64 / CRUISES as f64), share)))
         .filter_map(|(cruise, share)| speed_profile(length, [entry, cruise, exit], &bend, &s.axis, share))
