@@ -142,6 +142,17 @@ fn motion_for_link(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode
     if needed <= 1.0 {
         return Ok((trajectory, program, 1.0));
     }
+    // Arcs carry curves in few lines, but the controller splits each into
+    // many short planner blocks: a fast arc empties the planner faster than
+    // the link refills it. Straight lines alone may keep up at full speed.
+    if machine.program.arcs {
+        let mut straight = machine.clone();
+        straight.program.arcs = false;
+        let program = program::generate(job, &trajectory, &straight)?;
+        if link.slowdown(&program, || program::link::rests(&program, &trajectory))? <= 1.0 {
+            return Ok((trajectory, program, 1.0));
+        }
+    }
     // How much longer the job takes than at full speed.
     let full_time = trajectory.job_time().max(1e-9);
     // First the marks denser than the link, each alone.

@@ -235,6 +235,20 @@ fn a_link_too_slow_for_the_program_slows_the_job_instead_of_starving_the_control
 }
 
 #[test]
+fn a_link_that_cannot_carry_the_arcs_gets_straight_lines_before_the_job_is_slowed() {
+    // One-field's circles (r = 3) on the flatbed run near what their
+    // curvature allows; as G2 arcs the controller splits them into short
+    // planner blocks faster than the 115200-baud link refills the planner
+    // (the job was slowed 1.09 times for it). In straight lines the link
+    // keeps up at full speed.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml");
+    let report = json(&laserd(&["dry-run", &sample("one-field.svg"), "--json", "--config", cfg.to_str().unwrap()], dir.path()));
+    assert_eq!(report["link_slowdown"], 1.0, "{report}");
+    assert_eq!(report["sim"]["limit_violations"], 0, "{}", report["sim"]);
+}
+
+#[test]
 fn malformed_svg_is_one_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.svg");

@@ -481,6 +481,26 @@ mod tests {
     }
 
     #[test]
+    fn a_flattened_circle_runs_near_the_speed_its_curvature_allows() {
+        // Radius 10 flattened to the corner tolerance (legs of 0.9 mm, as an
+        // SVG circle is imported) at a feed far above what the curve
+        // allows: mid-circle at nearly √(A·r) = 221 mm/s, where the
+        // centripetal acceleration alone takes the axes' limit. The ramps'
+        // share used to be fixed at half the acceleration, and the curve's
+        // shape cut inside the polyline, so only windows of ~1.5 legs kept
+        // to the tolerance (its curvature rippling): ~103 mm/s.
+        let r = 10.0;
+        let circle = flattened_circle(Point::new(60.0, 60.0), r, 0.01);
+        let path = marked(&circle, 490.0);
+        let marks: Vec<_> = path.pieces.iter().filter(|p| p.is_marking()).collect();
+        let (t0, t1) = (marks[0].start, marks.last().unwrap().end_time());
+        let mid = (0..=20).map(|k| speed_at(&path, t0 + (t1 - t0) * (0.4 + 0.01 * k as f64))).fold(f64::INFINITY, f64::min);
+        let allowed = (settings().axis.acceleration * r).sqrt();
+        assert!(mid >= 0.9 * allowed, "{mid} mm/s mid-circle, the curvature allows {allowed}");
+        check(&path, &circle);
+    }
+
+    #[test]
     fn a_run_is_one_curve_only_where_that_is_faster() {
         // Circles flattened to 0.01 mm: at 50 mm/s turned vertex by vertex
         // nearly at the feed, at 180 mm/s faster as one curve.
