@@ -808,6 +808,27 @@ mod tests {
     }
 
     #[test]
+    fn the_flowing_stage_uses_its_limits_beyond_the_bursts_share() {
+        let machine = MachineConfig::load(None).unwrap();
+        let j = far_apart();
+        let (_, tr) = plan(&j, &machine, Mode::OnTheFly);
+        assert!(matches!(tr.stage, StagePath::Flow { .. }), "the flowing stage is the faster here");
+        check_sampled(&tr, &machine, 2e-5);
+        // The stage's fastest axis while the scanner marks (the flow's time,
+        // after the approach): beyond the share the bursts keep as headroom.
+        let (dt, mut fastest) = (1e-4, 0.0f64);
+        for k in 1..(tr.duration() / dt) as usize {
+            let t = k as f64 * dt;
+            if tr.tcp.pieces[tr.tcp.index_at(t)].is_marking() {
+                let v = (tr.state_at(t).stage - tr.state_at(t - dt).stage) / dt;
+                fastest = fastest.max(v.x.abs()).max(v.y.abs());
+            }
+        }
+        let bursts = machine.stage_limits().scaled(machine.motion.limit_margin * machine.motion.stage_share).velocity;
+        assert!(fastest > 1.05 * bursts, "the stage at most {fastest} mm/s while marking, the bursts' share {bursts}");
+    }
+
+    #[test]
     fn a_round_whose_flow_solve_fails_is_planned_again_with_more_slowing() {
         let machine = MachineConfig::load(None).unwrap();
         let j = far_apart();
