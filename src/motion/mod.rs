@@ -383,7 +383,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
 /// short blocks (at share 1 their programs reached 0.987 of the stage's
 /// limits); the flow's program, from one smooth spline, needs far less
 /// (≤ 0.983 on the four flowed jobs). SC82C24 at 0.8: 1.345 × the bound; at 1:
-/// 1.185 (its scan fields far apart: the stage sets its time).
+/// 1.189 (its scan fields far apart: the stage sets its time).
 const FLOW_SHARE: f64 = 1.0;
 
 /// Rounds of planning the flow, slowing where it falls behind, at most.
