@@ -594,8 +594,9 @@ pub struct MotionConfig {
     /// dropped before planning (mm).
     #[serde(default = "default_line_tolerance")]
     pub line_tolerance: f64,
-    /// Share of the stage's limits its on-the-fly moves use; the rest is
-    /// headroom for the rounding of coordinates in the program.
+    /// Share of the stage's limits its on-the-fly bursts use; the rest is
+    /// headroom for the rounding of coordinates in the program (a stage
+    /// flowing through the fields uses all of them within `limit_margin`).
     #[serde(default = "default_stage_share")]
     pub stage_share: f64,
 }

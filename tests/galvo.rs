@@ -128,3 +128,22 @@ fn sparse_fields_flow_on_the_fly_within_the_limits_near_the_bound() {
         assert!(dry.outcome.completed, "{case}: {:?}", dry.outcome);
     }
 }
+
+/// SC82C24's 22 scan fields are far apart: the stage sets its time on the fly
+/// (its flow uses all of the stage's limits within the margin); within the
+/// limits in the simulator. (1.345 × the bound with the flow at the bursts' share.)
+#[test]
+fn fields_far_apart_flow_with_the_stage_at_its_limits() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let machine = MachineConfig::load(Some(&root.join(DEFAULT_CONFIG_PATH))).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let planned = run::plan(&data().join("SC82C24.svg"), &machine, PlannerKind::Auto, None).unwrap();
+    let ratio = planned.report.trajectory_time_s / planned.report.lower_bound_s;
+    assert!(ratio <= 1.2, "SC82C24: {} s, {ratio} × the bound", planned.report.trajectory_time_s);
+    let dry = run::dry_run(&planned, &machine, &dir.path().join("SC82C24.mcap"), Faults::default()).unwrap();
+    let sim = dry.report.sim.as_ref().unwrap();
+    assert_eq!(sim.limit_violations, 0, "{sim:?}");
+    assert!(sim.peak_field_use.unwrap() <= 1.0 && sim.peak_stage_use <= 1.0, "{sim:?}");
+    assert!(sim.max_tcp_deviation_mm.unwrap() <= 0.02, "{sim:?}");
+    assert!(dry.outcome.completed, "{:?}", dry.outcome);
+}
