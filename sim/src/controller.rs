@@ -411,10 +411,15 @@ impl Controller {
 
     /// An empty line buffer of the firmware's size.
     fn line_builder(&self) -> LineBuilder {
-        LineBuilder::with_max(match self.cfg.flavor {
+        LineBuilder::with_max(self.max_line())
+    }
+
+    /// The longest line (cleaned, without its terminator) the flavor takes.
+    fn max_line(&self) -> usize {
+        match self.cfg.flavor {
             Flavor::Grbl => crate::gcode::MAX_LINE,
             Flavor::Grblhal => crate::gcode::MAX_LINE_HAL,
-        })
+        }
     }
 
     pub fn config(&self) -> &SimConfig {

@@ -360,7 +360,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
                 // planned anew).
                 let flow_split = SplitSettings { burst: stage_limits.scaled(FLOW_SHARE), ..split };
                 let flow_settings = tcp_settings_against(machine, Mode::OnTheFly, FLOW_SHARE);
-                return Ok(match flowing(job, sequence, machine, start, first, &flow_split, flow_settings, &mut None, tcp::PlanCache::default(), planner)? {
+                return Ok(match flowing(job, sequence, machine, start, first, &flow_split, flow_settings, planner)? {
                     Some(flow) if flow.job_time() < bursts.job_time() => flow,
                     _ => bursts,
                 });
@@ -414,8 +414,8 @@ fn flow_share(sequence: &Sequence, slowed: usize) -> Option<f64> {
 /// jumps to the next field's first point time-scaled, taking longer by what
 /// the stage is short of), and at the ends the TCP waits; all is planned
 /// again (after a round whose solve fails: with that round's slowings
-/// grown). `None` when that does not settle it. `cache`: the corners and
-/// moves the bursts' plan made (the same settings: round 0 plans none anew).
+/// grown). `None` when that does not settle it. The marks' runs, corners
+/// and moves are planned anew: the flow's TCP settings are not the bursts'.
 #[allow(clippy::too_many_arguments)]
 fn flowing(
     job: &Job,
@@ -425,10 +425,9 @@ fn flowing(
     first: Point,
     split: &SplitSettings,
     settings: TcpSettings,
-    runs: &mut Option<Vec<Option<Run>>>,
-    mut cache: tcp::PlanCache,
     planner: FlowPlanner,
 ) -> Result<Option<Trajectory>> {
+    let (mut runs, mut cache): (Option<Vec<Option<Run>>>, tcp::PlanCache) = (None, tcp::PlanCache::default());
     let groups = sequence.groups.len();
     let first_group = sequence.groups.iter().position(|g| !g.paths.is_empty()).unwrap_or(0);
     let stage_limits = machine.stage_limits().scaled(machine.motion.limit_margin);
@@ -437,7 +436,7 @@ fn flowing(
     // the flow for it (or where it falls behind). `None`: no flow for this job.
     let mut attempt = |slowed: &[Option<f64>], pads: (f64, f64)| -> Result<Option<(TcpPath, std::result::Result<flow::Flow, flow::NoFlow>)>> {
         let mut b = TcpBuilder::new(settings, first, 0.0).with_cache(std::mem::take(&mut cache));
-        let marked = mark_all(&mut b, job, sequence, machine, runs, |b, g| {
+        let marked = mark_all(&mut b, job, sequence, machine, &mut runs, |b, g| {
             if let Some(took) = slowed[g] {
                 let entry = sequence.groups[g].paths[0].start();
                 b.jump_slowed(g, entry, took)?;

@@ -186,11 +186,7 @@ impl Controller {
         // longest yet, were it longer), the sender was not waiting. Less room
         // than the longest line *so far* is not enough: the next may be longer
         // (an arc's line after those of a straight cut), and the sender waits.
-        let max_line = match self.cfg.flavor {
-            Flavor::Grbl => crate::gcode::MAX_LINE,
-            Flavor::Grblhal => crate::gcode::MAX_LINE_HAL,
-        } + 1;
-        if self.rx_capacity().saturating_sub(self.rx.len() + taken) < self.longest_line.max(max_line) {
+        if self.rx_capacity().saturating_sub(self.rx.len() + taken) < self.longest_line.max(self.max_line() + 1) {
             self.last_room_t = self.now;
         }
         self.take_rx(len);

@@ -30,9 +30,9 @@
 //! Silent means the sender could have sent and did not: the time counts from
 //! the last byte received or, when the receive buffer had less room than the
 //! longest line the controller takes, from the `ok` that made room, whichever
-//! is later. A sender counting
-//! characters waits for that `ok` (a `G4` holds its bytes and those behind it
-//! until its `ok`, after the dwell), so a link quiet then is not the stream's end.
+//! is later. A sender counting characters waits for that `ok` (a `G4` holds
+//! its bytes and those behind it until its `ok`, after the dwell), so a link
+//! quiet then is not the stream's end.
 //! A feed hold (or a door) slows the program clock to a stop along the path,
 //! laser off, within half of every axis' acceleration and jerk limit, then
 //! reads `Hold:0`; `~` is taken only then, and ramps the clock up again.
@@ -336,8 +336,8 @@ impl Controller {
     /// Since when the link has been silent: the last byte received, or the
     /// last answer that made room in a receive buffer too full for another
     /// line (of the longest length the controller takes: the controller
-    /// cannot know how long the sender's next line is), whichever came later. A sender counting characters that finds
-    /// the buffer full waits for an `ok` (a `G4` keeps its bytes, and those of
+    /// cannot know how long the sender's next line is), whichever came
+    /// later. A sender counting characters that finds the buffer full waits for an `ok` (a `G4` keeps its bytes, and those of
     /// the lines behind it, there until its `ok`, after the dwell), so a link
     /// quiet while the controller holds its buffer is waiting, not done. Were
     /// this counted from the last byte only, the few blocks that fit behind a
