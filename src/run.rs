@@ -20,7 +20,7 @@ use crate::mode::Mode;
 use crate::motion::{self, Trajectory};
 use crate::plan::split::{check_fits, split_at_field_borders};
 use crate::plan::cutting::describe;
-use crate::plan::{plan_job, PlanContext, PlannerKind, Sequence};
+use crate::plan::{plan_job, PlanContext, PlanOutcome, PlannerKind, Sequence};
 use crate::program::{self, Program};
 use crate::record::{Recorder, Recording, TOPIC_JOB, TOPIC_PLAN_LINES, TOPIC_REPORT, TOPIC_SETUP};
 use crate::report::PlanReport;
@@ -63,13 +63,26 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     };
     let started = WallInstant::now();
     let ctx = PlanContext { machine: &planning_machine, mode, start: job_start() };
-    let outcome = plan_job(kind, &job, &ctx)?;
-    let plan_time_s = started.elapsed().as_secs_f64();
+    let mut outcome = plan_job(kind, &job, &ctx)?;
+    let mut plan_time_s = started.elapsed().as_secs_f64();
+    let started = WallInstant::now();
+    let (mut trajectory, mut program, mut link_slowdown) = motion_for_link(&job, &outcome.sequence, machine, mode)?;
+    let mut motion_time_s = started.elapsed().as_secs_f64();
+    // Planning again in tighter fields is planning: its time counts there.
+    let started = WallInstant::now();
+    let tighter = tighter_fields(kind, &job, &ctx, machine, &outcome, &trajectory)?;
+    plan_time_s += started.elapsed().as_secs_f64();
+    if let Some(tighter) = tighter {
+        let started = WallInstant::now();
+        let planned = motion_for_link(&job, &tighter.sequence, machine, mode)?;
+        if planned.0.job_time() < trajectory.job_time() {
+            (trajectory, program, link_slowdown) = planned;
+            outcome = tighter;
+            motion_time_s = started.elapsed().as_secs_f64();
+        }
+    }
     let sequence = outcome.sequence;
     let broken_rules: Option<Vec<String>> = outcome.broken_rules.map(|rules| rules.iter().map(|r| describe(&job, r)).collect());
-    let started = WallInstant::now();
-    let (trajectory, program, link_slowdown) = motion_for_link(&job, &sequence, machine, mode)?;
-    let motion_time_s = started.elapsed().as_secs_f64();
     let lower_bound_s = motion::lower_bound(&job, &sequence, machine, mode)?;
     let program_bytes: usize = program.lines.iter().map(|l| l.text.len() + 1).sum();
     let blocks = program.lines.iter().filter(|l| l.plan_time.is_some() && l.kind != program::LineKind::Approach).count();
@@ -102,6 +115,47 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         config: None,
     };
     Ok(Planned { job, sequence, trajectory, program, report, broken_rules })
+}
+
+/// Shares of the scan field the marks are grouped in when the stage falls
+/// behind on the fly (see `tighter_fields`).
+const TIGHTER_FIELDS: [f64; 3] = [0.9, 0.8, 0.65];
+
+/// On the fly, where the stage cannot flow through every field change
+/// (`stage_flow` < 1): the job planned again with its marks grouped in
+/// squares smaller than the scan field, each built; the fastest of those if
+/// it beats `trajectory`. Marks that fill a field pin the stage while they
+/// are marked (a jump across the field leaves it a narrow corridor), so it
+/// crosses to the next field in the TCP's short jump; in smaller groups it
+/// keeps room to move while marking. The time responds unevenly to the share
+/// (SC82C24 at 0.9 / 0.85 / 0.8 / 0.65 of the field: 1.18 / 3.29 / 1.10 /
+/// 1.11 × the bound, 1.19 at the full field), hence several, each built.
+/// A plan that fails at a share (a mark larger than the smaller square) is
+/// no candidate; one breaking more precedence rules neither.
+fn tighter_fields(kind: PlannerKind, job: &Job, ctx: &PlanContext, machine: &MachineConfig, outcome: &PlanOutcome, trajectory: &Trajectory) -> Result<Option<PlanOutcome>> {
+    let Some(half) = ctx.machine.scanner.as_ref().map(|s| s.usable_half_field) else { return Ok(None) };
+    if ctx.mode != Mode::OnTheFly || trajectory.stage_flow.is_none_or(|flow| flow >= 1.0) {
+        return Ok(None);
+    }
+    let broken = |o: &PlanOutcome| o.broken_rules.as_ref().map_or(0, Vec::len);
+    let threads = crate::parallel::threads()?;
+    let candidates = crate::parallel::tasks(TIGHTER_FIELDS.len(), threads, |k| {
+        let mut tighter = ctx.machine.clone();
+        tighter.scanner.as_mut()?.usable_half_field = half * TIGHTER_FIELDS[k];
+        let planned = plan_job(kind, job, &PlanContext { machine: &tighter, ..*ctx })
+            .and_then(|o| Ok((motion::build(job, &o.sequence, machine, ctx.mode, job_start())?.job_time(), o)));
+        match planned {
+            Ok((time, o)) if broken(&o) <= broken(outcome) => Some((time, o)),
+            Ok(_) => None,
+            Err(e) => {
+                tracing::debug!(share = TIGHTER_FIELDS[k], "no plan in tighter fields: {e}");
+                None
+            }
+        }
+    });
+    // The first of equal times: the plan does not depend on the threads.
+    let best = candidates.into_iter().flatten().reduce(|a, b| if b.0 < a.0 { b } else { a });
+    Ok(best.filter(|(time, _)| *time < trajectory.job_time()).map(|(_, o)| o))
 }
 
 impl Planned {
