@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use laserd::config::{MachineConfig, DEFAULT_CONFIG_PATH};
+use laserd::mode::Mode;
 use laserd::plan::PlannerKind;
 use laserd::run;
 use laserd_sim::controller::Faults;
@@ -31,8 +32,11 @@ fn every_case_is_covered_once_inside_its_fields_with_no_more_fields_than_the_ref
     let (mut ours, mut theirs) = (0usize, 0.0f64);
     for (case, figures) in reference.as_object().unwrap() {
         let job = data().join(format!("{case}.svg"));
-        let hha = run::plan(&job, &machine, PlannerKind::Hha, None).unwrap();
-        let nearest = run::plan(&job, &machine, PlannerKind::Nearest, None).unwrap();
+        // Step and scan, as the reference: one stage stop per field (on the
+        // fly, a job whose stage falls behind may be planned in more, tighter
+        // fields: `fields_far_apart_flow_with_the_stage_at_its_limits`).
+        let hha = run::plan(&job, &machine, PlannerKind::Hha, Some(Mode::StepAndScan)).unwrap();
+        let nearest = run::plan(&job, &machine, PlannerKind::Nearest, Some(Mode::StepAndScan)).unwrap();
         check_plan(case, &hha, half);
         let fields = hha.report.scan_fields.unwrap();
         let mean = figures["fields"].as_f64().unwrap();
@@ -129,17 +133,29 @@ fn sparse_fields_flow_on_the_fly_within_the_limits_near_the_bound() {
     }
 }
 
-/// SC82C24's 22 scan fields are far apart: the stage sets its time on the fly
-/// (its flow uses all of the stage's limits within the margin); within the
-/// limits in the simulator. (1.345 × the bound with the flow at the bursts' share.)
+/// SC82C24's 22 scan fields are far apart and their marks nearly fill them:
+/// the stage sets its time on the fly (its flow uses all of the stage's
+/// limits within the margin). Planned again with the marks in tighter fields
+/// (the stage keeps room to move while a field is marked), the faster plan
+/// is kept: ≤ 1.15 × the bound (1.189 in full fields; 1.345 with the flow
+/// at the bursts' share), never slower than the plan in full fields; within
+/// the limits in the simulator.
 #[test]
 fn fields_far_apart_flow_with_the_stage_at_its_limits() {
+    use laserd::motion;
+    use laserd::plan::{plan_job, PlanContext};
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let machine = MachineConfig::load(Some(&root.join(DEFAULT_CONFIG_PATH))).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let planned = run::plan(&data().join("SC82C24.svg"), &machine, PlannerKind::Auto, None).unwrap();
     let ratio = planned.report.trajectory_time_s / planned.report.lower_bound_s;
-    assert!(ratio <= 1.2, "SC82C24: {} s, {ratio} × the bound", planned.report.trajectory_time_s);
+    assert!(ratio <= 1.15, "SC82C24: {} s, {ratio} × the bound", planned.report.trajectory_time_s);
+    // The same job planned in full fields only.
+    let planning = Mode::OnTheFly.planning_machine(&machine);
+    let ctx = PlanContext { machine: &planning, mode: Mode::OnTheFly, start: run::job_start() };
+    let full = plan_job(PlannerKind::Auto, &planned.job, &ctx).unwrap();
+    let full_time = motion::build(&planned.job, &full.sequence, &machine, Mode::OnTheFly, run::job_start()).unwrap().job_time();
+    assert!(planned.report.trajectory_time_s < 0.95 * full_time, "SC82C24: {} s, in full fields {full_time} s", planned.report.trajectory_time_s);
     let dry = run::dry_run(&planned, &machine, &dir.path().join("SC82C24.mcap"), Faults::default()).unwrap();
     let sim = dry.report.sim.as_ref().unwrap();
     assert_eq!(sim.limit_violations, 0, "{sim:?}");
