@@ -13,6 +13,18 @@ use crate::config::Limits;
 use crate::error::{Error, Result};
 use crate::job::Point;
 
+thread_local! {
+    /// Ruckig planners for one and two axes, kept per thread: making one was
+    /// a tenth of planning a short move, and `calculate` keeps nothing from
+    /// one move to the next (its buffers are overwritten).
+    static PLANNERS: std::cell::RefCell<[Option<Ruckig>; 2]> = const { std::cell::RefCell::new([None, None]) };
+}
+
+/// Ruckig's state-to-state trajectory for `input` (`dofs` 1 or 2) into `trajectory`.
+fn calculate(input: &mut InputParameter, trajectory: &mut Trajectory, dofs: usize) -> ruckig::Result {
+    PLANNERS.with_borrow_mut(|planners| planners[dofs - 1].get_or_insert_with(|| Ruckig::new_direct_and_offline(dofs)).calculate(input, trajectory))
+}
+
 /// s(t) from 0 to `length`, starting and ending at rest.
 pub struct Profile {
     trajectory: Option<Trajectory>,
@@ -52,9 +64,8 @@ impl Profile {
         input.max_velocity = vec![1.0];
         input.max_acceleration = vec![1.0];
         input.max_jerk = vec![limits.jerk * time_unit * time_unit * time_unit / length_unit];
-        let mut ruckig = Ruckig::new_direct_and_offline(1);
         let mut trajectory = Trajectory::new_direct(1);
-        let result = ruckig.calculate(&mut input, &mut trajectory);
+        let result = calculate(&mut input, &mut trajectory, 1);
         if !matches!(result, ruckig::Result::Working | ruckig::Result::Finished) {
             return Err(Error::Motion(format!(
                 "Ruckig could not plan a {length} mm move with v={} a={} j={}: {result:?}",
@@ -154,9 +165,8 @@ impl FreeMove {
         input.max_acceleration = vec![1.0, 1.0];
         let jerk = axis.jerk * time_unit * time_unit * time_unit / length_unit;
         input.max_jerk = vec![jerk, jerk];
-        let mut ruckig = Ruckig::new_direct_and_offline(2);
         let mut trajectory = Trajectory::new_direct(2);
-        let result = ruckig.calculate(&mut input, &mut trajectory);
+        let result = calculate(&mut input, &mut trajectory, 2);
         if !matches!(result, ruckig::Result::Working | ruckig::Result::Finished) {
             return Err(Error::Motion(format!(
                 "Ruckig could not plan the move from {from:?} (v {v_from:?}) to {to:?} (v {v_to:?}) within {axis:?}: {result:?}"
