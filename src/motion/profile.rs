@@ -13,6 +13,18 @@ use crate::config::Limits;
 use crate::error::{Error, Result};
 use crate::job::Point;
 
+thread_local! {
+    /// Ruckig planners for one and two axes, kept per thread: making one was
+    /// a tenth of planning a short move, and `calculate` keeps nothing from
+    /// one move to the next (its buffers are overwritten).
+    static PLANNERS: std::cell::RefCell<[Option<Ruckig>; 2]> = const { std::cell::RefCell::new([None, None]) };
+}
+
+/// Ruckig's state-to-state trajectory for `input` (`dofs` 1 or 2) into `trajectory`.
+fn calculate(input: &mut InputParameter, trajectory: &mut Trajectory, dofs: usize) -> ruckig::Result {
+    PLANNERS.with_borrow_mut(|planners| planners[dofs - 1].get_or_insert_with(|| Ruckig::new_direct_and_offline(dofs)).calculate(input, trajectory))
+}
+
 /// s(t) from 0 to `length`, starting and ending at rest.
 pub struct Profile {
     trajectory: Option<Trajectory>,
@@ -52,9 +64,8 @@ impl Profile {
         input.max_velocity = vec![1.0];
         input.max_acceleration = vec![1.0];
         input.max_jerk = vec![limits.jerk * time_unit * time_unit * time_unit / length_unit];
-        let mut ruckig = Ruckig::new_direct_and_offline(1);
         let mut trajectory = Trajectory::new_direct(1);
-        let result = ruckig.calculate(&mut input, &mut trajectory);
+        let result = calculate(&mut input, &mut trajectory, 1);
         if !matches!(result, ruckig::Result::Working | ruckig::Result::Finished) {
             return Err(Error::Motion(format!(
                 "Ruckig could not plan a {length} mm move with v={} a={} j={}: {result:?}",
@@ -154,9 +165,8 @@ impl FreeMove {
         input.max_acceleration = vec![1.0, 1.0];
         let jerk = axis.jerk * time_unit * time_unit * time_unit / length_unit;
         input.max_jerk = vec![jerk, jerk];
-        let mut ruckig = Ruckig::new_direct_and_offline(2);
         let mut trajectory = Trajectory::new_direct(2);
-        let result = ruckig.calculate(&mut input, &mut trajectory);
+        let result = calculate(&mut input, &mut trajectory, 2);
         if !matches!(result, ruckig::Result::Working | ruckig::Result::Finished) {
             return Err(Error::Motion(format!(
                 "Ruckig could not plan the move from {from:?} (v {v_from:?}) to {to:?} (v {v_to:?}) within {axis:?}: {result:?}"
@@ -164,9 +174,13 @@ impl FreeMove {
         }
         let duration = trajectory.get_duration() * time_unit;
         let steps = table_steps(duration, step);
-        let table = (0..=steps)
-            .map(|k| {
-                let (p, v, a) = trajectory.at_time(trajectory.get_duration() * k as f64 / steps as f64);
+        let at = |t: f64| -> AxesState {
+            let (p, v, a) = trajectory.at_time(t);
+            ([p[0], p[1]], [v[0], v[1]], [a[0], a[1]])
+        };
+        let table = states_at_steps(trajectory.get_duration(), steps, at)
+            .into_iter()
+            .map(|(p, v, a)| {
                 (
                     Point::new(from.x + p[0] * length_unit, from.y + p[1] * length_unit),
                     Vector2::new(v[0], v[1]) * speed_unit,
@@ -215,6 +229,75 @@ impl FreeMove {
         let acc = (k2 * 2.0 + k3 * (6.0 * s) + k4 * (12.0 * s2) + k5 * (20.0 * s3)) / (h * h);
         (pos, vel, acc)
     }
+}
+
+/// Position, velocity and acceleration of two axes.
+type AxesState = ([f64; 2], [f64; 2], [f64; 2]);
+
+/// Steps a stretch of a table covers before its inside is filled (below).
+const STRETCH: usize = 16;
+
+/// The states `at` gives at `steps + 1` equal steps over `duration`, asking
+/// `at` far less often than at every step (Ruckig's binding allocates six
+/// vectors per evaluation). Ruckig's moves have piecewise constant jerk, so
+/// between phase changes each axis is one cubic in time: where the states
+/// at both ends and the middle of a stretch agree with one cubic, the steps
+/// inside are read off it; else the stretch is halved.
+fn states_at_steps(duration: f64, steps: usize, at: impl Fn(f64) -> AxesState) -> Vec<AxesState> {
+    let time = |k: usize| duration * k as f64 / steps as f64;
+    let mut states = vec![([0.0; 2], [0.0; 2], [0.0; 2]); steps + 1];
+    states[0] = at(time(0));
+    let mut k0 = 0;
+    while k0 < steps {
+        let k1 = (k0 + STRETCH).min(steps);
+        states[k1] = at(time(k1));
+        fill_stretch(&mut states, k0, k1, &time, &at);
+        k0 = k1;
+    }
+    states
+}
+
+/// Fills `states` strictly between `k0` and `k1` (both ends given).
+fn fill_stretch(states: &mut [AxesState], k0: usize, k1: usize, time: &impl Fn(usize) -> f64, at: &impl Fn(f64) -> AxesState) {
+    if k1 - k0 < 2 {
+        return;
+    }
+    let km = (k0 + k1) / 2;
+    states[km] = at(time(km));
+    if k1 - k0 == 2 {
+        return;
+    }
+    let (t0, start) = (time(k0), states[k0]);
+    let jerk = |d: usize| (states[k1].2[d] - start.2[d]) / (time(k1) - t0);
+    let jerk = [jerk(0), jerk(1)];
+    if [km, k1].iter().all(|&k| same_state(cubic(start, jerk, time(k) - t0), states[k])) {
+        for k in (k0 + 1..k1).filter(|&k| k != km) {
+            states[k] = cubic(start, jerk, time(k) - t0);
+        }
+    } else {
+        fill_stretch(states, k0, km, time, at);
+        fill_stretch(states, km, k1, time, at);
+    }
+}
+
+/// The state `t` after `s` with constant `jerk` per axis.
+fn cubic(s: AxesState, jerk: [f64; 2], t: f64) -> AxesState {
+    let (p, v, a) = s;
+    let axis = |d: usize| {
+        (
+            p[d] + t * (v[d] + t * (a[d] / 2.0 + t * jerk[d] / 6.0)),
+            v[d] + t * (a[d] + t * jerk[d] / 2.0),
+            a[d] + t * jerk[d],
+        )
+    };
+    let (x, y) = (axis(0), axis(1));
+    ([x.0, y.0], [x.1, y.1], [x.2, y.2])
+}
+
+/// Equal up to rounding (in Ruckig's units, where the limits are about 1).
+fn same_state(a: AxesState, b: AxesState) -> bool {
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-11 * (1.0 + x.abs().max(y.abs()));
+    (0..2).all(|d| close(a.0[d], b.0[d]) && close(a.1[d], b.1[d]) && close(a.2[d], b.2[d]))
 }
 
 /// Duration of the time-optimal rest-to-rest move over `distance`.
@@ -328,6 +411,93 @@ mod tests {
             // The interpolant's second derivative approximates Ruckig's
             // piecewise-linear acceleration.
             assert!(acc.x.abs() <= 9.8e6 * 1.1 && acc.y.abs() <= 9.8e6 * 1.1, "t={t}: {acc:?}");
+        }
+    }
+
+    /// Ruckig's states of a two-axis move in its own units (as `FreeMove`
+    /// plans them), and its duration.
+    fn ruckig_move(d: [f64; 2], v0: [f64; 2], v1: [f64; 2], jerk: f64) -> (Trajectory, f64) {
+        let mut input = InputParameter::new(2);
+        input.current_position = vec![0.0, 0.0];
+        input.current_velocity = v0.to_vec();
+        input.target_position = d.to_vec();
+        input.target_velocity = v1.to_vec();
+        input.max_velocity = vec![1.0, 1.0];
+        input.max_acceleration = vec![1.0, 1.0];
+        input.max_jerk = vec![jerk, jerk];
+        let mut trajectory = Trajectory::new_direct(2);
+        let result = Ruckig::new_direct_and_offline(2).calculate(&mut input, &mut trajectory);
+        assert!(matches!(result, ruckig::Result::Working | ruckig::Result::Finished), "{d:?} {v0:?} {v1:?} {jerk}: {result:?}");
+        let duration = trajectory.get_duration();
+        (trajectory, duration)
+    }
+
+    #[test]
+    fn a_table_read_off_cubics_agrees_with_ruckig_at_every_step() {
+        // Random moves (a fixed xorshift sequence): every step of the table
+        // against Ruckig's own evaluation there.
+        let mut seed: u64 = 0x9e37_79b9_7f4a_7c15;
+        let mut uniform = |lo: f64, hi: f64| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            lo + (hi - lo) * (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut asked, mut steps_all) = (0usize, 0usize);
+        for case in 0..300 {
+            let d = [uniform(-40.0, 40.0), uniform(-40.0, 40.0)];
+            let v0 = [uniform(-0.9, 0.9), uniform(-0.9, 0.9)];
+            let v1 = if case % 3 == 0 { [0.0, 0.0] } else { [uniform(-0.9, 0.9), uniform(-0.9, 0.9)] };
+            let jerk = [0.5, 2.0, 20.0, 400.0][case % 4];
+            let (trajectory, duration) = ruckig_move(d, v0, v1, jerk);
+            let steps = table_steps(duration, duration / uniform(16.0, 3000.0));
+            let calls = std::cell::Cell::new(0usize);
+            let at = |t: f64| {
+                calls.set(calls.get() + 1);
+                let (p, v, a) = trajectory.at_time(t);
+                ([p[0], p[1]], [v[0], v[1]], [a[0], a[1]])
+            };
+            let table = states_at_steps(duration, steps, at);
+            assert_eq!(table.len(), steps + 1);
+            for (k, state) in table.iter().enumerate() {
+                let (p, v, a) = trajectory.at_time(duration * k as f64 / steps as f64);
+                for d in 0..2 {
+                    let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * (1.0 + y.abs());
+                    assert!(
+                        close(state.0[d], p[d]) && close(state.1[d], v[d]) && close(state.2[d], a[d]),
+                        "case {case}, step {k} of {steps}, axis {d}: {state:?} vs Ruckig {p:?} {v:?} {a:?}"
+                    );
+                }
+            }
+            asked += calls.get();
+            steps_all += steps + 1;
+        }
+        // And Ruckig was asked for far fewer states than the tables hold.
+        assert!(asked * 3 < steps_all, "asked {asked} of {steps_all} states");
+    }
+
+    #[test]
+    fn a_phase_change_between_the_checked_states_is_found() {
+        // One axis with jerk +1 until 0.3 and −1 after (a cubic either side),
+        // the other still: a stretch of 16 steps over [0, 1] has its ends and
+        // middle on no single cubic, so it is halved until the change is
+        // between two steps.
+        let switch = 0.3;
+        let at = |t: f64| -> AxesState {
+            let before = |t: f64| (t * t * t / 6.0, t * t / 2.0, t);
+            let (p, v, a) = if t <= switch {
+                before(t)
+            } else {
+                let (p0, v0, a0) = before(switch);
+                let s = t - switch;
+                (p0 + s * (v0 + s * (a0 / 2.0 - s / 6.0)), v0 + s * (a0 - s / 2.0), a0 - s)
+            };
+            ([p, 0.0], [v, 0.0], [a, 0.0])
+        };
+        let table = states_at_steps(1.0, 16, at);
+        for (k, state) in table.iter().enumerate() {
+            let exact = at(k as f64 / 16.0);
+            assert!(same_state(*state, exact), "step {k}: {state:?} vs {exact:?}");
         }
     }
 

@@ -173,13 +173,16 @@ pub(super) fn windows(tcp: &TcpPath, length: f64) -> Vec<Window> {
     for pair in times.windows(2) {
         let (a, b) = (pair[0], pair[1]);
         let parts = (((b - a) / length).ceil() as usize).max(1);
+        // The piece running from `a` runs until `b`: searched for once.
+        let k = tcp.index_at(a);
+        let position = |t: f64| tcp.position_among(t, k, k);
         // (a part's end is the next one's start: sampled once)
-        let mut start = tcp.position(a);
+        let mut start = position(a);
         for i in 0..parts {
             let t0 = a + (b - a) * i as f64 / parts as f64;
             let t1 = a + (b - a) * (i + 1) as f64 / parts as f64;
             let mut w = Window { t0, t1, lo: [f64::INFINITY; 2], hi: [f64::NEG_INFINITY; 2] };
-            let (middle, end) = (tcp.position(t0 + (t1 - t0) / 2.0), tcp.position(t0 + (t1 - t0)));
+            let (middle, end) = (position(t0 + (t1 - t0) / 2.0), position(t0 + (t1 - t0)));
             for p in [start, middle, end] {
                 for a in 0..2 {
                     w.lo[a] = w.lo[a].min(p[a]);

@@ -352,16 +352,15 @@ fn corner_overlap(a: (&Leg, Vector2<f64>), b: (&Leg, Vector2<f64>), vertex: Poin
     let b_end = vertex + ub * lb.length;
     let slack = 1.0 + 1e-9;
     let mut times = Vec::with_capacity(48);
+    let (mut breaks_a, mut breaks_b) = (Vec::new(), Vec::new());
+    la.breakpoints(&mut breaks_a);
+    lb.breakpoints(&mut breaks_b);
     let mut feasible = |tau: f64| -> bool {
         let t0 = la.duration - tau;
         times.clear();
         times.extend((0..=16).map(|k| tau * k as f64 / 16.0));
-        let mut bp = Vec::new();
-        la.breakpoints(&mut bp);
-        times.extend(bp.iter().map(|x| x - t0).filter(|x| *x > 0.0 && *x < tau));
-        bp.clear();
-        lb.breakpoints(&mut bp);
-        times.extend(bp.iter().copied().filter(|x| *x > 0.0 && *x < tau));
+        times.extend(breaks_a.iter().map(|x| x - t0).filter(|x| *x > 0.0 && *x < tau));
+        times.extend(breaks_b.iter().copied().filter(|x| *x > 0.0 && *x < tau));
         times.sort_by(f64::total_cmp);
         let n = times.len();
         for i in 0..n {
@@ -369,7 +368,12 @@ fn corner_overlap(a: (&Leg, Vector2<f64>), b: (&Leg, Vector2<f64>), vertex: Poin
                 times.push(0.5 * (times[i] + times[i + 1]));
             }
         }
-        times.iter().all(|&x| {
+        // From the middle of the grid outwards: a turn too wide for the
+        // tolerance shows there first (the same answer, sooner).
+        let mid = n / 2;
+        let middle_out = std::iter::once(mid).chain((1..=n).flat_map(|j| [mid.checked_sub(j), Some(mid + j).filter(|&k| k < n)]).flatten());
+        middle_out.chain(n..times.len()).all(|k| {
+            let x = times[k];
             let sa = la.at(t0 + x);
             let sb = lb.at(x);
             let pos = vertex + ua * (sa[0] - la.length) + ub * sb[0];
