@@ -9,11 +9,13 @@
 //! controller's receive buffer unanswered, and the controller answers a line
 //! when its planner takes it, i.e. once the motion block `planner_blocks`
 //! earlier has run. The link moves `baud / 10` bytes a second, less a share
-//! for the status requests. A program that never comes to rest runs only
-//! with the controller's planner full (its queue must hold a way to stop):
-//! the machine starts once it is full, and each block must have arrived by
-//! the time the block `planner_blocks` before it ends. That errs on the slow
-//! side where the program rests.
+//! for the status requests. The controller runs a block only with a way to
+//! stop queued behind it: a full planner or a block ending at rest. It may
+//! wait for one only where it stands, at rest; in full motion a late line
+//! is an abrupt stop. So the machine starts as early as a rest is queued
+//! (a late start would leave the link more time than it gets), and every
+//! block must be runnable by the time the block before it ends unless that
+//! one ends at rest. The simulator's timed controller keeps the same rule.
 
 use std::collections::VecDeque;
 
@@ -25,6 +27,11 @@ use crate::error::{Error, Result};
 /// Share of the link's bytes left for program lines (the rest: status
 /// requests, and timing noise of the sender).
 const LINE_SHARE: f64 = 0.95;
+
+/// How long after an answer the sender's next line leaves when it waited
+/// for that answer (s): its reaction time, on 1 ms timer ticks (tokio's, in
+/// the simulator's virtual time as on a real host), with a margin.
+const ANSWER_LATENCY: f64 = 2e-3;
 
 /// The most a job is slowed for its link; a link slower than that is
 /// refused, naming the figures.
@@ -94,14 +101,10 @@ impl LinkModel {
     /// The least uniform slow-down (≥ 1) of the program's timing at which
     /// every line arrives before its block is due; 1 when it already does.
     /// `rests()[i]`: whether the machine is at rest at the end of line i
-    /// (`rests`); asked only when the program does not keep up without
-    /// counting them (rests only help).
+    /// (`rests`): where it may wait, and how soon it starts.
     pub fn slowdown(&self, program: &Program, rests: impl FnOnce() -> Vec<bool>) -> Result<f64> {
         let blocks = super::arcs::planner_blocks(program);
         let mut lines: Vec<Line> = program.lines.iter().zip(blocks).map(|(l, blocks)| Line { bytes: l.text.len() + 1, due: l.plan_time, rest: false, blocks }).collect();
-        if self.on_time(&lines, 1.0) {
-            return Ok(1.0);
-        }
         lines.iter_mut().zip(rests()).for_each(|(l, rest)| l.rest = rest);
         if self.on_time(&lines, 1.0) {
             return Ok(1.0);
@@ -161,79 +164,124 @@ impl LinkModel {
     }
 
     /// Whether every line arrives in time when the program's clock runs
-    /// `scale` times slower.
+    /// `scale` times slower: the controller run block by block as the
+    /// simulator's timed controller runs it. A block starts once the
+    /// planner behind it is full or holds a rest (its queue holds a way to
+    /// stop), straight on from the block before when that is so by then;
+    /// the machine may wait only where the block before ends at rest.
+    /// Anywhere else a late line is a stop in full motion: not on time.
     fn on_time(&self, lines: &[Line], scale: f64) -> bool {
         let p = self.planner_blocks;
-        // The motion blocks' plan times and whether each ends at rest, in
-        // order; lines without motion (set-up, laser switches) take no
-        // planner block.
-        // An arc's chords share its time evenly.
-        let blocks: Vec<(f64, f64, bool)> = lines
+        // Each planner block's duration and whether it ends at rest; an
+        // arc's chords share its time evenly.
+        let blocks: Vec<(f64, bool)> = lines
             .iter()
             .filter(|l| l.moves())
             .flat_map(|l| {
                 let (s, e) = l.due.unwrap_or_default();
                 let n = l.blocks.max(1);
-                (0..n).map(move |k| (s + (e - s) * k as f64 / n as f64, s + (e - s) * (k + 1) as f64 / n as f64, l.rest && k + 1 == n))
+                (0..n).map(move |k| ((e - s) / n as f64, l.rest && k + 1 == n))
             })
             .collect();
-        if blocks.is_empty() {
-            return true;
+        let n = blocks.len();
+        // The first block at or after each that ends at rest (the program's
+        // last ends at rest).
+        let mut rest_from = vec![n.saturating_sub(1); n];
+        for k in (0..n.saturating_sub(1)).rev() {
+            rest_from[k] = if blocks[k].1 { k } else { rest_from[k + 1] };
         }
-        // The machine starts once its planner is full or holds a rest (or
-        // has the whole program).
-        let first_rest = blocks.iter().position(|b| b.2).unwrap_or(blocks.len() - 1);
-        let starts_with = first_rest.min(p - 1);
-        let t0 = blocks[0].0;
-        let at = |clock: f64, t: f64| clock + scale * (t - t0);
-        let mut answered: Vec<f64> = Vec::with_capacity(lines.len());
-        // Lines sent and not yet answered: their index and bytes.
-        let mut unanswered: VecDeque<(usize, usize)> = VecDeque::new();
-        let mut in_flight = 0;
-        let mut link_free = 0.0_f64;
-        let mut last_answer = 0.0_f64;
-        let mut clock = 0.0;
-        let mut block = 0;
-        // The last block before this one that ends at rest.
-        let mut last_rest: Option<usize> = None;
-        for (j, line) in lines.iter().enumerate() {
-            // Room in the receive buffer: wait for the answers that make it.
-            let mut send = link_free;
-            while in_flight + line.bytes > self.rx_buffer {
-                let Some((i, bytes)) = unanswered.pop_front() else { break };
-                in_flight -= bytes;
-                send = send.max(answered[i]);
-            }
-            let arrived = send + line.bytes as f64 / self.bytes_per_s;
-            link_free = arrived;
-            // Lines are taken in order; a motion line once the planner has room.
-            let mut taken = arrived.max(last_answer);
-            for _ in 0..if line.moves() { line.blocks.max(1) } else { 0 } {
-                if block == starts_with {
-                    clock = taken;
-                } else if block > starts_with {
-                    // A block runs only when the planner behind it is full
-                    // or holds a rest: the first block that needs this one
-                    // is `planner_blocks` back, or the one after a rest.
-                    let needed_by = (block + 1).saturating_sub(p).max(last_rest.map_or(0, |r| r + 1));
-                    if arrived > at(clock, blocks[needed_by].0) + 1e-6 {
-                        return false;
-                    }
-                }
-                if block >= p {
-                    taken = taken.max(at(clock, blocks[block - p].1));
-                }
-                if blocks[block].2 {
-                    last_rest = Some(block);
-                }
-                block += 1;
-            }
-            last_answer = taken;
-            answered.push(taken);
-            unanswered.push_back((j, line.bytes));
-            in_flight += line.bytes;
+        let mut feed = Feed::new(self, lines);
+        let mut end: Vec<f64> = Vec::with_capacity(n);
+        for k in 0..n {
+            let needed = rest_from[k].min(k + p - 1);
+            let Some(may) = feed.taken_by(needed, p, &end) else { return true };
+            let start = match end.last() {
+                None => may,
+                Some(&before) if may <= before + 1e-6 => before,
+                Some(_) if blocks[k - 1].1 => may,
+                Some(_) => return false,
+            };
+            end.push(start + scale * blocks[k].0);
         }
         true
+    }
+}
+
+/// The sender and the controller's receive buffer and planner: when each
+/// planner block is taken.
+struct Feed<'a> {
+    model: &'a LinkModel,
+    lines: &'a [Line],
+    /// Next line to send, and how many of its blocks are taken.
+    next: usize,
+    chord: usize,
+    /// Answer time of each line sent so far.
+    answered: Vec<f64>,
+    /// Lines sent and not yet answered: their index and bytes.
+    unanswered: VecDeque<(usize, usize)>,
+    in_flight: usize,
+    link_free: f64,
+    arrived: f64,
+    last_taken: f64,
+    /// When each block was taken.
+    taken: Vec<f64>,
+}
+
+impl<'a> Feed<'a> {
+    fn new(model: &'a LinkModel, lines: &'a [Line]) -> Feed<'a> {
+        Feed {
+            model,
+            lines,
+            next: 0,
+            chord: 0,
+            answered: Vec::with_capacity(lines.len()),
+            unanswered: VecDeque::new(),
+            in_flight: 0,
+            link_free: 0.0,
+            arrived: 0.0,
+            last_taken: 0.0,
+            taken: Vec::new(),
+        }
+    }
+
+    /// When block `block` was taken by the planner (lines are taken in
+    /// order; a block once the one `p` before it has ended, in `end`);
+    /// none past the program's end.
+    fn taken_by(&mut self, block: usize, p: usize, end: &[f64]) -> Option<f64> {
+        while self.taken.len() <= block {
+            let line = self.lines.get(self.next)?;
+            if self.chord == 0 {
+                // Room in the receive buffer: wait for the answers that make it.
+                let mut send = self.link_free;
+                while self.in_flight + line.bytes > self.model.rx_buffer {
+                    let Some((i, bytes)) = self.unanswered.pop_front() else { break };
+                    self.in_flight -= bytes;
+                    send = send.max(self.answered[i] + ANSWER_LATENCY);
+                }
+                self.arrived = send + line.bytes as f64 / self.model.bytes_per_s;
+                self.link_free = self.arrived;
+                self.last_taken = self.last_taken.max(self.arrived);
+            }
+            let chords = if line.moves() { line.blocks.max(1) } else { 0 };
+            if self.chord < chords {
+                let m = self.taken.len();
+                if m >= p {
+                    // The caller asks for blocks at most `p - 1` ahead of
+                    // the one it runs: the block `p` back has an end.
+                    self.last_taken = self.last_taken.max(end[m - p]);
+                }
+                self.taken.push(self.last_taken);
+                self.chord += 1;
+            }
+            if self.chord >= chords {
+                self.answered.push(self.last_taken);
+                self.unanswered.push_back((self.next, line.bytes));
+                self.in_flight += line.bytes;
+                self.next += 1;
+                self.chord = 0;
+            }
+        }
+        Some(self.taken[block])
     }
 }
 
