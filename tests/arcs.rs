@@ -166,3 +166,72 @@ fn an_arc_is_taken_only_where_its_chords_keep_the_controllers_limits() {
     assert_eq!(report.violations, 0, "{:?} {kinematic:?}", report.first_violation);
     eprintln!("arcs kept: {}", kinematic.iter().filter(|(_, a)| a.is_some()).count());
 }
+
+/// A circle of 10 mm run speeding up from 150 to 170 mm/s at 200 mm/s²
+/// (the end of a stage-only curve's ramp), reached and left along its
+/// tangents from far away, in straight blocks of 4 ms: `position(t)`, the
+/// speed along it and the block ends.
+fn ramp_on_circle() -> (impl Fn(f64) -> Point, impl Fn(f64) -> f64, Vec<f64>) {
+    let (cx, cy, r, v0, accel, ramp) = (100.0, 100.0, 10.0, 150.0, 200.0, 0.1);
+    let angle = move |t: f64| (v0 * t + 0.5 * accel * t * t) / r;
+    let on_circle = move |t: f64| Point::new(cx + r * angle(t).cos(), cy + r * angle(t).sin());
+    let tangent = move |t: f64| Point::new(-angle(t).sin(), angle(t).cos());
+    let position = move |t: f64| {
+        if t < 0.0 {
+            on_circle(0.0) + tangent(0.0).coords * (v0 * t)
+        } else if t > ramp {
+            on_circle(ramp) + tangent(ramp).coords * ((v0 + accel * ramp) * (t - ramp))
+        } else {
+            on_circle(t)
+        }
+    };
+    let times: Vec<f64> = (0..=25).map(|k| k as f64 * 0.004).collect();
+    (position, move |t: f64| v0 + accel * t.clamp(0.0, ramp), times)
+}
+
+#[test]
+fn a_curve_speeding_up_is_sent_as_arcs_that_keep_its_place_and_the_limits() {
+    let flatbed = MachineConfig::load(Some(std::path::Path::new("config/flatbed-cutter.toml"))).unwrap();
+    let limits = flatbed.stage_limits();
+    let axes: Vec<laserd_sim::AxisConfig> = ['X', 'Y']
+        .into_iter()
+        .map(|letter| laserd_sim::AxisConfig { letter, min: -1e5, max: 1e5, max_velocity: limits.velocity, max_acceleration: limits.acceleration, max_jerk: limits.jerk })
+        .collect();
+    let check = |knots: &[laserd_sim::Knot]| {
+        let mut checker = laserd_sim::LimitChecker::new(&axes);
+        knots.iter().for_each(|k| checker.push(k));
+        checker.finish()
+    };
+    let (position, speed, times) = ramp_on_circle();
+    let (decimals, tolerance) = (flatbed.program.decimals, flatbed.program.tolerance);
+    let straight: Vec<_> = (1..times.len()).map(|j| (j, None)).collect();
+    assert_eq!(check(&executed_knots(&position, &times, &straight, decimals)).violations, 0);
+
+    let merged = program::arcs::merge(&times, decimals, 0.9 * tolerance, limits, &position);
+    let arcs = merged.iter().filter(|(_, arc)| arc.is_some()).count();
+    assert!(arcs >= 2 && merged.len() < straight.len(), "{merged:?}");
+    // Every arc spans a change of speed (an arc covers two blocks or more:
+    // at least 1 %), which the controller's constant-speed chords meet.
+    let mut from = 0;
+    for &(to, arc) in &merged {
+        if arc.is_some() {
+            let (v0, v1) = (speed(times[from]), speed(times[to]));
+            assert!(v1 - v0 > 0.01 * v0, "{v0} -> {v1} mm/s");
+        }
+        from = to;
+    }
+    let knots = executed_knots(&position, &times, &merged, decimals);
+    let report = check(&knots);
+    assert_eq!(report.violations, 0, "{:?} {merged:?}", report.first_violation);
+    // Run straight from knot to knot (the chords at their times), the
+    // machine stays within the tolerance of the plan at every instant.
+    for w in knots.windows(2).filter(|w| w[0].t >= 0.0 && w[1].t <= times[times.len() - 1]) {
+        for q in 0..8 {
+            let f = q as f64 / 8.0;
+            let t = w[0].t + f * (w[1].t - w[0].t);
+            let run = Point::new(w[0].pos[0] + f * (w[1].pos[0] - w[0].pos[0]), w[0].pos[1] + f * (w[1].pos[1] - w[0].pos[1]));
+            let off = (run - position(t)).norm();
+            assert!(off <= tolerance, "{off} mm off the plan at t = {t}");
+        }
+    }
+}
