@@ -134,19 +134,22 @@ fn executed_knots(position: &impl Fn(f64) -> Point, times: &[f64], blocks: &[(us
     knots.into_iter().map(|(t, p)| laserd_sim::Knot { t, pos: vec![p.x, p.y], power: 0.0, line: 1 }).collect()
 }
 
-#[test]
-fn an_arc_is_taken_only_where_its_chords_keep_the_controllers_limits() {
-    let flatbed = MachineConfig::load(Some(std::path::Path::new("config/flatbed-cutter.toml"))).unwrap();
-    let limits = flatbed.stage_limits();
+/// The simulator's limit checker (X and Y with `limits`) over `knots`.
+fn check_limits(limits: laserd::config::Limits, knots: &[laserd_sim::Knot]) -> laserd_sim::LimitReport {
     let axes: Vec<laserd_sim::AxisConfig> = ['X', 'Y']
         .into_iter()
         .map(|letter| laserd_sim::AxisConfig { letter, min: -1e5, max: 1e5, max_velocity: limits.velocity, max_acceleration: limits.acceleration, max_jerk: limits.jerk })
         .collect();
-    let check = |knots: &[laserd_sim::Knot]| {
-        let mut checker = laserd_sim::LimitChecker::new(&axes);
-        knots.iter().for_each(|k| checker.push(k));
-        checker.finish()
-    };
+    let mut checker = laserd_sim::LimitChecker::new(&axes);
+    knots.iter().for_each(|k| checker.push(k));
+    checker.finish()
+}
+
+#[test]
+fn an_arc_is_taken_only_where_its_chords_keep_the_controllers_limits() {
+    let flatbed = MachineConfig::load(Some(std::path::Path::new("config/flatbed-cutter.toml"))).unwrap();
+    let limits = flatbed.stage_limits();
+    let check = |knots: &[laserd_sim::Knot]| check_limits(limits, knots);
     let (position, times) = near_circle();
     let decimals = flatbed.program.decimals;
     // The blocks as written, straight only, keep the limits.
@@ -193,15 +196,7 @@ fn ramp_on_circle() -> (impl Fn(f64) -> Point, impl Fn(f64) -> f64, Vec<f64>) {
 fn a_curve_speeding_up_is_sent_as_arcs_that_keep_its_place_and_the_limits() {
     let flatbed = MachineConfig::load(Some(std::path::Path::new("config/flatbed-cutter.toml"))).unwrap();
     let limits = flatbed.stage_limits();
-    let axes: Vec<laserd_sim::AxisConfig> = ['X', 'Y']
-        .into_iter()
-        .map(|letter| laserd_sim::AxisConfig { letter, min: -1e5, max: 1e5, max_velocity: limits.velocity, max_acceleration: limits.acceleration, max_jerk: limits.jerk })
-        .collect();
-    let check = |knots: &[laserd_sim::Knot]| {
-        let mut checker = laserd_sim::LimitChecker::new(&axes);
-        knots.iter().for_each(|k| checker.push(k));
-        checker.finish()
-    };
+    let check = |knots: &[laserd_sim::Knot]| check_limits(limits, knots);
     let (position, speed, times) = ramp_on_circle();
     let (decimals, tolerance) = (flatbed.program.decimals, flatbed.program.tolerance);
     let straight: Vec<_> = (1..times.len()).map(|j| (j, None)).collect();
