@@ -159,12 +159,12 @@ fn an_arc_is_taken_only_where_its_chords_keep_the_controllers_limits() {
     // Fitted by position alone (limits that ask for nothing), the ellipse
     // becomes arcs whose chords break the jerk limit.
     let unlimited = laserd::config::Limits { velocity: f64::INFINITY, acceleration: f64::INFINITY, jerk: f64::INFINITY };
-    let by_position = program::arcs::merge(&times, decimals, 0.018, unlimited, &position);
+    let by_position = program::arcs::merge(&times, decimals, 0.018, unlimited, 0, &position);
     assert!(by_position.iter().any(|(_, arc)| arc.is_some()), "{by_position:?}");
     let report = check(&executed_knots(&position, &times, &by_position, decimals));
     assert!(report.violations > 0, "{report:?}");
     // With the machine's limits, every arc taken keeps them.
-    let kinematic = program::arcs::merge(&times, decimals, 0.018, limits, &position);
+    let kinematic = program::arcs::merge(&times, decimals, 0.018, limits, 0, &position);
     let report = check(&executed_knots(&position, &times, &kinematic, decimals));
     assert_eq!(report.violations, 0, "{:?} {kinematic:?}", report.first_violation);
     eprintln!("arcs kept: {}", kinematic.iter().filter(|(_, a)| a.is_some()).count());
@@ -202,7 +202,7 @@ fn a_curve_speeding_up_is_sent_as_arcs_that_keep_its_place_and_the_limits() {
     let straight: Vec<_> = (1..times.len()).map(|j| (j, None)).collect();
     assert_eq!(check(&executed_knots(&position, &times, &straight, decimals)).violations, 0);
 
-    let merged = program::arcs::merge(&times, decimals, 0.9 * tolerance, limits, &position);
+    let merged = program::arcs::merge(&times, decimals, 0.9 * tolerance, limits, 0, &position);
     let arcs = merged.iter().filter(|(_, arc)| arc.is_some()).count();
     assert!(arcs >= 2 && merged.len() < straight.len(), "{merged:?}");
     // Every arc spans a change of speed (an arc covers two blocks or more:
@@ -229,4 +229,36 @@ fn a_curve_speeding_up_is_sent_as_arcs_that_keep_its_place_and_the_limits() {
             assert!(off <= tolerance, "{off} mm off the plan at t = {t}");
         }
     }
+}
+
+#[test]
+fn after_a_pierce_arcs_do_not_keep_the_controller_waiting() {
+    // Circles cut on the flatbed (a pierce before each), stage-only: after
+    // each dwell the controller starts once its queue holds a rest point;
+    // an arc's long line must not be what it waits for.
+    let machine = MachineConfig::load(Some(std::path::Path::new("config/flatbed-cutter.toml"))).unwrap();
+    assert!(machine.laser.pierce_time > 0.0);
+    let mut job = circles();
+    for g in &mut job.geometries {
+        for p in &mut g.points {
+            *p = Point::new(150.0 + 2.0 * (p.x - 150.0), 150.0 + 2.0 * (p.y - 150.0));
+        }
+    }
+    let planning_machine = Mode::StageOnly.planning_machine(&machine);
+    let ctx = PlanContext { machine: &planning_machine, mode: Mode::StageOnly, start: Point::origin() };
+    let sequence = NearestNeighbour.plan(&job, &ctx).unwrap();
+    let trajectory = build(&job, &sequence, &machine, Mode::StageOnly, Point::origin()).unwrap();
+    let with_arcs = program::generate(&job, &trajectory, &machine).unwrap();
+    let mut lines_only = machine.clone();
+    lines_only.program.arcs = false;
+    let straight = program::generate(&job, &trajectory, &lines_only).unwrap();
+    assert!(with_arcs.lines.iter().any(|l| l.text.starts_with("G2G94") || l.text.starts_with("G3G94")));
+    assert!(2 * with_arcs.lines.len() <= straight.lines.len(), "{} lines with arcs, {} without", with_arcs.lines.len(), straight.lines.len());
+    let (a, s) = (simulate(&with_arcs, &machine), simulate(&straight, &lines_only));
+    for (what, f) in [("arcs", &a), ("straight", &s)] {
+        assert!(f.limit_breaches.is_empty() && f.alarms.is_empty(), "{what}: {:?} {:?}", f.limit_breaches, f.alarms);
+    }
+    // (Within 0.1 ms over the job: an arc kept waiting costs ~2 ms a pierce.)
+    assert!(a.planner_starved_s <= s.planner_starved_s + 1e-4, "starved: arcs {} s, straight {} s", a.planner_starved_s, s.planner_starved_s);
+    assert!(a.job_time_s <= s.job_time_s + 1e-4, "arcs {} s, straight {} s", a.job_time_s, s.job_time_s);
 }

@@ -240,9 +240,10 @@ pub fn fit(samples: &[(f64, Point)], decimals: usize, limit: f64) -> Option<ArcW
 
 /// Where straight blocks with ends `times` (the first the span's start)
 /// merge into arcs: (end index into `times`, arc) per block, in order; an
-/// arc covers at least two straight blocks. `position(t)` is the planned
-/// TCP; `limits` the axes' (see the module's doc on the knots an arc makes).
-pub fn merge(times: &[f64], decimals: usize, limit: f64, limits: Limits, position: impl Fn(f64) -> Point) -> Vec<(usize, Option<ArcWords>)> {
+/// arc covers at least two straight blocks and begins at `times[first_arc]`
+/// or later. `position(t)` is the planned TCP; `limits` the axes' (see the
+/// module's doc on the knots an arc makes).
+pub fn merge(times: &[f64], decimals: usize, limit: f64, limits: Limits, first_arc: usize, position: impl Fn(f64) -> Point) -> Vec<(usize, Option<ArcWords>)> {
     let mut out = Vec::new();
     let last = times.len().saturating_sub(1);
     if last == 0 {
@@ -281,6 +282,9 @@ pub fn merge(times: &[f64], decimals: usize, limit: f64, limits: Limits, positio
         // Galloping, then bisecting, over the block ends the arc reaches.
         let (mut good, mut bad, mut step) = (None, last + 1, 2);
         loop {
+            if i < first_arc {
+                break;
+            }
             let j = i + step;
             if j > last {
                 if good.as_ref().is_none_or(|(g, _)| *g < last) {
@@ -446,7 +450,7 @@ mod tests {
         };
         // Limits this plan keeps (its speed steps from 100 to 20 mm/s at the join).
         let limits = Limits { velocity: 1e3, acceleration: 1e5, jerk: 1e9 };
-        let merged = merge(&times, 5, 0.009, limits, at);
+        let merged = merge(&times, 5, 0.009, limits, 0, at);
         let arcs: Vec<_> = merged.iter().filter(|(_, a)| a.is_some()).collect();
         assert_eq!(arcs.len(), 1, "{merged:?}");
         assert_eq!(arcs[0].0, 20, "the arc ends at the last block");
