@@ -540,6 +540,22 @@ struct PlannedBlock {
     arc: Option<arcs::ArcWords>,
 }
 
+/// From rest, the end index into `times` of the first two blocks in a row
+/// that a machine could stop between and start again from within half of
+/// `limits` (each block's speed over its time, and over its time squared,
+/// within half the acceleration and jerk): a controller planning to stop at
+/// the end of its queue starts once it holds them, or once its
+/// `planner_blocks` are full (the simulator's timed controller does so).
+/// 0 when no such pair comes before the planner is full.
+fn first_rest_point(times: &[f64], limits: crate::config::Limits, planner_blocks: usize, position: impl Fn(f64) -> Point) -> usize {
+    let gentle = |k: usize| {
+        let t = times[k] - times[k - 1];
+        let d = position(times[k]) - position(times[k - 1]);
+        t > 0.0 && [d.x, d.y].iter().all(|x| x.abs() / t <= 0.5 * limits.acceleration * t && x.abs() / t <= 0.5 * limits.jerk * t * t)
+    };
+    (2..times.len().min(planner_blocks + 1)).find(|&k| gentle(k - 1) && gentle(k)).unwrap_or(0)
+}
+
 /// The blocks of one span (none for a pierce, which is a dwell).
 fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, min_block: f64) -> std::result::Result<Vec<PlannedBlock>, String> {
     if span.kind == LineKind::Pierce {
@@ -566,7 +582,14 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
     let has_scanner = trajectory.has_scanner;
     let stage_only = matches!(trajectory.stage, crate::motion::stage::StagePath::FollowsTcp);
     let blocks: Vec<(usize, Option<arcs::ArcWords>)> = if span.kind == LineKind::Mark && stage_only && machine.program.arcs {
-        arcs::merge(&times, machine.program.decimals, 0.9 * tolerance, machine.stage_limits(), |t| trajectory.tcp.position(t))
+        let position = |t: f64| trajectory.tcp.position(t);
+        // After a pierce's dwell the controller starts only once its queue
+        // holds a rest point or its planner is full (see `first_rest_point`):
+        // the blocks up to the rest point stay straight, short lines on the
+        // link, rather than have it wait for an arc's long one.
+        let after_pierce = span.first > 0 && matches!(trajectory.tcp.pieces[span.first - 1].kind, PieceKind::Pierce { .. });
+        let first_arc = if after_pierce { first_rest_point(&times, machine.stage_limits(), machine.simulator.planner_blocks, position) } else { 0 };
+        arcs::merge(&times, machine.program.decimals, 0.9 * tolerance, machine.stage_limits(), first_arc, position)
     } else {
         (1..times.len()).map(|j| (j, None)).collect()
     };
