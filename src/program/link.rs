@@ -9,13 +9,13 @@
 //! controller's receive buffer unanswered, and the controller answers a line
 //! when its planner takes it, i.e. once the motion block `planner_blocks`
 //! earlier has run. The link moves `baud / 10` bytes a second, less a share
-//! for the status requests. The controller runs a block only with a way to
-//! stop queued behind it: a full planner or a block ending at rest. It may
-//! wait for one only where it stands, at rest; in full motion a late line
-//! is an abrupt stop. So the machine starts as early as a rest is queued
-//! (a late start would leave the link more time than it gets), and every
-//! block must be runnable by the time the block before it ends unless that
-//! one ends at rest. The simulator's timed controller keeps the same rule.
+//! for the status requests, and the sender reacts to an answer within
+//! `ANSWER_LATENCY`. The controller runs a block only with a way to stop
+//! queued behind it: a full planner or a block ending at rest (the
+//! simulator's timed controller keeps the same rule). The machine starts as
+//! early as that holds (a later start would leave the link more time than
+//! it gets), and every block must be runnable by the time the block before
+//! it ends: the job runs in its planned time, never waiting for the link.
 
 use std::collections::VecDeque;
 
@@ -101,7 +101,7 @@ impl LinkModel {
     /// The least uniform slow-down (≥ 1) of the program's timing at which
     /// every line arrives before its block is due; 1 when it already does.
     /// `rests()[i]`: whether the machine is at rest at the end of line i
-    /// (`rests`): where it may wait, and how soon it starts.
+    /// (`rests`): how soon the machine starts, and where the link may fall behind.
     pub fn slowdown(&self, program: &Program, rests: impl FnOnce() -> Vec<bool>) -> Result<f64> {
         let blocks = super::arcs::planner_blocks(program);
         let mut lines: Vec<Line> = program.lines.iter().zip(blocks).map(|(l, blocks)| Line { bytes: l.text.len() + 1, due: l.plan_time, rest: false, blocks }).collect();
@@ -165,11 +165,12 @@ impl LinkModel {
 
     /// Whether every line arrives in time when the program's clock runs
     /// `scale` times slower: the controller run block by block as the
-    /// simulator's timed controller runs it. A block starts once the
-    /// planner behind it is full or holds a rest (its queue holds a way to
-    /// stop), straight on from the block before when that is so by then;
-    /// the machine may wait only where the block before ends at rest.
-    /// Anywhere else a late line is a stop in full motion: not on time.
+    /// simulator's timed controller runs it. A block runs once the planner
+    /// behind it is full or holds a rest (its queue holds a way to stop).
+    /// The machine starts as soon as that holds for the first block, and
+    /// from then on it must hold for each block by the time the block
+    /// before it ends: the program runs in its planned time, never waiting
+    /// for the link (a wait in full motion would be an abrupt stop).
     fn on_time(&self, lines: &[Line], scale: f64) -> bool {
         let p = self.planner_blocks;
         // Each planner block's duration and whether it ends at rest; an
@@ -198,7 +199,6 @@ impl LinkModel {
             let start = match end.last() {
                 None => may,
                 Some(&before) if may <= before + 1e-6 => before,
-                Some(_) if blocks[k - 1].1 => may,
                 Some(_) => return false,
             };
             end.push(start + scale * blocks[k].0);
