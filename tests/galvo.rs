@@ -124,12 +124,7 @@ fn sparse_fields_flow_on_the_fly_within_the_limits_near_the_bound() {
         let ratio = report.trajectory_time_s / report.lower_bound_s;
         assert!(ratio <= 1.15, "{case}: {} s, {ratio} × the bound", report.trajectory_time_s);
         assert!(report.stage_flow.is_some_and(|f| f >= 0.5), "{case}: {:?}", report.stage_flow);
-        let dry = run::dry_run(&planned, &machine, &dir.path().join(format!("{case}.mcap")), Faults::default()).unwrap();
-        let sim = dry.report.sim.as_ref().unwrap();
-        assert_eq!(sim.limit_violations, 0, "{case}: {sim:?}");
-        assert!(sim.peak_field_use.unwrap() <= 1.0 && sim.peak_stage_use <= 1.0, "{case}: {sim:?}");
-        assert!(sim.max_tcp_deviation_mm.unwrap() <= 0.02, "{case}: {sim:?}");
-        assert!(dry.outcome.completed, "{case}: {:?}", dry.outcome);
+        dry_run_within_limits(case, &planned, &machine, dir.path());
     }
 }
 
@@ -156,12 +151,7 @@ fn fields_far_apart_flow_with_the_stage_at_its_limits() {
     let full = plan_job(PlannerKind::Auto, &planned.job, &ctx).unwrap();
     let full_time = motion::build(&planned.job, &full.sequence, &machine, Mode::OnTheFly, run::job_start()).unwrap().job_time();
     assert!(planned.report.trajectory_time_s < 0.95 * full_time, "SC82C24: {} s, in full fields {full_time} s", planned.report.trajectory_time_s);
-    let dry = run::dry_run(&planned, &machine, &dir.path().join("SC82C24.mcap"), Faults::default()).unwrap();
-    let sim = dry.report.sim.as_ref().unwrap();
-    assert_eq!(sim.limit_violations, 0, "{sim:?}");
-    assert!(sim.peak_field_use.unwrap() <= 1.0 && sim.peak_stage_use <= 1.0, "{sim:?}");
-    assert!(sim.max_tcp_deviation_mm.unwrap() <= 0.02, "{sim:?}");
-    assert!(dry.outcome.completed, "{:?}", dry.outcome);
+    dry_run_within_limits("SC82C24", &planned, &machine, dir.path());
 }
 
 /// A generated job (mixed, 70 geometries, seed 17) whose small curves on
@@ -179,10 +169,19 @@ fn a_burst_that_needs_the_whole_link_is_slowed_rather_than_run_dry() {
     let path = dir.path().join("mixed-70-17.svg");
     std::fs::write(&path, generate(Family::Mixed, 70, 17).unwrap()).unwrap();
     let planned = run::plan(&path, &machine, PlannerKind::Auto, None).unwrap();
-    let dry = run::dry_run(&planned, &machine, &dir.path().join("m.mcap"), Faults::default()).unwrap();
-    let sim = dry.report.sim.as_ref().unwrap();
-    assert_eq!(sim.limit_violations, 0, "{sim:?}");
+    let sim = dry_run_within_limits("mixed-70-17", &planned, &machine, dir.path());
     assert!(sim.planner_starved_s < 1e-3, "{sim:?}");
     assert!(planned.report.link_slowdown < 1.05, "slowed only as the link needs: {}", planned.report.link_slowdown);
-    assert!(dry.outcome.completed, "{:?}", dry.outcome);
+}
+
+/// Dry-runs `planned` in the simulator: 0 limit violations, field and
+/// stage use ≤ 1, TCP deviation ≤ 0.02 mm, the job completed. Its figures.
+fn dry_run_within_limits(name: &str, planned: &run::Planned, machine: &MachineConfig, dir: &Path) -> laserd::figures::SimFigures {
+    let dry = run::dry_run(planned, machine, &dir.join(format!("{name}.mcap")), Faults::default()).unwrap();
+    let sim = dry.report.sim.clone().unwrap();
+    assert_eq!(sim.limit_violations, 0, "{name}: {sim:?}");
+    assert!(sim.peak_field_use.unwrap() <= 1.0 && sim.peak_stage_use <= 1.0, "{name}: {sim:?}");
+    assert!(sim.max_tcp_deviation_mm.unwrap() <= 0.02, "{name}: {sim:?}");
+    assert!(dry.outcome.completed, "{name}: {:?}", dry.outcome);
+    sim
 }
