@@ -1,20 +1,25 @@
-//! Stage-only runs of gentle vertices (flattened curves) as one smooth curve.
+//! Stage-only runs of gentle vertices (flattened curves, rounded corners
+//! between straights) as one smooth curve.
 //!
 //! Turned one vertex at a time (`blend`), the TCP's acceleration returns to 0
 //! between vertices, which caps a curve flattened into short legs far below
 //! what its curvature allows. Here the direction of travel is smoothed along
 //! the arc length instead: at each vertex the direction changes by a pure-jerk
-//! S-curve over a window `W` around it, the windows of neighbouring vertices
-//! overlapping, so the path turns continuously (a circle gets a nearly
-//! constant curvature). The widest window whose path stays within
-//! `corner_tolerance` of the polyline is taken; the speed along it is one
-//! jerk-limited profile (`blend::Profile`): entry, ramp, cruise, ramp, exit.
-//! On an axis the curve's own (centripetal) acceleration v²·d' adds to the
-//! ramp's tangential one, so a ramp's acceleration steps down as its speed
-//! nears the cruise, keeping to what the curve leaves at each speed; of
-//! several cruises up to what the curvature allows, the fastest profile
-//! whose every sampled per-axis acceleration and jerk stays within the
-//! limits is taken. The motion is tabulated into short free moves
+//! S-curve over a window around it (a multiple of its shorter leg), the
+//! windows of neighbouring vertices overlapping, so the path turns
+//! continuously (a circle gets a nearly constant curvature). The widest
+//! windows whose path stays within `corner_tolerance` of the polyline are
+//! taken. The speed follows the curve: sampled, each place has a top speed
+//! (the feed, and what the curvature and its change leave the axes);
+//! stretches of like top speed are sections, each run at most at its cap
+//! with jerk-limited ramps (`blend::Profile`) between, so a rounded
+//! rectangle runs its sides at the feed and slows only for its corners. On
+//! an axis the curve's own (centripetal) acceleration κ·v² adds to the
+//! ramp's tangential one at right angles, so a ramp's acceleration steps
+//! down as its speed nears what the curve allows. Of several scales of the
+//! caps and shares of the ramps, the fastest profile whose every sampled
+//! per-axis velocity, acceleration and jerk stays within the limits is
+//! taken. The motion is tabulated into short free moves
 //! (`FreeMove::sampled`, positions, velocities and accelerations exact at
 //! their steps) that the program and the checks read as any other piece.
 
@@ -44,21 +49,33 @@ struct Curve {
 type CurveState = (Point, Vector2<f64>, Vector2<f64>, Vector2<f64>);
 
 impl Curve {
-    fn new(points: Vec<Point>, width: f64) -> Curve {
+    /// Each inner vertex's window is `factor` times its shorter leg (long
+    /// straights between short curved legs keep their own shape), then
+    /// narrowed so that neighbouring windows differ by at most twice the leg
+    /// between them: their edges stay in the order of the vertices, so the
+    /// directions' weights stay positive. The ends keep their direction.
+    fn new(points: Vec<Point>, factor: f64) -> Curve {
         let dirs: Vec<Vector2<f64>> = points.windows(2).map(|w| (w[1] - w[0]).normalize()).collect();
+        let legs: Vec<f64> = points.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
         let mut at_vertex = vec![0.0];
-        for w in points.windows(2) {
-            at_vertex.push(at_vertex.last().unwrap() + (w[1] - w[0]).norm());
+        for l in &legs {
+            at_vertex.push(at_vertex.last().unwrap() + l);
         }
-        let total = *at_vertex.last().unwrap();
         let n = dirs.len();
-        // Windows inside the run (its ends keep their direction), ordered
-        // as the vertices so that the directions' weights stay positive.
-        let window = (0..=n).map(|i| if i == 0 || i == n { 0.0 } else { width.min(2.0 * at_vertex[i]).min(2.0 * (total - at_vertex[i])) }).collect();
-        Curve { points, dirs, at_vertex, window, widest: width }
+        // A vertex that does not turn needs no window (the split ends' midpoints).
+        let turns = |i: usize| dirs[i - 1].perp(&dirs[i]).abs() > 1e-9 || dirs[i - 1].dot(&dirs[i]) < 0.0;
+        let mut window: Vec<f64> = (0..=n).map(|i| if i == 0 || i == n || !turns(i) { 0.0 } else { factor * legs[i - 1].min(legs[i]) }).collect();
+        for i in 0..n {
+            window[i + 1] = window[i + 1].min(window[i] + 2.0 * legs[i]);
+        }
+        for i in (0..n).rev() {
+            window[i] = window[i].min(window[i + 1] + 2.0 * legs[i]);
+        }
+        let widest = window.iter().cloned().fold(0.0, f64::max);
+        Curve { points, dirs, at_vertex, window, widest }
     }
 
-    /// The curve through `points` smoothed over windows of `width`, its
+    /// The curve through `points` smoothed over windows of `factor` legs, its
     /// vertices moved so that it passes near the polyline: the smoothing
     /// cuts inside every turn (by ~turn·width/12 per window, the
     /// overlapping windows adding up), which a few rounds of moving each
@@ -67,7 +84,7 @@ impl Curve {
     /// circle, halfway between the vertices and the chords). The run
     /// enters and leaves along its first and last legs: their outer halves
     /// stay, split off at their midpoints.
-    fn compensated(points: &[Point], width: f64) -> Curve {
+    fn compensated(points: &[Point], factor: f64) -> Curve {
         let n = points.len() - 1;
         let half = |a: Point, b: Point| Point::from(0.5 * (a.coords + b.coords));
         let mut start = vec![points[0], half(points[0], points[1])];
@@ -75,19 +92,28 @@ impl Curve {
         start.extend([half(points[n - 1], points[n]), points[n]]);
         // Vertex i of `points` is i + 1 of `start`.
         let aim = |i: usize| points[i] + (half(points[i - 1], points[i + 1]) - points[i]) / 8.0;
-        let mut curve = Curve::new(start, width);
+        let mut curve = Curve::new(start, factor);
         for _ in 0..4 {
             let mut moved = curve.points.clone();
             for i in 1..n {
                 moved[i + 1] -= curve.state(curve.at_vertex[i + 1]).0 - aim(i);
             }
-            curve = Curve::new(moved, width);
+            curve = Curve::new(moved, factor);
         }
         curve
     }
 
     fn length(&self) -> f64 {
         *self.at_vertex.last().unwrap()
+    }
+
+    /// The widest window of a vertex that turns by more than a trace (the
+    /// compensation bends a split end's midpoint by a trace).
+    fn reach(&self) -> f64 {
+        (1..self.dirs.len())
+            .filter(|&i| self.dirs[i - 1].perp(&self.dirs[i]).abs() > 1e-3 || self.dirs[i - 1].dot(&self.dirs[i]) < 0.0)
+            .map(|i| self.window[i])
+            .fold(0.0, f64::max)
     }
 
     fn state(&self, s: f64) -> CurveState {
@@ -142,24 +168,55 @@ impl Curve {
         worst
     }
 
-    /// The largest per-axis component of the direction's first and second
-    /// derivative along the curve from arc length `from` to `to` (sampled).
-    fn bend(&self, from: f64, to: f64) -> Bend {
-        let samples = (16.0 * self.dirs.len() as f64 * (to - from) / self.length()).ceil().max(16.0) as usize;
-        let mut bend = Bend { turning: 0.0, turning_change: 0.0 };
-        for q in 0..=samples {
-            let (_, _, d1, d2) = self.state(from + (to - from) * q as f64 / samples as f64);
-            bend.turning = bend.turning.max(d1.x.abs()).max(d1.y.abs());
-            bend.turning_change = bend.turning_change.max(d2.x.abs()).max(d2.y.abs());
-        }
-        bend
+    /// The curve sampled along its arc length (`SAMPLES_PER_LEG` per leg
+    /// and its end): per axis its bend there, and the fastest constant
+    /// speed the axes and `speed` allow.
+    fn samples(&self, speed: f64, axis: &Limits) -> Vec<Sample> {
+        let mut at: Vec<f64> = (0..self.dirs.len())
+            .flat_map(|k| (0..SAMPLES_PER_LEG).map(move |q| (k, q)))
+            .map(|(k, q)| self.at_vertex[k] + (self.at_vertex[k + 1] - self.at_vertex[k]) * q as f64 / SAMPLES_PER_LEG as f64)
+            .collect();
+        at.push(self.length());
+        at.into_iter()
+            .map(|s| {
+                let (_, d, d1, d2) = self.state(s);
+                // The curve's normal, and the rate its curvature changes at.
+                let normal = Vector2::new(-d.y, d.x) / d.norm().max(1e-12);
+                let bend = Bend {
+                    turning: d1.x.abs().max(d1.y.abs()),
+                    turning_change: d2.x.abs().max(d2.y.abs()),
+                    curvature: d1.norm(),
+                    curvature_change: d2.dot(&normal).abs(),
+                };
+                let along = axis.velocity / d.x.abs().max(d.y.abs()).max(1e-12);
+                let (feed, bent) = (speed.min(along), bend.top_speed(axis));
+                Sample { s, cap: feed.min(bent), feed, bent, bend }
+            })
+            .collect()
     }
 }
 
+/// Samples of the curve's bend per leg (its windows change within a leg).
+const SAMPLES_PER_LEG: usize = 8;
+
+struct Sample {
+    s: f64,
+    /// The fastest constant speed here: within the feed and the axes'
+    /// velocity (`feed`) and what the curvature allows (`bent`).
+    cap: f64,
+    feed: f64,
+    bent: f64,
+    bend: Bend,
+}
+
 /// Bounds of a curve's direction `d(s)` by arc length: per axis |d'| and |d''|.
+#[derive(Clone, Copy)]
 struct Bend {
     turning: f64,
     turning_change: f64,
+    /// |d'| and the normal part of d'' (the curvature and its rate of change).
+    curvature: f64,
+    curvature_change: f64,
 }
 
 impl Bend {
@@ -169,18 +226,33 @@ impl Bend {
         (axis.acceleration / self.turning).sqrt().min((axis.jerk / self.turning_change).cbrt())
     }
 
-    /// The tangential acceleration and jerk the axes leave at speeds up to
-    /// `v`: per axis |d'·v² + d·a| ≤ K1·v² + a and |d''·v³ + 3·d'·v·a + d·j|
-    /// ≤ K2·v³ + 3·K1·v·a + j (|d| ≤ 1), a little inside the limits; the
-    /// cross term takes at most half the jerk the curve leaves.
-    fn tangential(&self, axis: &Limits, v: f64) -> Option<Limits> {
-        let jerk_left = axis.jerk - self.turning_change * v.powi(3);
-        let cross = 3.0 * self.turning * v;
-        let mut acceleration = (0.95 * (axis.acceleration - self.turning * v * v)).min(RAMP_MOST * axis.acceleration);
-        if cross > 0.0 {
-            acceleration = acceleration.min(0.5 * jerk_left / cross);
+    fn max(self, other: Bend) -> Bend {
+        Bend {
+            turning: self.turning.max(other.turning),
+            turning_change: self.turning_change.max(other.turning_change),
+            curvature: self.curvature.max(other.curvature),
+            curvature_change: self.curvature_change.max(other.curvature_change),
         }
-        let jerk = (0.95 * (jerk_left - cross * acceleration)).min(RAMP_MOST * axis.jerk);
+    }
+
+    /// The tangential acceleration `a` and jerk `j` the axes leave at
+    /// speeds up to `v`, a little inside the limits. Along the curve (unit
+    /// tangent T, normal N, curvature κ) the acceleration is κ·v²·N + a·T
+    /// and the jerk (κ'·v³ + 3·κ·v·a)·N + (j − κ²·v³)·T; an axis takes of a
+    /// vector x·N + y·T at most √(x² + y²). The ramp's own part of the
+    /// normal jerk (3·κ·v·a) takes at most half of what the curve leaves.
+    fn tangential(&self, axis: &Limits, v: f64) -> Option<Limits> {
+        let (k, dk) = (self.curvature, self.curvature_change);
+        let (most_a, most_j) = (0.95 * axis.acceleration, 0.95 * axis.jerk);
+        let along = k * k * v.powi(3);
+        let normal_own = dk * v.powi(3);
+        let left = (most_j * most_j - along * along).max(0.0).sqrt();
+        let mut acceleration = (most_a * most_a - (k * v * v).powi(2)).max(0.0).sqrt().min(RAMP_MOST * axis.acceleration);
+        if k * v > 0.0 {
+            acceleration = acceleration.min(0.5 * (left - normal_own) / (3.0 * k * v));
+        }
+        let normal = normal_own + 3.0 * k * v * acceleration;
+        let jerk = ((most_j * most_j - normal * normal).max(0.0).sqrt() - along).min(RAMP_MOST * axis.jerk);
         // `velocity`: the speed up to which these hold.
         (acceleration > 0.0 && jerk > 0.0).then_some(Limits { velocity: v, acceleration, jerk })
     }
@@ -193,10 +265,10 @@ fn segment_distance(p: Point, a: Point, b: Point) -> f64 {
     (p - (a + d * f)).norm()
 }
 
-/// The largest share of the axes' acceleration and jerk a ramp takes, as
-/// before the ramps kept to the curve: steeper ramps from rest after a
-/// pierce start with blocks the timed controller runs alone and then stands
-/// still after (a jerk breach on `samples/marking-300.svg`, flatbed).
+/// The largest share of the axes' acceleration and jerk a ramp takes:
+/// steeper ramps from rest after a pierce start with blocks the timed
+/// controller runs alone and then stands still after (a jerk breach on
+/// `samples/nested-sheet.svg`, flatbed, with `[program] arcs = false`).
 const RAMP_MOST: f64 = 0.5;
 
 /// Where a ramp's acceleration steps down: fractions of its speed change.
@@ -255,28 +327,154 @@ fn ramp(from: f64, to: f64, bend: &Bend, axis: &Limits, share: f64) -> Option<Ve
     Some(phases)
 }
 
-/// The speed along the curve: from `entry` to `cruise` to `exit`, or none
-/// where those changes do not fit its length.
-fn speed_profile(length: f64, [entry, cruise, exit]: [f64; 3], bend: &Bend, axis: &Limits, share: f64) -> Option<Profile> {
-    if cruise.is_nan() || cruise <= 0.0 {
-        return None;
+/// A stretch of the curve whose samples' top speeds lie within `SECTION_SPREAD`
+/// of each other: it runs at one cruise at most, its ramps within what its
+/// most bent sample leaves.
+struct Section {
+    length: f64,
+    /// The lowest top speed of its samples: of the feed and the axes'
+    /// velocity (`feed`), and of the curvature (`bent`).
+    cap: f64,
+    feed: f64,
+    bent: f64,
+    bend: Bend,
+}
+
+impl Section {
+    fn of(samples: &[&Sample]) -> Section {
+        let (first, last) = (samples[0], samples[samples.len() - 1]);
+        let lowest = |f: &dyn Fn(&Sample) -> f64| samples.iter().map(|x| f(x)).fold(f64::INFINITY, f64::min);
+        Section {
+            length: last.s - first.s,
+            cap: lowest(&|x| x.cap),
+            feed: lowest(&|x| x.feed),
+            bent: lowest(&|x| x.bent),
+            bend: samples.iter().skip(1).fold(first.bend, |b, x| b.max(x.bend)),
+        }
     }
-    let (entry, exit) = (entry.min(cruise), exit.min(cruise));
-    let (up, down) = (ramp(entry, cruise, bend, axis, share)?, ramp(exit, cruise, bend, axis, share)?);
-    let distance = |from: f64, phases: &[(f64, f64)]| {
-        let mut p = Profile::new(from);
-        phases.iter().for_each(|&(d, j)| p.push(d, j));
-        p.length
-    };
-    let ramps = distance(entry, &up) + distance(exit, &down);
-    if ramps > length {
-        return None;
+
+    fn join(&self, other: &Section) -> Section {
+        Section {
+            length: self.length + other.length,
+            cap: self.cap.min(other.cap),
+            feed: self.feed.min(other.feed),
+            bent: self.bent.min(other.bent),
+            bend: self.bend.max(other.bend),
+        }
     }
-    let mut p = Profile::new(entry);
-    up.iter().for_each(|&(d, j)| p.push(d, j));
-    p.push((length - ramps) / cruise, 0.0);
-    // The slow-down is the speed-up to the exit backwards in time (same jerks).
-    down.iter().rev().for_each(|&(d, j)| p.push(d, j));
+}
+
+/// The lowest ratio of top speeds within one section.
+const SECTION_SPREAD: f64 = 0.8;
+
+/// The curve cut into sections. The stretch between two samples belongs to
+/// the slower side, so a section's cap holds along all of it. A section
+/// shorter than a jerk phase at its cap (the turn-in between a straight and
+/// an arc, say) joins its slower neighbour unless it is slower than both:
+/// a ramp cut short at its boundaries would restart from no acceleration
+/// there.
+fn sections(samples: &[&Sample], axis: &Limits) -> Vec<Section> {
+    let mut out = Vec::new();
+    let (mut from, mut lo, mut hi) = (0, samples[0].cap, samples[0].cap);
+    for j in 1..samples.len() {
+        let cap = samples[j].cap;
+        if cap.min(lo) >= SECTION_SPREAD * cap.max(hi) {
+            (lo, hi) = (lo.min(cap), hi.max(cap));
+            continue;
+        }
+        // Slower ahead: the new section starts at the last sample; faster:
+        // this one ends at the next.
+        let at = if cap < lo { j - 1 } else { j };
+        out.push(Section::of(&samples[from..=at]));
+        from = at;
+        (lo, hi) = (samples[from..=j].iter().map(|x| x.cap).fold(f64::INFINITY, f64::min), samples[from..=j].iter().map(|x| x.cap).fold(0.0, f64::max));
+    }
+    out.push(Section::of(&samples[from..]));
+    out.retain(|x| x.length > 0.0);
+    let short = |x: &Section| x.length < x.cap * axis.acceleration / axis.jerk;
+    loop {
+        let cap = |i: Option<usize>| i.and_then(|i| out.get(i)).map_or(f64::INFINITY, |x: &Section| x.cap);
+        let merge = (0..out.len()).find_map(|i| {
+            let (left, right) = (cap(i.checked_sub(1)), cap(Some(i + 1)));
+            let into = if left <= right { i.checked_sub(1) } else { Some(i + 1) };
+            (short(&out[i]) && out.len() > 1 && out[i].cap >= left.min(right)).then_some((i, into?))
+        });
+        let Some((i, into)) = merge else { break };
+        let x = out.remove(i);
+        let k = if into > i { into - 1 } else { into };
+        out[k] = out[k].join(&x);
+    }
+    out
+}
+
+/// Distance of the speed change between `a` and `b` (either way) in a
+/// section, if the curve leaves room for it.
+fn ramp_distance(a: f64, b: f64, section: &Section, axis: &Limits, share: f64) -> Option<f64> {
+    let (lo, hi) = if a <= b { (a, b) } else { (b, a) };
+    let phases = ramp(lo, hi, &section.bend, axis, share)?;
+    let mut p = Profile::new(lo);
+    phases.iter().for_each(|&(d, j)| p.push(d, j));
+    Some(p.length)
+}
+
+/// The largest value in `lo..=hi` that `ok` takes (`ok(lo)` holds).
+fn largest(lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool) -> f64 {
+    if ok(hi) {
+        return hi;
+    }
+    let (mut lo, mut hi) = (lo, hi);
+    for _ in 0..30 {
+        let mid = 0.5 * (lo + hi);
+        if ok(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
+/// The speed along the curve from `entry` to `exit` (both at most what the
+/// sections allow): the sections' curvature caps scaled by `scale`, the speeds at their
+/// boundaries lowered by a forward and a backward pass until every change
+/// fits its section, then in each section a ramp up to the fastest peak that
+/// fits, a cruise and a ramp down. Every change starts and ends without
+/// acceleration. None where the curve leaves no room for a ramp.
+fn speed_along(sections: &[Section], scale: f64, share: f64, entry: f64, exit: f64, axis: &Limits) -> Option<Profile> {
+    let k = sections.len();
+    let caps: Vec<f64> = sections.iter().map(|x| x.feed.min(scale * x.bent)).collect();
+    let mut u: Vec<f64> = (0..=k)
+        .map(|i| match i {
+            0 => entry.min(caps[0]),
+            i if i == k => exit.min(caps[k - 1]),
+            i => caps[i - 1].min(caps[i]),
+        })
+        .collect();
+    let fits = |i: usize, a: f64, b: f64| ramp_distance(a, b, &sections[i], axis, share).is_some_and(|d| d <= sections[i].length);
+    for i in 0..k {
+        if u[i + 1] > u[i] && !fits(i, u[i], u[i + 1]) {
+            u[i + 1] = largest(u[i], u[i + 1], &|b| fits(i, u[i], b));
+        }
+    }
+    for i in (0..k).rev() {
+        if u[i] > u[i + 1] && !fits(i, u[i], u[i + 1]) {
+            u[i] = largest(u[i + 1], u[i], &|a| fits(i, a, u[i + 1]));
+        }
+    }
+    let mut p = Profile::new(u[0]);
+    for (i, x) in sections.iter().enumerate() {
+        let (a, b) = (u[i], u[i + 1]);
+        let both = |v: f64| Some(ramp_distance(a, v, x, axis, share)? + ramp_distance(b, v, x, axis, share)?);
+        let peak = largest(a.max(b), caps[i], &|v| both(v).is_some_and(|d| d <= x.length));
+        if peak <= 0.0 {
+            return None;
+        }
+        let (up, down) = (ramp(a, peak, &x.bend, axis, share)?, ramp(b, peak, &x.bend, axis, share)?);
+        up.iter().for_each(|&(d, j)| p.push(d, j));
+        p.push((x.length - both(peak)?).max(0.0) / peak, 0.0);
+        // The slow-down is the speed-up to the exit backwards in time (same jerks).
+        down.iter().rev().for_each(|&(d, j)| p.push(d, j));
+    }
     Some(p)
 }
 
@@ -290,11 +488,12 @@ fn axis_state(curve: &Curve, speed: &Profile, t: f64) -> (Point, [Vector2<f64>; 
     (p, [vel, acc, jerk])
 }
 
-/// Cruise speeds tried per curve.
-const CRUISES: usize = 48;
+/// Scales of the sections' caps tried per curve, fastest first: a cap is
+/// the top speed at the samples, which the curve may exceed between them.
+const SCALES: [f64; 6] = [1.0, 0.95, 0.88, 0.75, 0.55, 0.35];
 
-/// Shares of what the curve leaves that the ramps take, tried per cruise.
-const RAMP_SHARES: [f64; 4] = [1.0, 0.6, 0.35, 0.2];
+/// Shares of what the curve leaves that the ramps take, tried per scale.
+const RAMP_SHARES: [f64; 5] = [1.0, 0.85, 0.7, 0.5, 0.25];
 
 /// Sample step of the limit check and of the tables (s).
 const STEP: f64 = 2.5e-4;
@@ -314,38 +513,52 @@ fn within_limits(curve: &Curve, speed: &Profile, axis: &Limits) -> bool {
     })
 }
 
-/// The run through `points` (its legs' lengths and directions, the layer's
-/// `speed` capped per leg in `limits`) as one smooth curve from speed `entry`
-/// to speed `exit`, when every inner vertex is gentle: its pieces (start,
-/// duration, motion) and its duration.
-pub fn plan(s: &TcpSettings, points: &[Point], lengths: &[f64], dirs: &[Vector2<f64>], limits: &[Limits], entry: f64, exit: f64) -> Option<(Legs, f64)> {
+/// The run through `points` (its legs' lengths and directions) marked at
+/// `speed` as one smooth curve from speed `entry` to speed `exit`, when
+/// every inner vertex is gentle: its pieces (start, duration, motion) and
+/// its duration. The speed follows the curve: it slows where the curve bends
+/// sharply (a rounded corner) and runs fast where it is straight.
+pub fn plan(s: &TcpSettings, points: &[Point], dirs: &[Vector2<f64>], speed: f64, entry: f64, exit: f64) -> Option<(Legs, f64)> {
     let n = dirs.len();
     if n < 3 || dirs.windows(2).any(|w| w[0].dot(&w[1]).clamp(-1.0, 1.0).acos() > GENTLE_TURN) {
         return None;
     }
-    // The widest window that keeps to the tolerance (a little inside it:
+    // The widest windows that keep to the tolerance (a little inside it:
     // the deviation is sampled).
-    let mean = lengths.iter().sum::<f64>() / n as f64;
     let curve = [8.0, 6.0, 4.0, 3.0, 2.0, 1.5, 1.0]
         .iter()
-        .map(|f| Curve::compensated(points, f * mean))
+        .map(|&f| Curve::compensated(points, f))
         .find(|c| c.deviation(points) <= 0.95 * s.corner_tolerance)?;
-    let top = limits.iter().map(|l| l.velocity).fold(f64::INFINITY, f64::min);
-    let (length, reach) = (curve.length(), curve.widest.min(0.5 * curve.length()));
-    let bend = curve.bend(reach, length - reach);
-    let ceiling = top.min(bend.top_speed(&s.axis));
-    // Within a window of its ends, where the windows narrow, the curve
-    // bends more sharply than inside: there it starts and ends no faster
-    // than it could run at a constant speed (a little below).
-    let ends = [curve.bend(0.0, reach), curve.bend(length - reach, length)].map(|b| 0.9 * b.top_speed(&s.axis));
-    let (entry, exit) = (entry.min(ends[0]), exit.min(ends[1]));
-    // Cruises in steps of 1/CRUISES of the fastest the curvature allows,
-    // ramps taking several shares of what it leaves: the fastest profile
-    // within the limits (the highest cruise leaves its ramps little
-    // acceleration).
-    let mut profiles: Vec<Profile> = (0..CRUISES)
-        .flat_map(|k| RAMP_SHARES.map(|share| (ceiling * (1.0 - k as f64 / CRUISES as f64), share)))
-        .filter_map(|(cruise, share)| speed_profile(length, [entry, cruise, exit], &bend, &s.axis, share))
+    // Two ways to cut it into sections: all of it, or its inner part (the
+    // first and last sections reaching over the ends). Within a window of
+    // its ends, where the windows narrow, the curve bends more sharply than
+    // inside (a circle's curvature grows in from the straight ends): the
+    // inner cut lets a ramp from rest run through there on the inner
+    // sections' bend, starting and ending no faster than the ends could run
+    // at a constant speed (a little below); the limit check has the last word.
+    let samples = curve.samples(speed, &s.axis);
+    let (length, reach) = (curve.length(), curve.reach().min(0.5 * curve.length()));
+    let end_cap = |inside: &dyn Fn(f64) -> bool| 0.9 * samples.iter().filter(|x| inside(x.s)).map(|x| x.cap).fold(f64::INFINITY, f64::min);
+    let ends = (entry.min(end_cap(&|x| x <= reach)), exit.min(end_cap(&|x| x >= length - reach)));
+    let inner: Vec<&Sample> = samples.iter().filter(|x| x.s >= reach && x.s <= length - reach).collect();
+    let mut cuts = vec![(sections(&samples.iter().collect::<Vec<_>>(), &s.axis), (entry, exit))];
+    if inner.len() >= 2 {
+        let mut sections = sections(&inner, &s.axis);
+        if let (Some(first), Some(x)) = (inner.first(), sections.first_mut()) {
+            x.length += first.s;
+        }
+        if let (Some(last), Some(x)) = (inner.last(), sections.last_mut()) {
+            x.length += length - last.s;
+        }
+        cuts.push((sections, ends));
+    }
+    // The fastest profile within the limits.
+    let mut profiles: Vec<Profile> = cuts
+        .iter()
+        .filter(|(sections, _)| !sections.is_empty())
+        .flat_map(|(sections, (entry, exit))| {
+            SCALES.iter().flat_map(move |&scale| RAMP_SHARES.iter().filter_map(move |&share| speed_along(sections, scale, share, *entry, *exit, &s.axis)))
+        })
         .collect();
     profiles.sort_by(|a, b| a.duration.total_cmp(&b.duration));
     let best = profiles.into_iter().find(|p| within_limits(&curve, p, &s.axis))?;
