@@ -419,19 +419,7 @@ fn ramp_distance(a: f64, b: f64, section: &Section, axis: &Limits, share: f64) -
 
 /// The largest value in `lo..=hi` that `ok` takes (`ok(lo)` holds).
 fn largest(lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool) -> f64 {
-    if ok(hi) {
-        return hi;
-    }
-    let (mut lo, mut hi) = (lo, hi);
-    for _ in 0..30 {
-        let mid = 0.5 * (lo + hi);
-        if ok(mid) {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    lo
+    super::blend::bisect(lo, hi, 30, ok)
 }
 
 /// The speed along the curve from `entry` to `exit` (both at most what the
