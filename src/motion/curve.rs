@@ -63,7 +63,7 @@ impl Curve {
         }
         let n = dirs.len();
         // A vertex that does not turn needs no window (the split ends' midpoints).
-        let turns = |i: usize| dirs[i - 1].perp(&dirs[i]).abs() > 1e-9 || dirs[i - 1].dot(&dirs[i]) < 0.0;
+        let turns = |i: usize| turns_more_than(dirs[i - 1], dirs[i], 1e-9);
         let mut window: Vec<f64> = (0..=n).map(|i| if i == 0 || i == n || !turns(i) { 0.0 } else { factor * legs[i - 1].min(legs[i]) }).collect();
         for i in 0..n {
             window[i + 1] = window[i + 1].min(window[i] + 2.0 * legs[i]);
@@ -111,7 +111,7 @@ impl Curve {
     /// compensation bends a split end's midpoint by a trace).
     fn reach(&self) -> f64 {
         (1..self.dirs.len())
-            .filter(|&i| self.dirs[i - 1].perp(&self.dirs[i]).abs() > 1e-3 || self.dirs[i - 1].dot(&self.dirs[i]) < 0.0)
+            .filter(|&i| turns_more_than(self.dirs[i - 1], self.dirs[i], 1e-3))
             .map(|i| self.window[i])
             .fold(0.0, f64::max)
     }
@@ -190,7 +190,7 @@ impl Curve {
                 };
                 let along = axis.velocity / d.x.abs().max(d.y.abs()).max(1e-12);
                 let (feed, bent) = (speed.min(along), bend.top_speed(axis));
-                Sample { s, cap: feed.min(bent), feed, bent, bend }
+                Sample { s, feed, bent, bend }
             })
             .collect()
     }
@@ -201,12 +201,18 @@ const SAMPLES_PER_LEG: usize = 8;
 
 struct Sample {
     s: f64,
-    /// The fastest constant speed here: within the feed and the axes'
-    /// velocity (`feed`) and what the curvature allows (`bent`).
-    cap: f64,
+    /// The fastest constant speed here within the feed and the axes'
+    /// velocity, and within what the curvature allows.
     feed: f64,
     bent: f64,
     bend: Bend,
+}
+
+impl Sample {
+    /// The fastest constant speed here.
+    fn cap(&self) -> f64 {
+        self.feed.min(self.bent)
+    }
 }
 
 /// Bounds of a curve's direction `d(s)` by arc length: per axis |d'| and |d''|.
@@ -256,6 +262,12 @@ impl Bend {
         // `velocity`: the speed up to which these hold.
         (acceleration > 0.0 && jerk > 0.0).then_some(Limits { velocity: v, acceleration, jerk })
     }
+}
+
+/// Whether the direction turns from `a` to `b` (unit vectors) by more than
+/// `angle` (radians, small).
+fn turns_more_than(a: Vector2<f64>, b: Vector2<f64>, angle: f64) -> bool {
+    a.perp(&b).abs() > angle || a.dot(&b) < 0.0
 }
 
 fn segment_distance(p: Point, a: Point, b: Point) -> f64 {
@@ -334,7 +346,6 @@ struct Section {
     length: f64,
     /// The lowest top speed of its samples: of the feed and the axes'
     /// velocity (`feed`), and of the curvature (`bent`).
-    cap: f64,
     feed: f64,
     bent: f64,
     bend: Bend,
@@ -346,17 +357,20 @@ impl Section {
         let lowest = |f: &dyn Fn(&Sample) -> f64| samples.iter().map(|x| f(x)).fold(f64::INFINITY, f64::min);
         Section {
             length: last.s - first.s,
-            cap: lowest(&|x| x.cap),
             feed: lowest(&|x| x.feed),
             bent: lowest(&|x| x.bent),
             bend: samples.iter().skip(1).fold(first.bend, |b, x| b.max(x.bend)),
         }
     }
 
+    /// The lowest top speed of its samples.
+    fn cap(&self) -> f64 {
+        self.feed.min(self.bent)
+    }
+
     fn join(&self, other: &Section) -> Section {
         Section {
             length: self.length + other.length,
-            cap: self.cap.min(other.cap),
             feed: self.feed.min(other.feed),
             bent: self.bent.min(other.bent),
             bend: self.bend.max(other.bend),
@@ -375,9 +389,9 @@ const SECTION_SPREAD: f64 = 0.8;
 /// there.
 fn sections(samples: &[&Sample], axis: &Limits) -> Vec<Section> {
     let mut out = Vec::new();
-    let (mut from, mut lo, mut hi) = (0, samples[0].cap, samples[0].cap);
+    let (mut from, mut lo, mut hi) = (0, samples[0].cap(), samples[0].cap());
     for j in 1..samples.len() {
-        let cap = samples[j].cap;
+        let cap = samples[j].cap();
         if cap.min(lo) >= SECTION_SPREAD * cap.max(hi) {
             (lo, hi) = (lo.min(cap), hi.max(cap));
             continue;
@@ -387,17 +401,17 @@ fn sections(samples: &[&Sample], axis: &Limits) -> Vec<Section> {
         let at = if cap < lo { j - 1 } else { j };
         out.push(Section::of(&samples[from..=at]));
         from = at;
-        (lo, hi) = (samples[from..=j].iter().map(|x| x.cap).fold(f64::INFINITY, f64::min), samples[from..=j].iter().map(|x| x.cap).fold(0.0, f64::max));
+        (lo, hi) = (samples[from..=j].iter().map(|x| x.cap()).fold(f64::INFINITY, f64::min), samples[from..=j].iter().map(|x| x.cap()).fold(0.0, f64::max));
     }
     out.push(Section::of(&samples[from..]));
     out.retain(|x| x.length > 0.0);
-    let short = |x: &Section| x.length < x.cap * axis.acceleration / axis.jerk;
+    let short = |x: &Section| x.length < x.cap() * axis.acceleration / axis.jerk;
     loop {
-        let cap = |i: Option<usize>| i.and_then(|i| out.get(i)).map_or(f64::INFINITY, |x: &Section| x.cap);
+        let cap = |i: Option<usize>| i.and_then(|i| out.get(i)).map_or(f64::INFINITY, |x: &Section| x.cap());
         let merge = (0..out.len()).find_map(|i| {
             let (left, right) = (cap(i.checked_sub(1)), cap(Some(i + 1)));
             let into = if left <= right { i.checked_sub(1) } else { Some(i + 1) };
-            (short(&out[i]) && out.len() > 1 && out[i].cap >= left.min(right)).then_some((i, into?))
+            (short(&out[i]) && out.len() > 1 && out[i].cap() >= left.min(right)).then_some((i, into?))
         });
         let Some((i, into)) = merge else { break };
         let x = out.remove(i);
@@ -501,7 +515,7 @@ fn within_limits(curve: &Curve, speed: &Profile, axis: &Limits) -> bool {
     })
 }
 
-/// The run through `points` (its legs' lengths and directions) marked at
+/// The run through `points` (its legs' directions `dirs`) marked at
 /// `speed` as one smooth curve from speed `entry` to speed `exit`, when
 /// every inner vertex is gentle: its pieces (start, duration, motion) and
 /// its duration. The speed follows the curve: it slows where the curve bends
@@ -526,7 +540,7 @@ pub fn plan(s: &TcpSettings, points: &[Point], dirs: &[Vector2<f64>], speed: f64
     // at a constant speed (a little below); the limit check has the last word.
     let samples = curve.samples(speed, &s.axis);
     let (length, reach) = (curve.length(), curve.reach().min(0.5 * curve.length()));
-    let end_cap = |inside: &dyn Fn(f64) -> bool| 0.9 * samples.iter().filter(|x| inside(x.s)).map(|x| x.cap).fold(f64::INFINITY, f64::min);
+    let end_cap = |inside: &dyn Fn(f64) -> bool| 0.9 * samples.iter().filter(|x| inside(x.s)).map(|x| x.cap()).fold(f64::INFINITY, f64::min);
     let ends = (entry.min(end_cap(&|x| x <= reach)), exit.min(end_cap(&|x| x >= length - reach)));
     let inner: Vec<&Sample> = samples.iter().filter(|x| x.s >= reach && x.s <= length - reach).collect();
     let mut cuts = vec![(sections(&samples.iter().collect::<Vec<_>>(), &s.axis), (entry, exit))];
