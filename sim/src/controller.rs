@@ -37,6 +37,7 @@ mod hold;
 mod laser;
 mod lines;
 mod motion;
+pub use motion::gentle_move;
 mod parser;
 mod realtime;
 mod report;

@@ -281,3 +281,22 @@ fn after_a_pierce_a_line_longer_than_any_before_still_holds_the_cut() {
     s.knots.iter().for_each(|k| checker.push(k));
     assert_eq!(checker.finish().violations, 0);
 }
+
+#[test]
+fn after_a_pierce_two_slow_first_blocks_are_no_rest_point_when_a_stop_between_them_breaks_the_jerk() {
+    // A cut from rest whose first two blocks are slow for their length in
+    // time (v/T² about 12000 and 84000 mm/s⁴, within half the jerk limit) but
+    // whose third is not. Stopping after the first block and starting into
+    // the second shows to the limit checker as a jerk of 6·(v₁/T₁ + v₂/T₂)
+    // / (T₁ + T₂), beyond the limit: that pair is no rest point. When the
+    // dwell ends only a few blocks are in (the dwell held the link), so the
+    // cut must wait for its planner to fill rather than start and stand still
+    // after its first block.
+    let (s, stops) = pierce_then_cut(smooth_move(10.0, 19.6, 0.2, 15));
+    assert_eq!(s.ctl.position(), vec![19.6, 0.0, 0.0]);
+    assert!(stops.iter().all(|x| (x - 10.0).abs() < 1e-6 || (x - 19.6).abs() < 1e-6), "stopped inside the cut at X {stops:?}");
+    let mut checker = laserd_sim::limits::LimitChecker::new(&flatbed().axes);
+    s.knots.iter().for_each(|k| checker.push(k));
+    let report = checker.finish();
+    assert_eq!(report.violations, 0, "{report:?}");
+}

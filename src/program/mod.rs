@@ -541,17 +541,16 @@ struct PlannedBlock {
 }
 
 /// From rest, the end index into `times` of the first two blocks in a row
-/// that a machine could stop between and start again from within half of
-/// `limits` (each block's speed over its time, and over its time squared,
-/// within half the acceleration and jerk): a controller planning to stop at
-/// the end of its queue starts once it holds them, or once its
-/// `planner_blocks` are full (the simulator's timed controller does so).
-/// 0 when no such pair comes before the planner is full.
+/// that a machine could stop between and start again from within `limits`
+/// (`laserd_sim::controller::gentle_move`, the controller's own rule): a
+/// controller planning to stop at the end of its queue starts once it holds
+/// them, or once its `planner_blocks` are full (the simulator's timed
+/// controller does so). 0 when no such pair comes before the planner is full.
 fn first_rest_point(times: &[f64], limits: crate::config::Limits, planner_blocks: usize, position: impl Fn(f64) -> Point) -> usize {
     let gentle = |k: usize| {
         let t = times[k] - times[k - 1];
         let d = position(times[k]) - position(times[k - 1]);
-        t > 0.0 && [d.x, d.y].iter().all(|x| x.abs() / t <= 0.5 * limits.acceleration * t && x.abs() / t <= 0.5 * limits.jerk * t * t)
+        t > 0.0 && [d.x, d.y].iter().all(|&x| laserd_sim::controller::gentle_move(x, t, limits.acceleration, limits.jerk))
     };
     (2..times.len().min(planner_blocks + 1)).find(|&k| gentle(k - 1) && gentle(k)).unwrap_or(0)
 }

@@ -287,25 +287,16 @@ impl Controller {
     }
 
     /// Whether the machine may stop after `b` (coming after what is queued), or
-    /// start into it from rest, within half of every axis' acceleration and jerk
-    /// limit, judged as the limit checker would: a stop from velocity v after a
-    /// block of duration T shows as an acceleration v/T and a jerk of about v/T².
-    /// The first and last blocks of a planned rest-to-rest move pass; a block in
-    /// the middle of a fast move does not.
+    /// start into it from rest, within its limits (`gentle_move`). The first
+    /// and last blocks of a planned rest-to-rest move pass; a block in the
+    /// middle of a fast move does not.
     pub(super) fn is_gentle(&self, b: &Block) -> bool {
         let start = match (self.planner.back(), &self.exec) {
             (Some(last), _) => &last.target,
             (None, Some(e)) => &e.block.target,
             (None, None) => &self.pos,
         };
-        let t = b.duration;
-        if t <= 0.0 {
-            return true;
-        }
-        self.cfg.axes.iter().enumerate().all(|(i, ax)| {
-            let v = (b.target[i] - start[i]).abs() / t;
-            v / t <= 0.5 * ax.max_acceleration && v / (t * t) <= 0.5 * ax.max_jerk
-        })
+        self.cfg.axes.iter().enumerate().all(|(i, ax)| gentle_move(b.target[i] - start[i], b.duration, ax.max_acceleration, ax.max_jerk))
     }
 
     /// Grbl plans every queue to come to a stop at its end. Here blocks run at
@@ -346,6 +337,23 @@ impl Controller {
     pub(super) fn link_quiet_since(&self) -> f64 {
         self.last_rx_t.max(self.last_room_t)
     }
+}
+
+/// Whether a block moving an axis by `delta` in `duration` seconds at
+/// constant velocity v is slow enough to stop after, or to start into from
+/// rest, next to another such block. Judged as the limit checker judges it:
+/// a stop of no length between blocks 1 and 2 shows as an acceleration of
+/// 2·v/T at the knot and a jerk of 6·(v₁/T₁ + v₂/T₂) / (T₁ + T₂), within
+/// `acceleration` and `jerk` when each block keeps v/T ≤ A/2 and
+/// v/T² ≤ J/6. (With J/2, a stop between two such blocks could show as
+/// 3 × the jerk limit.) The timed controller's rest points, and the
+/// sender's model of them, use this one rule.
+pub fn gentle_move(delta: f64, duration: f64, acceleration: f64, jerk: f64) -> bool {
+    if duration <= 0.0 {
+        return true;
+    }
+    let v = delta.abs() / duration;
+    v / duration <= 0.5 * acceleration && v / (duration * duration) <= jerk / 6.0
 }
 
 pub(super) fn dist(a: &[f64], b: &[f64]) -> f64 {
