@@ -118,6 +118,9 @@ fn vs_grbl_reports_both_times_a_line_alike_and_a_circle_faster_than_rest_to_rest
         assert_eq!(f(case, "laserd_limit_breaches"), 0.0, "{case}");
         assert!((f(case, "ratio") - f(case, "laserd_job_time_s") / f(case, "grbl_job_time_s")).abs() < 1e-9, "{case}");
         assert!(f(case, "laserd_job_time_s") >= f(case, "lower_bound_s") - 1e-6, "{case}");
+        let broken = case["grbl_limits_broken"].as_array().unwrap();
+        assert_eq!(broken.len() as f64, f(case, "grbl_limit_breaches"), "{case}");
+        assert!(broken.iter().all(|b| b.as_str().is_some_and(|b| b.contains("times its limit"))), "{case}");
     }
     let (line, circle) = (&cases[0], &cases[1]);
     let line_time = 200.0 / speed + pierce;

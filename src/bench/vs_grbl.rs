@@ -44,6 +44,9 @@ pub struct VsGrblCase {
     /// Limits of the machine the Grbl run broke (a stock Grbl keeps no jerk
     /// limit and takes corners at its junction speed: expect some).
     pub grbl_limit_breaches: usize,
+    /// Each of those limits and how far the Grbl run exceeded it ("jerk of
+    /// X: 4.68 times its limit of 250000 mm/s³").
+    pub grbl_limits_broken: Vec<String>,
     /// laserd's job time over Grbl's (below 1: laserd is faster).
     pub ratio: f64,
     /// laserd's job time over `lower_bound_s`.
@@ -98,6 +101,7 @@ pub fn vs_grbl(machine: &MachineConfig, jobs: &[std::path::PathBuf], mode: Optio
             grbl_planner_starved_s: on_grbl.planner_starved_s,
             grbl_program_lines: plain.lines.len(),
             grbl_limit_breaches: on_grbl.limit_breaches.len(),
+            grbl_limits_broken: on_grbl.limit_breaches.clone(),
             ratio: laserd.job_time_s / on_grbl.job_time_s.max(1e-9),
             laserd_vs_bound: laserd.job_time_s / planned.report.lower_bound_s.max(1e-9),
         });

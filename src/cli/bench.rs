@@ -259,6 +259,8 @@ fn vs_grbl_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, mode: Option<Mode>
                 "  {:<40} laserd {:>9.3} s  grbl {:>9.3} s  ratio {:.3}  bound {:>9.3} s (laserd {:.2} x)",
                 c.job, c.laserd_job_time_s, c.grbl_job_time_s, c.ratio, c.lower_bound_s, c.laserd_vs_bound
             );
+            let grbl = if c.grbl_limits_broken.is_empty() { "none".to_string() } else { c.grbl_limits_broken.join("; ") };
+            println!("    limits broken: laserd {}, grbl {grbl}", c.laserd_limit_breaches);
         }
     }
     Ok(ExitCode::SUCCESS)
