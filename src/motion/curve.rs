@@ -253,12 +253,12 @@ impl Bend {
         let along = k * k * v.powi(3);
         let normal_own = dk * v.powi(3);
         let left = (most_j * most_j - along * along).max(0.0).sqrt();
-        let mut acceleration = (most_a * most_a - (k * v * v).powi(2)).max(0.0).sqrt().min(RAMP_MOST * axis.acceleration);
+        let mut acceleration = (most_a * most_a - (k * v * v).powi(2)).max(0.0).sqrt();
         if k * v > 0.0 {
             acceleration = acceleration.min(0.5 * (left - normal_own) / (3.0 * k * v));
         }
         let normal = normal_own + 3.0 * k * v * acceleration;
-        let jerk = ((most_j * most_j - normal * normal).max(0.0).sqrt() - along).min(RAMP_MOST * axis.jerk);
+        let jerk = (most_j * most_j - normal * normal).max(0.0).sqrt() - along;
         // `velocity`: the speed up to which these hold.
         (acceleration > 0.0 && jerk > 0.0).then_some(Limits { velocity: v, acceleration, jerk })
     }
@@ -276,12 +276,6 @@ fn segment_distance(p: Point, a: Point, b: Point) -> f64 {
     let f = if l2 > 0.0 { ((p - a).dot(&d) / l2).clamp(0.0, 1.0) } else { 0.0 };
     (p - (a + d * f)).norm()
 }
-
-/// The largest share of the axes' acceleration and jerk a ramp takes:
-/// steeper ramps from rest after a pierce start with blocks the timed
-/// controller runs alone and then stands still after (a jerk breach on
-/// `samples/nested-sheet.svg`, flatbed, with `[program] arcs = false`).
-const RAMP_MOST: f64 = 0.5;
 
 /// Where a ramp's acceleration steps down: fractions of its speed change.
 const RAMP_LEVELS: [f64; 7] = [0.4, 0.6, 0.75, 0.85, 0.92, 0.97, 1.0];
