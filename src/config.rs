@@ -708,6 +708,15 @@ pub struct LayerConfig {
     pub stroke: Option<String>,
     #[serde(default)]
     pub id: Option<String>,
+    /// DXF: the drawing layer whose entities take this layer (case
+    /// insensitive, as DXF names are); without it, a drawing layer of this
+    /// layer's own name does.
+    #[serde(default)]
+    pub dxf_layer: Option<String>,
+    /// DXF: the AutoCAD colour index (1 to 255) whose entities take this
+    /// layer (a DXF true colour matches `stroke`).
+    #[serde(default)]
+    pub color: Option<u16>,
     pub speed: f64,
     pub power: f64,
     #[serde(default = "one")]
@@ -920,6 +929,9 @@ impl MachineConfig {
                 power(&name("pierce_power"), p)?;
             }
             PASSES.check(&name("passes"), l.passes)?;
+            if let Some(c) = l.color.filter(|c| !(1..=255).contains(c)) {
+                return Err(format!("{}: {c} is not an AutoCAD colour index (1 to 255)", name("color")));
+            }
             if let Some(c) = &l.stroke {
                 if parse_hex_colour(c).is_none() {
                     return Err(format!("{}: '{c}' is not a #rrggbb colour", name("stroke")));

@@ -75,7 +75,7 @@ pub fn plan_job_child(source: &Path, name: &str, program: &Path, result: &Path, 
     super::queue::write_atomic(result, &text)
 }
 
-/// Plans an SVG job with `planner` (the service's is `auto`), refusing an
+/// Plans an SVG or DXF job with `planner` (the service's is `auto`), refusing an
 /// order with precedence violations unless `allow_precedence_violations`:
 /// the answer then carries the count and the error, and no program is
 /// written. G-code is checked as the controller parses it.
@@ -88,7 +88,7 @@ fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineCon
             super::queue::write_atomic(program, text.as_bytes())?;
             Ok(PlanResult { lines, ..Default::default() })
         }
-        JobKind::Svg => {
+        JobKind::Svg | JobKind::Dxf => {
             let named = |e: Error| Error::Plan(e.to_string().replace(&source.display().to_string(), name));
             let planned = crate::run::plan(source, machine, planner, None).map_err(named)?;
             let precedence_violations = planned.report.precedence_violations;
@@ -209,13 +209,16 @@ mod tests {
         let svg = br#"<?xml version="1.0"?><svg xmlns="http://www.w3.org/2000/svg"/>"#;
         assert_eq!(JobKind::of("a.svg", svg).unwrap(), JobKind::Svg);
         assert_eq!(JobKind::of("a.GCODE", b"G21\nG0 X1\n").unwrap(), JobKind::Gcode);
-        let cases: [(&str, &[u8], &str); 6] = [
+        assert_eq!(JobKind::of("a.DXF", b"0\nSECTION\n").unwrap(), JobKind::Dxf);
+        assert_eq!(JobKind::of("a.dxf", b"AutoCAD Binary DXF\r\n\x1a\x00\xff\xfe").unwrap(), JobKind::Dxf, "binary DXF is no text");
+        let cases: [(&str, &[u8], &str); 7] = [
             ("shadow", b"root:$y$j9T$abc:19000:0:99999:7:::\n", "not a job file"),
             ("a.svg", b"G21\nG0 X1\n", "not an SVG"),
             ("a.nc", svg, "SVG document named as G-code"),
             ("a.nc", b"G0 X1\n\x7fELF\x02\x01", "control character"),
             ("a.nc", b"G0 X1\n\xff\xfe", "not UTF-8"),
-            ("a.dxf", b"0\nSECTION\n", "not a job file"),
+            ("a.step", b"ISO-10303-21;\n", "not a job file"),
+            ("a.dxf", svg, "SVG document named as DXF"),
         ];
         for (name, bytes, says) in cases {
             let err = JobKind::of(name, bytes).unwrap_err().to_string();
@@ -247,6 +250,19 @@ mod tests {
         let err = read(&jobs.join("fifo.nc"), &folders, 1000).unwrap_err().to_string();
         assert!(err.contains("not a regular file") && started.elapsed() < Duration::from_secs(2), "{err}");
         assert!(matches!(read(&part, &folders, 3), Err(Error::TooLarge(_))));
+    }
+
+    #[test]
+    fn a_dxf_job_is_planned_like_an_svg_one_with_its_time() {
+        let dir = tempfile::tempdir().unwrap();
+        let source = dir.path().join("source.dxf");
+        let line = |(x0, y0): (f64, f64), (x1, y1): (f64, f64)| format!("0\nLINE\n8\n0\n10\n{x0}\n20\n{y0}\n11\n{x1}\n21\n{y1}\n");
+        let square = [line((10.0, 10.0), (30.0, 10.0)), line((30.0, 10.0), (30.0, 30.0)), line((30.0, 30.0), (10.0, 30.0)), line((10.0, 30.0), (10.0, 10.0))].concat();
+        std::fs::write(&source, format!("0\nSECTION\n2\nENTITIES\n{square}0\nENDSEC\n0\nEOF\n")).unwrap();
+        let program = dir.path().join("program.nc");
+        let planned = plan_or_check(&source, "square.dxf", &program, &machine(), PlannerKind::Auto, false).unwrap();
+        assert!(planned.error.is_none() && planned.planned_time_s.is_some_and(|t| t > 0.0) && planned.lines > 4, "{planned:?}");
+        assert_eq!(std::fs::read_to_string(&program).unwrap().lines().count(), planned.lines);
     }
 
     #[test]

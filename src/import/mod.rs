@@ -6,8 +6,9 @@ use std::path::Path;
 
 use crate::config::MachineConfig;
 use crate::error::{Error, Result};
-use crate::job::Job;
+use crate::job::{Geometry, Job, Point, Process};
 
+pub mod dxf;
 pub mod svg;
 pub mod svg_size;
 
@@ -25,11 +26,57 @@ pub fn import_job(path: &Path, config: &MachineConfig) -> Result<Job> {
                 .map_err(|_| Error::Import(format!("{source}: malformed SVG: the file is not UTF-8 text")))?;
             svg::import_svg(&text, &source, config)
         }
-        Some(other) => Err(Error::Import(format!("{source}: unsupported job format '.{other}' (supported: .svg)"))),
+        Some("dxf") => dxf::import_dxf(&read_capped(path, config.import.max_file_bytes())?, &source, config),
+        Some(other) => Err(Error::Import(format!("{source}: unsupported job format '.{other}' (supported: .svg, .dxf)"))),
         None => Err(Error::Import(format!(
-            "{source}: unsupported job format: the file name has no extension (supported: .svg)"
+            "{source}: unsupported job format: the file name has no extension (supported: .svg, .dxf)"
         ))),
     }
+}
+
+/// Points closer than this (mm) count as the same point.
+const SAME_POINT_MM: f64 = 1e-9;
+
+/// Removes repeated points and a repeated start point at the end (which
+/// closes the shape). `None` for fewer than 2 distinct points.
+pub(crate) fn clean_polyline(points: Vec<Point>, mut closed: bool) -> Option<(Vec<Point>, bool)> {
+    let mut out: Vec<Point> = Vec::with_capacity(points.len());
+    for p in points {
+        if out.last().is_none_or(|last| (p - last).norm() > SAME_POINT_MM) {
+            out.push(p);
+        }
+    }
+    if out.len() >= 2 && (out[out.len() - 1] - out[0]).norm() <= SAME_POINT_MM {
+        out.pop();
+        closed = true;
+    }
+    if out.len() < 2 {
+        return None;
+    }
+    // Two points closed is a line there and back; mark it once, as an open line.
+    if out.len() == 2 {
+        closed = false;
+    }
+    Some((out, closed))
+}
+
+/// The job of `geometries` whose `process` is still an index into the
+/// config's layers: the layers used become its processes, in config order.
+pub(crate) fn job_of_layers(source: &str, mut geometries: Vec<Geometry>, config: &MachineConfig) -> Job {
+    let mut used: Vec<usize> = geometries.iter().map(|g| g.process).collect();
+    used.sort_unstable();
+    used.dedup();
+    let processes = used
+        .iter()
+        .map(|&i| {
+            let l = &config.layers[i];
+            Process { layer: l.name.clone(), speed: l.speed, power: l.power, passes: l.passes }
+        })
+        .collect();
+    for g in &mut geometries {
+        g.process = used.binary_search(&g.process).unwrap_or(0);
+    }
+    Job { source: source.to_string(), geometries, processes }
 }
 
 /// A job file's bytes, if it is a regular file of at most `max` bytes (a
@@ -116,8 +163,8 @@ mod tests {
 
     #[test]
     fn unsupported_extension_is_named() {
-        let err = import_job(Path::new("part.dxf"), &config()).unwrap_err().to_string();
-        assert!(err.contains("part.dxf") && err.contains("'.dxf'") && err.contains(".svg"), "{err}");
+        let err = import_job(Path::new("part.step"), &config()).unwrap_err().to_string();
+        assert!(err.contains("part.step") && err.contains("'.step'") && err.contains(".svg") && err.contains(".dxf"), "{err}");
         assert!(!err.contains('\n'));
         let err = import_job(Path::new("part"), &config()).unwrap_err().to_string();
         assert!(err.contains("part") && err.contains("no extension"), "{err}");

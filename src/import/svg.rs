@@ -17,10 +17,7 @@ use usvg::tiny_skia_path::{self, PathSegment};
 
 use crate::config::{parse_hex_colour, MachineConfig};
 use crate::error::{Error, Result};
-use crate::job::{Geometry, Job, Point, Process};
-
-/// Points closer than this (mm) count as the same point.
-const SAME_POINT_MM: f64 = 1e-9;
+use crate::job::{Geometry, Job, Point};
 
 /// Largest coordinate accepted (mm). No machine has a kilometre of travel, and a curve
 /// that large would be flattened into billions of segments at a 0.01 mm tolerance.
@@ -78,26 +75,7 @@ pub fn import_svg(text: &str, source: &str, config: &MachineConfig) -> Result<Jo
         )));
     }
 
-    // Job.processes holds the layers actually used, in config order; geometries
-    // carry a layer index until here and are renumbered to point into that list.
-    let mut layer_to_process = vec![None; config.layers.len()];
-    let mut used: Vec<usize> = importer.geometries.iter().map(|g| g.process).collect();
-    used.sort_unstable();
-    used.dedup();
-    let processes = used
-        .iter()
-        .enumerate()
-        .map(|(i, &layer)| {
-            layer_to_process[layer] = Some(i);
-            let l = &config.layers[layer];
-            Process { layer: l.name.clone(), speed: l.speed, power: l.power, passes: l.passes }
-        })
-        .collect();
-    let mut geometries = importer.geometries;
-    for g in &mut geometries {
-        g.process = layer_to_process[g.process].unwrap_or(0);
-    }
-    Ok(Job { source: source.to_string(), geometries, processes })
+    Ok(super::job_of_layers(source, importer.geometries, config))
 }
 
 /// usvg's message for a parse failure, on one line. For XML errors we use roxmltree's
@@ -279,7 +257,7 @@ impl<'a> Importer<'a> {
         };
         self.points += subpaths.iter().map(|(p, _)| p.len() as u64).sum::<u64>();
         for (i, (points, closed)) in subpaths.into_iter().enumerate() {
-            if let Some((points, closed)) = clean_polyline(points, closed) {
+            if let Some((points, closed)) = super::clean_polyline(points.into_iter().map(|p| Point::new(p.x, p.y)).collect(), closed) {
                 self.geometries.push(Geometry {
                     points,
                     closed,
@@ -390,30 +368,6 @@ fn flatten(bez: &BezPath, tolerance: f64, max_points: u64) -> Option<Vec<(Vec<ku
         subpaths.push((current, false));
     }
     Some(subpaths)
-}
-
-/// Removes repeated points and a repeated start point at the end (which closes the
-/// shape). `None` for a degenerate subpath of fewer than 2 distinct points.
-fn clean_polyline(points: Vec<kurbo::Point>, mut closed: bool) -> Option<(Vec<Point>, bool)> {
-    let mut out: Vec<Point> = Vec::with_capacity(points.len());
-    for p in points {
-        let p = Point::new(p.x, p.y);
-        if out.last().is_none_or(|last| (p - last).norm() > SAME_POINT_MM) {
-            out.push(p);
-        }
-    }
-    if out.len() >= 2 && (out[out.len() - 1] - out[0]).norm() <= SAME_POINT_MM {
-        out.pop();
-        closed = true;
-    }
-    if out.len() < 2 {
-        return None;
-    }
-    // Two points closed is a line there and back; mark it once, as an open line.
-    if out.len() == 2 {
-        closed = false;
-    }
-    Some((out, closed))
 }
 
 #[cfg(test)]

@@ -1,0 +1,70 @@
+//! DXF import against an independent reader: drawings written by `ezdxf`
+//! (PyPI, installed by `.ci/run`) with every entity kind laserd reads, in mm
+//! and inch, ASCII and binary; laserd's import must agree with ezdxf's own
+//! reading of each file (`tests/data/dxf/cases.py`).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use laserd::config::MachineConfig;
+
+fn cutter() -> MachineConfig {
+    MachineConfig::load(Some(&Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml"))).unwrap()
+}
+
+/// The drawings and ezdxf's reading of them, in a fresh folder.
+fn drawings() -> (tempfile::TempDir, serde_json::Value) {
+    let dir = tempfile::tempdir().unwrap();
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/dxf/cases.py");
+    let out = Command::new("python3").arg(&script).arg(dir.path()).output().expect("python3 runs");
+    assert!(out.status.success(), "cases.py (needs ezdxf, which .ci/run installs): {}", String::from_utf8_lossy(&out.stderr));
+    let expected = serde_json::from_str(&std::fs::read_to_string(dir.path().join("expected.json")).unwrap()).unwrap();
+    (dir, expected)
+}
+
+#[test]
+fn every_entity_kind_imports_as_ezdxf_reads_it_in_mm_and_inch_ascii_and_binary() {
+    let (dir, expected) = drawings();
+    let mut machine = cutter();
+    // Fine flattening: chords then fall short of the true curves by less
+    // than tolerance / (3·radius) of their length, and reach the bounds
+    // within the tolerance.
+    machine.import.tolerance = 1e-4;
+    let cases = expected.as_object().unwrap();
+    assert_eq!(cases.len(), 4, "mm and inch, ASCII and binary");
+    for (name, want) in cases {
+        let job = laserd::import::import_job(&dir.path().join(name), &machine).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let f = |key: &str| want[key].as_f64().unwrap();
+        let pair = |key: &str| [want[key][0].as_f64().unwrap(), want[key][1].as_f64().unwrap()];
+        assert_eq!(job.geometries.len() as f64, f("geometries"), "{name}: geometries");
+        let length: f64 = job.geometries.iter().map(|g| g.length()).sum();
+        let truth = f("length_mm");
+        assert!(length <= truth * (1.0 + 1e-9) && length >= truth * (1.0 - 2e-5), "{name}: length {length} mm, ezdxf {truth} mm");
+        let (lo, hi) = job.bounds();
+        let (want_lo, want_hi) = (pair("min_mm"), pair("max_mm"));
+        for (got, want) in [(lo.x, want_lo[0]), (lo.y, want_lo[1]), (hi.x, want_hi[0]), (hi.y, want_hi[1])] {
+            assert!((got - want).abs() <= 1e-3, "{name}: bounds {lo:?}-{hi:?}, ezdxf {want_lo:?}-{want_hi:?}");
+        }
+        // The slot's two lines and two arcs are one closed contour.
+        let slot: Vec<_> = job.geometries.iter().filter(|g| g.source.contains("(+3 chained)")).collect();
+        assert!(slot.len() == 1 && slot[0].closed, "{name}: the slot chained and closed: {:?}", job.geometries.iter().map(|g| &g.source).collect::<Vec<_>>());
+        assert!((slot[0].length() - (60.0 + 10.0 * std::f64::consts::PI)).abs() < 1e-3, "{name}: slot length {}", slot[0].length());
+    }
+}
+
+#[test]
+fn dxf_layers_and_colours_choose_the_process() {
+    let (dir, _) = drawings();
+    let mut machine = cutter();
+    let mut mark = machine.layers[0].clone();
+    mark.name = "dxf-mark".into();
+    mark.dxf_layer = Some("mark".into());
+    mark.speed = 123.0;
+    machine.layers.push(mark);
+    let job = laserd::import::import_job(&dir.path().join("drawing-mm-asc.dxf"), &machine).unwrap();
+    let on = |layer: &str| job.geometries.iter().filter(|g| job.processes[g.process].layer == layer).count();
+    // The DXF layer MARK holds the open bulged polyline and the 2D polyline.
+    assert_eq!(on("dxf-mark"), 2, "{:?}", job.processes);
+    assert!(job.processes.iter().any(|p| p.layer == "dxf-mark" && p.speed == 123.0));
+    assert_eq!(on("dxf-mark") + on(&machine.default_layer), job.geometries.len(), "the rest on the default layer");
+}
