@@ -475,3 +475,56 @@ pub fn motion_bench(machine: &MachineConfig, jobs: &[std::path::PathBuf], mode: 
     let total_share = cases.iter().map(|c| c.motion_time_s).sum::<f64>() / cases.iter().map(|c| c.machine_time_s).sum::<f64>().max(1e-9);
     Ok(MotionBench { mode: mode.as_str().to_string(), repeats, jobs: cases, worst_share, total_share })
 }
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct ImportBench {
+    pub repeats: usize,
+    pub jobs: Vec<ImportCase>,
+    /// The process's peak resident memory after all imports (MB, from
+    /// /proc/self/status VmHWM; null where it cannot be read).
+    pub peak_rss_mb: Option<f64>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct ImportCase {
+    pub job: String,
+    pub bytes: u64,
+    pub geometries: usize,
+    pub points: usize,
+    /// Median wall time of one import: reading the file to the `Job`.
+    pub import_time_s: f64,
+}
+
+/// Imports each job `repeats` times and keeps the median time.
+pub fn import_bench(machine: &MachineConfig, jobs: &[std::path::PathBuf], repeats: usize) -> Result<ImportBench> {
+    if jobs.is_empty() || repeats == 0 {
+        return Err(Error::Config("bench import: give at least one job and one repeat".into()));
+    }
+    let mut cases = Vec::new();
+    for path in jobs {
+        let mut times = Vec::with_capacity(repeats);
+        let mut job = None;
+        for _ in 0..repeats {
+            let started = std::time::Instant::now();
+            job = Some(crate::import::import_job(path, machine)?);
+            times.push(started.elapsed().as_secs_f64());
+        }
+        times.sort_by(f64::total_cmp);
+        let job = job.expect("at least one repeat");
+        cases.push(ImportCase {
+            job: path.display().to_string(),
+            bytes: std::fs::metadata(path).map(|m| m.len()).unwrap_or(0),
+            geometries: job.geometries.len(),
+            points: job.geometries.iter().map(|g| g.points.len()).sum(),
+            import_time_s: times[times.len() / 2],
+        });
+    }
+    Ok(ImportBench { repeats, jobs: cases, peak_rss_mb: peak_rss_mb() })
+}
+
+/// This process's peak resident memory so far (MB).
+fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kb: f64 = status.lines().find_map(|l| l.strip_prefix("VmHWM:"))?.trim().trim_end_matches("kB").trim().parse().ok()?;
+    Some(kb / 1024.0)
+}

@@ -68,3 +68,22 @@ fn dxf_layers_and_colours_choose_the_process() {
     assert!(job.processes.iter().any(|p| p.layer == "dxf-mark" && p.speed == 123.0));
     assert_eq!(on("dxf-mark") + on(&machine.default_layer), job.geometries.len(), "the rest on the default layer");
 }
+
+#[test]
+fn bench_import_reports_each_files_geometries_time_and_the_peak_memory() {
+    let (dir, expected) = drawings();
+    let out = Command::new(env!("CARGO_BIN_EXE_laserd"))
+        .args(["bench", "import", "drawing-mm-asc.dxf", "drawing-inch-bin.dxf", "--repeats", "2", "--json", "--config"])
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml"))
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for case in report["jobs"].as_array().unwrap() {
+        let name = case["job"].as_str().unwrap();
+        assert_eq!(case["geometries"], expected[name]["geometries"], "{case}");
+        assert!(case["import_time_s"].as_f64().unwrap() > 0.0 && case["points"].as_u64().unwrap() > case["geometries"].as_u64().unwrap(), "{case}");
+    }
+    assert!(report["peak_rss_mb"].as_f64().unwrap() > 1.0, "{report}");
+}

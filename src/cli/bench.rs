@@ -111,6 +111,19 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Import alone: each job file read into a `Job` (median of the runs), and
+    /// the process's peak memory.
+    Import {
+        /// Job files (SVG or DXF).
+        jobs: Vec<PathBuf>,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Runs per job; the median counts.
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+        #[arg(long)]
+        json: bool,
+    },
     /// How well the sender uses the serial link: character counting against
     /// send-response streaming, on a synthetic program of short 4-axis blocks.
     Link {
@@ -140,7 +153,7 @@ fn check_flags(command: &BenchCommand) -> Result<()> {
         BenchCommand::Ecp { time_limit: t, .. } => check_time_limit(*t),
         BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(check_time_limit(*t)),
         BenchCommand::Galvo { seeds, time_limit: t, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds").and(check_time_limit(*t)),
-        BenchCommand::Motion { repeats, .. } => in_range("--repeats", *repeats, 1, 1000, "runs"),
+        BenchCommand::Motion { repeats, .. } | BenchCommand::Import { repeats, .. } => in_range("--repeats", *repeats, 1, 1000, "runs"),
         BenchCommand::Link { blocks, block_ms, baud: b, .. } => in_range("--blocks", *blocks, 1, 1_000_000, "blocks")
             .and(in_range("--block-ms", *block_ms, 0.01, 1000.0, "ms"))
             .and(check_baud(Some(*b))),
@@ -156,6 +169,7 @@ pub fn run(command: BenchCommand) -> Result<ExitCode> {
         BenchCommand::Serve { job, config, clients, hz, json } => serve_bench(job, config, clients, hz, json),
         BenchCommand::Motion { jobs, config, mode, vs_grbl: true, json, .. } => vs_grbl_bench(jobs, config, mode, json),
         BenchCommand::Motion { jobs, config, mode, repeats, json, .. } => motion_bench(jobs, config, mode, repeats, json),
+        BenchCommand::Import { jobs, config, repeats, json } => import_bench(jobs, config, repeats, json),
         BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } => galvo_bench(config, dir, planner, seeds, time_limit, json),
         BenchCommand::Link { config, blocks, block_ms, motion, baud, json } => link_bench(config, blocks, block_ms, motion, baud, json),
     }
@@ -243,6 +257,23 @@ fn motion_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, mode: Option<Mode>,
             );
         }
         println!("  worst {:.3} %, all jobs {:.3} % of their machine time", r.worst_share * 100.0, r.total_share * 100.0);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn import_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, repeats: usize, json: bool) -> Result<ExitCode> {
+    let machine = machine_config(config.as_deref(), json)?.machine;
+    let r = laserd::bench::import_bench(&machine, &jobs, repeats)?;
+    if json {
+        print_json(&r)?;
+    } else {
+        println!("import alone, median of {} runs", r.repeats);
+        for c in &r.jobs {
+            println!("  {:<40} {:>10} bytes  {:>7} geometries  {:>9} points  {:>8.4} s", c.job, c.bytes, c.geometries, c.points, c.import_time_s);
+        }
+        if let Some(mb) = r.peak_rss_mb {
+            println!("  peak memory of the process {mb:.0} MB");
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
