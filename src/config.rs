@@ -415,6 +415,39 @@ pub struct ImportConfig {
     /// Most points of the flattened drawing (and path segments before it).
     #[serde(default = "default_max_points")]
     pub max_points: u64,
+    /// DXF: the unit the drawing is in, whatever its header says (`--units`);
+    /// none: the header's `$INSUNITS` (mm when it names none).
+    #[serde(default)]
+    pub units: Option<DrawingUnit>,
+}
+
+/// A length unit a drawing may be made in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum DrawingUnit {
+    Mm,
+    Cm,
+    Inch,
+}
+
+impl DrawingUnit {
+    pub const ALL: [DrawingUnit; 3] = [DrawingUnit::Mm, DrawingUnit::Cm, DrawingUnit::Inch];
+
+    pub fn mm(self) -> f64 {
+        match self {
+            DrawingUnit::Mm => 1.0,
+            DrawingUnit::Cm => 10.0,
+            DrawingUnit::Inch => 25.4,
+        }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DrawingUnit::Mm => "mm",
+            DrawingUnit::Cm => "cm",
+            DrawingUnit::Inch => "inch",
+        }
+    }
 }
 
 fn default_max_elements() -> u64 {
@@ -437,6 +470,7 @@ impl Default for ImportConfig {
             max_file_mb: default_max_file_mb(),
             max_elements: default_max_elements(),
             max_points: default_max_points(),
+            units: None,
         }
     }
 }

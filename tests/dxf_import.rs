@@ -87,3 +87,22 @@ fn bench_import_reports_each_files_geometries_time_and_the_peak_memory() {
     }
     assert!(report["peak_rss_mb"].as_f64().unwrap() > 1.0, "{report}");
 }
+
+/// A box whose header says inch over numbers in mm (as MakerCase writes
+/// them): refused naming the flag; with it, planned.
+#[test]
+fn a_wrong_header_unit_is_refused_naming_the_flag_that_reads_it_right() {
+    let dir = tempfile::tempdir().unwrap();
+    let line = |(x0, y0): (f64, f64), (x1, y1): (f64, f64)| format!("0\nLINE\n8\n0\n10\n{x0}\n20\n{y0}\n11\n{x1}\n21\n{y1}\n");
+    let square = [line((10.0, 10.0), (210.0, 10.0)), line((210.0, 10.0), (210.0, 160.0)), line((210.0, 160.0), (10.0, 160.0)), line((10.0, 160.0), (10.0, 10.0))].concat();
+    std::fs::write(dir.path().join("box.dxf"), format!("0\nSECTION\n2\nHEADER\n9\n$INSUNITS\n70\n1\n0\nENDSEC\n0\nSECTION\n2\nENTITIES\n{square}0\nENDSEC\n0\nEOF\n")).unwrap();
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml");
+    let plan = |extra: &[&str]| Command::new(env!("CARGO_BIN_EXE_laserd")).args(["plan", "box.dxf", "--json", "--config"]).arg(&config).args(extra).current_dir(dir.path()).output().unwrap();
+    let refused = plan(&[]);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && err.contains("box.dxf") && err.contains("--units mm"), "{err}");
+    let planned = plan(&["--units", "mm"]);
+    assert!(planned.status.success(), "{}", String::from_utf8_lossy(&planned.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&planned.stdout).unwrap();
+    assert_eq!(report["geometries"], 1, "one closed contour: {report}");
+}

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use laserd::config::{ConfigSearch, FoundConfig, MachineConfig};
+use laserd::config::{ConfigSearch, DrawingUnit, FoundConfig, MachineConfig};
 use laserd::error::{Error, Result};
 use laserd::mode::Mode;
 use laserd::plan::PlannerKind;
@@ -43,6 +43,10 @@ pub struct JobArgs {
     /// Seed of the galvo planners' random choices (default: the config's [galvo] seed).
     #[arg(long)]
     seed: Option<u64>,
+    /// DXF: the unit the drawing was made in, whatever its header says
+    /// (default: the config's [import] units, else the header's $INSUNITS).
+    #[arg(long)]
+    units: Option<DrawingUnit>,
 }
 
 impl JobArgs {
@@ -64,6 +68,13 @@ impl JobArgs {
         }
         if let Some(seed) = self.seed {
             machine.galvo.seed = seed;
+        }
+        if let Some(units) = self.units {
+            let dxf = self.job.extension().is_some_and(|e| e.eq_ignore_ascii_case("dxf"));
+            if !dxf {
+                return Err(Error::Config(format!("--units: {} is no DXF drawing (an SVG document carries its own units)", self.job.display())));
+            }
+            machine.import.units = Some(units);
         }
         let mut planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
         planned.report.config = Some(source);
@@ -124,6 +135,7 @@ fn dry_run_as_it_is(args: DryRunArgs) -> Result<ExitCode> {
         (job.time_limit.is_some(), "--time-limit"),
         (job.seed.is_some(), "--seed"),
         (job.allow_precedence_violations, "--allow-precedence-violations"),
+        (job.units.is_some(), "--units"),
     ];
     if let Some((_, flag)) = planning.iter().find(|(given, _)| *given) {
         return Err(Error::Config(format!("{flag}: {} is streamed as it is (--keep-order), not planned", path.display())));

@@ -27,7 +27,7 @@ use std::collections::HashMap;
 use dxf::entities::{Entity, EntityType};
 use dxf::enums::Units;
 
-use crate::config::{parse_hex_colour, MachineConfig};
+use crate::config::{parse_hex_colour, DrawingUnit, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{Geometry, Job, Point};
 
@@ -51,9 +51,17 @@ const MAX_SPLINE_DEGREE: i32 = 7;
 pub fn import_dxf(bytes: &[u8], source: &str, config: &MachineConfig) -> Result<Job> {
     check_version(bytes, source)?;
     let drawing = parse(bytes, source)?;
-    let mm = unit_mm(drawing.header.default_drawing_units).ok_or_else(|| {
-        Error::Import(format!("{source}: $INSUNITS {:?} is not a length laserd takes (mm, cm, m, inch, foot, µm, or none)", drawing.header.default_drawing_units))
-    })?;
+    let header_mm = unit_mm(drawing.header.default_drawing_units);
+    let mm = match (config.import.units, header_mm) {
+        (Some(unit), _) => unit.mm(),
+        (None, Some(mm)) => mm,
+        (None, None) => {
+            return Err(Error::Import(format!(
+                "{source}: $INSUNITS {:?} is not a length laserd takes (mm, cm, m, inch, foot, µm, or none); give the drawing's unit with --units",
+                drawing.header.default_drawing_units
+            )))
+        }
+    };
     let blocks: HashMap<String, &dxf::Block> = drawing.blocks().map(|b| (b.name.to_uppercase(), b)).collect();
     let layer_colours: HashMap<String, Option<u8>> =
         drawing.layers().map(|l| (l.name.to_uppercase(), l.color.index().filter(|_| l.color.is_index()))).collect();
@@ -84,6 +92,9 @@ pub fn import_dxf(bytes: &[u8], source: &str, config: &MachineConfig) -> Result<
         return Err(Error::Import(format!("{source}: nothing to mark: no curve in the model space with two distinct points")));
     }
     check_extents(&drawing.header, mm, &pieces, source);
+    if config.import.units.is_none() {
+        check_size(&pieces, mm, source, config)?;
+    }
     Ok(job_of(pieces, source, config))
 }
 
@@ -707,6 +718,32 @@ fn check_extents(header: &dxf::Header, mm: f64, pieces: &[Piece], source: &str) 
     }
 }
 
+/// Real exports get units wrong (a header saying inch over a drawing made in
+/// mm, or none over one made in inches): a drawing larger than the machine's
+/// travel in its header's unit, that would fit in another, is refused with
+/// the flag that reads it in that unit.
+fn check_size(pieces: &[Piece], mm: f64, source: &str, config: &MachineConfig) -> Result<()> {
+    let (lo, hi) = crate::job::bounds_of(pieces.iter().flat_map(|p| p.points.iter()));
+    let (w, h) = (hi.x - lo.x, hi.y - lo.y);
+    let (tx, ty) = (config.stage.travel_x, config.stage.travel_y);
+    let fits = |k: f64| w * k <= tx && h * k <= ty;
+    if fits(1.0) {
+        return Ok(());
+    }
+    let Some(unit) = DrawingUnit::ALL.iter().find(|u| fits(u.mm() / mm)) else { return Ok(()) };
+    let k = unit.mm() / mm;
+    let header = DrawingUnit::ALL.iter().find(|u| u.mm() == mm).map_or_else(|| format!("{mm} mm per unit"), |u| u.as_str().to_string());
+    Err(Error::Import(format!(
+        "{source}: the drawing is {w:.1} x {h:.1} mm read in its header's unit ({header}), larger than the machine's travel of {tx} x {ty} mm; \
+         read in {} it is {:.1} x {:.1} mm and fits: if it was drawn in {}, give --units {}",
+        unit.as_str(),
+        w * k,
+        h * k,
+        unit.as_str(),
+        unit.as_str()
+    )))
+}
+
 /// The job: the layers used, in config order, as processes.
 fn job_of(pieces: Vec<Piece>, source: &str, config: &MachineConfig) -> Job {
     let geometries = pieces.into_iter().map(|p| Geometry { process: p.layer, points: p.points, closed: p.closed, source: p.source }).collect();
@@ -791,6 +828,20 @@ mod tests {
         let header = "0\nSECTION\n2\nHEADER\n9\n$INSUNITS\n70\n1\n0\nENDSEC\n";
         let job = import(&dxf(header, &line("E1", "0", (1.0, 1.0), (2.0, 1.0)))).unwrap();
         assert!((job.geometries[0].points[0].x - 25.4).abs() < 1e-9 && (job.geometries[0].length() - 25.4).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_header_unit_that_makes_the_drawing_larger_than_the_machine_names_the_unit_that_fits() {
+        // A MakerCase-style box: the header says inch, the numbers are mm.
+        let header = "0\nSECTION\n2\nHEADER\n9\n$INSUNITS\n70\n1\n0\nENDSEC\n";
+        let body = [line("D1", "0", (10.0, 10.0), (210.0, 10.0)), line("D2", "0", (210.0, 10.0), (210.0, 160.0))].concat();
+        let file = dxf(header, &body);
+        let err = import(&file).unwrap_err().to_string();
+        assert!(err.contains("5080.0 x 3810.0 mm") && err.contains("(inch)") && err.contains("--units mm") && err.contains("200.0 x 150.0 mm"), "{err}");
+        let mut config = config();
+        config.import.units = Some(DrawingUnit::Mm);
+        let job = import_dxf(&file, "t.dxf", &config).unwrap();
+        assert!((job.geometries[0].length() - 350.0).abs() < 1e-9, "read in mm as told");
     }
 
     #[test]
