@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Generates the sample jobs of laserd: marking-300.svg, nested-sheet.svg, one-field.svg.
+"""Generates the sample jobs of laserd: marking-300.svg, nested-sheet.svg, one-field.svg
+and cut-parts.dxf.
 
 Run `python3 samples/generate.py` from anywhere; it rewrites the three files next to
 this script, byte for byte the same on every run (fixed seeds, fixed number format).
@@ -301,7 +302,109 @@ def one_field():
     )
 
 
+class Dxf:
+    """An AutoCAD R12 ASCII DXF (readable by every CAD program and DXF
+    library), drawn as CAD programs export parts: outlines as separate LINE
+    and ARC entities or as POLYLINEs with bulges, holes as CIRCLEs, a
+    repeated part as a BLOCK inserted several times. Layer CUT, mm."""
+
+    def __init__(self):
+        self.blocks = []
+        self.entities = []
+        self.count = 0
+
+    @staticmethod
+    def pairs(*groups):
+        return [f"{code}\n{value}" for code, value in groups]
+
+    def line(self, a, b, into=None):
+        (into if into is not None else self.entities).extend(
+            self.pairs((0, "LINE"), (8, "CUT"), (10, num(a[0])), (20, num(a[1])), (11, num(b[0])), (21, num(b[1])))
+        )
+        self.count += into is None
+
+    def arc(self, c, r, start, end, into=None):
+        (into if into is not None else self.entities).extend(
+            self.pairs((0, "ARC"), (8, "CUT"), (10, num(c[0])), (20, num(c[1])), (40, num(r)), (50, num(start)), (51, num(end)))
+        )
+        self.count += into is None
+
+    def circle(self, c, r, into=None):
+        (into if into is not None else self.entities).extend(self.pairs((0, "CIRCLE"), (8, "CUT"), (10, num(c[0])), (20, num(c[1])), (40, num(r))))
+        self.count += into is None
+
+    def polyline(self, vertices, into=None):
+        """A closed 2D POLYLINE of (x, y, bulge) vertices."""
+        out = into if into is not None else self.entities
+        out.extend(self.pairs((0, "POLYLINE"), (8, "CUT"), (66, 1), (10, 0), (20, 0), (70, 1)))
+        for x, y, bulge in vertices:
+            out.extend(self.pairs((0, "VERTEX"), (8, "CUT"), (10, num(x)), (20, num(y)), (42, num(bulge))))
+        out.extend(self.pairs((0, "SEQEND"), (8, "CUT")))
+        self.count += into is None
+
+    def rect_lines(self, x0, y0, x1, y1):
+        for a, b in (((x0, y0), (x1, y0)), ((x1, y0), (x1, y1)), ((x1, y1), (x0, y1)), ((x0, y1), (x0, y0))):
+            self.line(a, b)
+
+    def block(self, name, draw):
+        body = []
+        draw(body)
+        self.blocks.extend(self.pairs((0, "BLOCK"), (8, "0"), (2, name), (70, 0), (10, 0), (20, 0)) + body + self.pairs((0, "ENDBLK"), (8, "0")))
+
+    def insert(self, name, at, rotation=0.0):
+        self.entities.extend(self.pairs((0, "INSERT"), (8, "CUT"), (2, name), (10, num(at[0])), (20, num(at[1])), (50, num(rotation))))
+
+    def write(self, filename, comment):
+        out = self.pairs((999, comment), (0, "SECTION"), (2, "HEADER"), (9, "$ACADVER"), (1, "AC1009"), (9, "$INSUNITS"), (70, 4), (0, "ENDSEC"))
+        out += self.pairs((0, "SECTION"), (2, "BLOCKS")) + self.blocks + self.pairs((0, "ENDSEC"))
+        out += self.pairs((0, "SECTION"), (2, "ENTITIES")) + self.entities + self.pairs((0, "ENDSEC"), (0, "EOF"))
+        with open(os.path.join(HERE, filename), "w", encoding="utf-8", newline="\n") as f:
+            f.write("\n".join(out) + "\n")
+        print(f"{filename}: {len(self.entities)} entity lines, {self.count} model-space curves")
+
+
+def cut_parts_dxf():
+    """A plate of parts as a CAD program exports it: two plates sharing an
+    edge, one with holes and a slot drawn as lines and arcs; a part on the
+    plate's edge (x = 0); a rounded frame (bulges) with a part nested in its
+    window; a flange block (bore and bolt holes) inserted three times, once
+    turned. All in mm, on layer CUT."""
+    d = Dxf()
+    # Two plates side by side: the edge x = 90 belongs to both outlines.
+    d.rect_lines(10, 10, 90, 60)
+    d.rect_lines(90, 10, 150, 60)
+    d.circle((20, 20), 3)
+    d.circle((80, 50), 3)
+    # A slot in the first plate: two lines and two arcs, end to end.
+    d.line((35, 30), (65, 30))
+    d.arc((65, 35), 5, 270, 90)
+    d.line((65, 40), (35, 40))
+    d.arc((35, 35), 5, 90, 270)
+    # A part on the plate's edge.
+    d.polyline([(0, 80, 0), (40, 80, 0), (40, 120, 0), (0, 120, 0)])
+    # A frame with rounded corners (bulge tan(22.5°) turns 90°), its window, and
+    # a part nested in the window.
+    b = math.tan(math.radians(22.5))
+    d.polyline([(65, 80, 0), (135, 80, b), (140, 85, 0), (140, 125, b), (135, 130, 0), (65, 130, b), (60, 125, 0), (60, 85, b)])
+    d.polyline([(75, 92, 0), (125, 92, 0), (125, 118, 0), (75, 118, 0)])
+    d.polyline([(85, 98, 0), (115, 98, 0), (115, 112, 0), (85, 112, 0)])
+
+    def flange(body):
+        d.circle((0, 0), 15, body)
+        d.circle((0, 0), 5, body)
+        for k in range(4):
+            a = math.radians(45 + 90 * k)
+            d.circle((10 * math.cos(a), 10 * math.sin(a)), 1.5, body)
+
+    d.block("FLANGE", flange)
+    d.insert("FLANGE", (180, 35))
+    d.insert("FLANGE", (220, 35), 45)
+    d.insert("FLANGE", (200, 100))
+    d.write("cut-parts.dxf", "laserd sample: parts to cut, as a CAD program exports them. Generated by samples/generate.py; edit that script, not this file.")
+
+
 if __name__ == "__main__":
     marking_300()
     nested_sheet()
     one_field()
+    cut_parts_dxf()

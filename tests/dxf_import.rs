@@ -106,3 +106,27 @@ fn a_wrong_header_unit_is_refused_naming_the_flag_that_reads_it_right() {
     let report: serde_json::Value = serde_json::from_slice(&planned.stdout).unwrap();
     assert_eq!(report["geometries"], 1, "one closed contour: {report}");
 }
+
+/// The DXF sample, as a CAD program exports parts (lines and arcs end to
+/// end, shared edges, bulged polylines, a block inserted three times), cuts
+/// as 27 closed contours within every limit.
+#[test]
+fn the_dxf_sample_is_27_closed_contours_and_dry_runs_within_the_limits() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let machine = cutter();
+    let job = laserd::import::import_job(&root.join("samples/cut-parts.dxf"), &machine).unwrap();
+    assert_eq!(job.geometries.len(), 27);
+    assert!(job.geometries.iter().all(|g| g.closed), "{:?}", job.geometries.iter().filter(|g| !g.closed).map(|g| &g.source).collect::<Vec<_>>());
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_laserd"))
+        .args(["dry-run", "--json", "--record", "cut-parts.mcap", "--config"])
+        .arg(root.join("config/flatbed-cutter.toml"))
+        .arg(root.join("samples/cut-parts.dxf"))
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["sim"]["limit_violations"], 0, "{report}");
+    assert_eq!(report["precedence_violations"], 0, "{report}");
+}

@@ -631,21 +631,31 @@ fn chain(pieces: Vec<Piece>, source: &str) -> Vec<Piece> {
         ends.entry((p.layer, cell(&p.points[0]))).or_default().push((i, true));
         ends.entry((p.layer, cell(p.points.last().unwrap()))).or_default().push((i, false));
     }
-    let near = |ends: &Ends, layer: usize, at: &Point, used: &[bool]| -> Option<(usize, bool)> {
+    // The unused piece ends at `at`. Where several meet (a corner two parts
+    // share), the chain takes the one that turns most from `heading` short
+    // of going back: a part's outline turns at its corner, where the
+    // neighbour's edge runs on straight or doubles back along the shared one.
+    let near = |ends: &Ends, layer: usize, at: &Point, heading: nalgebra::Vector2<f64>, used: &[bool]| -> Option<(usize, bool)> {
         let (cx, cy) = cell(at);
+        let mut best: Option<((usize, bool), f64)> = None;
         for dx in -1..=1 {
             for dy in -1..=1 {
-                if let Some(list) = ends.get(&(layer, (cx + dx, cy + dy))) {
-                    for &(i, start) in list {
-                        let q = if start { open[i].points[0] } else { *open[i].points.last().unwrap() };
-                        if !used[i] && (q - at).norm() <= CHAIN_MM {
-                            return Some((i, start));
-                        }
+                for &(i, start) in ends.get(&(layer, (cx + dx, cy + dy))).into_iter().flatten() {
+                    let pts = &open[i].points;
+                    let (q, away) = if start { (pts[0], pts[1] - pts[0]) } else { (pts[pts.len() - 1], pts[pts.len() - 2] - pts[pts.len() - 1]) };
+                    if used[i] || (q - at).norm() > CHAIN_MM {
+                        continue;
+                    }
+                    let turn = heading.perp(&away).atan2(heading.dot(&away)).abs();
+                    // Doubling back (within 5°) only when nothing else meets here.
+                    let score = if turn > std::f64::consts::PI - 0.09 { -1.0 } else { turn };
+                    if best.is_none_or(|(_, b)| score > b) {
+                        best = Some(((i, start), score));
                     }
                 }
             }
         }
-        None
+        best.map(|(c, _)| c)
     };
     let mut used = vec![false; open.len()];
     for first in 0..open.len() {
@@ -663,7 +673,9 @@ fn chain(pieces: Vec<Piece>, source: &str) -> Vec<Piece> {
                 if (points.len() > 2) && (points[0] - points[points.len() - 1]).norm() <= CHAIN_MM {
                     break;
                 }
-                let Some((i, at_start)) = near(&ends, layer, &at, &used) else { break };
+                let n = points.len();
+                let heading = if forward { points[n - 1] - points[n - 2] } else { points[0] - points[1] };
+                let Some((i, at_start)) = near(&ends, layer, &at, heading, &used) else { break };
                 used[i] = true;
                 let mut next = open[i].points.clone();
                 // Orient the next piece to continue from `at`.
@@ -789,6 +801,33 @@ mod tests {
         assert_eq!(square.points.len(), 4);
         assert!((square.length() - 40.0).abs() < 1e-9);
         assert!(square.source.contains("handle A1") && square.source.contains("+3 chained"), "{}", square.source);
+    }
+
+    #[test]
+    fn two_parts_that_share_an_edge_chain_into_their_own_outlines() {
+        // Each part's outline drawn on its own: the edge x = 90 twice, and
+        // three line ends meet at each of its corners.
+        // Each outline counter-clockwise or clockwise; the two parts' lines
+        // in the file one after the other or interleaved (A0 B0 A1 B1 ...).
+        let rect = |h: &str, x0: f64, x1: f64, clockwise: bool| {
+            let corners = [(x0, 10.0), (x1, 10.0), (x1, 60.0), (x0, 60.0)];
+            (0..4)
+                .map(|k| {
+                    let (a, b) = (corners[k], corners[(k + 1) % 4]);
+                    let (a, b) = if clockwise { (b, a) } else { (a, b) };
+                    line(&format!("{h}{k}"), "0", a, b)
+                })
+                .collect::<Vec<String>>()
+        };
+        for (interleaved, clockwise) in [(false, false), (true, false), (false, true), (true, true)] {
+            let (a, b) = (rect("A", 10.0, 90.0, clockwise), rect("B", 90.0, 150.0, clockwise));
+            let body: String = if interleaved { a.iter().zip(&b).flat_map(|(x, y)| [x.clone(), y.clone()]).collect() } else { [a, b].concat().concat() };
+            let job = import(&dxf("", &body)).unwrap();
+            let mut perimeters: Vec<f64> = job.geometries.iter().map(|g| g.length()).collect();
+            perimeters.sort_by(f64::total_cmp);
+            assert!(job.geometries.iter().all(|g| g.closed && g.points.len() == 4), "interleaved {interleaved}, clockwise {clockwise}: {:?}", job.geometries);
+            assert_eq!(perimeters, vec![220.0, 260.0], "interleaved {interleaved}, clockwise {clockwise}");
+        }
     }
 
     #[test]
