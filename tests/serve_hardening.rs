@@ -236,7 +236,7 @@ fn every_error_of_the_api_is_json() {
         (415, Method::POST, move_path.clone(), Some(("text/plain", b"{\"position\": 0}".to_vec()))),
         (422, Method::POST, move_path.clone(), Some(("application/json", b"{\"position\": \"first\"}".to_vec()))),
         (400, Method::POST, move_path, Some(("application/json", b"{\"position\": ".to_vec()))),
-        (400, Method::POST, "/jobs?name=part.dxf".into(), Some(("application/octet-stream", b"0\nSECTION\n".to_vec()))),
+        (400, Method::POST, "/jobs?name=part.step".into(), Some(("application/octet-stream", b"ISO-10303-21;\n".to_vec()))),
         (404, Method::GET, "/no/such/call".into(), None),
         (405, Method::GET, "/start".into(), None),
     ];
