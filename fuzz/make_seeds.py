@@ -130,9 +130,37 @@ def api_seeds():
         put("api_bodies", name, bytes([which]) + body.encode())
 
 
+def dxf_seeds():
+    for f in sorted((ROOT / "samples").glob("*.dxf")):
+        put("dxf_import", f.name, f.read_bytes())
+    put("dxf_import", "self-insert.dxf", "0\nSECTION\n2\nBLOCKS\n0\nBLOCK\n8\n0\n2\nA\n70\n0\n10\n0\n20\n0\n0\nINSERT\n8\n0\n2\nA\n10\n1\n20\n1\n"
+        "0\nENDBLK\n0\nENDSEC\n0\nSECTION\n2\nENTITIES\n0\nINSERT\n5\n3C\n8\n0\n2\nA\n10\n0\n20\n0\n0\nENDSEC\n0\nEOF\n")
+    put("dxf_import", "spline.dxf", "0\nSECTION\n2\nENTITIES\n0\nSPLINE\n5\n4D\n8\n0\n71\n2\n72\n6\n40\n0\n40\n0\n40\n0\n40\n1\n40\n1\n40\n1\n73\n3\n"
+        "10\n0\n20\n0\n30\n0\n10\n5\n20\n9\n30\n0\n10\n10\n20\n0\n30\n0\n0\nENDSEC\n0\nEOF\n")
+    # Every entity kind, ASCII and binary, where ezdxf (the tests' DXF writer) is installed.
+    try:
+        import ezdxf
+    except ImportError:
+        return
+    doc = ezdxf.new("R2010")
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(0, 0, 0.5), (10, 0, 0), (10, 10, 0)], format="xyb", close=True)
+    msp.add_ellipse((5, 5), major_axis=(3, 1), ratio=0.5, start_param=0.2, end_param=2.0)
+    msp.add_open_spline([(0, 0), (2, 3), (4, 0), (6, 3)], degree=3)
+    block = doc.blocks.new("B")
+    block.add_circle((0, 0), 1)
+    msp.add_blockref("B", (20, 20), dxfattribs={"xscale": -1, "rotation": 30, "column_count": 2, "row_count": 2, "column_spacing": 3, "row_spacing": 3})
+    with tempfile.TemporaryDirectory() as tmp:
+        for fmt in ("asc", "bin"):
+            path = pathlib.Path(tmp) / f"entities-{fmt}.dxf"
+            doc.saveas(path, fmt=fmt)
+            put("dxf_import", path.name, path.read_bytes())
+
+
 def main():
     clear()
     svg_seeds()
+    dxf_seeds()
     config_seeds()
     response_seeds()
     api_seeds()
