@@ -249,6 +249,8 @@ pub struct MachineConfig {
     pub galvo: GalvoConfig,
     #[serde(default)]
     pub service: ServiceConfig,
+    #[serde(default)]
+    pub job: JobConfig,
     pub default_layer: String,
     #[serde(rename = "layer")]
     pub layers: Vec<LayerConfig>,
@@ -419,6 +421,71 @@ pub struct ImportConfig {
     /// none: the header's `$INSUNITS` (mm when it names none).
     #[serde(default)]
     pub units: Option<DrawingUnit>,
+}
+
+/// Where a job goes on the machine.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct JobConfig {
+    /// `drawing` (where the drawing puts it: an SVG document's bottom-left
+    /// corner, a DXF drawing's origin, at the machine origin), `origin` (the
+    /// job's bounds' lower-left corner at the machine origin), `center`
+    /// (centred on the bed), or `X,Y` (the bounds' lower-left corner there,
+    /// mm). `--place` sets it for one run.
+    #[serde(default)]
+    #[schemars(with = "String")]
+    pub anchor: Anchor,
+}
+
+/// `[job] anchor` / `--place`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum Anchor {
+    #[default]
+    Drawing,
+    Origin,
+    Center,
+    At(f64, f64),
+}
+
+impl std::str::FromStr for Anchor {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Anchor, String> {
+        let bad = || format!("'{s}' is no placement: drawing, origin, center, or X,Y in mm (such as 10,20)");
+        match s.trim().to_ascii_lowercase().as_str() {
+            "drawing" => Ok(Anchor::Drawing),
+            "origin" => Ok(Anchor::Origin),
+            "center" | "centre" => Ok(Anchor::Center),
+            other => {
+                let (x, y) = other.split_once(',').ok_or_else(bad)?;
+                let (x, y): (f64, f64) = (x.trim().parse().map_err(|_| bad())?, y.trim().parse().map_err(|_| bad())?);
+                if !(x.is_finite() && y.is_finite()) || x.abs() > 1e6 || y.abs() > 1e6 {
+                    return Err(bad());
+                }
+                Ok(Anchor::At(x, y))
+            }
+        }
+    }
+}
+
+impl TryFrom<String> for Anchor {
+    type Error = String;
+
+    fn try_from(s: String) -> std::result::Result<Anchor, String> {
+        s.parse()
+    }
+}
+
+impl From<Anchor> for String {
+    fn from(a: Anchor) -> String {
+        match a {
+            Anchor::Drawing => "drawing".into(),
+            Anchor::Origin => "origin".into(),
+            Anchor::Center => "center".into(),
+            Anchor::At(x, y) => format!("{x},{y}"),
+        }
+    }
 }
 
 /// A length unit a drawing may be made in.

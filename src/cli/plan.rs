@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use laserd::config::{ConfigSearch, DrawingUnit, FoundConfig, MachineConfig};
+use laserd::config::{Anchor, ConfigSearch, DrawingUnit, FoundConfig, MachineConfig};
 use laserd::error::{Error, Result};
 use laserd::mode::Mode;
 use laserd::plan::PlannerKind;
@@ -47,6 +47,13 @@ pub struct JobArgs {
     /// (default: the config's [import] units, else the header's $INSUNITS).
     #[arg(long)]
     units: Option<DrawingUnit>,
+    /// Where the job goes: drawing (as drawn: the SVG document's
+    /// bottom-left corner or the DXF origin at the machine origin), origin
+    /// (the job's lower-left corner at the machine origin), center (centred
+    /// on the bed), or X,Y (its lower-left corner there, mm). Default: the
+    /// config's [job] anchor.
+    #[arg(long)]
+    place: Option<Anchor>,
 }
 
 impl JobArgs {
@@ -68,6 +75,9 @@ impl JobArgs {
         }
         if let Some(seed) = self.seed {
             machine.galvo.seed = seed;
+        }
+        if let Some(anchor) = self.place {
+            machine.job.anchor = anchor;
         }
         if let Some(units) = self.units {
             let dxf = self.job.extension().is_some_and(|e| e.eq_ignore_ascii_case("dxf"));
@@ -136,6 +146,7 @@ fn dry_run_as_it_is(args: DryRunArgs) -> Result<ExitCode> {
         (job.seed.is_some(), "--seed"),
         (job.allow_precedence_violations, "--allow-precedence-violations"),
         (job.units.is_some(), "--units"),
+        (job.place.is_some(), "--place"),
     ];
     if let Some((_, flag)) = planning.iter().find(|(given, _)| *given) {
         return Err(Error::Config(format!("{flag}: {} is streamed as it is (--keep-order), not planned", path.display())));

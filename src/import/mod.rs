@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use crate::config::MachineConfig;
+use crate::config::{Anchor, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{Geometry, Job, Point, Process};
 
@@ -16,6 +16,30 @@ pub mod svg_size;
 ///
 /// Every error is one line that names the file, so the CLI can print it as is.
 pub fn import_job(path: &Path, config: &MachineConfig) -> Result<Job> {
+    let mut job = import_as_drawn(path, config)?;
+    place(&mut job, config);
+    Ok(job)
+}
+
+/// Moves the job where `[job] anchor` (`--place`) puts it, saying so.
+pub fn place(job: &mut Job, config: &MachineConfig) {
+    let (lo, hi) = job.bounds();
+    let target = match config.job.anchor {
+        Anchor::Drawing => return,
+        Anchor::Origin => Point::origin(),
+        Anchor::Center => Point::new((config.stage.travel_x - (hi.x - lo.x)) / 2.0, (config.stage.travel_y - (hi.y - lo.y)) / 2.0),
+        Anchor::At(x, y) => Point::new(x, y),
+    };
+    let shift = target - lo;
+    for g in &mut job.geometries {
+        for p in &mut g.points {
+            *p += shift;
+        }
+    }
+    tracing::info!("{}: placed ({}): moved by ({:.3}, {:.3}) mm", job.source, String::from(config.job.anchor), shift.x, shift.y);
+}
+
+fn import_as_drawn(path: &Path, config: &MachineConfig) -> Result<Job> {
     let source = path.display().to_string();
     let ext = path.extension().map(|e| e.to_string_lossy().to_lowercase());
     match ext.as_deref() {
@@ -211,5 +235,29 @@ mod tests {
         let job = import_job(&path, &config()).unwrap();
         assert_eq!(job.geometries.len(), 1);
         assert_eq!(job.source, path.display().to_string());
+    }
+
+    #[test]
+    fn a_job_is_placed_at_the_origin_centred_or_at_an_offset_as_told() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.svg");
+        std::fs::write(&path, r#"<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="100mm" viewBox="0 0 100 100"><rect x="20" y="30" width="40" height="10" fill="none" stroke="black"/></svg>"#).unwrap();
+        let mut config = config();
+        let bounds = |config: &MachineConfig| {
+            let (lo, hi) = import_job(&path, config).unwrap().bounds();
+            [lo.x, lo.y, hi.x, hi.y]
+        };
+        let near = |a: [f64; 4], b: [f64; 4]| a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-4);
+        // As drawn: the document's bottom-left corner at the origin (y flipped).
+        assert!(near(bounds(&config), [20.0, 60.0, 60.0, 70.0]), "{:?}", bounds(&config));
+        config.job.anchor = Anchor::Origin;
+        assert!(near(bounds(&config), [0.0, 0.0, 40.0, 10.0]), "{:?}", bounds(&config));
+        config.job.anchor = Anchor::Center;
+        assert!(near(bounds(&config), [130.0, 145.0, 170.0, 155.0]), "on the 300 x 300 bed: {:?}", bounds(&config));
+        config.job.anchor = "12.5, 7".parse().unwrap();
+        assert!(near(bounds(&config), [12.5, 7.0, 52.5, 17.0]), "{:?}", bounds(&config));
+        for bad in ["", "left", "1,", "nan,1", "1e9,0"] {
+            assert!(bad.parse::<Anchor>().unwrap_err().contains("no placement"), "{bad}");
+        }
     }
 }
