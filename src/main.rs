@@ -23,6 +23,11 @@ enum Command {
     DryRun(cli::plan::DryRunArgs),
     /// Plan a job only: report, and write the G-code program with -o.
     Plan(cli::plan::PlanArgs),
+    /// Read a drawing (SVG, DXF) into laserd's own job file (JSON), which
+    /// plan, dry-run and the service take like the drawing.
+    Import(cli::plan::ImportArgs),
+    /// The JSON Schema of laserd's job file.
+    JobSchema,
     /// Stream an existing G-code file to a controller.
     Send(cli::send::SendArgs),
     /// Run the simulated controller as a GRBL device on a pseudo-terminal.
@@ -66,6 +71,8 @@ fn main() -> ExitCode {
     let outcome = match cli.command {
         Command::DryRun(args) => cli::plan::dry_run(args),
         Command::Plan(args) => cli::plan::plan(args),
+        Command::Import(args) => cli::plan::import(args),
+        Command::JobSchema => cli::plan::job_schema(),
         Command::Send(args) => cli::send::run(args),
         Command::Sim(args) => cli::sim::run(args),
         Command::Bench { which } => cli::bench::run(which),

@@ -1,7 +1,7 @@
 //! `plan` and `dry-run`: plan a job; write its program and picture, or run it
 //! in the built-in simulator.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use laserd::config::{Anchor, ConfigSearch, DrawingUnit, FoundConfig, MachineConfig};
@@ -76,20 +76,62 @@ impl JobArgs {
         if let Some(seed) = self.seed {
             machine.galvo.seed = seed;
         }
-        if let Some(anchor) = self.place {
-            machine.job.anchor = anchor;
-        }
-        if let Some(units) = self.units {
-            let dxf = self.job.extension().is_some_and(|e| e.eq_ignore_ascii_case("dxf"));
-            if !dxf {
-                return Err(Error::Config(format!("--units: {} is no DXF drawing (an SVG document carries its own units)", self.job.display())));
-            }
-            machine.import.units = Some(units);
-        }
+        import_flags(&mut machine, &self.job, self.units, self.place)?;
         let mut planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
         planned.report.config = Some(source);
         Ok((machine, planned))
     }
+}
+
+/// `--units` and `--place` into the machine's import settings.
+fn import_flags(machine: &mut MachineConfig, job: &Path, units: Option<DrawingUnit>, place: Option<Anchor>) -> Result<()> {
+    if let Some(anchor) = place {
+        machine.job.anchor = anchor;
+    }
+    if let Some(units) = units {
+        if !job.extension().is_some_and(|e| e.eq_ignore_ascii_case("dxf")) {
+            return Err(Error::Config(format!("--units: {} is no DXF drawing (an SVG document carries its own units)", job.display())));
+        }
+        machine.import.units = Some(units);
+    }
+    Ok(())
+}
+
+/// `laserd import`: a drawing read into laserd's own job file.
+#[derive(clap::Args)]
+pub struct ImportArgs {
+    /// The drawing (SVG or DXF) or job file.
+    job: PathBuf,
+    /// Machine config (its layers and import settings; default as for plan).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// DXF: the unit the drawing was made in, whatever its header says.
+    #[arg(long)]
+    units: Option<DrawingUnit>,
+    /// Where the job goes (as for plan).
+    #[arg(long)]
+    place: Option<Anchor>,
+    /// The job file to write (JSON; default: standard output).
+    #[arg(short = 'o', long = "output")]
+    output: Option<PathBuf>,
+}
+
+pub fn import(args: ImportArgs) -> Result<ExitCode> {
+    let FoundConfig { mut machine, .. } = ConfigSearch::new(args.config.as_deref()).find()?;
+    import_flags(&mut machine, &args.job, args.units, args.place)?;
+    let job = laserd::import::import_job(&args.job, &machine)?;
+    let text = serde_json::to_string_pretty(&laserd::import::json::to_file(&job)).map_err(|e| Error::Io(e.to_string()))? + "\n";
+    match &args.output {
+        Some(path) => write_file(path, text.as_bytes())?,
+        None => print!("{text}"),
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `laserd job-schema`: the JSON Schema of a job file.
+pub fn job_schema() -> Result<ExitCode> {
+    println!("{}", laserd::import::json::schema());
+    Ok(ExitCode::SUCCESS)
 }
 
 #[derive(clap::Args)]

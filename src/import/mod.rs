@@ -9,6 +9,7 @@ use crate::error::{Error, Result};
 use crate::job::{Geometry, Job, Point, Process};
 
 pub mod dxf;
+pub mod json;
 pub mod svg;
 pub mod svg_size;
 
@@ -51,9 +52,10 @@ fn import_as_drawn(path: &Path, config: &MachineConfig) -> Result<Job> {
             svg::import_svg(&text, &source, config)
         }
         Some("dxf") => dxf::import_dxf(&read_capped(path, config.import.max_file_bytes())?, &source, config),
-        Some(other) => Err(Error::Import(format!("{source}: unsupported job format '.{other}' (supported: .svg, .dxf)"))),
+        Some("json") => json::import_json(&read_capped(path, config.import.max_file_bytes())?, &source, config),
+        Some(other) => Err(Error::Import(format!("{source}: unsupported job format '.{other}' (supported: .svg, .dxf, .json)"))),
         None => Err(Error::Import(format!(
-            "{source}: unsupported job format: the file name has no extension (supported: .svg, .dxf)"
+            "{source}: unsupported job format: the file name has no extension (supported: .svg, .dxf, .json)"
         ))),
     }
 }

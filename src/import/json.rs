@@ -1,0 +1,141 @@
+//! laserd's own job format: the `Job` as JSON, versioned, with a JSON
+//! Schema (`laserd job-schema`). `laserd import F -o job.json` writes what
+//! an importer read; a `.json` job file is read back unchanged (coordinates
+//! round-trip exactly). What it says is checked as any upload is: its
+//! version, every number finite and within range, every process index
+//! valid, the import caps.
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{MachineConfig, PASSES, VELOCITY};
+use crate::error::{Error, Result};
+use crate::job::{Geometry, Job, Point, Process};
+
+/// The `format` a job file carries.
+pub const FORMAT: &str = "laserd-job";
+
+/// The version this build writes and reads.
+pub const VERSION: u32 = 1;
+
+/// Largest coordinate accepted (mm), as for the drawing formats.
+const MAX_COORD_MM: f64 = 1e6;
+
+/// A job file.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct JobFile {
+    /// Always "laserd-job".
+    pub format: String,
+    /// 1.
+    pub version: u32,
+    /// The file the job was imported from.
+    pub source: String,
+    /// The layers the geometries use: name, speed (mm/s), power (S), passes.
+    pub processes: Vec<Process>,
+    pub geometries: Vec<GeometryFile>,
+}
+
+/// One polyline in machine mm.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GeometryFile {
+    /// Vertices [x, y] in mm; a closed one does not repeat its first vertex.
+    pub points: Vec<[f64; 2]>,
+    pub closed: bool,
+    /// Index into `processes`.
+    pub process: usize,
+    /// Where it came from, for messages.
+    pub source: String,
+}
+
+/// The job as its file.
+pub fn to_file(job: &Job) -> JobFile {
+    JobFile {
+        format: FORMAT.into(),
+        version: VERSION,
+        source: job.source.clone(),
+        processes: job.processes.clone(),
+        geometries: job
+            .geometries
+            .iter()
+            .map(|g| GeometryFile { points: g.points.iter().map(|p| [p.x, p.y]).collect(), closed: g.closed, process: g.process, source: g.source.clone() })
+            .collect(),
+    }
+}
+
+/// The JSON Schema of a job file.
+pub fn schema() -> String {
+    serde_json::to_string_pretty(&schemars::schema_for!(JobFile)).expect("a schema serialises")
+}
+
+/// Reads a job file's `bytes` (`source` names it in messages).
+pub fn import_json(bytes: &[u8], source: &str, config: &MachineConfig) -> Result<Job> {
+    let file: JobFile = serde_json::from_slice(bytes).map_err(|e| Error::Import(format!("{source}: not a laserd job file: {e}")))?;
+    if file.format != FORMAT || file.version != VERSION {
+        return Err(Error::Import(format!("{source}: format {:?} version {}; laserd reads {FORMAT:?} version {VERSION}", file.format, file.version)));
+    }
+    for (i, p) in file.processes.iter().enumerate() {
+        let name = |what: &str| format!("{source}: processes[{i}] ({}).{what}", p.layer);
+        VELOCITY.check(&name("speed"), p.speed).map_err(Error::Import)?;
+        PASSES.check(&name("passes"), p.passes).map_err(Error::Import)?;
+        if !(p.power.is_finite() && (0.0..=config.laser.max_power).contains(&p.power)) {
+            return Err(Error::Import(format!("{}: {} is outside 0 to the laser's max_power {}", name("power"), p.power, config.laser.max_power)));
+        }
+    }
+    if file.geometries.len() as u64 > config.import.max_elements {
+        return Err(Error::TooLarge(format!("{source}: more than {} geometries ([import] max_elements)", config.import.max_elements)));
+    }
+    let points: usize = file.geometries.iter().map(|g| g.points.len()).sum();
+    if points as u64 > config.import.max_points {
+        return Err(Error::TooLarge(format!("{source}: more than {} points ([import] max_points)", config.import.max_points)));
+    }
+    let mut geometries = Vec::with_capacity(file.geometries.len());
+    for (i, g) in file.geometries.into_iter().enumerate() {
+        let name = format!("{source}: geometries[{i}]");
+        if g.process >= file.processes.len() {
+            return Err(Error::Import(format!("{name}: process {} of {}", g.process, file.processes.len())));
+        }
+        if let Some(p) = g.points.iter().find(|p| p.iter().any(|v| !v.is_finite() || v.abs() > MAX_COORD_MM)) {
+            return Err(Error::Import(format!("{name}: point {p:?} is beyond {MAX_COORD_MM} mm")));
+        }
+        if g.points.len() < 2 {
+            return Err(Error::Import(format!("{name}: fewer than two points")));
+        }
+        geometries.push(Geometry { points: g.points.iter().map(|p| Point::new(p[0], p[1])).collect(), closed: g.closed, process: g.process, source: g.source });
+    }
+    if geometries.is_empty() {
+        return Err(Error::Import(format!("{source}: nothing to mark: no geometry")));
+    }
+    Ok(Job { source: file.source, geometries, processes: file.processes })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_job_round_trips_exactly_and_bad_files_are_named() {
+        let config = crate::import::test_config();
+        let job = Job {
+            source: "a.svg".into(),
+            geometries: vec![Geometry { points: vec![Point::new(0.1, 1.0 / 3.0), Point::new(2.0f64.sqrt(), 7.0)], closed: false, process: 0, source: "a.svg: <path>".into() }],
+            processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 200.0, passes: 2 }],
+        };
+        let text = serde_json::to_string(&to_file(&job)).unwrap();
+        let back = import_json(text.as_bytes(), "j.json", &config).unwrap();
+        assert_eq!(back.geometries, job.geometries);
+        assert_eq!(back.processes, job.processes);
+        let bad = |edit: &dyn Fn(&mut serde_json::Value)| {
+            let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+            edit(&mut v);
+            import_json(v.to_string().as_bytes(), "j.json", &config).unwrap_err().to_string()
+        };
+        assert!(bad(&|v| v["version"] = 2.into()).contains("version 2"));
+        assert!(bad(&|v| v["geometries"][0]["process"] = 3.into()).contains("geometries[0]: process 3 of 1"));
+        assert!(bad(&|v| v["geometries"][0]["points"][0][0] = 1e300.into()).contains("geometries[0]: point"));
+        assert!(bad(&|v| v["processes"][0]["power"] = 1e9.into()).contains("processes[0] (mark).power"));
+        assert!(bad(&|v| v["extra"] = 1.into()).contains("not a laserd job file"));
+        assert!(import_json(b"{\"format\": ", "j.json", &config).unwrap_err().to_string().contains("j.json: not a laserd job file"));
+    }
+}

@@ -1,0 +1,29 @@
+//! laserd's own job file: every importer's output round-trips through it
+//! unchanged, through the command line as a user runs it.
+
+use std::path::Path;
+use std::process::Command;
+
+#[test]
+fn every_sample_round_trips_through_the_job_file_unchanged() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = tempfile::tempdir().unwrap();
+    let config = root.join("config/flatbed-cutter.toml");
+    let machine = laserd::config::MachineConfig::load(Some(&config)).unwrap();
+    for sample in ["samples/nested-sheet.svg", "samples/marking-300.svg", "samples/one-field.svg", "samples/cut-parts.dxf"] {
+        let job_file = dir.path().join("job.json");
+        let out = Command::new(env!("CARGO_BIN_EXE_laserd")).arg("import").arg(root.join(sample)).arg("--config").arg(&config).arg("-o").arg(&job_file).output().unwrap();
+        assert!(out.status.success(), "{sample}: {}", String::from_utf8_lossy(&out.stderr));
+        let imported = laserd::import::import_job(&root.join(sample), &machine).unwrap();
+        let read_back = laserd::import::import_job(&job_file, &machine).unwrap();
+        assert_eq!(read_back.geometries, imported.geometries, "{sample}");
+        assert_eq!(read_back.processes, imported.processes, "{sample}");
+        assert_eq!(read_back.source, imported.source, "{sample}");
+    }
+    let schema = Command::new(env!("CARGO_BIN_EXE_laserd")).arg("job-schema").output().unwrap();
+    let schema: serde_json::Value = serde_json::from_slice(&schema.stdout).unwrap();
+    let required: Vec<&str> = schema["required"].as_array().unwrap().iter().filter_map(|v| v.as_str()).collect();
+    for key in ["format", "version", "source", "processes", "geometries"] {
+        assert!(required.contains(&key), "{key} in {required:?}");
+    }
+}
