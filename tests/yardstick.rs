@@ -72,7 +72,7 @@ fn a_gcode_file_kept_in_order_runs_on_both_motion_models_with_the_sim_figures() 
 }
 
 #[test]
-fn a_bad_gcode_line_is_an_error_naming_the_line_and_gcode_needs_keep_order() {
+fn a_bad_gcode_line_is_an_error_naming_the_line_and_without_keep_order_gcode_is_planned_anew() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("bad.gcode"), "G21 G90\nG1 X10 F600\nG1 X20 G0 Y5\n").unwrap();
     let out = laserd(&["dry-run", "bad.gcode", "--keep-order", "--config", cutter().to_str().unwrap()], dir.path());
@@ -80,12 +80,14 @@ fn a_bad_gcode_line_is_an_error_naming_the_line_and_gcode_needs_keep_order() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.gcode:3 `G1 X20 G0 Y5`: error:"), "{err}");
     assert!(!dir.path().join("bad.mcap").exists(), "nothing ran");
-    // Without --keep-order: re-planning G-code is not there yet, and the error says what is.
+    // Without --keep-order the file's laser moves are a job, planned anew:
+    // its one cut, 50 mm at S500 F600, within the limits.
     std::fs::write(dir.path().join("ok.ngc"), ALONG_X).unwrap();
-    let out = laserd(&["dry-run", "ok.ngc", "--config", cutter().to_str().unwrap()], dir.path());
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("ok.ngc: re-planning G-code is not available yet") && err.contains("--keep-order"), "{err}");
+    let out = laserd(&["dry-run", "ok.ngc", "--json", "--config", cutter().to_str().unwrap()], dir.path());
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report = json(&out);
+    assert_eq!(report["geometries"], 1, "{report}");
+    assert_eq!(report["sim"]["limit_violations"], 0, "{report}");
     // Planning flags mean nothing for a file streamed as it is: refused by name.
     let out = laserd(&["dry-run", "ok.ngc", "--keep-order", "--mode", "stage-only", "--config", cutter().to_str().unwrap()], dir.path());
     assert_eq!(out.status.code(), Some(1));

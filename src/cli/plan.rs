@@ -59,13 +59,6 @@ pub struct JobArgs {
 impl JobArgs {
     fn plan(&self) -> Result<(MachineConfig, run::Planned)> {
         check_time_limit(self.time_limit).map_err(Error::Config)?;
-        if gcode::is_gcode(&self.job) {
-            return Err(Error::Import(format!(
-                "{}: re-planning G-code is not available yet: `laserd dry-run {} --keep-order` streams it as it is",
-                self.job.display(),
-                self.job.display()
-            )));
-        }
         // The report says where the config came from (no line on stderr: an
         // error later stays the one line of the error contract).
         let FoundConfig { mut machine, source, .. } = ConfigSearch::new(self.config.as_deref()).find()?;

@@ -9,6 +9,7 @@ use crate::error::{Error, Result};
 use crate::job::{Geometry, Job, Point, Process};
 
 pub mod dxf;
+pub mod gcode;
 pub mod json;
 pub mod svg;
 pub mod svg_size;
@@ -53,9 +54,13 @@ fn import_as_drawn(path: &Path, config: &MachineConfig) -> Result<Job> {
         }
         Some("dxf") => dxf::import_dxf(&read_capped(path, config.import.max_file_bytes())?, &source, config),
         Some("json") => json::import_json(&read_capped(path, config.import.max_file_bytes())?, &source, config),
-        Some(other) => Err(Error::Import(format!("{source}: unsupported job format '.{other}' (supported: .svg, .dxf, .json)"))),
+        Some(e) if gcode::GCODE_EXTENSIONS.contains(&e) => {
+            let text = String::from_utf8(read_capped(path, config.import.max_file_bytes())?).map_err(|e| Error::Import(format!("{source}: not G-code: not UTF-8 text (byte {})", e.utf8_error().valid_up_to())))?;
+            gcode::import_gcode(&text, &source, config)
+        }
+        Some(other) => Err(Error::Import(format!("{source}: unsupported job format '.{other}' (supported: .svg, .dxf, .json, G-code)"))),
         None => Err(Error::Import(format!(
-            "{source}: unsupported job format: the file name has no extension (supported: .svg, .dxf, .json)"
+            "{source}: unsupported job format: the file name has no extension (supported: .svg, .dxf, .json, G-code)"
         ))),
     }
 }

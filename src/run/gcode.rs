@@ -26,8 +26,7 @@ pub enum JobKind {
     Gcode,
 }
 
-/// Extensions of G-code files, as CAM tools and senders write them.
-pub const GCODE_EXTENSIONS: [&str; 6] = ["nc", "gcode", "ngc", "gc", "g", "tap"];
+pub use crate::import::gcode::GCODE_EXTENSIONS;
 
 impl JobKind {
     /// The kind the file's name says, if its content agrees: a job file is

@@ -1,0 +1,289 @@
+//! G-code as a job: the laser moves of another CAM tool's program (LightBurn,
+//! LaserGRBL, Inkscape plug-ins) become geometries, so the file can be
+//! re-planned, previewed, estimated and dry-run like a drawing.
+//!
+//! Lines are cleaned and split into words by the simulator's own Grbl rules
+//! (`laserd_sim::gcode`). Read: G0 G1 G2 G3 (I J, or R), G17, G20 G21, G90
+//! G91, G92 (offsets), G4 and G94 (ignored), M3 M4 M5 and S, F, M2 M30, and
+//! the line numbers N. Each laser-on run (M3 or M4 with S > 0, cutting moves
+//! from one laser-off move or laser change to the next) is one geometry;
+//! a run whose power changes is split where it does, so every piece keeps
+//! its own power. Processes are the (S, F) pairs: speed F/60 mm/s, power S.
+//! Anything else is an error naming the line: laserd does not guess what a
+//! word it does not know was meant to do to the laser.
+
+use crate::config::MachineConfig;
+use crate::error::{Error, Result};
+use crate::job::{Geometry, Job, Point, Process};
+
+/// Grbl's error 33 case: an arc whose end is not on its circle, by more
+/// than this (mm) and this share of the radius.
+const ARC_END_MM: f64 = 0.005;
+const ARC_END_SHARE: f64 = 0.001;
+
+const MAX_COORD_MM: f64 = 1e6;
+
+/// Extensions of G-code files, as CAM tools and senders write them.
+pub const GCODE_EXTENSIONS: [&str; 6] = ["nc", "gcode", "ngc", "gc", "g", "tap"];
+
+struct State {
+    at: Point,
+    /// G92: the work origin's offset from the machine position.
+    offset: Point,
+    inch: bool,
+    relative: bool,
+    motion: u8,
+    feed: f64,
+    power: f64,
+    laser_on: bool,
+}
+
+struct Run {
+    points: Vec<Point>,
+    key: (u64, u64),
+    line: usize,
+}
+
+/// Reads the G-code `text` (`source` names it in messages).
+pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<Job> {
+    let mut s = State { at: Point::origin(), offset: Point::origin(), inch: false, relative: false, motion: 0, feed: 0.0, power: 0.0, laser_on: false };
+    let mut runs: Vec<Run> = Vec::new();
+    let mut current: Option<Run> = None;
+    let mut points = 0u64;
+    let tolerance = config.import.tolerance;
+    let finish = |current: &mut Option<Run>, runs: &mut Vec<Run>| {
+        if let Some(r) = current.take() {
+            if r.points.len() >= 2 {
+                runs.push(r);
+            }
+        }
+    };
+    for (index, raw) in text.lines().enumerate() {
+        let n = index + 1;
+        let at = |what: String| Error::Import(format!("{source}:{n}: {what}: {}", raw.trim().chars().take(80).collect::<String>()));
+        let mut builder = laserd_sim::gcode::LineBuilder::with_max(laserd_sim::gcode::MAX_LINE_HAL);
+        raw.bytes().for_each(|b| builder.push(b));
+        let Some(line) = builder.finish() else { return Err(at("a line longer than 256 characters".into())) };
+        if line.is_empty() || line.starts_with('%') {
+            continue;
+        }
+        if line.starts_with('$') {
+            return Err(at("a system command ($) is no job line".into()));
+        }
+        let words = laserd_sim::gcode::split_words(&line).map_err(|code| at(format!("not G-code words (Grbl error {code})")))?;
+        let mut target: [Option<f64>; 2] = [None, None];
+        let (mut i, mut j, mut r) = (None, None, None);
+        let mut g92 = false;
+        let mut laser_changed = false;
+        for w in &words {
+            let v = w.value;
+            match w.letter {
+                'G' => match (v * 10.0).round() as i64 {
+                    0 => s.motion = 0,
+                    10 => s.motion = 1,
+                    20 => s.motion = 2,
+                    30 => s.motion = 3,
+                    40 | 940 | 170 | 540 => {}
+                    200 => s.inch = true,
+                    210 => s.inch = false,
+                    900 => s.relative = false,
+                    910 => s.relative = true,
+                    920 => g92 = true,
+                    other => return Err(at(format!("G{} is not a laser job move laserd reads", other as f64 / 10.0))),
+                },
+                'M' => match v as i64 {
+                    3 | 4 => {
+                        laser_changed |= !s.laser_on;
+                        s.laser_on = true;
+                    }
+                    5 => {
+                        laser_changed |= s.laser_on;
+                        s.laser_on = false;
+                    }
+                    2 | 30 | 7 | 8 | 9 => {}
+                    other => return Err(at(format!("M{other} is not a laser job word laserd reads"))),
+                },
+                'S' => {
+                    laser_changed |= v != s.power;
+                    s.power = v;
+                }
+                'F' => s.feed = v,
+                'X' => target[0] = Some(v),
+                'Y' => target[1] = Some(v),
+                'I' => i = Some(v),
+                'J' => j = Some(v),
+                'R' => r = Some(v),
+                'N' | 'P' => {}
+                'Z' | 'A' | 'B' | 'C' | 'U' | 'V' | 'W' | 'K' => {
+                    if w.letter == 'Z' || w.letter == 'K' {
+                        continue;
+                    }
+                    return Err(at(format!("axis {} is not one of a laser's X and Y", w.letter)));
+                }
+                other => return Err(at(format!("word {other} is not one laserd reads in a job"))),
+            }
+        }
+        let scale = if s.inch { 25.4 } else { 1.0 };
+        if g92 {
+            // G92 X Y: the current position is now these work coordinates.
+            let work = |k: usize, m: f64, o: f64| target[k].map_or(m - o, |v| v * scale);
+            let (wx, wy) = (work(0, s.at.x, s.offset.x), work(1, s.at.y, s.offset.y));
+            s.offset = Point::new(s.at.x - wx, s.at.y - wy);
+            continue;
+        }
+        let on = s.laser_on && s.power > 0.0;
+        if laser_changed || !on {
+            finish(&mut current, &mut runs);
+        }
+        if target.iter().all(Option::is_none) && !(s.motion >= 2 && (i.is_some() || j.is_some())) {
+            continue;
+        }
+        let axis = |k: usize, now: f64, origin: f64| match target[k] {
+            Some(v) if s.relative => now + v * scale,
+            Some(v) => v * scale + origin,
+            None => now,
+        };
+        let end = Point::new(axis(0, s.at.x, s.offset.x), axis(1, s.at.y, s.offset.y));
+        if !(end.x.is_finite() && end.y.is_finite()) || end.x.abs() > MAX_COORD_MM || end.y.abs() > MAX_COORD_MM {
+            return Err(at(format!("beyond {MAX_COORD_MM} mm")));
+        }
+        let cutting = on && s.motion != 0;
+        let mut path = vec![end];
+        if s.motion >= 2 {
+            path = arc(s.at, end, s.motion == 2, i.map(|v| v * scale), j.map(|v| v * scale), r.map(|v| v * scale), tolerance).map_err(at)?;
+        }
+        if cutting {
+            if s.feed <= 0.0 {
+                return Err(at("a cutting move with no feed (F)".into()));
+            }
+            let key = (s.power.to_bits(), s.feed.to_bits());
+            if current.as_ref().is_some_and(|c| c.key != key) {
+                finish(&mut current, &mut runs);
+            }
+            let run = current.get_or_insert_with(|| Run { points: vec![s.at], key, line: n });
+            points += path.len() as u64;
+            if points > config.import.max_points {
+                return Err(Error::TooLarge(format!("{source}: more than {} points ([import] max_points)", config.import.max_points)));
+            }
+            run.points.extend(&path);
+        } else {
+            finish(&mut current, &mut runs);
+        }
+        s.at = end;
+    }
+    finish(&mut current, &mut runs);
+    if runs.is_empty() {
+        return Err(Error::Import(format!("{source}: nothing to mark: no cutting move with the laser on (M3 or M4 with S > 0)")));
+    }
+    if runs.len() as u64 > config.import.max_elements {
+        return Err(Error::TooLarge(format!("{source}: more than {} laser runs ([import] max_elements)", config.import.max_elements)));
+    }
+    // Processes: the (S, F) pairs, in the order they first mark.
+    let mut keys: Vec<(u64, u64)> = Vec::new();
+    let mut geometries = Vec::with_capacity(runs.len());
+    for run in runs {
+        let process = keys.iter().position(|k| *k == run.key).unwrap_or_else(|| {
+            keys.push(run.key);
+            keys.len() - 1
+        });
+        if let Some((points, closed)) = super::clean_polyline(run.points, false) {
+            geometries.push(Geometry { points, closed, process, source: format!("{source}:{}", run.line) });
+        }
+    }
+    let processes = keys
+        .iter()
+        .map(|&(s, f)| {
+            let (s, f) = (f64::from_bits(s), f64::from_bits(f));
+            Process { layer: format!("S{s} F{f}"), speed: f / 60.0, power: s, passes: 1 }
+        })
+        .collect();
+    Ok(Job { source: source.to_string(), geometries, processes })
+}
+
+/// The points after `from` of an arc to `to` (clockwise for G2), its centre
+/// at offset (I, J) from `from` or from radius R (negative: the long way),
+/// flattened within `tolerance`.
+fn arc(from: Point, to: Point, clockwise: bool, i: Option<f64>, j: Option<f64>, r: Option<f64>, tolerance: f64) -> std::result::Result<Vec<Point>, String> {
+    let centre = match (i, j, r) {
+        (_, _, Some(r)) => {
+            let d = to - from;
+            let h2 = r * r - d.norm_squared() / 4.0;
+            if d.norm() == 0.0 || h2 < -1e-9 {
+                return Err(format!("an R arc (R{r}) that cannot reach its end (Grbl error 33)"));
+            }
+            // The centre left of the chord for a counter-clockwise short arc.
+            let h = h2.max(0.0).sqrt() * if clockwise == (r < 0.0) { 1.0 } else { -1.0 };
+            let mid = from + d / 2.0;
+            mid + nalgebra::Vector2::new(-d.y, d.x) / d.norm() * h
+        }
+        (None, None, None) => return Err("an arc with neither I/J nor R".into()),
+        (i, j, None) => from + nalgebra::Vector2::new(i.unwrap_or(0.0), j.unwrap_or(0.0)),
+    };
+    let (r0, r1) = ((from - centre).norm(), (to - centre).norm());
+    if (r0 - r1).abs() > ARC_END_MM && (r0 - r1).abs() > ARC_END_SHARE * r0 {
+        return Err(format!("an arc whose end is {:.4} mm off its circle (Grbl error 33)", (r0 - r1).abs()));
+    }
+    let a0 = (from.y - centre.y).atan2(from.x - centre.x);
+    let a1 = (to.y - centre.y).atan2(to.x - centre.x);
+    let tau = std::f64::consts::TAU;
+    let mut sweep = if clockwise { -(a0 - a1).rem_euclid(tau) } else { (a1 - a0).rem_euclid(tau) };
+    if sweep.abs() < 1e-12 {
+        sweep = if clockwise { -tau } else { tau };
+    }
+    let step = if r0 > tolerance { 2.0 * (1.0 - tolerance / r0).acos() } else { sweep.abs() };
+    let n = (sweep.abs() / step.max(1e-6)).ceil().clamp(1.0, 1e6) as usize;
+    let mut out: Vec<Point> = (1..n).map(|k| centre + nalgebra::Vector2::new((a0 + sweep * k as f64 / n as f64).cos(), (a0 + sweep * k as f64 / n as f64).sin()) * r0).collect();
+    out.push(to);
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn import(text: &str) -> Result<Job> {
+        import_gcode(text, "t.nc", &crate::import::test_config())
+    }
+
+    #[test]
+    fn laser_on_runs_become_geometries_with_their_power_and_feed() {
+        let job = import("G21 G90\nG0 X10 Y10\nM4 S500 F600\nG1 X20\nG1 Y20\nG2 X10 Y10 I-5 J-5\nM5\nG0 X50 Y50\nM3 S1000\nG1 X60 F1200\nG1 Y60\nM5\n").unwrap();
+        assert_eq!(job.geometries.len(), 2);
+        assert_eq!(job.processes.len(), 2);
+        assert_eq!((job.processes[0].speed, job.processes[0].power), (10.0, 500.0));
+        assert_eq!((job.processes[1].speed, job.processes[1].power), (20.0, 1000.0));
+        let first = &job.geometries[0];
+        assert!(first.closed, "the run ends where it began");
+        // Two sides of 10 and a half circle of radius √50 back to the start.
+        let expected = 20.0 + std::f64::consts::PI * 50f64.sqrt();
+        assert!((first.length() - expected).abs() < 0.02, "{} vs {expected}", first.length());
+        assert_eq!(first.source, "t.nc:4");
+    }
+
+    #[test]
+    fn inches_relative_moves_and_g92_offsets_are_followed() {
+        let job = import("G20 G91\nG0 X1 Y1\nG92 X0 Y0\nM4 S100 F60\nG1 X1\nG90 G1 Y1\nM5\n").unwrap();
+        let p = &job.geometries[0].points;
+        assert!((p[0] - Point::new(25.4, 25.4)).norm() < 1e-9 && (p[1] - Point::new(50.8, 25.4)).norm() < 1e-9 && (p[2] - Point::new(50.8, 50.8)).norm() < 1e-9, "{p:?}");
+    }
+
+    #[test]
+    fn a_run_whose_power_changes_is_split_where_it_does() {
+        let job = import("G0 X0 Y0\nM4 F3000\nG1 X1 S100\nG1 X2 S200\nG1 X3 S200\nG1 X4 S100\nM5\n").unwrap();
+        let powers: Vec<f64> = job.geometries.iter().map(|g| job.processes[g.process].power).collect();
+        assert_eq!(powers, vec![100.0, 200.0, 100.0]);
+        assert!((job.mark_length() - 4.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn unknown_words_and_arcs_off_their_circle_name_the_line() {
+        let err = |t: &str| import(t).unwrap_err().to_string();
+        assert!(err("M4 S10 F100\nG1 X1\nG38.2 X5\n").contains("t.nc:3: G38.2"));
+        assert!(err("M4 S10 F100\nG1 X1 Q4\n").contains("t.nc:2: word Q"));
+        assert!(err("M4 S10 F100\nG2 X10 Y0 I3 J0\n").contains("t.nc:2: an arc whose end is") );
+        assert!(err("M4 S10 F100\nG2 X10 Y0 R2\n").contains("Grbl error 33"));
+        assert!(err("$H\n").contains("t.nc:1: a system command"));
+        assert!(err("G0 X1\n").contains("nothing to mark"));
+        assert!(err("M4 S10\nG1 X1\n").contains("no feed"));
+    }
+}
