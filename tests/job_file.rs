@@ -27,3 +27,20 @@ fn every_sample_round_trips_through_the_job_file_unchanged() {
         assert!(required.contains(&key), "{key} in {required:?}");
     }
 }
+
+/// A drawing's text is not marked (laserd has no fonts): each text element
+/// is named on the warning, with what it says, so it can be converted.
+#[test]
+fn each_ignored_svg_text_is_named_with_what_it_says() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("box.svg"),
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"100mm\" height=\"100mm\" viewBox=\"0 0 100 100\">\n<path d=\"M 10 10 L 20 20\" stroke=\"black\"/>\n<text id=\"lid\" x=\"5\" y=\"5\">Lid <tspan>A-1</tspan></text>\n<text x=\"5\" y=\"50\">Side</text>\n</svg>",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_laserd")).args(["plan", "box.svg"]).env("XDG_CONFIG_HOME", dir.path()).env_remove("LASERD_CONFIG").current_dir(dir.path()).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("<text id=\"lid\"> (line 3) \"Lid A-1\" ignored"), "{err}");
+    assert!(err.contains("<text> at line 4 \"Side\" ignored"), "{err}");
+}

@@ -863,6 +863,20 @@ mod tests {
     }
 
     #[test]
+    fn a_layer_takes_entities_by_aci_colour_and_by_true_colour() {
+        let mut config = config();
+        config.layers[1].color = Some(1); // "cut": ACI 1 (red)
+        // ACI 1 on the entity; true colour 0x0000ff (group 420) matches
+        // "engrave"'s stroke #0000ff; no colour: the default layer.
+        let body = "0\nLINE\n8\nA\n62\n1\n10\n0\n20\n0\n11\n1\n21\n0\n\
+                    0\nLINE\n8\nA\n420\n255\n10\n0\n20\n5\n11\n1\n21\n5\n\
+                    0\nLINE\n8\nA\n10\n0\n20\n9\n11\n1\n21\n9\n";
+        let job = import_dxf(&dxf("", body), "t.dxf", &config).unwrap();
+        let layers: Vec<&str> = job.geometries.iter().map(|g| job.processes[g.process].layer.as_str()).collect();
+        assert_eq!(layers, vec!["cut", "engrave", "mark"]);
+    }
+
+    #[test]
     fn inches_are_read_as_inches() {
         let header = "0\nSECTION\n2\nHEADER\n9\n$INSUNITS\n70\n1\n0\nENDSEC\n";
         let job = import(&dxf(header, &line("E1", "0", (1.0, 1.0), (2.0, 1.0)))).unwrap();

@@ -99,10 +99,20 @@ fn check_raw_geometry(text: &str, source: &str, config: &MachineConfig) -> Resul
     // A document roxmltree cannot read, usvg cannot either: it says why.
     let Ok(doc) = usvg::roxmltree::Document::parse_with_options(text, options) else { return Ok(()) };
     super::svg_size::check(&doc, source, &config.import)?;
-    let (mut texts, mut images) = (0, 0);
+    let (mut texts, mut images) = (Vec::new(), 0);
     for node in doc.descendants().filter(|n| n.is_element()) {
         match node.tag_name().name() {
-            "text" => texts += 1,
+            "text" => {
+                // Named by id or line, with what it says: the operator can
+                // find each one to convert it to paths.
+                let words: String = node.descendants().filter(|n| n.is_text()).filter_map(|n| n.text()).collect::<Vec<_>>().join(" ").split_whitespace().collect::<Vec<_>>().join(" ");
+                let shown: String = words.chars().take(40).map(|c| if c.is_control() { ' ' } else { c }).collect();
+                let line = doc.text_pos_at(node.range().start).row;
+                texts.push(match node.attribute("id") {
+                    Some(id) => format!("<text id=\"{}\"> (line {line}) \"{shown}\"", id.chars().take(40).collect::<String>()),
+                    None => format!("<text> at line {line} \"{shown}\""),
+                });
+            }
             "image" => images += 1,
             _ => {}
         }
@@ -135,8 +145,12 @@ fn check_raw_geometry(text: &str, source: &str, config: &MachineConfig) -> Resul
             }
         }
     }
-    if texts > 0 {
-        tracing::warn!("{source}: {texts} <text> element(s) ignored; convert text to paths to mark it");
+    const LISTED: usize = 20;
+    for text in texts.iter().take(LISTED) {
+        tracing::warn!("{source}: {text} ignored: convert text to paths to mark it");
+    }
+    if texts.len() > LISTED {
+        tracing::warn!("{source}: and {} more <text> element(s) ignored", texts.len() - LISTED);
     }
     if images > 0 {
         tracing::warn!("{source}: {images} <image> element(s) ignored (only paths are marked)");
