@@ -44,3 +44,36 @@ fn each_ignored_svg_text_is_named_with_what_it_says() {
     assert!(err.contains("<text id=\"lid\"> (line 3) \"Lid A-1\" ignored"), "{err}");
     assert!(err.contains("<text> at line 4 \"Side\" ignored"), "{err}");
 }
+
+/// The G-code sample, as another tool writes it (parts in drawing order):
+/// re-planned, with no more idle stroke than the file's own order, and
+/// dry-run within every limit.
+#[test]
+fn another_tools_gcode_re_plans_with_less_idle_stroke_within_the_limits() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let sample = root.join("samples/other-tool.nc");
+    // The file's own idle stroke: its G0 moves from the origin, in order.
+    let (mut at, mut own) = ((0.0f64, 0.0f64), 0.0);
+    for line in std::fs::read_to_string(&sample).unwrap().lines().filter(|l| l.starts_with("G0 X")) {
+        let v = |axis: char| line.split_whitespace().find_map(|w| w.strip_prefix(axis)).unwrap().parse::<f64>().unwrap();
+        let to = (v('X'), v('Y'));
+        if to != (0.0, 0.0) {
+            own += ((to.0 - at.0).powi(2) + (to.1 - at.1).powi(2)).sqrt();
+        }
+        at = to;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_laserd"))
+        .args(["dry-run", "--json", "--record", "x.mcap", "--config"])
+        .arg(root.join("config/flatbed-cutter.toml"))
+        .arg(&sample)
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["geometries"], 18, "{report}");
+    assert_eq!(report["sim"]["limit_violations"], 0, "{report}");
+    let idle = report["idle_stroke_mm"].as_f64().unwrap();
+    assert!(idle <= own, "re-planned idle stroke {idle} mm, the file's own {own} mm");
+}

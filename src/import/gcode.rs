@@ -83,7 +83,9 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
                     10 => s.motion = 1,
                     20 => s.motion = 2,
                     30 => s.motion = 3,
-                    40 | 940 | 170 | 540 => {}
+                    // Dwell (its P is ignored), feed per minute, XY plane, cutter
+                    // compensation off, the first work system: nothing to trace.
+                    40 | 940 | 170 | 400 | 540 => {}
                     200 => s.inch = true,
                     210 => s.inch = false,
                     900 => s.relative = false,
