@@ -75,7 +75,7 @@ pub fn plan_job_child(source: &Path, name: &str, program: &Path, result: &Path, 
     super::queue::write_atomic(result, &text)
 }
 
-/// Plans an SVG or DXF job with `planner` (the service's is `auto`), refusing an
+/// Plans an SVG, DXF or job-file job with `planner` (the service's is `auto`), refusing an
 /// order with precedence violations unless `allow_precedence_violations`:
 /// the answer then carries the count and the error, and no program is
 /// written. G-code is checked as the controller parses it.
@@ -88,7 +88,7 @@ fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineCon
             super::queue::write_atomic(program, text.as_bytes())?;
             Ok(PlanResult { lines, ..Default::default() })
         }
-        JobKind::Svg | JobKind::Dxf => {
+        JobKind::Svg | JobKind::Dxf | JobKind::Json => {
             let named = |e: Error| Error::Plan(e.to_string().replace(&source.display().to_string(), name));
             let planned = crate::run::plan(source, machine, planner, None).map_err(named)?;
             let precedence_violations = planned.report.precedence_violations;
@@ -210,6 +210,7 @@ mod tests {
         assert_eq!(JobKind::of("a.svg", svg).unwrap(), JobKind::Svg);
         assert_eq!(JobKind::of("a.GCODE", b"G21\nG0 X1\n").unwrap(), JobKind::Gcode);
         assert_eq!(JobKind::of("a.DXF", b"0\nSECTION\n").unwrap(), JobKind::Dxf);
+        assert_eq!(JobKind::of("a.json", b"{\"format\": \"laserd-job\"}").unwrap(), JobKind::Json);
         assert_eq!(JobKind::of("a.dxf", b"AutoCAD Binary DXF\r\n\x1a\x00\xff\xfe").unwrap(), JobKind::Dxf, "binary DXF is no text");
         let cases: [(&str, &[u8], &str); 7] = [
             ("shadow", b"root:$y$j9T$abc:19000:0:99999:7:::\n", "not a job file"),
@@ -253,7 +254,7 @@ mod tests {
     }
 
     #[test]
-    fn a_dxf_job_is_planned_like_an_svg_one_with_its_time() {
+    fn a_dxf_job_and_a_job_file_are_planned_like_an_svg_one_with_their_time() {
         let dir = tempfile::tempdir().unwrap();
         let source = dir.path().join("source.dxf");
         let line = |(x0, y0): (f64, f64), (x1, y1): (f64, f64)| format!("0\nLINE\n8\n0\n10\n{x0}\n20\n{y0}\n11\n{x1}\n21\n{y1}\n");
@@ -263,6 +264,13 @@ mod tests {
         let planned = plan_or_check(&source, "square.dxf", &program, &machine(), PlannerKind::Auto, false).unwrap();
         assert!(planned.error.is_none() && planned.planned_time_s.is_some_and(|t| t > 0.0) && planned.lines > 4, "{planned:?}");
         assert_eq!(std::fs::read_to_string(&program).unwrap().lines().count(), planned.lines);
+        // The same job as laserd's own job file plans to the same time.
+        let job = crate::import::import_job(&source, &machine()).unwrap();
+        let job_file = dir.path().join("source.json");
+        std::fs::write(&job_file, serde_json::to_string(&crate::import::json::to_file(&job)).unwrap()).unwrap();
+        assert_eq!(JobKind::of("square.json", &std::fs::read(&job_file).unwrap()).unwrap(), JobKind::Json);
+        let from_file = plan_or_check(&job_file, "square.json", &program, &machine(), PlannerKind::Auto, false).unwrap();
+        assert_eq!(from_file.planned_time_s, planned.planned_time_s, "{from_file:?}");
     }
 
     #[test]

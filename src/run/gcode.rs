@@ -22,6 +22,8 @@ pub enum JobKind {
     Svg,
     /// Planned into a program (ASCII or binary DXF).
     Dxf,
+    /// Planned into a program (laserd's own job file).
+    Json,
     /// Checked line by line as the controller would, then streamed as it is.
     Gcode,
 }
@@ -38,8 +40,9 @@ impl JobKind {
             // Binary DXF is no text; the importer judges the content.
             Some("dxf") if bytes.starts_with(b"AutoCAD Binary DXF") => return Ok(JobKind::Dxf),
             Some("dxf") => JobKind::Dxf,
+            Some("json") => JobKind::Json,
             Some(e) if GCODE_EXTENSIONS.contains(&e) => JobKind::Gcode,
-            _ => return Err(Error::Import(format!("{name}: not a job file: the name must end in .svg, .dxf or a G-code extension (.{})", GCODE_EXTENSIONS.join(", ."))))
+            _ => return Err(Error::Import(format!("{name}: not a job file: the name must end in .svg, .dxf, .json or a G-code extension (.{})", GCODE_EXTENSIONS.join(", ."))))
         };
         let text = std::str::from_utf8(bytes).map_err(|e| Error::Import(format!("{name}: not a job file: not UTF-8 text (byte {})", e.valid_up_to())))?;
         if let Some(at) = text.find(|c: char| c.is_control() && !matches!(c, '\n' | '\r' | '\t' | '\x0c')) {
@@ -50,7 +53,14 @@ impl JobKind {
         let looks_svg = head.starts_with('<') && text[..text.len().min(64 * 1024)].contains("<svg");
         match (kind, looks_svg) {
             (JobKind::Svg, false) => Err(Error::Import(format!("{name}: not an SVG document (no <svg> element at its start)"))),
-            (JobKind::Gcode | JobKind::Dxf, true) => Err(Error::Import(format!("{name}: an SVG document named as {}: name it .svg", if kind == JobKind::Dxf { "DXF" } else { "G-code" }))),
+            (JobKind::Gcode | JobKind::Dxf | JobKind::Json, true) => Err(Error::Import(format!(
+                "{name}: an SVG document named as {}: name it .svg",
+                match kind {
+                    JobKind::Dxf => "DXF",
+                    JobKind::Json => "a job file",
+                    _ => "G-code",
+                }
+            ))),
             _ => Ok(kind),
         }
     }
