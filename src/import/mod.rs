@@ -20,7 +20,33 @@ pub mod svg_size;
 pub fn import_job(path: &Path, config: &MachineConfig) -> Result<Job> {
     let mut job = import_as_drawn(path, config)?;
     place(&mut job, config);
+    snap_to_travel(&mut job, config);
     Ok(job)
+}
+
+/// How far outside the travel a coordinate is taken for the travel's edge
+/// (mm): the rounding of a drawing's own arithmetic (usvg computes in f32,
+/// about 1e-6 mm at 300 mm), far below any machine's step.
+const TRAVEL_SNAP_MM: f64 = 1e-3;
+
+/// Coordinates within `TRAVEL_SNAP_MM` outside the stage's travel are put on
+/// its edge, so a drawing whose outline touches the origin is not refused
+/// for a -0.000 (said in the log, with the largest move).
+fn snap_to_travel(job: &mut Job, config: &MachineConfig) {
+    let (mut count, mut most) = (0usize, 0.0f64);
+    let mut snap = |v: &mut f64, travel: f64| {
+        let to = if (-TRAVEL_SNAP_MM..0.0).contains(v) { 0.0 } else if *v > travel && *v <= travel + TRAVEL_SNAP_MM { travel } else { return };
+        most = most.max((*v - to).abs());
+        count += 1;
+        *v = to;
+    };
+    for p in job.geometries.iter_mut().flat_map(|g| g.points.iter_mut()) {
+        snap(&mut p.x, config.stage.travel_x);
+        snap(&mut p.y, config.stage.travel_y);
+    }
+    if count > 0 {
+        tracing::info!("{}: {count} coordinate(s) within {TRAVEL_SNAP_MM} mm outside the travel put on its edge (moved at most {most:.1e} mm)", job.source);
+    }
 }
 
 /// Moves the job where `[job] anchor` (`--place`) puts it, saying so.
@@ -266,5 +292,20 @@ mod tests {
         for bad in ["", "left", "1,", "nan,1", "1e9,0"] {
             assert!(bad.parse::<Anchor>().unwrap_err().contains("no placement"), "{bad}");
         }
+    }
+
+    #[test]
+    fn an_outline_on_the_origin_computed_a_rounding_below_zero_is_put_on_it() {
+        // usvg's f32 arithmetic puts this rectangle's left edge at about
+        // -2e-6 mm; planning refused it as outside the machine's reach.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("edge.svg");
+        std::fs::write(&path, r#"<svg xmlns="http://www.w3.org/2000/svg" width="300mm" height="300mm" viewBox="0 0 300 300"><g transform="translate(47.11 47.11)"><rect x="-47.11" y="-47.11" width="100" height="100" fill="none" stroke="black"/></g></svg>"#).unwrap();
+        let job = import_job(&path, &config()).unwrap();
+        let (lo, _) = job.bounds();
+        assert_eq!(lo.x, 0.0, "on the edge, not below it");
+        // Beyond the snap it stays where it is (and planning names it).
+        std::fs::write(&path, r#"<svg xmlns="http://www.w3.org/2000/svg" width="300mm" height="300mm" viewBox="0 0 300 300"><rect x="-0.01" y="10" width="100" height="100" fill="none" stroke="black"/></svg>"#).unwrap();
+        assert!(import_job(&path, &config()).unwrap().bounds().0.x < -0.009);
     }
 }
