@@ -26,9 +26,11 @@ use std::collections::HashMap;
 
 use dxf::entities::{Entity, EntityType};
 use dxf::enums::Units;
+use kurbo::Affine;
 
 use crate::config::{parse_hex_colour, DrawingUnit, MachineConfig};
 use crate::error::{Error, Result};
+use super::MAX_COORD_MM;
 use crate::job::{Geometry, Job, Point};
 
 /// Ends of open pieces closer than this (mm) are joined.
@@ -40,8 +42,6 @@ const ALMOST_CLOSED_MM: f64 = 0.5;
 /// Most levels of blocks inserted in blocks.
 const MAX_DEPTH: usize = 32;
 
-/// Largest coordinate accepted (mm), as for SVG.
-const MAX_COORD_MM: f64 = 1e6;
 
 /// Highest spline degree accepted (CAD programs write 2, 3 and 5).
 const MAX_SPLINE_DEGREE: i32 = 7;
@@ -70,7 +70,6 @@ pub fn import_dxf(bytes: &[u8], source: &str, config: &MachineConfig) -> Result<
         config,
         blocks,
         layer_colours,
-        tolerance: config.import.tolerance,
         pieces: Vec::new(),
         elements: 0,
         points: 0,
@@ -78,7 +77,7 @@ pub fn import_dxf(bytes: &[u8], source: &str, config: &MachineConfig) -> Result<
         ignored_points: 0,
         top: String::new(),
     };
-    let top = Affine::scale(mm, mm);
+    let top = Affine::scale(mm);
     let entities: Vec<&Entity> = drawing.entities().collect();
     reader.entities(&entities, &top, &mut Vec::new(), None)?;
     for (kind, count, handle) in &reader.skipped {
@@ -150,53 +149,26 @@ fn unit_mm(units: Units) -> Option<f64> {
     })
 }
 
-/// A 2D affine map p ↦ M·p + t (M = [a b; c d]).
-#[derive(Debug, Clone, Copy)]
-struct Affine {
-    a: f64,
-    b: f64,
-    c: f64,
-    d: f64,
-    tx: f64,
-    ty: f64,
+/// `map` applied to (x, y) of the drawing: a point in machine mm.
+fn apply(map: &Affine, x: f64, y: f64) -> Point {
+    let p = *map * kurbo::Point::new(x, y);
+    Point::new(p.x, p.y)
 }
 
-impl Affine {
-    fn scale(sx: f64, sy: f64) -> Affine {
-        Affine { a: sx, b: 0.0, c: 0.0, d: sy, tx: 0.0, ty: 0.0 }
-    }
-
-    fn translate(x: f64, y: f64) -> Affine {
-        Affine { a: 1.0, b: 0.0, c: 0.0, d: 1.0, tx: x, ty: y }
-    }
-
-    fn rotate(degrees: f64) -> Affine {
-        let (s, c) = degrees.to_radians().sin_cos();
-        Affine { a: c, b: -s, c: s, d: c, tx: 0.0, ty: 0.0 }
-    }
-
-    /// self ∘ other: `other` first.
-    fn then(&self, other: &Affine) -> Affine {
-        Affine {
-            a: self.a * other.a + self.b * other.c,
-            b: self.a * other.b + self.b * other.d,
-            c: self.c * other.a + self.d * other.c,
-            d: self.c * other.b + self.d * other.d,
-            tx: self.a * other.tx + self.b * other.ty + self.tx,
-            ty: self.c * other.tx + self.d * other.ty + self.ty,
-        }
-    }
-
-    fn apply(&self, x: f64, y: f64) -> Point {
-        Point::new(self.a * x + self.b * y + self.tx, self.c * x + self.d * y + self.ty)
-    }
-
-    /// An upper bound of how much the map stretches a length (the
-    /// Frobenius norm of M).
-    fn stretch(&self) -> f64 {
-        (self.a * self.a + self.b * self.b + self.c * self.c + self.d * self.d).sqrt()
-    }
+/// An upper bound of how much `map` stretches a length (the Frobenius norm
+/// of its linear part).
+fn stretch(map: &Affine) -> f64 {
+    map.as_coeffs()[..4].iter().map(|c| c * c).sum::<f64>().sqrt()
 }
+
+/// Whether an entity with this extrusion direction lies in the XY plane
+/// mirrored (-Z: its object coordinates mirrored in X); None out of the plane.
+fn mirrored(normal: &dxf::Vector) -> Option<bool> {
+    (normal.x.abs() <= 1e-9 && normal.y.abs() <= 1e-9 && normal.z != 0.0).then_some(normal.z < 0.0)
+}
+
+/// The mirror of a -Z extrusion, in object coordinates.
+const MIRROR_X: Affine = Affine::scale_non_uniform(-1.0, 1.0);
 
 /// An open or closed polyline read from the file, in machine mm, with its
 /// layer (index into the config's layers) and where it came from.
@@ -213,7 +185,6 @@ struct Reader<'a> {
     blocks: HashMap<String, &'a dxf::Block>,
     /// Each layer's ACI colour (for entities coloured BYLAYER).
     layer_colours: HashMap<String, Option<u8>>,
-    tolerance: f64,
     pieces: Vec<Piece>,
     elements: u64,
     points: u64,
@@ -260,34 +231,31 @@ impl<'a> Reader<'a> {
         let own_layer = e.common.layer.as_str();
         let colour = Colour {
             index: if e.common.color.is_index() { e.common.color.index() } else { None },
-            rgb: u32::try_from(e.common.color_24_bit).ok().filter(|&c| c > 0 && e.common.color_24_bit >= 0).map(|c| c & 0xff_ffff),
+            rgb: u32::try_from(e.common.color_24_bit).ok().filter(|&c| c > 0).map(|c| c & 0xff_ffff),
         };
         let by_layer = e.common.color.is_by_layer() || e.common.color.is_by_block();
         let (layer_name, colour) = match inherited {
             Some((l, c)) if own_layer == "0" => (l, if by_layer { c } else { colour }),
             _ => (own_layer, if by_layer && colour.rgb.is_none() { Colour { index: self.layer_colours.get(&own_layer.to_uppercase()).copied().flatten(), rgb: None } } else { colour }),
         };
-        let ocs_flip = |normal: &dxf::Vector| -> Result<bool> {
-            if normal.x.abs() > 1e-9 || normal.y.abs() > 1e-9 || normal.z == 0.0 {
-                Err(Error::Import(format!("{}: {} is not in the XY plane (its extrusion is {:.3},{:.3},{:.3})", self.source, name("entity"), normal.x, normal.y, normal.z)))
-            } else {
-                Ok(normal.z < 0.0)
-            }
+        // The map of the entity's object coordinates.
+        let ocs = |normal: &dxf::Vector| match mirrored(normal) {
+            Some(true) => Ok(*map * MIRROR_X),
+            Some(false) => Ok(*map),
+            None => Err(Error::Import(format!("{}: {} is not in the XY plane (its extrusion is {:.3},{:.3},{:.3})", self.source, name("entity"), normal.x, normal.y, normal.z))),
         };
-        // An entity whose extrusion is -Z has its object coordinates mirrored in X.
-        let ocs = |flip: bool| if flip { map.then(&Affine::scale(-1.0, 1.0)) } else { *map };
         match &e.specific {
             EntityType::Line(l) => {
-                let pts = vec![map.apply(l.p1.x, l.p1.y), map.apply(l.p2.x, l.p2.y)];
+                let pts = vec![apply(map, l.p1.x, l.p1.y), apply(map, l.p2.x, l.p2.y)];
                 self.push(pts, false, layer_name, colour, name("LINE"))?;
             }
             EntityType::Circle(c) => {
-                let m = ocs(ocs_flip(&c.normal)?);
+                let m = ocs(&c.normal)?;
                 let pts = self.arc_points(&m, (c.center.x, c.center.y), c.radius, 0.0, std::f64::consts::TAU, &name("CIRCLE"))?;
                 self.push(pts, true, layer_name, colour, name("CIRCLE"))?;
             }
             EntityType::Arc(a) => {
-                let m = ocs(ocs_flip(&a.normal)?);
+                let m = ocs(&a.normal)?;
                 let start = a.start_angle.to_radians();
                 let mut sweep = (a.end_angle - a.start_angle).rem_euclid(360.0).to_radians();
                 if sweep == 0.0 {
@@ -297,7 +265,7 @@ impl<'a> Reader<'a> {
                 self.push(pts, false, layer_name, colour, name("ARC"))?;
             }
             EntityType::LwPolyline(p) => {
-                let m = ocs(ocs_flip(&p.extrusion_direction)?);
+                let m = ocs(&p.extrusion_direction)?;
                 let vertices: Vec<(f64, f64, f64)> = p.vertices.iter().map(|v| (v.x, v.y, v.bulge)).collect();
                 let closed = p.flags & 1 != 0;
                 let pts = self.bulged(&m, &vertices, closed, &name("LWPOLYLINE"))?;
@@ -309,7 +277,7 @@ impl<'a> Reader<'a> {
                     self.skip("POLYLINE mesh", &handle);
                     return Ok(());
                 }
-                let m = if p.flags & 8 != 0 { *map } else { ocs(ocs_flip(&p.normal)?) };
+                let m = if p.flags & 8 != 0 { *map } else { ocs(&p.normal)? };
                 // Spline-fit control frames (vertex flag 16) are not on the curve.
                 let vertices: Vec<(f64, f64, f64)> = p.vertices().filter(|v| v.flags & 16 == 0).map(|v| (v.location.x, v.location.y, v.bulge)).collect();
                 let closed = p.flags & 1 != 0;
@@ -357,28 +325,28 @@ impl<'a> Reader<'a> {
         if inserting.len() >= MAX_DEPTH {
             return Err(Error::Import(format!("{}: blocks nested more than {MAX_DEPTH} deep at INSERT (handle {handle})", self.source)));
         }
-        if ins.extrusion_direction.x.abs() > 1e-9 || ins.extrusion_direction.y.abs() > 1e-9 || ins.extrusion_direction.z == 0.0 {
+        let Some(mirror) = mirrored(&ins.extrusion_direction) else {
             return Err(Error::Import(format!("{}: INSERT (handle {handle}) is not in the XY plane", self.source)));
-        }
+        };
         for (what, v) in [("x scale", ins.x_scale_factor), ("y scale", ins.y_scale_factor), ("rotation", ins.rotation), ("column spacing", ins.column_spacing), ("row spacing", ins.row_spacing)] {
             if !v.is_finite() || v.abs() > MAX_COORD_MM {
                 return Err(Error::Import(format!("{}: INSERT (handle {handle}): {what} {v} is out of range", self.source)));
             }
         }
         let (columns, rows) = (ins.column_count.max(1) as usize, ins.row_count.max(1) as usize);
-        let flip = if ins.extrusion_direction.z < 0.0 { Affine::scale(-1.0, 1.0) } else { Affine::scale(1.0, 1.0) };
+        let flip = if mirror { MIRROR_X } else { Affine::IDENTITY };
         let entities: Vec<&'a Entity> = block.entities.iter().collect();
         inserting.push(key);
         for row in 0..rows {
             for column in 0..columns {
                 // Array offsets are in the insert's rotated frame, unscaled.
-                let place = map
-                    .then(&flip)
-                    .then(&Affine::translate(ins.location.x, ins.location.y))
-                    .then(&Affine::rotate(ins.rotation))
-                    .then(&Affine::translate(column as f64 * ins.column_spacing, row as f64 * ins.row_spacing))
-                    .then(&Affine::scale(ins.x_scale_factor, ins.y_scale_factor))
-                    .then(&Affine::translate(-block.base_point.x, -block.base_point.y));
+                let place = *map
+                    * flip
+                    * Affine::translate((ins.location.x, ins.location.y))
+                    * Affine::rotate(ins.rotation.to_radians())
+                    * Affine::translate((column as f64 * ins.column_spacing, row as f64 * ins.row_spacing))
+                    * Affine::scale_non_uniform(ins.x_scale_factor, ins.y_scale_factor)
+                    * Affine::translate((-block.base_point.x, -block.base_point.y));
                 self.entities(&entities, &place, inserting, Some(layer))?;
             }
         }
@@ -388,7 +356,7 @@ impl<'a> Reader<'a> {
 
     /// The tolerance in the entity's own units under `map`.
     fn local_tolerance(&self, map: &Affine) -> f64 {
-        self.tolerance / map.stretch().max(1e-12)
+        self.config.import.tolerance / stretch(map).max(1e-12)
     }
 
     /// Checks a count of points against the import's cap before they are made.
@@ -410,15 +378,12 @@ impl<'a> Reader<'a> {
             return Err(Error::Import(format!("{}: {what} has a coordinate that is not a number or out of range", self.source)));
         }
         let radius = radius.abs();
-        let tol = self.local_tolerance(map).min(radius);
-        // The sagitta of a chord over angle φ is r·(1 − cos(φ/2)).
-        let step = if radius > 0.0 { 2.0 * (1.0 - tol / radius).clamp(-1.0, 1.0).acos() } else { sweep.abs() };
-        let n = (sweep.abs() / step.max(1e-9)).ceil().max(1.0);
+        let n = super::arc_segments(radius, sweep, self.local_tolerance(map));
         let n = self.room_for(n + 1.0, what)? - 1;
         Ok((0..=n)
             .map(|k| {
                 let a = start + sweep * k as f64 / n as f64;
-                map.apply(centre.0 + radius * a.cos(), centre.1 + radius * a.sin())
+                apply(map, centre.0 + radius * a.cos(), centre.1 + radius * a.sin())
             })
             .collect())
     }
@@ -433,7 +398,7 @@ impl<'a> Reader<'a> {
         let segments = if closed { n } else { n.saturating_sub(1) };
         let mut out = Vec::with_capacity(n + 1);
         if let Some(&(x, y, _)) = vertices.first() {
-            out.push(map.apply(x, y));
+            out.push(apply(map, x, y));
         }
         self.room_for(n as f64, what)?;
         for i in 0..segments {
@@ -441,7 +406,7 @@ impl<'a> Reader<'a> {
             let (x1, y1, _) = vertices[(i + 1) % n];
             let chord = ((x1 - x0).powi(2) + (y1 - y0).powi(2)).sqrt();
             if bulge.abs() < 1e-12 || chord == 0.0 {
-                out.push(map.apply(x1, y1));
+                out.push(apply(map, x1, y1));
                 continue;
             }
             let sweep = 4.0 * bulge.atan();
@@ -481,7 +446,7 @@ impl<'a> Reader<'a> {
             .map(|k| {
                 let t = el.start_parameter + sweep * k as f64 / n as f64;
                 let (c, s) = (t.cos(), t.sin());
-                map.apply(cx + mx * c + nx * s, cy + my * c + ny * s)
+                apply(map, cx + mx * c + nx * s, cy + my * c + ny * s)
             })
             .collect())
     }
@@ -497,7 +462,7 @@ impl<'a> Reader<'a> {
                 return Err(Error::Import(format!("{}: {what} has neither control points nor fit points", self.source)));
             }
             tracing::warn!("{}: {what} has fit points only: marked as the polyline through them", self.source);
-            let pts: Vec<Point> = s.fit_points.iter().map(|p| map.apply(p.x, p.y)).collect();
+            let pts: Vec<Point> = s.fit_points.iter().map(|p| apply(map, p.x, p.y)).collect();
             self.room_for(pts.len() as f64, what)?;
             return Ok((pts, closed));
         }
@@ -539,7 +504,7 @@ impl<'a> Reader<'a> {
             for k in first..=n {
                 let u = u0 + (u1 - u0) * k as f64 / n as f64;
                 let (x, y) = de_boor(span, u, p, knots, &control, &weights);
-                pts.push(map.apply(x, y));
+                pts.push(apply(map, x, y));
             }
         }
         Ok((pts, closed))

@@ -14,14 +14,13 @@
 
 use crate::config::MachineConfig;
 use crate::error::{Error, Result};
+use super::MAX_COORD_MM;
 use crate::job::{Geometry, Job, Point, Process};
 
 /// Grbl's error 33 case: an arc whose end is not on its circle, by more
 /// than this (mm) and this share of the radius.
 const ARC_END_MM: f64 = 0.005;
 const ARC_END_SHARE: f64 = 0.001;
-
-const MAX_COORD_MM: f64 = 1e6;
 
 /// Extensions of G-code files, as CAM tools and senders write them.
 pub const GCODE_EXTENSIONS: [&str; 6] = ["nc", "gcode", "ngc", "gc", "g", "tap"];
@@ -116,12 +115,9 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
                 'J' => j = Some(v),
                 'R' => r = Some(v),
                 'N' | 'P' => {}
-                'Z' | 'A' | 'B' | 'C' | 'U' | 'V' | 'W' | 'K' => {
-                    if w.letter == 'Z' || w.letter == 'K' {
-                        continue;
-                    }
-                    return Err(at(format!("axis {} is not one of a laser's X and Y", w.letter)));
-                }
+                // Z (focus height) and K (the arc centre's Z) move nothing in the plane.
+                'Z' | 'K' => {}
+                'A' | 'B' | 'C' | 'U' | 'V' | 'W' => return Err(at(format!("axis {} is not one of a laser's X and Y", w.letter))),
                 other => return Err(at(format!("word {other} is not one laserd reads in a job"))),
             }
         }
@@ -232,8 +228,7 @@ fn arc(from: Point, to: Point, clockwise: bool, i: Option<f64>, j: Option<f64>, 
     if sweep.abs() < 1e-12 {
         sweep = if clockwise { -tau } else { tau };
     }
-    let step = if r0 > tolerance { 2.0 * (1.0 - tolerance / r0).acos() } else { sweep.abs() };
-    let n = (sweep.abs() / step.max(1e-6)).ceil().clamp(1.0, 1e6) as usize;
+    let n = super::arc_segments(r0, sweep, tolerance).min(1e6) as usize;
     let mut out: Vec<Point> = (1..n).map(|k| centre + nalgebra::Vector2::new((a0 + sweep * k as f64 / n as f64).cos(), (a0 + sweep * k as f64 / n as f64).sin()) * r0).collect();
     out.push(to);
     Ok(out)

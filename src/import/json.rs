@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{MachineConfig, PASSES, VELOCITY};
 use crate::error::{Error, Result};
+use super::MAX_COORD_MM;
 use crate::job::{Geometry, Job, Point, Process};
 
 /// The `format` a job file carries.
@@ -18,8 +19,6 @@ pub const FORMAT: &str = "laserd-job";
 /// The version this build writes and reads.
 pub const VERSION: u32 = 1;
 
-/// Largest coordinate accepted (mm), as for the drawing formats.
-const MAX_COORD_MM: f64 = 1e6;
 
 /// A job file.
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]

@@ -91,6 +91,11 @@ fn import_as_drawn(path: &Path, config: &MachineConfig) -> Result<Job> {
     }
 }
 
+/// Largest coordinate accepted (mm), in every format. No machine has a
+/// kilometre of travel, and a curve that large would be flattened into
+/// billions of segments at a 0.01 mm tolerance.
+pub(crate) const MAX_COORD_MM: f64 = 1e6;
+
 /// Points closer than this (mm) count as the same point.
 const SAME_POINT_MM: f64 = 1e-9;
 
@@ -115,6 +120,15 @@ pub(crate) fn clean_polyline(points: Vec<Point>, mut closed: bool) -> Option<(Ve
         closed = false;
     }
     Some((out, closed))
+}
+
+/// Segments of an arc of `radius` over `sweep` (radians) whose chords stay
+/// within `tolerance` of it: a chord over angle φ lies r·(1 − cos(φ/2))
+/// inside the arc. At least one; two or more for a full circle.
+pub(crate) fn arc_segments(radius: f64, sweep: f64, tolerance: f64) -> f64 {
+    let tolerance = tolerance.min(radius);
+    let step = if radius > 0.0 { 2.0 * (1.0 - tolerance / radius).clamp(-1.0, 1.0).acos() } else { sweep.abs() };
+    (sweep.abs() / step.max(1e-9)).ceil().max(1.0)
 }
 
 /// The job of `geometries` whose `process` is still an index into the

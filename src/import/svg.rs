@@ -19,9 +19,7 @@ use crate::config::{parse_hex_colour, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{Geometry, Job, Point};
 
-/// Largest coordinate accepted (mm). No machine has a kilometre of travel, and a curve
-/// that large would be flattened into billions of segments at a 0.01 mm tolerance.
-const MAX_COORD_MM: f64 = 1e6;
+use super::MAX_COORD_MM;
 
 /// Largest number in a geometry attribute (user units). Far beyond any
 /// drawing's need (1e9 µm is 1 km), far below where usvg's f32 arithmetic
