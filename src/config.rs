@@ -251,6 +251,9 @@ pub struct MachineConfig {
     pub service: ServiceConfig,
     #[serde(default)]
     pub job: JobConfig,
+    /// The plate on the machine; none: parts are planned as if in empty space.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plate: Option<PlateConfig>,
     pub default_layer: String,
     #[serde(rename = "layer")]
     pub layers: Vec<LayerConfig>,
@@ -421,6 +424,127 @@ pub struct ImportConfig {
     /// none: the header's `$INSUNITS` (mm when it names none).
     #[serde(default)]
     pub units: Option<DrawingUnit>,
+}
+
+/// The plate on the machine (`[plate]`, seed 000's "removing complexity"):
+/// its rectangle, the skeleton and remnant cuts made in it besides the parts,
+/// and the clamps that hold it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PlateConfig {
+    /// The plate's lower-left corner on the machine, mm.
+    #[serde(default)]
+    pub x: f64,
+    #[serde(default)]
+    pub y: f64,
+    pub width: f64,
+    pub height: f64,
+    /// Thickness, mm.
+    #[serde(default = "default_plate_thickness")]
+    pub thickness: f64,
+    /// The skeleton (the waste left around the parts) is cut into pieces no
+    /// larger than this on a side, mm; 0: left whole.
+    #[serde(default)]
+    pub skeleton_piece: f64,
+    /// The remnant to keep, cut off the skeleton: "none", "auto" (the largest
+    /// free rectangle at a corner of the plate whose sides are both at least
+    /// `remnant_min`), or [x, y, width, height] in mm.
+    #[serde(default)]
+    #[schemars(with = "serde_json::Value")]
+    pub remnant: RemnantSetting,
+    /// The smallest side of a remnant worth keeping ("auto"), mm.
+    #[serde(default = "default_remnant_min")]
+    pub remnant_min: f64,
+    /// What skeleton and remnant cuts keep clear of the parts, mm.
+    #[serde(default = "default_plate_clearance")]
+    pub clearance: f64,
+    /// Skeleton and remnant cuts "in-route" (planned with the parts, seed
+    /// 000) or "after" the parts.
+    #[serde(default)]
+    #[schemars(with = "String")]
+    pub scrap_cuts: ScrapCuts,
+    /// The layer that cuts skeleton and remnant; default: the first layer
+    /// that pierces.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub layer: Option<String>,
+    /// Clamps holding the plate: the pieces of skeleton they touch never move.
+    #[serde(default, rename = "clamp")]
+    pub clamps: Vec<ClampConfig>,
+}
+
+fn default_plate_thickness() -> f64 {
+    1.0
+}
+
+fn default_remnant_min() -> f64 {
+    100.0
+}
+
+fn default_plate_clearance() -> f64 {
+    3.0
+}
+
+/// `[plate] remnant`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(try_from = "toml::Value", into = "toml::Value")]
+pub enum RemnantSetting {
+    #[default]
+    None,
+    Auto,
+    /// x, y, width, height (mm).
+    At([f64; 4]),
+}
+
+impl TryFrom<toml::Value> for RemnantSetting {
+    type Error = String;
+    fn try_from(v: toml::Value) -> std::result::Result<Self, String> {
+        let bad = || format!("'{v}' is no remnant: \"none\", \"auto\" or [x, y, width, height] in mm");
+        match &v {
+            toml::Value::String(s) if s == "none" => Ok(RemnantSetting::None),
+            toml::Value::String(s) if s == "auto" => Ok(RemnantSetting::Auto),
+            toml::Value::Array(a) if a.len() == 4 => {
+                let mut r = [0.0; 4];
+                for (x, item) in r.iter_mut().zip(a) {
+                    *x = item.as_float().or_else(|| item.as_integer().map(|i| i as f64)).ok_or_else(bad)?;
+                }
+                Ok(RemnantSetting::At(r))
+            }
+            _ => Err(bad()),
+        }
+    }
+}
+
+impl From<RemnantSetting> for toml::Value {
+    fn from(r: RemnantSetting) -> toml::Value {
+        match r {
+            RemnantSetting::None => "none".into(),
+            RemnantSetting::Auto => "auto".into(),
+            RemnantSetting::At(a) => toml::Value::Array(a.iter().map(|&x| toml::Value::Float(x)).collect()),
+        }
+    }
+}
+
+/// `[plate] scrap_cuts`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ScrapCuts {
+    #[default]
+    InRoute,
+    After,
+}
+
+/// A clamp (`[[plate.clamp]]`): where it holds the plate, and how far it reaches.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ClampConfig {
+    pub x: f64,
+    pub y: f64,
+    #[serde(default = "default_clamp_radius")]
+    pub radius: f64,
+}
+
+fn default_clamp_radius() -> f64 {
+    10.0
 }
 
 /// Where a job goes on the machine.
@@ -1013,6 +1137,9 @@ impl MachineConfig {
         in_range("service.keep_jobs", self.service.keep_jobs, 0, 1_000_000, "jobs")?;
         in_range("service.plan_timeout", self.service.plan_timeout, 1.0, 86_400.0, "s")?;
         in_range("service.plan_memory_mb", self.service.plan_memory_mb, 256.0, 1_048_576.0, "MB")?;
+        if let Some(plate) = &self.plate {
+            self.validate_plate(plate)?;
+        }
         if let Some(folder) = self.service.job_folders.iter().find(|f| !Path::new(f).is_absolute()) {
             return Err(format!("service.job_folders: {folder:?} is not an absolute path"));
         }
@@ -1102,6 +1229,50 @@ impl MachineConfig {
             .or(l.map(|l| l.power))
             .unwrap_or(self.laser.max_power);
         Pierce { power, time }
+    }
+
+    fn validate_plate(&self, p: &PlateConfig) -> std::result::Result<(), String> {
+        let place = |name: &str, v: f64| in_range(name, v, -TRAVEL.hi, TRAVEL.hi, TRAVEL.unit);
+        place("plate.x", p.x)?;
+        place("plate.y", p.y)?;
+        TRAVEL.check("plate.width", p.width)?;
+        TRAVEL.check("plate.height", p.height)?;
+        in_range("plate.thickness", p.thickness, 0.01, 500.0, "mm")?;
+        if p.skeleton_piece != 0.0 {
+            in_range("plate.skeleton_piece", p.skeleton_piece, 10.0, TRAVEL.hi, "mm (0: the skeleton left whole)")?;
+        }
+        in_range("plate.remnant_min", p.remnant_min, 1.0, TRAVEL.hi, TRAVEL.unit)?;
+        in_range("plate.clearance", p.clearance, 0.0, 100.0, "mm")?;
+        if let RemnantSetting::At([x, y, w, h]) = p.remnant {
+            place("plate.remnant x", x)?;
+            place("plate.remnant y", y)?;
+            TRAVEL.check("plate.remnant width", w)?;
+            TRAVEL.check("plate.remnant height", h)?;
+        }
+        in_range("plate.clamp count", p.clamps.len(), 0, 256, "clamps")?;
+        for (i, c) in p.clamps.iter().enumerate() {
+            place(&format!("plate.clamp[{i}].x"), c.x)?;
+            place(&format!("plate.clamp[{i}].y"), c.y)?;
+            in_range(&format!("plate.clamp[{i}].radius"), c.radius, 0.1, 1000.0, "mm")?;
+        }
+        if let Some(layer) = &p.layer {
+            if !self.layers.iter().any(|l| &l.name == layer) {
+                return Err(format!("plate.layer: no [[layer]] is named '{layer}'"));
+            }
+            if !self.pierce(layer).active() {
+                return Err(format!("plate.layer: layer '{layer}' does not pierce (pierce_time 0), so it cuts nothing through"));
+            }
+        } else if !self.layers.iter().any(|l| self.pierce(&l.name).active()) {
+            return Err("plate: no layer pierces, so nothing cuts the plate; set a layer's pierce_time".into());
+        }
+        Ok(())
+    }
+
+    /// The layer that cuts the plate's skeleton and remnant: `[plate] layer`,
+    /// else the first layer that pierces.
+    pub fn plate_layer(&self) -> Option<&str> {
+        let plate = self.plate.as_ref()?;
+        plate.layer.as_deref().or_else(|| self.layers.iter().map(|l| l.name.as_str()).find(|l| self.pierce(l).active()))
     }
 
     /// Index of the default layer in `layers` (validated to exist).

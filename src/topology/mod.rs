@@ -30,6 +30,7 @@
 mod common_cuts;
 mod containment;
 mod contours;
+pub mod plate;
 #[cfg(test)]
 pub(crate) mod tests;
 
