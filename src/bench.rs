@@ -229,6 +229,121 @@ pub struct SheetBench {
     pub svg: Option<String>,
 }
 
+/// `bench plate`: a generated sheet with parts on the plate's edge (no
+/// margin), planned (and its motion built) four ways: as if in empty space,
+/// on its plate, and on its plate with skeleton, remnant and clamps, their
+/// cuts in the parts' route and after the parts.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct PlateBench {
+    pub seed: u64,
+    pub width_mm: f64,
+    pub height_mm: f64,
+    pub geometries: usize,
+    /// No `[plate]`: every outline cut, every cut pierced.
+    pub free: PlateRun,
+    /// The plate alone: outlines on its edge not cut, cuts from the edge not pierced.
+    pub on_plate: PlateRun,
+    /// free's cut length minus on_plate's, against what the planner says lay on the edge.
+    pub cut_length_drop_mm: f64,
+    /// Skeleton cut into pieces of `skeleton_piece_mm` at most, the remnant
+    /// ("auto") cut off, clamps at the plate's left edge; their cuts in the route.
+    pub skeleton_piece_mm: f64,
+    pub scrap_in_route: PlateRun,
+    /// The same cuts after the parts.
+    pub scrap_after: PlateRun,
+    /// scrap_in_route's machine time over scrap_after's.
+    pub in_route_vs_after: f64,
+}
+
+/// One plan of `bench plate`, from its report.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct PlateRun {
+    pub pierces: usize,
+    /// Cuts that start on the plate's edge, without a pierce.
+    pub edge_starts: usize,
+    pub cut_length_mm: f64,
+    pub idle_stroke_mm: f64,
+    pub trajectory_time_s: f64,
+    pub precedence_violations: Option<u64>,
+    pub edge_length_saved_mm: Option<f64>,
+    pub skeleton_cuts: Option<usize>,
+    pub remnant_cuts: Option<usize>,
+}
+
+pub fn plate_bench(machine: &MachineConfig, elements: usize, seed: u64, skeleton_piece: f64, svg_out: Option<&std::path::Path>) -> Result<PlateBench> {
+    use crate::config::{ClampConfig, PlateConfig, RemnantSetting, ScrapCuts};
+    use crate::gen::sheet;
+    let params = sheet::SheetParams { margin: 0.0, ..sheet::SheetParams::with_target(elements) };
+    let generated = sheet::generate_sheet(&params, seed);
+    let path = match svg_out {
+        Some(p) => p.to_path_buf(),
+        None => std::env::temp_dir().join(format!("laserd-plate-{}-{elements}-{seed}.svg", std::process::id())),
+    };
+    std::fs::write(&path, sheet::to_svg(&generated, &params)).map_err(|e| Error::Io(format!("{}: cannot write: {e}", path.display())))?;
+    let base = flatbed_for(machine, params.width, params.height);
+    let plate = PlateConfig {
+        x: 0.0,
+        y: 0.0,
+        width: params.width,
+        height: params.height,
+        thickness: 2.0,
+        skeleton_piece: 0.0,
+        remnant: RemnantSetting::None,
+        remnant_min: 100.0,
+        clearance: 3.0,
+        scrap_cuts: ScrapCuts::InRoute,
+        layer: None,
+        clamps: Vec::new(),
+    };
+    let scrap = PlateConfig {
+        skeleton_piece,
+        remnant: RemnantSetting::Auto,
+        clamps: vec![ClampConfig { x: 0.0, y: 0.25 * params.height, radius: 10.0 }, ClampConfig { x: 0.0, y: 0.75 * params.height, radius: 10.0 }],
+        ..plate.clone()
+    };
+    let run = |plate: Option<PlateConfig>| -> Result<(PlateRun, usize)> {
+        let machine = MachineConfig { plate: plate.clone(), ..base.clone() };
+        machine.clone().checked("bench plate")?;
+        let planned = crate::run::plan(&path, &machine, crate::plan::PlannerKind::Auto, Some(crate::mode::Mode::StageOnly))?;
+        let r = &planned.report;
+        let run = PlateRun {
+            pierces: r.pierces,
+            edge_starts: r.edge_starts.unwrap_or(0),
+            cut_length_mm: r.cut_length_mm,
+            idle_stroke_mm: r.idle_stroke_mm,
+            trajectory_time_s: r.trajectory_time_s,
+            precedence_violations: r.precedence_violations,
+            edge_length_saved_mm: r.edge_length_saved_mm,
+            skeleton_cuts: r.skeleton_cuts,
+            remnant_cuts: r.remnant_cuts,
+        };
+        Ok((run, r.geometries))
+    };
+    let result = (|| {
+        let (free, geometries) = run(None)?;
+        let (on_plate, _) = run(Some(plate.clone()))?;
+        let (scrap_in_route, _) = run(Some(scrap.clone()))?;
+        let (scrap_after, _) = run(Some(PlateConfig { scrap_cuts: ScrapCuts::After, ..scrap.clone() }))?;
+        Ok(PlateBench {
+            seed,
+            width_mm: params.width,
+            height_mm: params.height,
+            geometries,
+            cut_length_drop_mm: free.cut_length_mm - on_plate.cut_length_mm,
+            in_route_vs_after: scrap_in_route.trajectory_time_s / scrap_after.trajectory_time_s,
+            skeleton_piece_mm: skeleton_piece,
+            free,
+            on_plate,
+            scrap_in_route,
+            scrap_after,
+        })
+    })();
+    if svg_out.is_none() {
+        let _ = std::fs::remove_file(&path);
+    }
+    result
+}
+
 /// The machine a sheet is cut on: `machine` as a flatbed cutter (no
 /// scanner) whose travel covers the sheet.
 pub fn flatbed_for(machine: &MachineConfig, width: f64, height: f64) -> MachineConfig {
@@ -263,7 +378,7 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
     if svg_out.is_none() {
         let _ = std::fs::remove_file(&path);
     }
-    let ctx = PlanContext { machine: &machine, mode: crate::mode::Mode::StageOnly, start: crate::run::job_start() };
+    let ctx = PlanContext { machine: &machine, mode: crate::mode::Mode::StageOnly, start: crate::run::job_start(), plate: None };
     let timed = |f: &mut dyn FnMut() -> Result<(Sequence, usize)>| -> Result<SheetOrder> {
         let started = std::time::Instant::now();
         let (sequence, precedence_violations) = f()?;
@@ -285,7 +400,7 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
             let paths = model
                 .polylines(&route)
                 .into_iter()
-                .map(|(geometry, points)| PlannedPath { geometry, points, process: job.geometries[geometry].process })
+                .map(|l| PlannedPath { geometry: l.geometry, process: job.geometries[l.geometry].process, points: l.points, pierce: l.pierce })
                 .collect();
             Ok((Sequence { groups: vec![PathGroup { field_center: None, paths }] }, checker::check(&model.instance, &route).len()))
         })
@@ -395,7 +510,7 @@ pub fn galvo_bench(machine: &MachineConfig, dir: &std::path::Path, kind: crate::
         };
         for &seed in seeds {
             machine.galvo.seed = seed;
-            let ctx = PlanContext { machine: &machine, mode: crate::mode::Mode::StepAndScan, start: crate::run::job_start() };
+            let ctx = PlanContext { machine: &machine, mode: crate::mode::Mode::StepAndScan, start: crate::run::job_start(), plate: None };
             let started = std::time::Instant::now();
             let (sequence, stopped_by) = match kind {
                 PlannerKind::Hha | PlannerKind::Hga => crate::plan::galvo::plan_galvo(&job, &ctx, kind == PlannerKind::Hga)?,

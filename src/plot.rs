@@ -210,7 +210,7 @@ mod tests {
             <rect x="120" y="250" width="5" height="5" stroke="black" fill="none"/>
             <line x1="20" y1="12" x2="30" y2="12" stroke="black"/></svg>"#;
         let job = crate::import::svg::import_svg(text, "t.svg", &machine).unwrap();
-        let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin() };
+        let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin(), plate: None };
         let sequence = planner(PlannerKind::Hha).plan(&job, &ctx).unwrap();
         let trajectory = crate::motion::build(&job, &sequence, &machine, Mode::StepAndScan, Point::origin()).unwrap();
         let svg = plot(&job, &sequence, &trajectory, &machine);

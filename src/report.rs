@@ -40,6 +40,25 @@ pub struct PlanReport {
     /// be built. `plan`, `dry-run` and the service refuse an order with any
     /// unless overridden.
     pub precedence_violations: Option<u64>,
+    /// Paths that start with a pierce, on layers that pierce (a cut that
+    /// starts where the one before ended, or on the plate's edge, does not).
+    #[serde(default)]
+    pub pierces: usize,
+    /// Length cut on layers that pierce, every pass counted, mm.
+    #[serde(default)]
+    pub cut_length_mm: f64,
+    /// With a `[plate]`: the length of the parts' outlines on the plate's
+    /// edge, which is not cut (mm), and the skeleton and remnant cuts made;
+    /// `null` without a plate.
+    #[serde(default)]
+    pub edge_length_saved_mm: Option<f64>,
+    /// With a `[plate]`: cuts that start on its edge, without a pierce.
+    #[serde(default)]
+    pub edge_starts: Option<usize>,
+    #[serde(default)]
+    pub skeleton_cuts: Option<usize>,
+    #[serde(default)]
+    pub remnant_cuts: Option<usize>,
     pub trajectory_time_s: f64,
     pub lower_bound_s: f64,
     /// G-code lines of the program.
@@ -84,6 +103,13 @@ impl PlanReport {
             self.job, self.geometries, fields, self.planner, self.mode
         ));
         let precedence = self.precedence_violations.map_or("unknown".to_string(), |n| n.to_string());
+        if self.pierces > 0 || self.cut_length_mm > 0.0 {
+            s.push_str(&format!("  cutting {:.1} mm with {} pierces", self.cut_length_mm, self.pierces));
+            if let (Some(edge), Some(skeleton), Some(remnant)) = (self.edge_length_saved_mm, self.skeleton_cuts, self.remnant_cuts) {
+                s.push_str(&format!("; plate: {edge:.1} mm of edge not cut, {skeleton} skeleton and {remnant} remnant cuts"));
+            }
+            s.push('\n');
+        }
         s.push_str(&format!(
             "  marking {:.1} mm, idle stroke {:.1} mm, planned in {:.3} s (search stopped by {}), precedence_violations {precedence}\n",
             self.mark_length_mm,

@@ -19,7 +19,8 @@ use crate::job::{Job, Point};
 use crate::mode::Mode;
 use crate::motion::{self, Trajectory};
 use crate::plan::split::{check_fits, split_at_field_borders};
-use crate::plan::cutting::describe;
+use crate::plan::cutting::{cuts_through, describe, topology_options};
+use crate::topology::plate::{lay_out, PlateLayout};
 use crate::plan::{plan_job, PlanContext, PlanOutcome, PlannerKind, Sequence};
 use crate::program::{self, Program};
 use crate::record::{Recorder, Recording, TOPIC_JOB, TOPIC_PLAN_LINES, TOPIC_REPORT, TOPIC_SETUP};
@@ -61,8 +62,15 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         }
         None => job,
     };
+    let (job, plate) = match &machine.plate {
+        Some(_) => {
+            let (job, layout) = lay_out_plate(job, machine)?;
+            (job, Some(layout))
+        }
+        None => (job, None),
+    };
     let started = WallInstant::now();
-    let ctx = PlanContext { machine: &planning_machine, mode, start: job_start() };
+    let ctx = PlanContext { machine: &planning_machine, mode, start: job_start(), plate: plate.as_ref() };
     let mut outcome = plan_job(kind, &job, &ctx)?;
     let mut plan_time_s = started.elapsed().as_secs_f64();
     let started = WallInstant::now();
@@ -81,7 +89,9 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
             motion_time_s = started.elapsed().as_secs_f64();
         }
     }
+    let outcome_edge_saved = outcome.edge_length_saved_mm;
     let sequence = outcome.sequence;
+    let cut_paths = || sequence.paths().filter(|p| machine.pierce(&job.processes[p.process].layer).active());
     let broken_rules: Option<Vec<String>> = outcome.broken_rules.map(|rules| rules.iter().map(|r| describe(&job, r)).collect());
     let lower_bound_s = motion::lower_bound(&job, &sequence, machine, mode)?;
     let program_bytes: usize = program.lines.iter().map(|l| l.text.len() + 1).sum();
@@ -101,6 +111,12 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         plan_time_s,
         search_stopped_by: outcome.search_stopped_by,
         precedence_violations: broken_rules.as_ref().map(|r| r.len() as u64),
+        pierces: cut_paths().filter(|p| p.pierce).count(),
+        cut_length_mm: cut_paths().map(|p| p.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>()).sum(),
+        edge_length_saved_mm: plate.as_ref().map(|_| outcome_edge_saved),
+        edge_starts: plate.as_ref().map(|p| cut_paths().filter(|c| !c.pierce && p.on_edge(c.start())).count()),
+        skeleton_cuts: plate.as_ref().map(|p| p.skeleton_cuts),
+        remnant_cuts: plate.as_ref().map(|p| p.remnant_cuts),
         trajectory_time_s: trajectory.job_time(),
         lower_bound_s,
         program_lines: program.lines.len(),
@@ -115,6 +131,24 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         config: None,
     };
     Ok(Planned { job, sequence, trajectory, program, report, broken_rules })
+}
+
+/// The job laid out on the machine's `[plate]` (`topology::plate`): with
+/// its skeleton and remnant cuts, on the plate's layer (added to the job's
+/// processes if no geometry uses it yet).
+fn lay_out_plate(mut job: Job, machine: &MachineConfig) -> Result<(Job, PlateLayout)> {
+    let plate = machine.plate.as_ref().ok_or_else(|| Error::Plan("no [plate] in the machine config".into()))?;
+    let layer = machine.plate_layer().ok_or_else(|| Error::Plan("[plate]: no layer pierces, so nothing cuts the plate".into()))?;
+    let process = match job.processes.iter().position(|p| p.layer == layer) {
+        Some(k) => k,
+        None => {
+            let l = machine.layers.iter().find(|l| l.name == layer).ok_or_else(|| Error::Plan(format!("[plate] layer '{layer}' is no [[layer]]")))?;
+            job.processes.push(crate::job::Process { layer: l.name.clone(), speed: l.speed, power: l.power, passes: l.passes });
+            job.processes.len() - 1
+        }
+    };
+    let cuts = cuts_through(&job, machine);
+    lay_out(&job, &cuts, plate, process, &topology_options(&machine.cutting))
 }
 
 /// Shares of the scan field the marks are grouped in when the stage falls

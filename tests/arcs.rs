@@ -53,7 +53,7 @@ fn a_stage_only_job_of_circles_sends_arcs_in_fewer_lines_as_closely_and_as_fast(
     let scanner = planning.scanner_limits().unwrap();
     let job = circles();
     let planning_machine = Mode::OnTheFly.planning_machine(&planning);
-    let ctx = PlanContext { machine: &planning_machine, mode: Mode::OnTheFly, start: Point::origin() };
+    let ctx = PlanContext { machine: &planning_machine, mode: Mode::OnTheFly, start: Point::origin(), plate: None };
     let sequence = NearestNeighbour.plan(&job, &ctx).unwrap();
     let on_the_fly = build(&job, &sequence, &planning, Mode::OnTheFly, Point::origin()).unwrap();
     // ...run by an XY machine whose stage follows it, with the scanner's limits.
@@ -245,7 +245,7 @@ fn after_a_pierce_arcs_do_not_keep_the_controller_waiting() {
         }
     }
     let planning_machine = Mode::StageOnly.planning_machine(&machine);
-    let ctx = PlanContext { machine: &planning_machine, mode: Mode::StageOnly, start: Point::origin() };
+    let ctx = PlanContext { machine: &planning_machine, mode: Mode::StageOnly, start: Point::origin(), plate: None };
     let sequence = NearestNeighbour.plan(&job, &ctx).unwrap();
     let trajectory = build(&job, &sequence, &machine, Mode::StageOnly, Point::origin()).unwrap();
     let with_arcs = program::generate(&job, &trajectory, &machine).unwrap();

@@ -147,7 +147,7 @@ fn fields_far_apart_flow_with_the_stage_at_its_limits() {
     assert!(ratio <= 1.15, "SC82C24: {} s, {ratio} × the bound", planned.report.trajectory_time_s);
     // The same job planned in full fields only.
     let planning = Mode::OnTheFly.planning_machine(&machine);
-    let ctx = PlanContext { machine: &planning, mode: Mode::OnTheFly, start: run::job_start() };
+    let ctx = PlanContext { machine: &planning, mode: Mode::OnTheFly, start: run::job_start(), plate: None };
     let full = plan_job(PlannerKind::Auto, &planned.job, &ctx).unwrap();
     let full_time = motion::build(&planned.job, &full.sequence, &machine, Mode::OnTheFly, run::job_start()).unwrap().job_time();
     assert!(planned.report.trajectory_time_s < 0.95 * full_time, "SC82C24: {} s, in full fields {full_time} s", planned.report.trajectory_time_s);

@@ -70,6 +70,26 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The plate: a generated sheet with parts on its edge, planned without and
+    /// with the plate, and with skeleton and remnant cuts in the route and after
+    /// the parts (cut length, pierces, machine time, precedence)
+    Plate {
+        /// Machine config; the bench cuts on it as a flatbed whose travel covers the sheet.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long, default_value_t = 3000)]
+        elements: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// The largest side of a skeleton piece, mm.
+        #[arg(long, default_value_t = 500.0)]
+        skeleton_piece: f64,
+        /// Also write the sheet here as SVG (to plan or dry-run it on a plate).
+        #[arg(long)]
+        svg: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// The galvo planners on the 12 cases of seed 003's families against the
     /// reference reimplementation's figures (`reference.json` in the folder).
     Galvo {
@@ -152,6 +172,9 @@ fn check_flags(command: &BenchCommand) -> Result<()> {
         BenchCommand::Serve { clients, hz, .. } => in_range("--clients", *clients, 1, 10_000, "clients").and(in_range("--hz", *hz, 0.1, 1000.0, "Hz")),
         BenchCommand::Ecp { time_limit: t, .. } => check_time_limit(*t),
         BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(check_time_limit(*t)),
+        BenchCommand::Plate { elements, skeleton_piece, .. } => {
+            in_range("--elements", *elements, 1, 100_000, "elements").and(in_range("--skeleton-piece", *skeleton_piece, 10.0, 100_000.0, "mm"))
+        }
         BenchCommand::Galvo { seeds, time_limit: t, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds").and(check_time_limit(*t)),
         BenchCommand::Motion { repeats, .. } | BenchCommand::Import { repeats, .. } => in_range("--repeats", *repeats, 1, 1000, "runs"),
         BenchCommand::Link { blocks, block_ms, baud: b, .. } => in_range("--blocks", *blocks, 1, 1_000_000, "blocks")
@@ -166,6 +189,7 @@ pub fn run(command: BenchCommand) -> Result<ExitCode> {
     match command {
         BenchCommand::Ecp { tsp, tour, seed, time_limit, search, json } => ecp_bench(tsp, tour, seed, time_limit, search, json),
         BenchCommand::Sheet { config, elements, seed, time_limit, svg, json } => sheet_bench(config, elements, seed, time_limit, svg, json),
+        BenchCommand::Plate { config, elements, seed, skeleton_piece, svg, json } => plate_bench(config, elements, seed, skeleton_piece, svg, json),
         BenchCommand::Serve { job, config, clients, hz, json } => serve_bench(job, config, clients, hz, json),
         BenchCommand::Motion { jobs, config, mode, vs_grbl: true, json, .. } => vs_grbl_bench(jobs, config, mode, json),
         BenchCommand::Motion { jobs, config, mode, repeats, json, .. } => motion_bench(jobs, config, mode, repeats, json),
@@ -208,6 +232,31 @@ fn sheet_bench(config: Option<PathBuf>, elements: usize, seed: u64, time_limit: 
         println!("  ecp air / nearest {:.3}, / IB + dir-opt {:.3}", r.air_vs_nearest, r.air_vs_construction);
     }
     Ok(if r.ecp.precedence_violations == 0 { ExitCode::SUCCESS } else { ExitCode::from(exit::STOPPED) })
+}
+
+fn plate_bench(config: Option<PathBuf>, elements: usize, seed: u64, skeleton_piece: f64, svg: Option<PathBuf>, json: bool) -> Result<ExitCode> {
+    let machine = machine_config(config.as_deref(), json)?.machine;
+    let r = laserd::bench::plate_bench(&machine, elements, seed, skeleton_piece, svg.as_deref())?;
+    if json {
+        print_json(&r)?;
+    } else {
+        println!("plate {} x {} mm, seed {}: {} geometries, parts on the plate's edge", r.width_mm, r.height_mm, r.seed, r.geometries);
+        for (name, o) in [("free", &r.free), ("on plate", &r.on_plate), ("scrap in route", &r.scrap_in_route), ("scrap after", &r.scrap_after)] {
+            let violations = o.precedence_violations.map_or("unknown".to_string(), |v| v.to_string());
+            println!(
+                "  {name:<14} cut {:>10.3} mm, {:>5} pierces, {:>4} edge starts, air {:>9.1} mm, {:>3} skeleton + {} remnant cuts, {:.2} s machine time, {violations} precedence violations",
+                o.cut_length_mm, o.pierces, o.edge_starts, o.idle_stroke_mm, o.skeleton_cuts.unwrap_or(0), o.remnant_cuts.unwrap_or(0), o.trajectory_time_s
+            );
+        }
+        println!(
+            "  cut length drop {:.6} mm, edge length not cut {:.6} mm; scrap in route / after: {:.4} of the machine time",
+            r.cut_length_drop_mm,
+            r.on_plate.edge_length_saved_mm.unwrap_or(0.0),
+            r.in_route_vs_after
+        );
+    }
+    let broken = [&r.on_plate, &r.scrap_in_route, &r.scrap_after].iter().any(|o| o.precedence_violations != Some(0));
+    Ok(if broken { ExitCode::from(exit::STOPPED) } else { ExitCode::SUCCESS })
 }
 
 fn serve_bench(job: PathBuf, config: Option<PathBuf>, clients: usize, hz: f64, json: bool) -> Result<ExitCode> {

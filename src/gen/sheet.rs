@@ -243,6 +243,7 @@ impl Gen {
             depot: Point::new(0.0, 0.0),
             metric: Metric::Euclidean,
             pierce_cost: params.pierce_cost,
+            edge_starts: Vec::new(),
         };
         Sheet { instance, arc_centres: self.arc_centres }
     }

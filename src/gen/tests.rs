@@ -189,8 +189,8 @@ fn sheet_svg_round_trip_finds_the_generated_topology() {
         }
         assert_eq!(checker::check(inst, &route), vec![], "sheet {target}/{seed}");
         let lines = m.polylines(&route);
-        assert_eq!(lines.iter().map(|(g, _)| *g).collect::<Vec<_>>(), runs);
-        let marked: f64 = lines.iter().map(|(_, l)| length(l)).sum();
+        assert_eq!(lines.iter().map(|l| l.geometry).collect::<Vec<_>>(), runs);
+        let marked: f64 = lines.iter().map(|l| length(&l.points)).sum();
         let pieces: f64 = m.topology.elements.iter().map(|pc| length(&pc.points)).sum();
         assert!((marked - pieces).abs() < 1e-6 * pieces);
     }

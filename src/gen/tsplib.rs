@@ -216,6 +216,7 @@ pub fn bench_instance(tsp: &Tsp, tour: &[usize], seed: u64) -> BenchInstance {
         depot: tsp.cities[tour[0]],
         metric: Metric::TsplibRounded,
         pierce_cost: 0.0,
+        edge_starts: Vec::new(),
     };
     let optimal_route: Vec<Cut> = tour.iter().map(|&element| Cut { element, reversed: false }).collect();
     let optimum = instance.cost(&optimal_route);

@@ -175,7 +175,13 @@ fn mark_all(
     mut before_group: impl FnMut(&mut TcpBuilder, usize) -> Result<()>,
 ) -> Result<()> {
     let cap = b.settings.mark_speed;
-    let processes: Vec<_> = sequence.paths().map(|path| process_of(job, machine, path.process, cap)).collect();
+    let processes: Vec<_> = sequence
+        .paths()
+        .map(|path| {
+            let (speed, power, pierce) = process_of(job, machine, path.process, cap);
+            (speed, power, if path.pierce { pierce } else { crate::config::Pierce { time: 0.0, ..pierce } })
+        })
+        .collect();
     if runs.is_none() {
         let requests: Vec<_> = sequence
             .paths()
@@ -631,7 +637,9 @@ pub fn lower_bound(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode
         let speed = job.processes[path.process].speed.min(mark_speed_cap);
         let length: f64 = path.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
         t_proc += length / speed;
-        t_proc += machine.pierce(&job.processes[path.process].layer).time;
+        if path.pierce {
+            t_proc += machine.pierce(&job.processes[path.process].layer).time;
+        }
         if let Some(l) = last {
             t_proc += rest_to_rest_time((path.start() - l).norm(), combined)?;
         }
@@ -668,7 +676,7 @@ mod tests {
 
     fn plan(j: &Job, machine: &MachineConfig, mode: Mode) -> (Sequence, Trajectory) {
         let planning = mode.planning_machine(machine);
-        let ctx = PlanContext { machine: &planning, mode, start: Point::origin() };
+        let ctx = PlanContext { machine: &planning, mode, start: Point::origin(), plate: None };
         let seq = NearestNeighbour.plan(j, &ctx).unwrap();
         let tr = build(j, &seq, machine, mode, Point::origin()).unwrap();
         (seq, tr)
@@ -908,7 +916,7 @@ mod tests {
     fn stage_only_in_order(paths: &[Vec<Point>], machine: &MachineConfig) -> Trajectory {
         let mut j = job();
         j.geometries = paths.iter().enumerate().map(|(k, p)| Geometry { points: p.clone(), closed: false, process: 0, source: format!("path {k}") }).collect();
-        let paths = paths.iter().enumerate().map(|(k, p)| crate::plan::PlannedPath { geometry: k, points: p.clone(), process: 0 }).collect();
+        let paths = paths.iter().enumerate().map(|(k, p)| crate::plan::PlannedPath { geometry: k, points: p.clone(), process: 0, pierce: true }).collect();
         let seq = Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths }] };
         build(&j, &seq, machine, Mode::StageOnly, Point::origin()).unwrap()
     }

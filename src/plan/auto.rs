@@ -36,7 +36,7 @@ pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     let (cutting, marking): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| cuts[g]);
     if cutting.is_empty() {
         let (sequence, search_stopped_by) = galvo::plan_galvo(job, ctx, false)?;
-        return Ok(PlanOutcome { sequence, planner: "hha".into(), broken_rules: Some(Vec::new()), search_stopped_by });
+        return Ok(PlanOutcome { sequence, planner: "hha".into(), broken_rules: Some(Vec::new()), search_stopped_by, edge_length_saved_mm: 0.0 });
     }
     if marking.is_empty() {
         return Ok(cutting::plan_cutting(job, ctx)?.outcome());
@@ -44,12 +44,13 @@ pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     let (mut marked, marking_stopped_by) = galvo::plan_galvo(&part_of(job, &marking), ctx, false)?;
     renumber(&mut marked, &marking);
     let start = marked.paths().last().map_or(ctx.start, |p| p.end());
-    let cut = cutting::plan_cutting(&part_of(job, &cutting), &PlanContext { machine: ctx.machine, mode: ctx.mode, start })?;
+    let plate = ctx.plate.and_then(|p| p.select(&cutting));
+    let cut = cutting::plan_cutting(&part_of(job, &cutting), &PlanContext { machine: ctx.machine, mode: ctx.mode, start, plate: plate.as_ref() })?;
     let mut cut_sequence = cut.sequence;
     renumber(&mut cut_sequence, &cutting);
     // The cutting route's rules, by the checker, in the job's numbering;
     // then the marks', by whole geometries against the parts around them.
-    let mut broken: Vec<Violation> = cut.broken_rules.into_iter().map(|v| in_job(v, &cutting)).collect();
+    let mut broken: Vec<Violation> = cut.broken_rules.into_iter().map(|v| in_job(v, &cutting, job.geometries.len())).collect();
     let sequence = joined(marked, cut_sequence);
     let marks_broken = cutting::sequence_violations(job, &sequence, ctx).map(|all| {
         all.into_iter().filter(|v| matches!(v, Violation::InnerAfterOuter { inner, .. } if !cuts[*inner])).collect::<Vec<_>>()
@@ -59,7 +60,7 @@ pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
         broken
     });
     let search_stopped_by = marking_stopped_by.and(cut.search_stopped_by);
-    Ok(PlanOutcome { sequence, planner: "hha+ecp".into(), broken_rules, search_stopped_by })
+    Ok(PlanOutcome { sequence, planner: "hha+ecp".into(), broken_rules, search_stopped_by, edge_length_saved_mm: cut.edge_length_saved_mm })
 }
 
 /// The geometries `which` of `job` as a job of their own (the processes
@@ -76,12 +77,9 @@ fn renumber(sequence: &mut Sequence, which: &[usize]) {
 }
 
 /// A rule of a part's route in the job's numbering (contours are geometries).
-fn in_job(rule: Violation, which: &[usize]) -> Violation {
-    match rule {
-        Violation::InnerAfterOuter { inner, outer } => Violation::InnerAfterOuter { inner: which[inner], outer: which[outer] },
-        Violation::ClosesBoth { element, contours: (a, b) } => Violation::ClosesBoth { element, contours: (which[a], which[b]) },
-        other => other,
-    }
+fn in_job(rule: Violation, which: &[usize], geometries: usize) -> Violation {
+    // Contours beyond the part's geometries are plate regions: beyond the job's.
+    cutting::renumbered(rule, |c| which.get(c).copied().unwrap_or(geometries + c - which.len()))
 }
 
 /// `first` then `then`; on a stage-only plan (no scan fields) one group.
@@ -133,7 +131,7 @@ mod tests {
             square(95.0, 5.0, 60.0, 1, "frame b"),
         ];
         let job = Job { source: "t.svg".into(), geometries, processes: vec![process("cut"), process("engrave")] };
-        let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin() };
+        let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin(), plate: None };
         let outcome = plan(&job, &ctx).unwrap();
         assert_eq!(outcome.planner, "hha+ecp");
         assert_eq!(outcome.broken_rules, Some(vec![]));

@@ -14,7 +14,7 @@
 use std::time::{Duration, Instant};
 
 use super::ecp::checker::{self, Violation};
-use super::ecp::model::CuttingModel;
+use super::ecp::model::{CuttingModel, Polyline};
 use super::ecp::{ils, solve};
 use super::fields::centre_within_travel;
 use super::stop::SearchStop;
@@ -22,6 +22,7 @@ use super::{check_reach, PathGroup, PlanContext, PlanOutcome, PlannedPath, Plann
 use crate::config::{CuttingConfig, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{bounds_of, Job, Point};
+use crate::topology::plate::PlateLayout;
 use crate::topology::{Topology, TopologyOptions};
 use crate::mode::Mode;
 
@@ -36,11 +37,19 @@ pub struct CuttingPlan {
     pub broken_rules: Vec<Violation>,
     /// Whether the search's budget or the time limit ended it.
     pub search_stopped_by: SearchStop,
+    /// The length of the parts' outlines on the plate's edge, not cut.
+    pub edge_length_saved_mm: f64,
 }
 
 impl CuttingPlan {
     pub fn outcome(self) -> PlanOutcome {
-        PlanOutcome { sequence: self.sequence, planner: "ecp".into(), broken_rules: Some(self.broken_rules), search_stopped_by: self.search_stopped_by }
+        PlanOutcome {
+            sequence: self.sequence,
+            planner: "ecp".into(),
+            broken_rules: Some(self.broken_rules),
+            search_stopped_by: self.search_stopped_by,
+            edge_length_saved_mm: self.edge_length_saved_mm,
+        }
     }
 }
 
@@ -54,10 +63,14 @@ impl Planner for Ecp {
     }
 }
 
+/// The topology options of this machine's settings.
+pub fn topology_options(settings: &CuttingConfig) -> TopologyOptions {
+    TopologyOptions { common_cut_tolerance_mm: settings.common_cut_tolerance, corner_angle_deg: settings.corner_angle }
+}
+
 /// The job's topology, with this machine's settings.
 pub fn topology(job: &Job, settings: &CuttingConfig) -> Result<Topology> {
-    let options = TopologyOptions { common_cut_tolerance_mm: settings.common_cut_tolerance, corner_angle_deg: settings.corner_angle };
-    Topology::build(job, &options)
+    Topology::build(job, &topology_options(settings))
 }
 
 /// The job as a cutting instance, with this machine's settings.
@@ -69,7 +82,10 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     let started = Instant::now();
     check_reach(job, ctx.machine, ctx.mode)?;
     let settings = &ctx.machine.cutting;
-    let model = cutting_model(job, ctx.start, settings)?;
+    let model = match ctx.plate {
+        Some(plate) => CuttingModel::with_plate(job, plate, 0, ctx.start, settings.pierce_cost, &topology_options(settings))?,
+        None => cutting_model(job, ctx.start, settings)?,
+    };
     let inst = &model.instance;
     // A time limit (none by default) is for the whole planning step, topology
     // included, with a little kept back for turning the route into paths.
@@ -91,13 +107,24 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
         let found = solve(inst, settings.search, &options);
         (found.route, found.stopped_by)
     };
-    let broken_rules = checker::check(inst, &route);
-    let polylines = model.polylines(&route);
+    let broken_rules = match ctx.plate {
+        // The plate's regions are contours beyond the job's geometries:
+        // named after them (see `describe`).
+        Some(plate) => checker::check_plate(&model.topology, plate, &model.topology_route(&route))
+            .into_iter()
+            .map(|v| renumbered(v, |c| if c >= plate.first_cut { job.geometries.len() + c - plate.first_cut } else { c }))
+            .collect(),
+        None => checker::check(inst, &route),
+    };
+    let mut polylines = model.polylines(&route);
+    if let Some(plate) = ctx.plate.filter(|p| p.scrap_after) {
+        polylines.extend(scrap_after(job, plate, polylines.last().map(|l| l.points[l.points.len() - 1]).unwrap_or(ctx.start)));
+    }
     let mut paths = Vec::with_capacity(polylines.len());
-    for (geometry, points) in polylines {
-        let process = job.geometries[geometry].process;
+    for line in polylines {
+        let process = job.geometries[line.geometry].process;
         for _ in 0..job.processes[process].passes {
-            paths.push(PlannedPath { geometry, points: points.clone(), process });
+            paths.push(PlannedPath { geometry: line.geometry, points: line.points.clone(), process, pierce: line.pierce });
         }
     }
     let scanner = ctx.machine.scanner.as_ref().filter(|_| ctx.mode != Mode::StageOnly);
@@ -105,7 +132,49 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
         None => vec![PathGroup { field_center: None, paths }],
         Some(s) => fields_along(job, paths, s.usable_half_field, (ctx.machine.stage.travel_x, ctx.machine.stage.travel_y))?,
     };
-    Ok(CuttingPlan { sequence: Sequence { groups }, broken_rules, search_stopped_by })
+    let edge_length_saved_mm = model.edge_length_saved();
+    Ok(CuttingPlan { sequence: Sequence { groups }, broken_rules, search_stopped_by, edge_length_saved_mm })
+}
+
+/// A rule with its contours renumbered by `f`.
+pub fn renumbered(rule: Violation, f: impl Fn(usize) -> usize) -> Violation {
+    match rule {
+        Violation::InnerAfterOuter { inner, outer } => Violation::InnerAfterOuter { inner: f(inner), outer: f(outer) },
+        Violation::ClosesBoth { element, contours: (a, b) } => Violation::ClosesBoth { element, contours: (f(a), f(b)) },
+        other => other,
+    }
+}
+
+/// The plate's skeleton and remnant cuts after the parts (`[plate]
+/// scrap_cuts = "after"`): nearest first from `here`, each in the direction
+/// that starts nearer; no pierce where one starts on the plate's edge or
+/// where the one before ended.
+fn scrap_after(job: &Job, plate: &PlateLayout, mut here: Point) -> Vec<Polyline> {
+    let mut left: Vec<usize> = (plate.first_cut..job.geometries.len()).collect();
+    let mut out = Vec::with_capacity(left.len());
+    while !left.is_empty() {
+        let ends = |g: usize| {
+            let p = &job.geometries[g].points;
+            (p[0], p[p.len() - 1])
+        };
+        let (i, reversed, _) = left
+            .iter()
+            .enumerate()
+            .flat_map(|(i, &g)| {
+                let (a, b) = ends(g);
+                [(i, false, (a - here).norm()), (i, true, (b - here).norm())]
+            })
+            .fold((0, false, f64::INFINITY), |best, c| if c.2 < best.2 { c } else { best });
+        let g = left.remove(i);
+        let mut points = job.geometries[g].points.clone();
+        if reversed {
+            points.reverse();
+        }
+        let pierce = points[0] != here && !plate.on_edge(points[0]);
+        here = points[points.len() - 1];
+        out.push(Polyline { geometry: g, points, pierce });
+    }
+    out
 }
 
 /// The paths in their order, cut into scan fields: each field takes paths
@@ -196,7 +265,7 @@ pub fn sequence_violations(job: &Job, sequence: &Sequence, ctx: &PlanContext) ->
 pub fn describe(job: &Job, rule: &Violation) -> String {
     let name = |g: usize| match job.geometries.get(g) {
         Some(g) => g.source.strip_prefix(&format!("{}: ", job.source)).unwrap_or(&g.source).to_string(),
-        None => format!("contour {g}"),
+        None => format!("plate region {}", g - job.geometries.len() + 1),
     };
     match *rule {
         Violation::InnerAfterOuter { inner, outer } => format!("{} cut after {} around it", name(inner), name(outer)),
@@ -217,7 +286,7 @@ mod tests {
     }
 
     fn path(geometry: usize, from: (f64, f64), to: (f64, f64)) -> PlannedPath {
-        PlannedPath { geometry, points: vec![Point::new(from.0, from.1), Point::new(to.0, to.1)], process: 0 }
+        PlannedPath { geometry, points: vec![Point::new(from.0, from.1), Point::new(to.0, to.1)], process: 0, pierce: true }
     }
 
     #[test]

@@ -26,6 +26,9 @@ pub struct PlannedPath {
     pub points: Vec<Point>,
     /// Index into `Job::processes`.
     pub process: usize,
+    /// Whether its layer's pierce (if any) is made at its start: not where
+    /// a cut through ended just before, nor on the plate's edge.
+    pub pierce: bool,
 }
 
 impl PlannedPath {
@@ -98,6 +101,8 @@ pub struct PlanContext<'a> {
     pub mode: Mode,
     /// Where the tool centre point is before the first path.
     pub start: Point,
+    /// The plate the job is laid out on (`topology::plate`), if any.
+    pub plate: Option<&'a crate::topology::plate::PlateLayout>,
 }
 
 pub trait Planner {
@@ -152,6 +157,9 @@ pub struct PlanOutcome {
     pub broken_rules: Option<Vec<ecp::checker::Violation>>,
     /// Whether the searches ran their budgets or a time limit ended one.
     pub search_stopped_by: stop::SearchStop,
+    /// The length of the parts' outlines on the plate's edge, not cut (the
+    /// cutting planner's; 0 without a plate).
+    pub edge_length_saved_mm: f64,
 }
 
 /// Plans `job` with the planner `kind` stands for, and judges its order: the
@@ -168,7 +176,7 @@ pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
                 _ => (planner.plan(job, ctx)?, stop::SearchStop::Budget),
             };
             let broken_rules = cutting::sequence_violations(job, &sequence, ctx);
-            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by })
+            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0 })
         }
     }
 }

@@ -72,7 +72,7 @@ fn order_paths(job: &Job, members: &[usize], from: Point) -> Vec<PlannedPath> {
         let points = path_points(g, best.1, best.2);
         here = points[points.len() - 1];
         for _ in 0..job.processes[g.process].passes {
-            out.push(PlannedPath { geometry: gi, points: points.clone(), process: g.process });
+            out.push(PlannedPath { geometry: gi, points: points.clone(), process: g.process, pierce: true });
         }
     }
     out
@@ -134,7 +134,7 @@ mod tests {
     fn visits_everything_once_entering_closed_shapes_at_the_nearest_vertex() {
         let machine = MachineConfig::load(None).unwrap();
         let j = job(vec![square(100.0, 100.0, 5.0), square(10.0, 10.0, 5.0), square(50.0, 50.0, 5.0)]);
-        let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin() };
+        let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin(), plate: None };
         let seq = NearestNeighbour.plan(&j, &ctx).unwrap();
         let order: Vec<usize> = seq.paths().map(|p| p.geometry).collect();
         assert_eq!(order, vec![1, 2, 0]);
@@ -152,7 +152,7 @@ mod tests {
     fn open_paths_start_at_the_nearer_end() {
         let machine = MachineConfig::load(None).unwrap();
         let g = Geometry { points: vec![Point::new(20.0, 0.0), Point::new(1.0, 0.0)], closed: false, process: 0, source: "l".into() };
-        let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin() };
+        let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin(), plate: None };
         let seq = NearestNeighbour.plan(&job(vec![g]), &ctx).unwrap();
         assert_eq!(seq.paths().next().unwrap().start(), Point::new(1.0, 0.0));
     }
@@ -168,7 +168,7 @@ mod tests {
             }
         }
         let j = job(gs);
-        let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin() };
+        let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin(), plate: None };
         let seq = NearestNeighbour.plan(&j, &ctx).unwrap();
         assert_eq!(seq.paths().count(), 100);
         assert!(seq.scan_fields().unwrap() >= 16, "300 mm of content needs at least 4 x 4 fields of 64 mm");
@@ -185,7 +185,7 @@ mod tests {
     #[test]
     fn geometry_outside_travel_is_an_error_naming_it() {
         let machine = MachineConfig::load(None).unwrap();
-        let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin() };
+        let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin(), plate: None };
         let err = NearestNeighbour.plan(&job(vec![square(299.0, 10.0, 5.0)]), &ctx).unwrap_err().to_string();
         assert!(err.contains("square at 299,10"), "{err}");
     }

@@ -788,7 +788,7 @@ mod tests {
             let machine = MachineConfig::load(None).unwrap();
             let job = circle_job();
             let planning = mode.planning_machine(&machine);
-            let ctx = PlanContext { machine: &planning, mode, start: Point::origin() };
+            let ctx = PlanContext { machine: &planning, mode, start: Point::origin(), plate: None };
             let seq = NearestNeighbour.plan(&job, &ctx).unwrap();
             let tr = build(&job, &seq, &machine, mode, Point::origin()).unwrap();
             let prog = generate(&job, &tr, &machine).unwrap();
@@ -815,7 +815,7 @@ mod tests {
         let mut machine = MachineConfig::load(None).unwrap();
         let job = circle_job();
         let planning = Mode::OnTheFly.planning_machine(&machine);
-        let ctx = PlanContext { machine: &planning, mode: Mode::OnTheFly, start: Point::origin() };
+        let ctx = PlanContext { machine: &planning, mode: Mode::OnTheFly, start: Point::origin(), plate: None };
         let seq = NearestNeighbour.plan(&job, &ctx).unwrap();
         let tr = build(&job, &seq, &machine, Mode::OnTheFly, Point::origin()).unwrap();
         let marks: Vec<_> = tr.tcp.pieces.iter().filter(|p| p.is_marking()).collect();
@@ -855,7 +855,7 @@ mod tests {
             machine.laser.mode = laser;
             machine.laser.pierce_time = 0.25;
             machine.laser.pierce_power = Some(800.0);
-            let ctx = PlanContext { machine: &machine, mode, start: Point::origin() };
+            let ctx = PlanContext { machine: &machine, mode, start: Point::origin(), plate: None };
             let seq = NearestNeighbour.plan(&job, &ctx).unwrap();
             let tr = build(&job, &seq, &machine, mode, Point::origin()).unwrap();
             let prog = generate(&job, &tr, &machine).unwrap();

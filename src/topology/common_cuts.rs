@@ -121,7 +121,8 @@ pub(super) fn weld(chains: &mut [Chain], tol: f64) {
     // 3 × 3 cells around its own.
     let cell = |p: Point| ((p.x / tol).floor() as i64, (p.y / tol).floor() as i64);
     let mut grid: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
-    let mut welded: Vec<(Point, Vec<usize>)> = Vec::new();
+    // Each welded point, with the shapes and their points moved onto it.
+    let mut welded: Vec<(Point, Vec<(usize, Point)>)> = Vec::new();
     for (g, chain) in chains.iter_mut().enumerate() {
         for j in 0..chain.points.len() {
             if !chain.ends_overlap[j] {
@@ -134,7 +135,11 @@ pub(super) fn weld(chains: &mut [Chain], tol: f64) {
                 for dy in -1..=1 {
                     for &w in grid.get(&(cx + dx, cy + dy)).into_iter().flatten() {
                         let d = (welded[w].0 - p).norm();
-                        if d <= tol * (1.0 + 1e-9) && !welded[w].1.contains(&g) && best.is_none_or(|(bd, _)| d < bd) {
+                        // One point per shape, unless the shape itself comes
+                        // back to the very point (a region pinched where a
+                        // part touches the plate's edge).
+                        let own = welded[w].1.iter().any(|&(h, q)| h == g && q != p);
+                        if d <= tol * (1.0 + 1e-9) && !own && best.is_none_or(|(bd, _)| d < bd) {
                             best = Some((d, w));
                         }
                     }
@@ -148,7 +153,7 @@ pub(super) fn weld(chains: &mut [Chain], tol: f64) {
                     welded.len() - 1
                 }
             };
-            welded[w].1.push(g);
+            welded[w].1.push((g, p));
             chain.points[j] = welded[w].0;
             chain.weld[j] = Some(w);
         }

@@ -13,7 +13,8 @@
 //!   borders: those pieces are the skeleton and remnant cuts, added to the
 //!   job as open geometries;
 //! * fixes the faces the clamps touch (the largest one when there is no
-//!   clamp): their rules are dropped (seed 000's Figure 2).
+//!   clamp) and the remnant (it holds no part): their rules are dropped
+//!   (seed 000's Figure 2).
 //!
 //! The cutting model rebuilds the topology of the parts plus the faces
 //! ([`PlateLayout::topology_job`]) and drops the elements on the plate's edge.
@@ -35,8 +36,8 @@ pub struct Face {
     /// Its outline, counter-clockwise (the parts wholly inside it are its
     /// inner contours, found by containment).
     pub ring: Vec<Point>,
-    /// Held by a clamp (or the largest, without clamps): it never moves, so
-    /// no rule waits for it to close.
+    /// Held by a clamp (or the largest, without clamps), or the remnant: it
+    /// never moves, so no rule waits for it to close.
     pub fixed: bool,
     pub remnant: bool,
 }
@@ -161,7 +162,13 @@ pub fn lay_out(job: &Job, cuts: &[bool], plate: &PlateConfig, process: usize, op
     let piece = plate.skeleton_piece;
     let xs = cut_positions(lo.x, hi.x, &grown.iter().map(|(a, b)| (a.x, b.x)).collect::<Vec<_>>(), piece);
     let ys = cut_positions(lo.y, hi.y, &grown.iter().map(|(a, b)| (a.y, b.y)).collect::<Vec<_>>(), piece);
-    let rings: Vec<Vec<[f64; 2]>> = parts.iter().map(|&k| ccw(&job.geometries[k].points)).collect();
+    // A part within the tolerance of the edge lies on it: snapped there, it
+    // leaves no sliver of waste between (which would pinch the region).
+    let snap = |v: f64, lo: f64, hi: f64| if (v - lo).abs() <= tol { lo } else if (v - hi).abs() <= tol { hi } else { v };
+    let rings: Vec<Vec<[f64; 2]>> = parts
+        .iter()
+        .map(|&k| ccw(&job.geometries[k].points).into_iter().map(|[x, y]| [snap(x, lo.x, hi.x), snap(y, lo.y, hi.y)]).collect())
+        .collect();
     let remnant_ring = remnant.map(|(a, b)| rect_ring(a, b));
     let mut faces: Vec<Face> = Vec::new();
     let xs_all: Vec<f64> = std::iter::once(lo.x).chain(xs.iter().copied()).chain(std::iter::once(hi.x)).collect();
@@ -301,9 +308,13 @@ fn auto_remnant(lo: Point, hi: Point, boxes: &[(Point, Point)], min: f64) -> Opt
     best.map(|b| b.1)
 }
 
-/// The faces a clamp touches are fixed; without clamps, the largest one
-/// (the plate around the parts holds by its weight).
+/// The faces a clamp touches are fixed, and the remnant; without clamps,
+/// the largest other one (the plate around the parts holds by its weight).
 fn fix_faces(faces: &mut [Face], plate: &PlateConfig) {
+    // The remnant holds no part and is kept whole: it waits for nothing.
+    for f in faces.iter_mut().filter(|f| f.remnant) {
+        f.fixed = true;
+    }
     if plate.clamps.is_empty() {
         let largest = (0..faces.len())
             .filter(|&k| !faces[k].remnant)
@@ -314,7 +325,7 @@ fn fix_faces(faces: &mut [Face], plate: &PlateConfig) {
         return;
     }
     for f in faces.iter_mut() {
-        f.fixed = plate.clamps.iter().any(|c| reaches(Point::new(c.x, c.y), c.radius, &f.ring));
+        f.fixed = f.remnant || plate.clamps.iter().any(|c| reaches(Point::new(c.x, c.y), c.radius, &f.ring));
     }
 }
 
@@ -463,5 +474,28 @@ mod tests {
         p.remnant = RemnantSetting::At([40.0, 0.0, 100.0, 100.0]);
         let err = lay_out(&j, &[true], &p, 0, &TopologyOptions::default()).unwrap_err().to_string();
         assert!(err.contains("[plate] remnant") && err.contains("overlaps test.svg: a"), "{err}");
+    }
+
+    #[test]
+    fn a_disc_touching_the_edge_and_a_part_a_rounding_error_off_it_make_no_cuts() {
+        // A 64-gon of radius 30 whose lowest vertex is 0.003 mm above the
+        // plate's edge (the waste is pinched there), and a rectangle 2 µm off
+        // the left edge (as an SVG's f32 coordinates put it).
+        let disc: Vec<(f64, f64)> = (0..64)
+            .map(|k| {
+                let a = -std::f64::consts::FRAC_PI_2 + 2.0 * std::f64::consts::PI * k as f64 / 64.0;
+                (100.0 + 30.0 * a.cos(), 30.003 + 30.0 * a.sin())
+            })
+            .collect();
+        let j = job(vec![crate::topology::tests::shape(&disc, true, "disc"), rect(2e-6, 50.0, 40.0, 90.0, "near")]);
+        let (laid, layout) = lay(&j, &plate(200.0, 100.0));
+        assert_eq!(laid.geometries.len(), 2, "no cut: {:?}", laid.geometries.get(2).map(|g| &g.points));
+        let t = Topology::build(&layout.topology_job(&laid, 0), &TopologyOptions::default()).unwrap();
+        // Every element of the waste region is the parts' or on the edge.
+        for e in t.elements.iter().filter(|e| e.geometry == 2) {
+            assert!(layout.along_edge(&e.points), "{:?}", e.points);
+        }
+        let near_left = t.contours[1].iter().filter(|&&e| layout.along_edge(&t.elements[e].points)).count();
+        assert_eq!(near_left, 1, "the side 2 µm off the edge lies on it");
     }
 }

@@ -3,6 +3,8 @@
 //! planner's bug cannot hide in it. Used by tests and by `bench ecp`.
 
 use super::{Cut, Instance};
+use crate::topology::plate::PlateLayout;
+use crate::topology::Topology;
 
 /// What is wrong with a route, one entry per broken rule.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -56,6 +58,62 @@ pub fn check(inst: &Instance, route: &[Cut]) -> Vec<Violation> {
     violations
 }
 
+/// Every rule a route breaks on a plate, derived from the plate's topology
+/// alone (seed 000's "removing complexity"): `topology` is the plate's
+/// (`PlateLayout::topology_job`), `route` cuts its elements. Elements on the
+/// plate's edge, and the regions' own ones when the plate's skeleton is cut
+/// after the parts, count as cut before the route starts and must not be in
+/// it; a contour closes at its last element cut; rules waiting for a fixed
+/// region (clamped, the largest without clamps, all of them when cut after
+/// the parts) do not apply, and neither do common cuts with one.
+pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut]) -> Vec<Violation> {
+    let n = topology.elements.len();
+    let first = plate.first_cut;
+    let uncut: Vec<bool> = topology.elements.iter().map(|e| plate.along_edge(&e.points) || (plate.scrap_after && e.geometry >= first)).collect();
+    let fixed: Vec<bool> = (0..topology.contours.len()).map(|c| c >= first && (plate.scrap_after || plate.faces[c - first].fixed)).collect();
+    let mut violations = Vec::new();
+    let mut position: Vec<Option<usize>> = vec![None; n];
+    let mut times = vec![0usize; n];
+    for (i, c) in route.iter().enumerate() {
+        if c.element >= n {
+            violations.push(Violation::UnknownElement { element: c.element });
+            continue;
+        }
+        times[c.element] += 1;
+        position[c.element] = Some(i);
+    }
+    for e in 0..n {
+        let wanted = usize::from(!uncut[e]);
+        if times[e] != wanted {
+            violations.push(Violation::CutCount { element: e, times: times[e] });
+        }
+    }
+    if !violations.is_empty() {
+        return violations;
+    }
+    // Positions with the uncut elements before the route: -1.
+    let pos = |e: usize| position[e].map_or(-1, |p| p as i64);
+    let closes = |k: usize| topology.contours[k].iter().map(|&e| pos(e)).max().unwrap_or(-1);
+    for (inner, outer) in topology.inner_outer() {
+        if fixed[outer] || closes(outer) < 0 {
+            continue;
+        }
+        if topology.contours[inner].iter().any(|&e| position[e].is_some() && pos(e) >= closes(outer)) {
+            violations.push(Violation::InnerAfterOuter { inner, outer });
+        }
+    }
+    for cc in &topology.common_cuts {
+        let (a, b) = cc.contours;
+        if fixed[a] || fixed[b] || uncut[cc.element] {
+            continue;
+        }
+        if closes(a) == pos(cc.element) && closes(b) == pos(cc.element) {
+            violations.push(Violation::ClosesBoth { element: cc.element, contours: cc.contours });
+        }
+    }
+    violations
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -83,6 +141,7 @@ mod tests {
             depot: p(0.0, 0.0),
             metric: Metric::Euclidean,
             pierce_cost: 0.0,
+            edge_starts: Vec::new(),
         }
     }
 

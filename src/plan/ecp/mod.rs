@@ -81,6 +81,9 @@ pub struct Instance {
     /// Cost of starting a cut anywhere but where the previous cut ended (a
     /// pierce), in the same unit as the air moves.
     pub pierce_cost: f64,
+    /// Per element, for its ends a and b: a cut starting there needs no
+    /// pierce (it lies on the plate's edge). Empty: every start pierces.
+    pub edge_starts: Vec<[bool; 2]>,
 }
 
 /// One element cut in one direction: from `a` to `b`, or from `b` to `a` when reversed.
@@ -116,10 +119,25 @@ impl Instance {
         let (start, _) = self.ends(to);
         let air = self.distance(here, start);
         if air > 0.0 || from.is_none() {
-            air + self.pierce_cost
+            air + self.pierce_at(to)
         } else {
             air
         }
+    }
+
+    /// What starting `cut` costs after an air move: a pierce, or nothing
+    /// where it starts on the plate's edge.
+    pub fn pierce_at(&self, cut: Cut) -> f64 {
+        if self.starts_on_edge(cut) {
+            0.0
+        } else {
+            self.pierce_cost
+        }
+    }
+
+    /// Whether `cut` starts on the plate's edge (no pierce there).
+    pub fn starts_on_edge(&self, cut: Cut) -> bool {
+        self.edge_starts.get(cut.element).is_some_and(|ends| ends[usize::from(cut.reversed)])
     }
 
     /// Air length plus pierce costs of a route, back to the depot included.
@@ -188,7 +206,7 @@ pub(crate) fn random_instance(n: usize, seed: u64, sizes: std::ops::RangeInclusi
             inner_outer.push((i, o));
         }
     }
-    Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost }
+    Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost, edge_starts: Vec::new() }
 }
 
 /// Random instances of 12 elements (contours of 2 to 4, pierce cost 3) that
@@ -220,6 +238,7 @@ mod tests {
             depot: p(0.0, 0.0),
             metric: Metric::Euclidean,
             pierce_cost: 2.0,
+            edge_starts: Vec::new(),
         };
         let forward = [Cut { element: 0, reversed: false }, Cut { element: 1, reversed: false }];
         // One pierce at the start, the second cut goes on where the first ended,
