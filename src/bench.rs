@@ -280,10 +280,16 @@ pub fn plate_bench(machine: &MachineConfig, elements: usize, seed: u64, skeleton
         None => std::env::temp_dir().join(format!("laserd-plate-{}-{elements}-{seed}.svg", std::process::id())),
     };
     std::fs::write(&path, sheet::to_svg(&generated, &params)).map_err(|e| Error::Io(format!("{}: cannot write: {e}", path.display())))?;
-    let base = flatbed_for(machine, params.width, params.height);
+    // Round parts on the edge come in a few µm beyond it (an SVG arc read as
+    // Bézier curves bulges out by 2.7e-4 of its radius): the sheet is put
+    // 5 mm into a travel 10 mm larger, its parts' straight sides on the plate's edge.
+    const INSET: f64 = 5.0;
+    let mut base = flatbed_for(machine, params.width + 2.0 * INSET, params.height + 2.0 * INSET);
+    let (lo, _) = crate::import::import_job(&path, &base)?.bounds();
+    base.job.anchor = crate::config::Anchor::At(lo.x + INSET, lo.y + INSET);
     let plate = PlateConfig {
-        x: 0.0,
-        y: 0.0,
+        x: INSET,
+        y: INSET,
         width: params.width,
         height: params.height,
         thickness: 2.0,

@@ -29,6 +29,11 @@ use crate::config::{PlateConfig, RemnantSetting, ScrapCuts};
 use crate::error::{Error, Result};
 use crate::job::{bounds_of, Geometry, Job, Point};
 
+/// How far a part may reach past the plate's edge (mm): an arc drawn to
+/// touch the edge comes in a few µm beyond it once flattened from Bézier
+/// curves; far less than any kerf, so it is cut as drawn.
+const OFF_PLATE_MM: f64 = 0.1;
+
 /// A waste region of the plate: a cell of the skeleton grid (or the
 /// remnant) minus the parts.
 #[derive(Debug, Clone, PartialEq)]
@@ -120,9 +125,10 @@ fn face_name(k: usize, f: &Face) -> String {
 pub fn lay_out(job: &Job, cuts: &[bool], plate: &PlateConfig, process: usize, options: &TopologyOptions) -> Result<(Job, PlateLayout)> {
     let tol = options.common_cut_tolerance_mm;
     let (lo, hi) = (Point::new(plate.x, plate.y), Point::new(plate.x + plate.width, plate.y + plate.height));
+    let slack = tol.max(OFF_PLATE_MM);
     for g in &job.geometries {
         let (a, b) = g.bounds();
-        if a.x < lo.x - tol || a.y < lo.y - tol || b.x > hi.x + tol || b.y > hi.y + tol {
+        if a.x < lo.x - slack || a.y < lo.y - slack || b.x > hi.x + slack || b.y > hi.y + slack {
             return Err(Error::Plan(format!(
                 "{}: spans ({:.3}, {:.3})–({:.3}, {:.3}) mm, off the plate ({}, {})–({}, {}) mm ([plate])",
                 g.source, a.x, a.y, b.x, b.y, lo.x, lo.y, hi.x, hi.y
@@ -348,12 +354,14 @@ fn reaches(c: Point, radius: f64, ring: &[Point]) -> bool {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::config::ClampConfig;
     use crate::topology::tests::{job, rect};
 
-    fn plate(width: f64, height: f64) -> PlateConfig {
+    /// A plate of `width` x `height` mm at the origin: no skeleton, no
+    /// remnant, no clamps.
+    pub(crate) fn plate(width: f64, height: f64) -> PlateConfig {
         PlateConfig {
             x: 0.0,
             y: 0.0,

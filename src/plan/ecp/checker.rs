@@ -19,9 +19,10 @@ pub enum Violation {
     ClosesBoth { element: usize, contours: (usize, usize) },
 }
 
-/// Every rule the route breaks (empty: feasible).
-pub fn check(inst: &Instance, route: &[Cut]) -> Vec<Violation> {
-    let n = inst.elements.len();
+/// Each element's position in `route`, and the route's unknown elements and
+/// elements not cut as often as `wanted` says (once, or never).
+fn positions(route: &[Cut], wanted: &[usize]) -> (Vec<Option<usize>>, Vec<Violation>) {
+    let n = wanted.len();
     let mut violations = Vec::new();
     let mut position = vec![None; n];
     let mut times = vec![0usize; n];
@@ -34,10 +35,16 @@ pub fn check(inst: &Instance, route: &[Cut]) -> Vec<Violation> {
         position[c.element] = Some(i);
     }
     for (element, &t) in times.iter().enumerate() {
-        if t != 1 {
+        if t != wanted[element] {
             violations.push(Violation::CutCount { element, times: t });
         }
     }
+    (position, violations)
+}
+
+/// Every rule the route breaks (empty: feasible).
+pub fn check(inst: &Instance, route: &[Cut]) -> Vec<Violation> {
+    let (position, mut violations) = positions(route, &vec![1; inst.elements.len()]);
     if !violations.is_empty() {
         return violations;
     }
@@ -67,27 +74,10 @@ pub fn check(inst: &Instance, route: &[Cut]) -> Vec<Violation> {
 /// region (clamped, the largest without clamps, all of them when cut after
 /// the parts) do not apply, and neither do common cuts with one.
 pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut]) -> Vec<Violation> {
-    let n = topology.elements.len();
     let first = plate.first_cut;
     let uncut: Vec<bool> = topology.elements.iter().map(|e| plate.along_edge(&e.points) || (plate.scrap_after && e.geometry >= first)).collect();
     let fixed: Vec<bool> = (0..topology.contours.len()).map(|c| c >= first && (plate.scrap_after || plate.faces[c - first].fixed)).collect();
-    let mut violations = Vec::new();
-    let mut position: Vec<Option<usize>> = vec![None; n];
-    let mut times = vec![0usize; n];
-    for (i, c) in route.iter().enumerate() {
-        if c.element >= n {
-            violations.push(Violation::UnknownElement { element: c.element });
-            continue;
-        }
-        times[c.element] += 1;
-        position[c.element] = Some(i);
-    }
-    for e in 0..n {
-        let wanted = usize::from(!uncut[e]);
-        if times[e] != wanted {
-            violations.push(Violation::CutCount { element: e, times: times[e] });
-        }
-    }
+    let (position, mut violations) = positions(route, &uncut.iter().map(|&u| usize::from(!u)).collect::<Vec<_>>());
     if !violations.is_empty() {
         return violations;
     }

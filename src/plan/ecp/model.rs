@@ -264,21 +264,7 @@ mod tests {
     }
 
     fn plate_config(width: f64, height: f64, skeleton_piece: f64) -> crate::config::PlateConfig {
-        use crate::config::{PlateConfig, RemnantSetting, ScrapCuts};
-        PlateConfig {
-            x: 0.0,
-            y: 0.0,
-            width,
-            height,
-            thickness: 2.0,
-            skeleton_piece,
-            remnant: RemnantSetting::None,
-            remnant_min: 50.0,
-            clearance: 2.0,
-            scrap_cuts: ScrapCuts::InRoute,
-            layer: None,
-            clamps: Vec::new(),
-        }
+        crate::config::PlateConfig { skeleton_piece, ..crate::topology::plate::tests::plate(width, height) }
     }
 
     #[test]
