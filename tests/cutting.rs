@@ -54,14 +54,21 @@ fn ecp_keeps_every_rule_where_nearest_does_not_and_moves_less_air() {
 }
 
 #[test]
-fn a_cut_sheet_dry_runs_within_the_limits_with_a_pierce_at_every_entry() {
+fn a_cut_sheet_dry_runs_within_the_limits_with_a_pierce_at_every_entry_off_the_kerf() {
     let dir = tempfile::tempdir().unwrap();
     let machine = flatbed(1.0);
     let job = sheet_svg(dir.path(), 120, 3);
     let planned = run::plan(&job, &machine, PlannerKind::Ecp, None).unwrap();
-    let paths = planned.sequence.paths().count();
+    let all: Vec<_> = planned.sequence.paths().collect();
+    let paths = all.iter().filter(|p| p.pierce).count();
     let dwells = planned.program.lines.iter().filter(|l| l.text.starts_with("G4")).count();
     assert_eq!(dwells, paths, "one pierce per cut entry");
+    assert_eq!(planned.report.pierces, paths);
+    // Only a cut that goes on where the one before ended (the kerf is
+    // there) starts without a pierce.
+    for (i, p) in all.iter().enumerate() {
+        assert_eq!(p.pierce, i == 0 || all[i - 1].end() != p.start(), "path {i}");
+    }
     let recording = dir.path().join("sheet.mcap");
     let dry = run::dry_run(&planned, &machine, &recording, Faults::default()).unwrap();
     let sim = dry.report.sim.as_ref().unwrap();
