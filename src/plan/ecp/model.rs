@@ -329,4 +329,44 @@ mod tests {
         assert!(m.instance.inner_outer.is_empty() && m.instance.common_cuts().is_empty());
         assert_eq!(checker::check_plate(&m.topology, &plate, &m.topology_route(&route)), vec![]);
     }
+
+    #[test]
+    fn an_area_closed_off_by_a_part_and_the_edge_waits_for_what_lies_in_it() {
+        use crate::topology::plate::lay_out;
+        use crate::topology::tests::shape;
+        let options = TopologyOptions::default();
+        // An arch standing on the bottom edge (seed 000's Figure 1): legs
+        // 10 mm wide, 40 mm apart, 40 mm high; a 10 x 10 part under it.
+        let arch = shape(
+            &[(20.0, 0.0), (30.0, 0.0), (30.0, 40.0), (70.0, 40.0), (70.0, 0.0), (80.0, 0.0), (80.0, 50.0), (20.0, 50.0)],
+            true,
+            "arch",
+        );
+        let j = job(vec![arch, rect(45.0, 10.0, 55.0, 20.0, "under")]);
+        let (laid, plate) = lay_out(&j, &[true, true], &plate_config(200.0, 100.0, 0.0), 0, &options).unwrap();
+        assert_eq!(laid.geometries.len(), 2, "no skeleton: nothing to add");
+        assert_eq!(plate.faces.len(), 2, "the plate around the arch, and the area under it");
+        let m = CuttingModel::with_plate(&laid, &plate, 0, p(0.0, 0.0), 10.0, &options).unwrap();
+        let under = (2..4).find(|&c| !m.fixed[c]).expect("the area under the arch is not fixed");
+        assert!(m.instance.inner_outer.contains(&(1, under)), "{:?}", m.instance.inner_outer);
+        // The arch's three inner sides close the area: common cuts with it.
+        let shared: Vec<usize> = m.instance.common_cuts().iter().filter(|c| c.contours == (0, under)).map(|c| c.element).collect();
+        assert_eq!(shared.len(), 3);
+        assert!((m.edge_length_saved() - 20.0).abs() < 1e-9, "the legs' feet");
+        // Arch first (its inner sides last of all), then the part under it:
+        // the part is cut after its area fell, and a common cut closed both.
+        let arch_first: Vec<Cut> = m.instance.contours[0]
+            .iter()
+            .filter(|e| !shared.contains(e))
+            .chain(&shared)
+            .chain(&m.instance.contours[1])
+            .map(|&element| Cut { element, reversed: false })
+            .collect();
+        let broken = checker::check_plate(&m.topology, &plate, &m.topology_route(&arch_first));
+        assert!(broken.iter().any(|v| matches!(v, checker::Violation::InnerAfterOuter { inner: 1, .. })), "{broken:?}");
+        assert!(broken.iter().any(|v| matches!(v, checker::Violation::ClosesBoth { .. })), "{broken:?}");
+        // The search's route keeps both rules.
+        let route = crate::plan::ecp::construct::construct(&m.instance);
+        assert_eq!(checker::check_plate(&m.topology, &plate, &m.topology_route(&route)), vec![]);
+    }
 }
