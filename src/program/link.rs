@@ -199,6 +199,11 @@ impl LinkModel {
             let start = match end.last() {
                 None => may,
                 Some(&before) if may <= before + 1e-6 => before,
+                // Stopped there anyway (before a pierce, say): a block late
+                // after a rest costs the wait, not the motion (a job whose
+                // first cut starts where the machine stands has a jump of a
+                // few ms before it, which no link fills).
+                Some(&before) if blocks[k - 1].1 => may.max(before),
                 Some(_) => return false,
             };
             end.push(start + scale * blocks[k].0);
@@ -306,6 +311,20 @@ mod tests {
         assert!(!model(7000.0).on_time(&program, 1.0), "starves once the buffer has drained");
         // Slowed by 8000/7000 and a little, it keeps up again.
         assert!(model(7000.0).on_time(&program, 8000.0 / 7000.0 * 1.01));
+    }
+
+    #[test]
+    fn a_late_block_after_a_rest_waits_and_does_not_slow_the_job() {
+        // A jump of 1 ms to where the job starts (the machine stands there
+        // already), at rest before a pierce, then 5 ms lines: the link cannot
+        // bring the second line within 1 ms, and needs not.
+        let mut program = lines(2000, 40, 0.005);
+        program[0].due = Some((0.0, 0.001));
+        program[0].rest = true;
+        assert!(model(9000.0).on_time(&program, 1.0));
+        // Not at rest, the same 1 ms block starves the controller.
+        program[0].rest = false;
+        assert!(!model(9000.0).on_time(&program, 1.0));
     }
 
     #[test]
