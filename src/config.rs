@@ -1268,10 +1268,9 @@ impl MachineConfig {
         Ok(())
     }
 
-    /// The layer that cuts the plate's skeleton and remnant: `[plate] layer`,
-    /// else the first layer that pierces.
-    pub fn plate_layer(&self) -> Option<&str> {
-        let plate = self.plate.as_ref()?;
+    /// The layer that cuts `plate`'s skeleton and remnant: its `layer`, else
+    /// the first layer that pierces.
+    pub fn plate_layer<'a>(&'a self, plate: &'a PlateConfig) -> Option<&'a str> {
         plate.layer.as_deref().or_else(|| self.layers.iter().map(|l| l.name.as_str()).find(|l| self.pierce(l).active()))
     }
 

@@ -62,9 +62,10 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         }
         None => job,
     };
-    let (job, plate) = match &machine.plate {
-        Some(_) => {
-            let (job, layout) = lay_out_plate(job, machine)?;
+    // The plate a job file names, else the config's.
+    let (job, plate) = match crate::import::json::plate_of(job_path, machine)?.or_else(|| machine.plate.clone()) {
+        Some(plate) => {
+            let (job, layout) = lay_out_plate(job, machine, &plate)?;
             (job, Some(layout))
         }
         None => (job, None),
@@ -133,12 +134,11 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     Ok(Planned { job, sequence, trajectory, program, report, broken_rules })
 }
 
-/// The job laid out on the machine's `[plate]` (`topology::plate`): with
+/// The job laid out on `plate` (`topology::plate`): with
 /// its skeleton and remnant cuts, on the plate's layer (added to the job's
 /// processes if no geometry uses it yet).
-fn lay_out_plate(mut job: Job, machine: &MachineConfig) -> Result<(Job, PlateLayout)> {
-    let plate = machine.plate.as_ref().ok_or_else(|| Error::Plan("no [plate] in the machine config".into()))?;
-    let layer = machine.plate_layer().ok_or_else(|| Error::Plan("[plate]: no layer pierces, so nothing cuts the plate".into()))?;
+fn lay_out_plate(mut job: Job, machine: &MachineConfig, plate: &crate::config::PlateConfig) -> Result<(Job, PlateLayout)> {
+    let layer = machine.plate_layer(plate).ok_or_else(|| Error::Plan("[plate]: no layer pierces, so nothing cuts the plate".into()))?;
     let process = match job.processes.iter().position(|p| p.layer == layer) {
         Some(k) => k,
         None => {

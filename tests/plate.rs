@@ -102,3 +102,28 @@ fn bad_plate_settings_and_parts_off_the_plate_are_named() {
         assert!(!err.contains("panicked"), "{err}");
     }
 }
+
+#[test]
+fn a_job_file_carries_its_plate() {
+    let dir = tempfile::tempdir().unwrap();
+    let plate = config_with(dir.path(), "[plate]\nwidth = 250.0\nheight = 150.0\n");
+    let job_file = dir.path().join("job.json");
+    let sample = root().join("samples/cut-parts.dxf");
+    let out = laserd(&["import", sample.to_str().unwrap(), "-o", job_file.to_str().unwrap()], &plate);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let written: Value = serde_json::from_slice(&std::fs::read(&job_file).unwrap()).unwrap();
+    assert_eq!(written["plate"]["width"], 250.0);
+    // Planned on a machine whose config has no plate: the job's is used.
+    let cutter = root().join("config/flatbed-cutter.toml");
+    let r = report(&["plan", job_file.to_str().unwrap(), "--json"], &cutter);
+    assert!((r["edge_length_saved_mm"].as_f64().unwrap() - 40.0).abs() < 1e-6, "{r}");
+    // A job file's plate is checked as a config's.
+    let mut bad = written.clone();
+    bad["plate"]["skeleton_piece"] = serde_json::json!(-1.0);
+    std::fs::write(&job_file, bad.to_string()).unwrap();
+    let out = laserd(&["plan", job_file.to_str().unwrap()], &cutter);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("job.json") && err.contains("plate.skeleton_piece"), "{err}");
+    let schema = Command::new(env!("CARGO_BIN_EXE_laserd")).arg("job-schema").output().unwrap();
+    assert!(String::from_utf8_lossy(&schema.stdout).contains("skeleton_piece"));
+}

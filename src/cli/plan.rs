@@ -113,7 +113,7 @@ pub fn import(args: ImportArgs) -> Result<ExitCode> {
     let FoundConfig { mut machine, .. } = ConfigSearch::new(args.config.as_deref()).find()?;
     import_flags(&mut machine, &args.job, args.units, args.place)?;
     let job = laserd::import::import_job(&args.job, &machine)?;
-    let text = serde_json::to_string_pretty(&laserd::import::json::to_file(&job)).map_err(|e| Error::Io(e.to_string()))? + "\n";
+    let text = serde_json::to_string_pretty(&laserd::import::json::to_file(&job, machine.plate.as_ref())).map_err(|e| Error::Io(e.to_string()))? + "\n";
     match &args.output {
         Some(path) => write_file(path, text.as_bytes())?,
         None => print!("{text}"),

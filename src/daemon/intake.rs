@@ -286,7 +286,7 @@ mod tests {
         // The same job as laserd's own job file plans to the same time.
         let job = crate::import::import_job(&source, &machine()).unwrap();
         let job_file = dir.path().join("source.json");
-        std::fs::write(&job_file, serde_json::to_string(&crate::import::json::to_file(&job)).unwrap()).unwrap();
+        std::fs::write(&job_file, serde_json::to_string(&crate::import::json::to_file(&job, None)).unwrap()).unwrap();
         assert_eq!(JobKind::of("square.json", &std::fs::read(&job_file).unwrap()).unwrap(), JobKind::Json);
         let from_file = plan_or_check(&job_file, "square.json", &program, &machine(), PlannerKind::Auto, false).unwrap();
         assert_eq!(from_file.planned_time_s, planned.planned_time_s, "{from_file:?}");

@@ -8,7 +8,9 @@
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{MachineConfig, PASSES, VELOCITY};
+use std::path::Path;
+
+use crate::config::{MachineConfig, PlateConfig, PASSES, VELOCITY};
 use crate::error::{Error, Result};
 use super::MAX_COORD_MM;
 use crate::job::{Geometry, Job, Point, Process};
@@ -33,6 +35,10 @@ pub struct JobFile {
     /// The layers the geometries use: name, speed (mm/s), power (S), passes.
     pub processes: Vec<Process>,
     pub geometries: Vec<GeometryFile>,
+    /// The plate the job is cut from (the fields of the config's `[plate]`);
+    /// none: the machine config's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plate: Option<PlateConfig>,
 }
 
 /// One polyline in machine mm.
@@ -48,9 +54,10 @@ pub struct GeometryFile {
     pub source: String,
 }
 
-/// The job as its file.
-pub fn to_file(job: &Job) -> JobFile {
+/// The job as its file, with the plate it is cut from, if any.
+pub fn to_file(job: &Job, plate: Option<&PlateConfig>) -> JobFile {
     JobFile {
+        plate: plate.cloned(),
         format: FORMAT.into(),
         version: VERSION,
         source: job.source.clone(),
@@ -61,6 +68,21 @@ pub fn to_file(job: &Job) -> JobFile {
             .map(|g| GeometryFile { points: g.points.iter().map(|p| [p.x, p.y]).collect(), closed: g.closed, process: g.process, source: g.source.clone() })
             .collect(),
     }
+}
+
+/// The plate a job file names, checked as a config's `[plate]` is (its
+/// layer must be the machine's); `None` for other job files and where none
+/// is named.
+pub fn plate_of(path: &Path, config: &MachineConfig) -> Result<Option<PlateConfig>> {
+    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+        return Ok(None);
+    }
+    let source = path.display().to_string();
+    let bytes = super::read_capped(path, (config.import.max_file_mb * 1e6) as usize)?;
+    let file: JobFile = serde_json::from_slice(&bytes).map_err(|e| Error::Import(format!("{source}: not a laserd job file: {e}")))?;
+    let Some(plate) = file.plate else { return Ok(None) };
+    MachineConfig { plate: Some(plate.clone()), ..config.clone() }.checked(&source)?;
+    Ok(Some(plate))
 }
 
 /// The JSON Schema of a job file.
@@ -121,7 +143,7 @@ mod tests {
             geometries: vec![Geometry { points: vec![Point::new(0.1, 1.0 / 3.0), Point::new(2.0f64.sqrt(), 7.0)], closed: false, process: 0, source: "a.svg: <path>".into() }],
             processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 200.0, passes: 2 }],
         };
-        let text = serde_json::to_string(&to_file(&job)).unwrap();
+        let text = serde_json::to_string(&to_file(&job, None)).unwrap();
         let back = import_json(text.as_bytes(), "j.json", &config).unwrap();
         assert_eq!(back.geometries, job.geometries);
         assert_eq!(back.processes, job.processes);
