@@ -62,7 +62,8 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         }
         None => job,
     };
-    // The plate a job file names, else the config's.
+    let started = WallInstant::now();
+    // The plate a job file names, else the config's (laying it out is planning).
     let (job, plate) = match crate::import::json::plate_of(job_path, machine)?.or_else(|| machine.plate.clone()) {
         Some(plate) => {
             let (job, layout) = lay_out_plate(job, machine, &plate)?;
@@ -70,7 +71,6 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         }
         None => (job, None),
     };
-    let started = WallInstant::now();
     let ctx = PlanContext { machine: &planning_machine, mode, start: job_start(), plate: plate.as_ref() };
     let mut outcome = plan_job(kind, &job, &ctx)?;
     let mut plan_time_s = started.elapsed().as_secs_f64();

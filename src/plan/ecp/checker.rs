@@ -70,9 +70,10 @@ pub fn check(inst: &Instance, route: &[Cut]) -> Vec<Violation> {
 /// (`PlateLayout::topology_job`), `route` cuts its elements. Elements on the
 /// plate's edge, and the regions' own ones when the plate's skeleton is cut
 /// after the parts, count as cut before the route starts and must not be in
-/// it; a contour closes at its last element cut; rules waiting for a fixed
-/// region (clamped, the largest without clamps, all of them when cut after
-/// the parts) do not apply, and neither do common cuts with one.
+/// it; a contour closes at its last element cut; no rule binds a fixed
+/// region (clamped, the remnant, the largest without clamps, all of them
+/// when cut after the parts): neither what waits for it, nor it waiting
+/// inside another, nor its common cuts.
 pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut]) -> Vec<Violation> {
     let first = plate.first_cut;
     let uncut: Vec<bool> = topology.elements.iter().map(|e| plate.along_edge(&e.points) || (plate.scrap_after && e.geometry >= first)).collect();
@@ -85,7 +86,7 @@ pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut]) -> V
     let pos = |e: usize| position[e].map_or(-1, |p| p as i64);
     let closes = |k: usize| topology.contours[k].iter().map(|&e| pos(e)).max().unwrap_or(-1);
     for (inner, outer) in topology.inner_outer() {
-        if fixed[outer] || closes(outer) < 0 {
+        if fixed[outer] || fixed[inner] || closes(outer) < 0 {
             continue;
         }
         if topology.contours[inner].iter().any(|&e| position[e].is_some() && pos(e) >= closes(outer)) {

@@ -74,7 +74,8 @@ impl CuttingModel {
     /// The instance of `job` (laid out by `plate`) on its plate: the
     /// topology of its parts and the plate's regions, without the elements
     /// on the plate's edge (already cut) and without the rules of fixed
-    /// regions; cuts starting on the edge need no pierce. A region's own
+    /// regions (nothing waits for them, nor they for anything); cuts
+    /// starting on the edge need no pierce. A region's own
     /// elements are the skeleton and remnant cuts, the job's geometries from
     /// `plate.first_cut` on (after the parts when `plate.scrap_after`).
     pub fn with_plate(job: &Job, plate: &PlateLayout, process: usize, depot: Point, pierce_cost: f64, options: &TopologyOptions) -> Result<CuttingModel> {
@@ -134,7 +135,7 @@ impl CuttingModel {
         let inner_outer = topology
             .inner_outer()
             .into_iter()
-            .filter(|&(inner, outer)| !fixed[outer] && !contours[outer].is_empty() && !contours[inner].is_empty())
+            .filter(|&(inner, outer)| !fixed[outer] && !fixed[inner] && !contours[outer].is_empty() && !contours[inner].is_empty())
             .collect();
         let elements = element_of.iter().map(|&e| Element { a: topology.elements[e].start(), b: topology.elements[e].end() }).collect();
         let edge_starts = element_of.iter().map(|&e| [plate.on_edge(topology.elements[e].start()), plate.on_edge(topology.elements[e].end())]).collect();
