@@ -34,6 +34,10 @@ use crate::job::{bounds_of, Geometry, Job, Point};
 /// curves; far less than any kerf, so it is cut as drawn.
 const OFF_PLATE_MM: f64 = 0.1;
 
+/// The most skeleton pieces a plate is cut into: a job file's plate is an
+/// upload, and each piece is a polygon operation.
+const MAX_CELLS: usize = 10_000;
+
 /// A waste region of the plate: a cell of the skeleton grid (or the
 /// remnant) minus the parts.
 #[derive(Debug, Clone, PartialEq)]
@@ -166,6 +170,14 @@ pub fn lay_out(job: &Job, cuts: &[bool], plate: &PlateConfig, process: usize, op
         }
     };
     let piece = plate.skeleton_piece;
+    // Cut positions come at least half a piece apart: the cell count is known before.
+    let most = |side: f64| if piece > 0.0 { (2.0 * side / piece).ceil() + 1.0 } else { 1.0 };
+    if most(plate.width) * most(plate.height) > MAX_CELLS as f64 {
+        return Err(Error::Plan(format!(
+            "[plate] skeleton_piece = {piece} mm could cut a {} x {} mm plate into more than {MAX_CELLS} pieces: use larger pieces",
+            plate.width, plate.height
+        )));
+    }
     let xs = cut_positions(lo.x, hi.x, &grown.iter().map(|(a, b)| (a.x, b.x)).collect::<Vec<_>>(), piece);
     let ys = cut_positions(lo.y, hi.y, &grown.iter().map(|(a, b)| (a.y, b.y)).collect::<Vec<_>>(), piece);
     // A part within the tolerance of the edge lies on it: snapped there, it
@@ -297,13 +309,20 @@ fn auto_remnant(lo: Point, hi: Point, boxes: &[(Point, Point)], min: f64) -> Opt
         let m = |p: Point| Point::new(sx * p.x, sy * p.y);
         let (plo, phi) = bounds_of([m(lo), m(hi)].iter());
         let bs: Vec<(Point, Point)> = boxes.iter().map(|&(a, b)| bounds_of([m(a), m(b)].iter())).collect();
-        // Rectangles [a, phi.x] x [floor, phi.y]: for each left side a, the
-        // floor is the highest box reaching right of a.
-        for a in std::iter::once(plo.x).chain(bs.iter().map(|b| b.1.x)) {
-            if a < plo.x || a >= phi.x {
-                continue;
+        // Rectangles [a, phi.x] x [floor, phi.y]: for each left side a (the
+        // plate's, or a box's right side), the floor is the highest box
+        // reaching right of a. Left sides from right to left, the boxes
+        // sorted the same way: one sweep.
+        let mut by_right: Vec<(f64, f64)> = bs.iter().map(|b| (b.1.x, b.1.y)).collect();
+        by_right.sort_by(|p, q| q.0.total_cmp(&p.0));
+        let mut lefts: Vec<f64> = std::iter::once(plo.x).chain(by_right.iter().map(|b| b.0)).filter(|&a| a >= plo.x && a < phi.x).collect();
+        lefts.sort_by(|p, q| q.total_cmp(p));
+        let (mut floor, mut next) = (plo.y, 0);
+        for a in lefts {
+            while next < by_right.len() && by_right[next].0 > a {
+                floor = floor.max(by_right[next].1);
+                next += 1;
             }
-            let floor = bs.iter().filter(|b| b.1.x > a).map(|b| b.1.y).fold(plo.y, f64::max);
             let (w, h) = (phi.x - a, phi.y - floor);
             if w >= min && h >= min && w * h > best.map_or(0.0, |b| b.0) {
                 let corners = [m(Point::new(a, floor)), m(phi)];
@@ -505,5 +524,14 @@ pub(crate) mod tests {
         }
         let near_left = t.contours[1].iter().filter(|&&e| layout.along_edge(&t.elements[e].points)).count();
         assert_eq!(near_left, 1, "the side 2 µm off the edge lies on it");
+    }
+
+    #[test]
+    fn a_skeleton_of_too_many_pieces_is_refused_before_it_is_built() {
+        let j = job(vec![rect(5.0, 5.0, 60.0, 95.0, "a")]);
+        let mut p = plate(100_000.0, 100_000.0);
+        p.skeleton_piece = 10.0;
+        let err = lay_out(&j, &[true], &p, 0, &TopologyOptions::default()).unwrap_err().to_string();
+        assert!(err.contains("skeleton_piece") && err.contains("10000 pieces"), "{err}");
     }
 }
