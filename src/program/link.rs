@@ -199,11 +199,12 @@ impl LinkModel {
             let start = match end.last() {
                 None => may,
                 Some(&before) if may <= before + 1e-6 => before,
-                // Stopped there anyway (before a pierce, say): a block late
-                // after a rest costs the wait, not the motion (a job whose
-                // first cut starts where the machine stands has a jump of a
-                // few ms before it, which no link fills).
-                Some(&before) if blocks[k - 1].1 => may.max(before),
+                // The jump to the job's start, ending at rest: a block late
+                // after it costs the wait, not the motion (a job whose first
+                // cut starts where the machine stands has a jump of a few ms
+                // before it, which no link fills). Anywhere later, a wait
+                // starves the controller: the job is slowed instead.
+                Some(&before) if k == 1 && blocks[0].1 => may.max(before),
                 Some(_) => return false,
             };
             end.push(start + scale * blocks[k].0);
@@ -314,7 +315,7 @@ mod tests {
     }
 
     #[test]
-    fn a_late_block_after_a_rest_waits_and_does_not_slow_the_job() {
+    fn a_late_block_after_the_jump_to_the_start_waits_and_does_not_slow_the_job() {
         // A jump of 1 ms to where the job starts (the machine stands there
         // already), at rest before a pierce, then 5 ms lines: the link cannot
         // bring the second line within 1 ms, and needs not.
@@ -325,6 +326,11 @@ mod tests {
         // Not at rest, the same 1 ms block starves the controller.
         program[0].rest = false;
         assert!(!model(9000.0).on_time(&program, 1.0));
+        // Later rests are no place to wait: 1 ms blocks, each ending at rest,
+        // come faster than the link brings their lines.
+        let mut stops = lines(20, 40, 0.001);
+        stops.iter_mut().for_each(|l| l.rest = true);
+        assert!(!model(9000.0).on_time(&stops, 1.0));
     }
 
     #[test]
