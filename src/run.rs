@@ -66,6 +66,15 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     // The plate a job file names, else the config's (laying it out is planning).
     let (job, plate) = match crate::import::json::plate_of(job_path, machine)?.or_else(|| machine.plate.clone()) {
         Some(plate) => {
+            // Only the cutting planner knows the plate's rules (what its
+            // regions hold, its edge): the others would cut skeleton pieces
+            // away under parts, unseen by their precedence count.
+            if !matches!(kind, PlannerKind::Auto | PlannerKind::Ecp) && cuts_through(&job, machine).contains(&true) {
+                return Err(Error::Plan(format!(
+                    "{}: on a [plate], parts are planned by the cutting planner (--planner auto or ecp), which keeps the plate's rules; remove [plate] to plan with another",
+                    job_path.display()
+                )));
+            }
             let (job, layout) = lay_out_plate(job, machine, &plate)?;
             (job, Some(layout))
         }

@@ -101,6 +101,10 @@ fn bad_plate_settings_and_parts_off_the_plate_are_named() {
         assert!(!out.status.success() && err.contains(named), "{plate}: {err}");
         assert!(!err.contains("panicked"), "{err}");
     }
+    // A planner that does not know the plate's rules is refused on one.
+    let out = laserd(&["plan", job, "--planner", "nearest"], &config_with(dir.path(), "[plate]\nwidth = 250.0\nheight = 150.0\n"));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--planner auto or ecp"), "{err}");
 }
 
 #[test]
