@@ -24,7 +24,7 @@ use i_overlay::core::overlay_rule::OverlayRule;
 use i_overlay::float::single::SingleFloatOverlay;
 
 use super::contours::signed_area;
-use super::{Topology, TopologyOptions};
+use super::{Element, Topology, TopologyOptions};
 use crate::config::{PlateConfig, RemnantSetting, ScrapCuts};
 use crate::error::{Error, Result};
 use crate::job::{bounds_of, Geometry, Job, Point};
@@ -86,6 +86,19 @@ impl PlateLayout {
     /// A polyline lying along one side of the plate: nothing to cut there.
     pub fn along_edge(&self, points: &[Point]) -> bool {
         (0..4).any(|side| points.iter().all(|&p| self.sides(p)[side]))
+    }
+
+    /// Whether contour `c` of [`Self::topology_job`]'s topology is a region
+    /// no rule binds: a fixed one, or any when the skeleton is cut after the parts.
+    pub fn is_fixed(&self, c: usize) -> bool {
+        c >= self.first_cut && (self.scrap_after || self.faces[c - self.first_cut].fixed)
+    }
+
+    /// Whether an element of that topology is left out of the route: it
+    /// lies on the plate's edge, or is a region's own (a skeleton or remnant
+    /// cut) when those come after the parts.
+    pub fn uncut(&self, e: &Element) -> bool {
+        self.along_edge(&e.points) || (self.scrap_after && e.geometry >= self.first_cut)
     }
 
     /// The job the cutting model's topology is built of: the job's own
@@ -337,8 +350,8 @@ fn auto_remnant(lo: Point, hi: Point, boxes: &[(Point, Point)], min: f64) -> Opt
 /// the largest other one (the plate around the parts holds by its weight).
 fn fix_faces(faces: &mut [Face], plate: &PlateConfig) {
     // The remnant holds no part and is kept whole: it waits for nothing.
-    for f in faces.iter_mut().filter(|f| f.remnant) {
-        f.fixed = true;
+    for f in faces.iter_mut() {
+        f.fixed = f.remnant || plate.clamps.iter().any(|c| reaches(Point::new(c.x, c.y), c.radius, &f.ring));
     }
     if plate.clamps.is_empty() {
         let largest = (0..faces.len())
@@ -347,10 +360,6 @@ fn fix_faces(faces: &mut [Face], plate: &PlateConfig) {
         if let Some(k) = largest {
             faces[k].fixed = true;
         }
-        return;
-    }
-    for f in faces.iter_mut() {
-        f.fixed = f.remnant || plate.clamps.iter().any(|c| reaches(Point::new(c.x, c.y), c.radius, &f.ring));
     }
 }
 

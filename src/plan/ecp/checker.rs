@@ -75,9 +75,8 @@ pub fn check(inst: &Instance, route: &[Cut]) -> Vec<Violation> {
 /// when cut after the parts): neither what waits for it, nor it waiting
 /// inside another, nor its common cuts.
 pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut]) -> Vec<Violation> {
-    let first = plate.first_cut;
-    let uncut: Vec<bool> = topology.elements.iter().map(|e| plate.along_edge(&e.points) || (plate.scrap_after && e.geometry >= first)).collect();
-    let fixed: Vec<bool> = (0..topology.contours.len()).map(|c| c >= first && (plate.scrap_after || plate.faces[c - first].fixed)).collect();
+    let uncut: Vec<bool> = topology.elements.iter().map(|e| plate.uncut(e)).collect();
+    let fixed: Vec<bool> = (0..topology.contours.len()).map(|c| plate.is_fixed(c)).collect();
     let (position, mut violations) = positions(route, &uncut.iter().map(|&u| usize::from(!u)).collect::<Vec<_>>());
     if !violations.is_empty() {
         return violations;

@@ -24,12 +24,6 @@ pub struct CuttingModel {
     /// Per topology element: the job geometries it is marked for (its own,
     /// and the other part of a common cut); none when it is not cut.
     marked_for: Vec<Vec<usize>>,
-    /// Per topology element: not cut (on the plate's edge, or a skeleton
-    /// piece cut after the parts).
-    pub uncut: Vec<bool>,
-    /// Per topology contour: a plate region that never moves, so no rule
-    /// waits for it.
-    pub fixed: Vec<bool>,
     /// Per topology element: its length when it lies on the plate's edge
     /// and belongs to a part (what is not cut), else 0.
     edge_saved: Vec<f64>,
@@ -63,8 +57,6 @@ impl CuttingModel {
         CuttingModel {
             element_of: (0..n).collect(),
             marked_for: topology.elements.iter().map(|e| e.geometries()).collect(),
-            uncut: vec![false; n],
-            fixed: vec![false; topology.contours.len()],
             edge_saved: vec![0.0; n],
             topology,
             instance,
@@ -98,7 +90,7 @@ impl CuttingModel {
             let on_edge = plate.along_edge(&e.points);
             let geometries: Vec<usize> = if e.geometry < first {
                 e.geometries().into_iter().filter(|&g| g < first).collect()
-            } else if on_edge || plate.scrap_after {
+            } else if plate.uncut(e) {
                 Vec::new()
             } else {
                 let g = cut_of.get(&key(e.start(), e.end())).copied();
@@ -107,11 +99,10 @@ impl CuttingModel {
             if on_edge && e.geometry < first {
                 edge_saved[i] = e.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
             }
-            uncut.push(on_edge || geometries.is_empty());
+            uncut.push(plate.uncut(e));
             marked_for.push(geometries);
         }
-        let k = topology.contours.len();
-        let fixed: Vec<bool> = (0..k).map(|c| c >= first && (plate.scrap_after || plate.faces[c - first].fixed)).collect();
+        let fixed: Vec<bool> = (0..topology.contours.len()).map(|c| plate.is_fixed(c)).collect();
         let element_of: Vec<usize> = (0..m).filter(|&e| !uncut[e]).collect();
         let mut index = vec![usize::MAX; m];
         for (i, &e) in element_of.iter().enumerate() {
@@ -140,7 +131,7 @@ impl CuttingModel {
         let elements = element_of.iter().map(|&e| Element { a: topology.elements[e].start(), b: topology.elements[e].end() }).collect();
         let edge_starts = element_of.iter().map(|&e| [plate.on_edge(topology.elements[e].start()), plate.on_edge(topology.elements[e].end())]).collect();
         let instance = Instance { elements, contours, inner_outer, depot, metric: Metric::Euclidean, pierce_cost, edge_starts };
-        Ok(CuttingModel { topology, instance, element_of, marked_for, uncut, fixed, edge_saved })
+        Ok(CuttingModel { topology, instance, element_of, marked_for, edge_saved })
     }
 
     /// The length of the parts' outlines lying on the plate's edge, not cut.
@@ -307,7 +298,7 @@ mod tests {
         assert_eq!(laid.geometries[2].points.iter().map(|q| q.x).collect::<Vec<_>>(), vec![100.0, 100.0]);
         let m = CuttingModel::with_plate(&laid, &plate, 0, p(0.0, 0.0), 10.0, &options).unwrap();
         let pieces: Vec<usize> = (2..m.topology.contours.len()).collect();
-        let free_piece = *pieces.iter().find(|&&c| !m.fixed[c]).unwrap();
+        let free_piece = *pieces.iter().find(|&&c| !plate.is_fixed(c)).unwrap();
         assert!(m.instance.inner_outer.contains(&(1, free_piece)) || m.instance.inner_outer.contains(&(0, free_piece)));
         // The skeleton cut first, then the part inside the piece it frees: broken.
         let cut = m.element_of.iter().position(|&e| m.topology.elements[e].geometry >= 2).unwrap();
@@ -348,7 +339,7 @@ mod tests {
         assert_eq!(laid.geometries.len(), 2, "no skeleton: nothing to add");
         assert_eq!(plate.faces.len(), 2, "the plate around the arch, and the area under it");
         let m = CuttingModel::with_plate(&laid, &plate, 0, p(0.0, 0.0), 10.0, &options).unwrap();
-        let under = (2..4).find(|&c| !m.fixed[c]).expect("the area under the arch is not fixed");
+        let under = (2..4).find(|&c| !plate.is_fixed(c)).expect("the area under the arch is not fixed");
         assert!(m.instance.inner_outer.contains(&(1, under)), "{:?}", m.instance.inner_outer);
         // The arch's three inner sides close the area: common cuts with it.
         let shared: Vec<usize> = m.instance.common_cuts().iter().filter(|c| c.contours == (0, under)).map(|c| c.element).collect();
