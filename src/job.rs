@@ -20,32 +20,151 @@ pub struct Process {
     pub passes: u32,
 }
 
-/// One shape to mark or cut: a polyline, open or closed.
+/// One shape to mark or cut: a polyline, open or closed, whose circular
+/// arcs are kept exact beside their flattening.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Geometry {
     /// Vertices in mm. A closed geometry does not repeat its first vertex at the end.
+    /// Arcs are here flattened within the import tolerance: the stages that
+    /// need points (topology, planning, motion) read these.
     pub points: Vec<Point>,
     pub closed: bool,
+    /// The circular arcs among the segments, in order, not overlapping
+    /// (DXF arcs, circles and bulges, G-code G2/G3): length and bounds are
+    /// theirs, not their chords'. Empty for a plain polyline.
+    pub arcs: Vec<ArcSpan>,
     /// Index into `Job::processes`.
     pub process: usize,
     /// Where it came from, for messages: e.g. `sample.svg: <path id="p12">` (subpath 2).
     pub source: String,
 }
 
+/// A circular arc of a geometry, kept exact: the vertices `from..=to` are
+/// its flattening, from `points[from]` to `points[to]` (`to` equal to the
+/// number of points: vertex 0, the closing segment of a closed geometry). It
+/// bends by `bulge`, the tangent of a quarter of its sweep, positive
+/// counter-clockwise (as DXF writes it), at most 1 (a half circle) either way.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ArcSpan {
+    pub from: usize,
+    pub to: usize,
+    pub bulge: f64,
+}
+
+/// The circle of an arc from `a` to `b` of `bulge`: centre, radius, the
+/// angle of `a` about the centre and the signed sweep (radians).
+pub fn arc_circle(a: Point, b: Point, bulge: f64) -> (Point, f64, f64, f64) {
+    let sweep = 4.0 * bulge.atan();
+    let d = b - a;
+    let chord = d.norm();
+    let radius = chord / (2.0 * (sweep / 2.0).sin().abs());
+    // The centre lies left of the chord for a counter-clockwise arc.
+    let offset = radius * (sweep / 2.0).cos() * sweep.signum();
+    let centre = a + d / 2.0 + nalgebra::Vector2::new(-d.y, d.x) / chord * offset;
+    (centre, radius, (a.y - centre.y).atan2(a.x - centre.x), sweep)
+}
+
+/// Length of the arc from `a` to `b` of `bulge` (the chord for bulge 0).
+pub fn arc_length(a: Point, b: Point, bulge: f64) -> f64 {
+    let chord = (b - a).norm();
+    if bulge == 0.0 || chord == 0.0 {
+        return chord;
+    }
+    let half = 2.0 * bulge.atan().abs();
+    chord * half / half.sin()
+}
+
 impl Geometry {
-    /// Length of the marked path (including the closing segment of a closed shape).
-    pub fn length(&self) -> f64 {
+    /// A polyline with no arcs.
+    pub fn polyline(points: Vec<Point>, closed: bool, process: usize, source: String) -> Geometry {
+        Geometry { points, closed, arcs: Vec::new(), process, source }
+    }
+
+    /// Vertex `i`, counting on past the last to the first.
+    fn vertex(&self, i: usize) -> Point {
+        self.points[i % self.points.len()]
+    }
+
+    /// Segments of the polyline (the closing one of a closed shape included).
+    fn segments(&self) -> usize {
         let n = self.points.len();
-        let mut len: f64 = self.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
-        if self.closed && n > 2 {
-            len += (self.points[0] - self.points[n - 1]).norm();
+        if self.closed && n > 2 { n } else { n.saturating_sub(1) }
+    }
+
+    /// Length of the marked path (including the closing segment of a closed
+    /// shape), its arcs along the arcs.
+    pub fn length(&self) -> f64 {
+        let mut len = 0.0;
+        let mut arcs = self.arcs.iter().peekable();
+        let mut i = 0;
+        while i < self.segments() {
+            match arcs.next_if(|a| a.from == i) {
+                Some(a) => {
+                    len += arc_length(self.vertex(a.from), self.vertex(a.to), a.bulge);
+                    i = a.to.max(i + 1);
+                }
+                None => {
+                    len += (self.vertex(i + 1) - self.vertex(i)).norm();
+                    i += 1;
+                }
+            }
         }
         len
     }
 
-    /// Axis-aligned bounds (min, max).
+    /// Axis-aligned bounds (min, max), its arcs' extremes included.
     pub fn bounds(&self) -> (Point, Point) {
-        bounds_of(self.points.iter())
+        let (mut lo, mut hi) = bounds_of(self.points.iter());
+        for a in &self.arcs {
+            let (centre, radius, start, sweep) = arc_circle(self.vertex(a.from), self.vertex(a.to), a.bulge);
+            // The arc reaches an axis direction k·90° where its sweep passes it.
+            for k in 0..4 {
+                let axis = k as f64 * std::f64::consts::FRAC_PI_2;
+                let past = if sweep >= 0.0 { (axis - start).rem_euclid(std::f64::consts::TAU) } else { (start - axis).rem_euclid(std::f64::consts::TAU) };
+                if past <= sweep.abs() {
+                    let p = centre + nalgebra::Vector2::new(axis.cos(), axis.sin()) * radius;
+                    lo = Point::new(lo.x.min(p.x), lo.y.min(p.y));
+                    hi = Point::new(hi.x.max(p.x), hi.y.max(p.y));
+                }
+            }
+        }
+        (lo, hi)
+    }
+
+    /// What is wrong with the arcs, if anything: out of order or range, a
+    /// bulge beyond a half circle, or vertices further than `tolerance` from
+    /// the arc they flatten (off its circle, or chords cutting inside it by
+    /// more). A job file's arcs are checked so, as any upload is.
+    pub fn arc_error(&self, tolerance: f64) -> Option<String> {
+        let n = self.points.len();
+        let mut next = 0;
+        for (k, a) in self.arcs.iter().enumerate() {
+            let last = if self.closed && n > 2 { n } else { n - 1 };
+            if a.from < next || a.to <= a.from || a.to > last {
+                return Some(format!("arc {k} (vertices {} to {}) is out of order or beyond the {n} vertices", a.from, a.to));
+            }
+            if !(a.bulge.is_finite() && a.bulge != 0.0 && a.bulge.abs() <= 1.0) {
+                return Some(format!("arc {k}: bulge {} is not within -1 to 1 (a half circle) or is 0", a.bulge));
+            }
+            let (centre, radius, _, sweep) = arc_circle(self.vertex(a.from), self.vertex(a.to), a.bulge);
+            let mut turned = 0.0;
+            for i in a.from..a.to {
+                let (p, q) = (self.vertex(i), self.vertex(i + 1));
+                let off = ((q - centre).norm() - radius).abs();
+                let step = (p - centre).perp(&(q - centre)).atan2((p - centre).dot(&(q - centre)));
+                let sagitta = radius * (1.0 - (step / 2.0).cos());
+                if off > tolerance || sagitta > tolerance + 1e-9 || step * sweep < 0.0 {
+                    return Some(format!("arc {k}: vertex {} is {:.2e} mm off the arc, its chord {sagitta:.2e} mm inside it (tolerance {tolerance} mm)", i + 1, off));
+                }
+                turned += step;
+            }
+            if (turned - sweep).abs() > 1e-6 {
+                return Some(format!("arc {k}: its vertices turn {turned:.6} rad, its bulge {sweep:.6} rad"));
+            }
+            next = a.to;
+        }
+        None
     }
 }
 
@@ -78,6 +197,8 @@ impl Job {
     }
 
     pub fn bounds(&self) -> (Point, Point) {
-        bounds_of(self.geometries.iter().flat_map(|g| g.points.iter()))
+        self.geometries.iter().map(Geometry::bounds).fold(bounds_of(std::iter::empty()), |(lo, hi), (a, b)| {
+            (Point::new(lo.x.min(a.x), lo.y.min(a.y)), Point::new(hi.x.max(b.x), hi.y.max(b.y)))
+        })
     }
 }

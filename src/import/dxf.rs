@@ -30,7 +30,7 @@ use kurbo::Affine;
 
 use crate::config::{parse_hex_colour, DrawingUnit, MachineConfig};
 use crate::error::{Error, Result};
-use super::MAX_COORD_MM;
+use super::{Trace, MAX_COORD_MM};
 use crate::job::{Geometry, Job, Point};
 
 /// Ends of open pieces closer than this (mm) are joined.
@@ -155,6 +155,21 @@ fn apply(map: &Affine, x: f64, y: f64) -> Point {
     Point::new(p.x, p.y)
 }
 
+/// Whether `map` keeps circles round (a turn, a uniform scale and a
+/// move): 1, or -1 where it also mirrors (arcs then turn the other way).
+fn similarity(map: &Affine) -> Option<f64> {
+    let [a, b, c, d, _, _] = map.as_coeffs();
+    let scale = (a * a + b * b).sqrt().max(1e-300);
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * scale;
+    if close(a, d) && close(b, -c) {
+        Some(1.0)
+    } else if close(a, -d) && close(b, c) {
+        Some(-1.0)
+    } else {
+        None
+    }
+}
+
 /// An upper bound of how much `map` stretches a length (the Frobenius norm
 /// of its linear part).
 fn stretch(map: &Affine) -> f64 {
@@ -173,7 +188,7 @@ const MIRROR_X: Affine = Affine::scale_non_uniform(-1.0, 1.0);
 /// An open or closed polyline read from the file, in machine mm, with its
 /// layer (index into the config's layers) and where it came from.
 struct Piece {
-    points: Vec<Point>,
+    trace: Trace,
     closed: bool,
     layer: usize,
     source: String,
@@ -246,7 +261,7 @@ impl<'a> Reader<'a> {
         };
         match &e.specific {
             EntityType::Line(l) => {
-                let pts = vec![apply(map, l.p1.x, l.p1.y), apply(map, l.p2.x, l.p2.y)];
+                let pts = Trace::of(vec![apply(map, l.p1.x, l.p1.y), apply(map, l.p2.x, l.p2.y)]);
                 self.push(pts, false, layer_name, colour, name("LINE"))?;
             }
             EntityType::Circle(c) => {
@@ -285,12 +300,13 @@ impl<'a> Reader<'a> {
                 self.push(pts, closed, layer_name, colour, name("POLYLINE"))?;
             }
             EntityType::Ellipse(el) => {
-                let pts = self.ellipse_points(map, el, &name("ELLIPSE"))?;
+                let pts = Trace::of(self.ellipse_points(map, el, &name("ELLIPSE"))?);
                 let full = (el.end_parameter - el.start_parameter).rem_euclid(std::f64::consts::TAU) < 1e-9;
                 self.push(pts, full, layer_name, colour, name("ELLIPSE"))?;
             }
             EntityType::Spline(s) => {
                 let (pts, closed) = self.spline_points(map, s, &name("SPLINE"))?;
+                let pts = Trace::of(pts);
                 self.push(pts, closed, layer_name, colour, name("SPLINE"))?;
             }
             EntityType::Insert(ins) => self.insert(ins, map, inserting, (layer_name, colour), &handle)?,
@@ -371,34 +387,43 @@ impl<'a> Reader<'a> {
         Ok(n as usize)
     }
 
-    /// Points of an arc of `radius` about `centre` from angle `start` over
-    /// `sweep` (radians, negative: clockwise), within the tolerance.
-    fn arc_points(&mut self, map: &Affine, centre: (f64, f64), radius: f64, start: f64, sweep: f64, what: &str) -> Result<Vec<Point>> {
+    /// An arc of `radius` about `centre` from angle `start` over `sweep`
+    /// (radians, negative: clockwise), flattened within the tolerance. It
+    /// stays an arc (in pieces of at most a half circle) where `map` keeps
+    /// circles round; under a stretch it is an ellipse, kept as its points.
+    fn arc_points(&mut self, map: &Affine, centre: (f64, f64), radius: f64, start: f64, sweep: f64, what: &str) -> Result<Trace> {
         if !(radius.is_finite() && centre.0.is_finite() && centre.1.is_finite() && start.is_finite() && sweep.is_finite()) || radius.abs() > MAX_COORD_MM {
             return Err(Error::Import(format!("{}: {what} has a coordinate that is not a number or out of range", self.source)));
         }
         let radius = radius.abs();
+        let pieces = (sweep.abs() / std::f64::consts::PI - 1e-9).ceil().max(1.0) as usize;
         let n = super::arc_segments(radius, sweep, self.local_tolerance(map));
+        let n = (n / pieces as f64).ceil() * pieces as f64;
         let n = self.room_for(n + 1.0, what)? - 1;
-        Ok((0..=n)
-            .map(|k| {
-                let a = start + sweep * k as f64 / n as f64;
-                apply(map, centre.0 + radius * a.cos(), centre.1 + radius * a.sin())
-            })
-            .collect())
+        let at = |k: usize| {
+            let a = start + sweep * k as f64 / n as f64;
+            apply(map, centre.0 + radius * a.cos(), centre.1 + radius * a.sin())
+        };
+        let mut trace = Trace::of(vec![at(0)]);
+        let bulge = similarity(map).map_or(0.0, |turn| turn * (sweep / pieces as f64 / 4.0).tan());
+        let per = n / pieces;
+        for piece in 0..pieces {
+            trace.arc_to((piece * per + 1..=(piece + 1) * per).map(at), bulge);
+        }
+        Ok(trace)
     }
 
-    /// Points of a polyline whose vertices carry bulges (tan of a quarter of
-    /// each segment's arc angle, positive counter-clockwise).
-    fn bulged(&mut self, map: &Affine, vertices: &[(f64, f64, f64)], closed: bool, what: &str) -> Result<Vec<Point>> {
+    /// A polyline whose vertices carry bulges (tan of a quarter of each
+    /// segment's arc angle, positive counter-clockwise).
+    fn bulged(&mut self, map: &Affine, vertices: &[(f64, f64, f64)], closed: bool, what: &str) -> Result<Trace> {
         if vertices.iter().any(|(x, y, b)| !(x.is_finite() && y.is_finite() && b.is_finite())) {
             return Err(Error::Import(format!("{}: {what} has a coordinate that is not a number", self.source)));
         }
         let n = vertices.len();
         let segments = if closed { n } else { n.saturating_sub(1) };
-        let mut out = Vec::with_capacity(n + 1);
+        let mut out = Trace::default();
         if let Some(&(x, y, _)) = vertices.first() {
-            out.push(apply(map, x, y));
+            out.points.push(apply(map, x, y));
         }
         self.room_for(n as f64, what)?;
         for i in 0..segments {
@@ -406,19 +431,16 @@ impl<'a> Reader<'a> {
             let (x1, y1, _) = vertices[(i + 1) % n];
             let chord = ((x1 - x0).powi(2) + (y1 - y0).powi(2)).sqrt();
             if bulge.abs() < 1e-12 || chord == 0.0 {
-                out.push(apply(map, x1, y1));
+                out.points.push(apply(map, x1, y1));
                 continue;
             }
-            let sweep = 4.0 * bulge.atan();
-            let radius = chord / (2.0 * (sweep / 2.0).sin()).abs();
-            // The centre lies left of the chord for a counter-clockwise arc.
-            let (mx, my) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0);
-            let (ux, uy) = ((x1 - x0) / chord, (y1 - y0) / chord);
-            let offset = radius * (sweep / 2.0).cos() * sweep.signum();
-            let (cx, cy) = (mx - uy * offset, my + ux * offset);
-            let start = (y0 - cy).atan2(x0 - cx);
-            let arc = self.arc_points(map, (cx, cy), radius, start, sweep, what)?;
-            out.extend(arc.into_iter().skip(1));
+            let (c, radius, start, sweep) = crate::job::arc_circle(Point::new(x0, y0), Point::new(x1, y1), bulge);
+            let mut arc = self.arc_points(map, (c.x, c.y), radius, start, sweep, what)?;
+            // Up to a half circle the arc is one piece: keep the file's bulge as written.
+            if let ([piece], Some(turn)) = (&mut arc.arcs[..], similarity(map)) {
+                piece.bulge = bulge * turn;
+            }
+            out.append(arc);
         }
         Ok(out)
     }
@@ -510,13 +532,13 @@ impl<'a> Reader<'a> {
         Ok((pts, closed))
     }
 
-    fn push(&mut self, points: Vec<Point>, closed: bool, layer: &str, colour: Colour, what: String) -> Result<()> {
-        if points.iter().any(|p| !(p.x.is_finite() && p.y.is_finite()) || p.x.abs() > MAX_COORD_MM || p.y.abs() > MAX_COORD_MM) {
+    fn push(&mut self, trace: Trace, closed: bool, layer: &str, colour: Colour, what: String) -> Result<()> {
+        if trace.points.iter().any(|p| !(p.x.is_finite() && p.y.is_finite()) || p.x.abs() > MAX_COORD_MM || p.y.abs() > MAX_COORD_MM) {
             return Err(Error::Import(format!("{}: {what} lies beyond {MAX_COORD_MM} mm or is not a number", self.source)));
         }
         let layer = self.layer_for(layer, colour);
-        if let Some((points, closed)) = super::clean_polyline(points, closed) {
-            self.pieces.push(Piece { points, closed, layer, source: format!("{}: {what}", self.source) });
+        if let Some((trace, closed)) = super::clean_polyline(trace, closed) {
+            self.pieces.push(Piece { trace, closed, layer, source: format!("{}: {what}", self.source) });
         }
         Ok(())
     }
@@ -593,8 +615,8 @@ fn chain(pieces: Vec<Piece>, source: &str) -> Vec<Piece> {
     let cell = |p: &Point| ((p.x / CHAIN_MM).round() as i64, (p.y / CHAIN_MM).round() as i64);
     let mut ends: Ends = HashMap::new();
     for (i, p) in open.iter().enumerate() {
-        ends.entry((p.layer, cell(&p.points[0]))).or_default().push((i, true));
-        ends.entry((p.layer, cell(p.points.last().unwrap()))).or_default().push((i, false));
+        ends.entry((p.layer, cell(&p.trace.points[0]))).or_default().push((i, true));
+        ends.entry((p.layer, cell(p.trace.points.last().unwrap()))).or_default().push((i, false));
     }
     // The unused piece ends at `at`. Where several meet (a corner two parts
     // share), the chain takes the one that turns most from `heading` short
@@ -606,7 +628,7 @@ fn chain(pieces: Vec<Piece>, source: &str) -> Vec<Piece> {
         for dx in -1..=1 {
             for dy in -1..=1 {
                 for &(i, start) in ends.get(&(layer, (cx + dx, cy + dy))).into_iter().flatten() {
-                    let pts = &open[i].points;
+                    let pts = &open[i].trace.points;
                     let (q, away) = if start { (pts[0], pts[1] - pts[0]) } else { (pts[pts.len() - 1], pts[pts.len() - 2] - pts[pts.len() - 1]) };
                     if used[i] || (q - at).norm() > CHAIN_MM {
                         continue;
@@ -629,11 +651,12 @@ fn chain(pieces: Vec<Piece>, source: &str) -> Vec<Piece> {
         }
         used[first] = true;
         let layer = open[first].layer;
-        let mut points = open[first].points.clone();
+        let mut trace = open[first].trace.clone();
         let mut sources = vec![open[first].source.clone()];
         // Grow forward from the end, then backward from the start.
         for forward in [true, false] {
             loop {
+                let points = &trace.points;
                 let at = if forward { *points.last().unwrap() } else { points[0] };
                 if (points.len() > 2) && (points[0] - points[points.len() - 1]).norm() <= CHAIN_MM {
                     break;
@@ -642,30 +665,31 @@ fn chain(pieces: Vec<Piece>, source: &str) -> Vec<Piece> {
                 let heading = if forward { points[n - 1] - points[n - 2] } else { points[0] - points[1] };
                 let Some((i, at_start)) = near(&ends, layer, &at, heading, &used) else { break };
                 used[i] = true;
-                let mut next = open[i].points.clone();
+                let mut next = open[i].trace.clone();
                 // Orient the next piece to continue from `at`.
                 if forward != at_start {
-                    next.reverse();
+                    next = next.reversed();
                 }
                 if forward {
-                    points.extend(next.into_iter().skip(1));
+                    trace.append(next);
                 } else {
-                    next.pop();
-                    next.extend(points);
-                    points = next;
+                    next.append(std::mem::take(&mut trace));
+                    trace = next;
                 }
                 sources.push(open[i].source.clone());
             }
         }
+        let points = &mut trace.points;
         let gap = (points[0] - points[points.len() - 1]).norm();
         let closed = points.len() > 2 && gap <= CHAIN_MM;
         if closed {
+            // An arc that ended on the dropped point now ends on vertex 0.
             points.pop();
         } else if points.len() > 2 && gap <= ALMOST_CLOSED_MM {
             tracing::warn!("{source}: a contour of {} piece(s) from {} ends {gap:.4} mm from its start: left open", sources.len(), sources[0]);
         }
         let source = if sources.len() == 1 { sources.remove(0) } else { format!("{} (+{} chained)", sources[0], sources.len() - 1) };
-        out.push(Piece { points, closed, layer, source });
+        out.push(Piece { trace, closed, layer, source });
     }
     out
 }
@@ -678,7 +702,7 @@ fn check_extents(header: &dxf::Header, mm: f64, pieces: &[Piece], source: &str) 
     if !(lo.x.is_finite() && hi.x.is_finite()) || lo.x > hi.x || lo.x.abs() > 1e19 || hi.x.abs() > 1e19 || (lo.x == 0.0 && hi.x == 0.0 && lo.y == 0.0 && hi.y == 0.0) {
         return;
     }
-    let (rlo, rhi) = crate::job::bounds_of(pieces.iter().flat_map(|p| p.points.iter()));
+    let (rlo, rhi) = crate::job::bounds_of(pieces.iter().flat_map(|p| p.trace.points.iter()));
     let off = [(rlo.x - lo.x * mm), (rlo.y - lo.y * mm), (rhi.x - hi.x * mm), (rhi.y - hi.y * mm)].iter().fold(0.0f64, |m, d| m.max(d.abs()));
     if off > 1.0 {
         tracing::warn!(
@@ -700,7 +724,7 @@ fn check_extents(header: &dxf::Header, mm: f64, pieces: &[Piece], source: &str) 
 /// travel in its header's unit, that would fit in another, is refused with
 /// the flag that reads it in that unit.
 fn check_size(pieces: &[Piece], mm: f64, source: &str, config: &MachineConfig) -> Result<()> {
-    let (lo, hi) = crate::job::bounds_of(pieces.iter().flat_map(|p| p.points.iter()));
+    let (lo, hi) = crate::job::bounds_of(pieces.iter().flat_map(|p| p.trace.points.iter()));
     let (w, h) = (hi.x - lo.x, hi.y - lo.y);
     let (tx, ty) = (config.stage.travel_x, config.stage.travel_y);
     let fits = |k: f64| w * k <= tx && h * k <= ty;
@@ -723,7 +747,7 @@ fn check_size(pieces: &[Piece], mm: f64, source: &str, config: &MachineConfig) -
 
 /// The job: the layers used, in config order, as processes.
 fn job_of(pieces: Vec<Piece>, source: &str, config: &MachineConfig) -> Job {
-    let geometries = pieces.into_iter().map(|p| Geometry { process: p.layer, points: p.points, closed: p.closed, source: p.source }).collect();
+    let geometries = pieces.into_iter().map(|p| Geometry { process: p.layer, points: p.trace.points, arcs: p.trace.arcs, closed: p.closed, source: p.source }).collect();
     super::job_of_layers(source, geometries, config)
 }
 
@@ -802,9 +826,10 @@ mod tests {
         let body = "0\nLWPOLYLINE\n5\nB1\n8\n0\n90\n2\n70\n0\n10\n0\n20\n0\n42\n1\n10\n10\n20\n0\n";
         let job = import(&dxf("", body)).unwrap();
         let g = &job.geometries[0];
-        assert!((g.length() - 5.0 * std::f64::consts::PI).abs() < 0.01, "{}", g.length());
+        assert!((g.length() - 5.0 * std::f64::consts::PI).abs() < 1e-9, "kept as an arc: {}", g.length());
+        assert_eq!(g.arcs, vec![crate::job::ArcSpan { from: 0, to: g.points.len() - 1, bulge: 1.0 }]);
         let (lo, hi) = g.bounds();
-        assert!((lo.y + 5.0).abs() < 1e-3 && hi.y.abs() < 1e-9, "below the chord: {lo:?} {hi:?}");
+        assert!((lo.y + 5.0).abs() < 1e-9 && hi.y.abs() < 1e-9, "below the chord: {lo:?} {hi:?}");
         assert!(g.points.iter().all(|p| ((p - Point::new(5.0, 0.0)).norm() - 5.0).abs() < 1e-9));
     }
 

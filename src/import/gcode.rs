@@ -14,7 +14,7 @@
 
 use crate::config::MachineConfig;
 use crate::error::{Error, Result};
-use super::MAX_COORD_MM;
+use super::{Trace, MAX_COORD_MM};
 use crate::job::{Geometry, Job, Point, Process};
 
 /// Grbl's error 33 case: an arc whose end is not on its circle, by more
@@ -38,7 +38,7 @@ struct State {
 }
 
 struct Run {
-    points: Vec<Point>,
+    trace: Trace,
     key: (u64, u64),
     line: usize,
 }
@@ -52,7 +52,7 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
     let tolerance = config.import.tolerance;
     let finish = |current: &mut Option<Run>, runs: &mut Vec<Run>| {
         if let Some(r) = current.take() {
-            if r.points.len() >= 2 {
+            if r.trace.points.len() >= 2 {
                 runs.push(r);
             }
         }
@@ -146,7 +146,7 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
             return Err(at(format!("beyond {MAX_COORD_MM} mm")));
         }
         let cutting = on && s.motion != 0;
-        let mut path = vec![end];
+        let mut path = Trace::of(vec![s.at, end]);
         if s.motion >= 2 {
             path = arc(s.at, end, s.motion == 2, i.map(|v| v * scale), j.map(|v| v * scale), r.map(|v| v * scale), tolerance).map_err(at)?;
         }
@@ -158,12 +158,12 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
             if current.as_ref().is_some_and(|c| c.key != key) {
                 finish(&mut current, &mut runs);
             }
-            let run = current.get_or_insert_with(|| Run { points: vec![s.at], key, line: n });
-            points += path.len() as u64;
+            let run = current.get_or_insert_with(|| Run { trace: Trace::of(vec![s.at]), key, line: n });
+            points += path.points.len() as u64 - 1;
             if points > config.import.max_points {
                 return Err(Error::TooLarge(format!("{source}: more than {} points ([import] max_points)", config.import.max_points)));
             }
-            run.points.extend(&path);
+            run.trace.append(path);
         } else {
             finish(&mut current, &mut runs);
         }
@@ -184,8 +184,8 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
             keys.push(run.key);
             keys.len() - 1
         });
-        if let Some((points, closed)) = super::clean_polyline(run.points, false) {
-            geometries.push(Geometry { points, closed, process, source: format!("{source}:{}", run.line) });
+        if let Some((trace, closed)) = super::clean_polyline(run.trace, false) {
+            geometries.push(Geometry { points: trace.points, arcs: trace.arcs, closed, process, source: format!("{source}:{}", run.line) });
         }
     }
     let processes = keys
@@ -198,10 +198,10 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
     Ok(Job { source: source.to_string(), geometries, processes })
 }
 
-/// The points after `from` of an arc to `to` (clockwise for G2), its centre
-/// at offset (I, J) from `from` or from radius R (negative: the long way),
-/// flattened within `tolerance`.
-fn arc(from: Point, to: Point, clockwise: bool, i: Option<f64>, j: Option<f64>, r: Option<f64>, tolerance: f64) -> std::result::Result<Vec<Point>, String> {
+/// The arc from `from` to `to` (clockwise for G2), its centre at offset
+/// (I, J) from `from` or from radius R (negative: the long way), flattened
+/// within `tolerance` and kept as arcs of at most a half circle.
+fn arc(from: Point, to: Point, clockwise: bool, i: Option<f64>, j: Option<f64>, r: Option<f64>, tolerance: f64) -> std::result::Result<Trace, String> {
     let centre = match (i, j, r) {
         (_, _, Some(r)) => {
             let d = to - from;
@@ -228,9 +228,14 @@ fn arc(from: Point, to: Point, clockwise: bool, i: Option<f64>, j: Option<f64>, 
     if sweep.abs() < 1e-12 {
         sweep = if clockwise { -tau } else { tau };
     }
-    let n = super::arc_segments(r0, sweep, tolerance).min(1e6) as usize;
-    let mut out: Vec<Point> = (1..n).map(|k| centre + nalgebra::Vector2::new((a0 + sweep * k as f64 / n as f64).cos(), (a0 + sweep * k as f64 / n as f64).sin()) * r0).collect();
-    out.push(to);
+    let pieces = (sweep.abs() / std::f64::consts::PI - 1e-9).ceil().max(1.0) as usize;
+    let n = (super::arc_segments(r0, sweep, tolerance).min(1e6) as usize).div_ceil(pieces) * pieces;
+    let at = |k: usize| if k == n { to } else { centre + nalgebra::Vector2::new((a0 + sweep * k as f64 / n as f64).cos(), (a0 + sweep * k as f64 / n as f64).sin()) * r0 };
+    let mut out = Trace::of(vec![from]);
+    let (per, bulge) = (n / pieces, (sweep / pieces as f64 / 4.0).tan());
+    for piece in 0..pieces {
+        out.arc_to((piece * per + 1..=(piece + 1) * per).map(at), bulge);
+    }
     Ok(out)
 }
 
@@ -253,8 +258,22 @@ mod tests {
         assert!(first.closed, "the run ends where it began");
         // Two sides of 10 and a half circle of radius √50 back to the start.
         let expected = 20.0 + std::f64::consts::PI * 50f64.sqrt();
-        assert!((first.length() - expected).abs() < 0.02, "{} vs {expected}", first.length());
+        assert!((first.length() - expected).abs() < 1e-9, "the arc is kept exact: {} vs {expected}", first.length());
         assert_eq!(first.source, "t.nc:4");
+    }
+
+    #[test]
+    fn g2_and_g3_stay_arcs_of_at_most_a_half_circle_with_exact_length_and_bounds() {
+        let job = import("M4 S10 F100\nG0 X10 Y0\nG2 X10 Y0 I-5 J0\nM5\nG0 X20 Y0\nM3\nG3 X30 Y10 R10\nM5\n").unwrap();
+        let (circle, quarter) = (&job.geometries[0], &job.geometries[1]);
+        assert!(circle.closed && circle.arcs.len() == 2 && circle.arcs.iter().all(|a| (a.bulge + 1.0).abs() < 1e-15), "{:?}", circle.arcs);
+        assert!((circle.length() - std::f64::consts::TAU * 5.0).abs() < 1e-9, "{}", circle.length());
+        let (lo, hi) = circle.bounds();
+        assert!((lo - Point::new(0.0, -5.0)).norm() < 1e-9 && (hi - Point::new(10.0, 5.0)).norm() < 1e-9, "{lo:?} {hi:?}");
+        assert!(circle.arc_error(0.01).is_none(), "{:?}", circle.arc_error(0.01));
+        assert_eq!(quarter.arcs.len(), 1);
+        assert!((quarter.arcs[0].bulge - (std::f64::consts::FRAC_PI_8).tan()).abs() < 1e-12);
+        assert!((quarter.length() - std::f64::consts::FRAC_PI_2 * 10.0).abs() < 1e-9, "{}", quarter.length());
     }
 
     #[test]

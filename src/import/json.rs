@@ -13,7 +13,7 @@ use std::path::Path;
 use crate::config::{MachineConfig, PlateConfig, PASSES, VELOCITY};
 use crate::error::{Error, Result};
 use super::MAX_COORD_MM;
-use crate::job::{Geometry, Job, Point, Process};
+use crate::job::{ArcSpan, Geometry, Job, Point, Process};
 
 /// The `format` a job file carries.
 pub const FORMAT: &str = "laserd-job";
@@ -48,6 +48,11 @@ pub struct GeometryFile {
     /// Vertices [x, y] in mm; a closed one does not repeat its first vertex.
     pub points: Vec<[f64; 2]>,
     pub closed: bool,
+    /// The circular arcs among the segments: vertices `from` to `to` (the
+    /// number of points: back to vertex 0) flatten an arc of `bulge` (tan
+    /// of a quarter of its sweep, + counter-clockwise, |bulge| <= 1).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub arcs: Vec<ArcSpan>,
     /// Index into `processes`.
     pub process: usize,
     /// Where it came from, for messages.
@@ -65,7 +70,7 @@ pub fn to_file(job: &Job, plate: Option<&PlateConfig>) -> JobFile {
         geometries: job
             .geometries
             .iter()
-            .map(|g| GeometryFile { points: g.points.iter().map(|p| [p.x, p.y]).collect(), closed: g.closed, process: g.process, source: g.source.clone() })
+            .map(|g| GeometryFile { points: g.points.iter().map(|p| [p.x, p.y]).collect(), closed: g.closed, arcs: g.arcs.clone(), process: g.process, source: g.source.clone() })
             .collect(),
     }
 }
@@ -123,7 +128,11 @@ pub fn import_json(bytes: &[u8], source: &str, config: &MachineConfig) -> Result
         if g.points.len() < 2 {
             return Err(Error::Import(format!("{name}: fewer than two points")));
         }
-        geometries.push(Geometry { points: g.points.iter().map(|p| Point::new(p[0], p[1])).collect(), closed: g.closed, process: g.process, source: g.source });
+        let geometry = Geometry { points: g.points.iter().map(|p| Point::new(p[0], p[1])).collect(), closed: g.closed, arcs: g.arcs, process: g.process, source: g.source };
+        if let Some(wrong) = geometry.arc_error(config.import.tolerance) {
+            return Err(Error::Import(format!("{name}: {wrong}")));
+        }
+        geometries.push(geometry);
     }
     if geometries.is_empty() {
         return Err(Error::Import(format!("{source}: nothing to mark: no geometry")));
@@ -140,7 +149,7 @@ mod tests {
         let config = crate::import::test_config();
         let job = Job {
             source: "a.svg".into(),
-            geometries: vec![Geometry { points: vec![Point::new(0.1, 1.0 / 3.0), Point::new(2.0f64.sqrt(), 7.0)], closed: false, process: 0, source: "a.svg: <path>".into() }],
+            geometries: vec![Geometry { arcs: Vec::new(), points: vec![Point::new(0.1, 1.0 / 3.0), Point::new(2.0f64.sqrt(), 7.0)], closed: false, process: 0, source: "a.svg: <path>".into() }],
             processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 200.0, passes: 2 }],
         };
         let text = serde_json::to_string(&to_file(&job, None)).unwrap();
@@ -158,5 +167,27 @@ mod tests {
         assert!(bad(&|v| v["processes"][0]["power"] = 1e9.into()).contains("processes[0] (mark).power"));
         assert!(bad(&|v| v["extra"] = 1.into()).contains("not a laserd job file"));
         assert!(import_json(b"{\"format\": ", "j.json", &config).unwrap_err().to_string().contains("j.json: not a laserd job file"));
+    }
+
+    #[test]
+    fn arcs_round_trip_and_arcs_that_do_not_match_their_points_are_refused() {
+        let config = crate::import::test_config();
+        let job = crate::import::gcode::import_gcode("M4 S10 F100\nG0 X10 Y0\nG2 X10 Y0 I-5 J0\nG1 X12\nG3 X14 Y2 I0 J2\nM5\n", "t.nc", &config).unwrap();
+        assert_eq!(job.geometries[0].arcs.len(), 3);
+        let text = serde_json::to_string(&to_file(&job, None)).unwrap();
+        let back = import_json(text.as_bytes(), "j.json", &config).unwrap();
+        assert_eq!(back.geometries, job.geometries);
+        assert_eq!(back.geometries[0].length(), job.geometries[0].length());
+        let bad = |edit: &dyn Fn(&mut serde_json::Value)| {
+            let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+            edit(&mut v);
+            import_json(v.to_string().as_bytes(), "j.json", &config).unwrap_err().to_string()
+        };
+        assert!(bad(&|v| v["geometries"][0]["arcs"][0]["bulge"] = 2.0.into()).contains("geometries[0]: arc 0: bulge 2"));
+        assert!(bad(&|v| v["geometries"][0]["arcs"][2]["to"] = 100000.into()).contains("geometries[0]: arc 2 (vertices"));
+        assert!(bad(&|v| v["geometries"][0]["arcs"][1]["from"] = 0.into()).contains("out of order"));
+        // Straight points said to be an arc: the length would lie.
+        assert!(bad(&|v| v["geometries"][0]["arcs"][2]["bulge"] = 0.9.into()).contains("off the arc"));
+        assert!(bad(&|v| v["geometries"][0]["arcs"][0]["bulge"] = 1.0.into()).contains("arc 0: vertex"));
     }
 }

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use crate::config::{Anchor, MachineConfig};
 use crate::error::{Error, Result};
-use crate::job::{Geometry, Job, Point, Process};
+use crate::job::{ArcSpan, Geometry, Job, Point, Process};
 
 pub mod dxf;
 pub mod gcode;
@@ -99,16 +99,67 @@ pub(crate) const MAX_COORD_MM: f64 = 1e6;
 /// Points closer than this (mm) count as the same point.
 const SAME_POINT_MM: f64 = 1e-9;
 
+/// A polyline being read, its arcs kept exact beside their flattening
+/// (see [`ArcSpan`]): what importers build a [`Geometry`] from.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Trace {
+    pub points: Vec<Point>,
+    pub arcs: Vec<ArcSpan>,
+}
+
+impl Trace {
+    pub fn of(points: Vec<Point>) -> Trace {
+        Trace { points, arcs: Vec::new() }
+    }
+
+    /// Adds `points` (which continue from the last point, not repeating it)
+    /// as the flattening of an arc of `bulge` from the last point to the
+    /// last of `points`; bulge 0: straight segments.
+    pub fn arc_to(&mut self, points: impl IntoIterator<Item = Point>, bulge: f64) {
+        let started = !self.points.is_empty();
+        let from = self.points.len().saturating_sub(1);
+        self.points.extend(points);
+        let to = self.points.len().saturating_sub(1);
+        if bulge != 0.0 && started && to > from {
+            self.arcs.push(ArcSpan { from, to, bulge });
+        }
+    }
+
+    /// Appends `next`, whose first point is this one's last (or stands for it).
+    pub fn append(&mut self, next: Trace) {
+        let shift = self.points.len().saturating_sub(1);
+        if self.points.is_empty() {
+            *self = next;
+            return;
+        }
+        self.points.extend(next.points.into_iter().skip(1));
+        self.arcs.extend(next.arcs.into_iter().map(|a| ArcSpan { from: a.from + shift, to: a.to + shift, ..a }));
+    }
+
+    /// The same path run the other way (an open one).
+    pub fn reversed(mut self) -> Trace {
+        let last = self.points.len() - 1;
+        self.points.reverse();
+        self.arcs = self.arcs.iter().rev().map(|a| ArcSpan { from: last - a.to, to: last - a.from, bulge: -a.bulge }).collect();
+        self
+    }
+}
+
 /// Removes repeated points and a repeated start point at the end (which
-/// closes the shape). `None` for fewer than 2 distinct points.
-pub(crate) fn clean_polyline(points: Vec<Point>, mut closed: bool) -> Option<(Vec<Point>, bool)> {
-    let mut out: Vec<Point> = Vec::with_capacity(points.len());
-    for p in points {
+/// closes the shape), keeping the arcs on the points that stay. `None` for
+/// fewer than 2 distinct points.
+pub(crate) fn clean_polyline(trace: Trace, mut closed: bool) -> Option<(Trace, bool)> {
+    let mut out: Vec<Point> = Vec::with_capacity(trace.points.len());
+    // Where each point went: the index of the kept point it repeats.
+    let mut kept = Vec::with_capacity(trace.points.len());
+    for p in trace.points {
         if out.last().is_none_or(|last| (p - last).norm() > SAME_POINT_MM) {
             out.push(p);
         }
+        kept.push(out.len() - 1);
     }
     if out.len() >= 2 && (out[out.len() - 1] - out[0]).norm() <= SAME_POINT_MM {
+        // The last point is the first again: the closing segment (index n).
         out.pop();
         closed = true;
     }
@@ -119,7 +170,9 @@ pub(crate) fn clean_polyline(points: Vec<Point>, mut closed: bool) -> Option<(Ve
     if out.len() == 2 {
         closed = false;
     }
-    Some((out, closed))
+    let ends = if closed { out.len() } else { out.len() - 1 };
+    let arcs = trace.arcs.iter().map(|a| ArcSpan { from: kept[a.from], to: kept[a.to], ..*a }).filter(|a| a.to > a.from && a.to <= ends).collect();
+    Some((Trace { points: out, arcs }, closed))
 }
 
 /// Segments of an arc of `radius` over `sweep` (radians) whose chords stay
@@ -321,5 +374,41 @@ mod tests {
         // Beyond the snap it stays where it is (and planning names it).
         std::fs::write(&path, r#"<svg xmlns="http://www.w3.org/2000/svg" width="300mm" height="300mm" viewBox="0 0 300 300"><rect x="-0.01" y="10" width="100" height="100" fill="none" stroke="black"/></svg>"#).unwrap();
         assert!(import_job(&path, &config()).unwrap().bounds().0.x < -0.009);
+    }
+
+    #[test]
+    fn a_trace_keeps_its_arcs_through_appending_reversing_and_cleaning() {
+        // A line (0,0)-(10,0), then a half circle up to (0,0) through (5,5)'s side.
+        let mut t = Trace::of(vec![Point::new(0.0, 0.0), Point::new(10.0, 0.0)]);
+        let half: Vec<Point> = (1..=8).map(|k| {
+            let a = std::f64::consts::PI * k as f64 / 8.0;
+            Point::new(5.0 + 5.0 * a.cos(), 5.0 * a.sin())
+        }).collect();
+        let mut arc = Trace::of(vec![Point::new(10.0, 0.0), Point::new(10.0, 0.0)]);
+        arc.points.truncate(1);
+        arc.arc_to(half, 1.0);
+        t.append(arc);
+        assert_eq!(t.arcs, vec![ArcSpan { from: 1, to: 9, bulge: 1.0 }]);
+        let length = |t: &Trace, closed: bool| Geometry { points: t.points.clone(), closed, arcs: t.arcs.clone(), process: 0, source: String::new() }.length();
+        let want = 10.0 + 5.0 * std::f64::consts::PI;
+        assert!((length(&t, false) - want).abs() < 1e-12);
+        let back = t.clone().reversed();
+        assert_eq!(back.arcs, vec![ArcSpan { from: 0, to: 8, bulge: -1.0 }]);
+        assert!((length(&back, false) - want).abs() < 1e-12);
+        // Cleaning: a repeated point, and the end on the start, which closes
+        // it: the arc then ends on vertex 0 (index = the number of points).
+        let mut doubled = t.clone();
+        doubled.points.insert(3, doubled.points[3]);
+        doubled.arcs[0].to += 1;
+        let (clean, closed) = clean_polyline(doubled, false).unwrap();
+        assert!(closed && clean.points.len() == 9, "{:?}", clean.points);
+        assert_eq!(clean.arcs, vec![ArcSpan { from: 1, to: 9, bulge: 1.0 }]);
+        assert!((length(&clean, true) - want).abs() < 1e-12);
+        let g = Geometry { points: clean.points, closed: true, arcs: clean.arcs, process: 0, source: String::new() };
+        // Eight chords over a half circle of r = 5 cut 0.096 mm inside it.
+        assert!(g.arc_error(0.1).is_none(), "{:?}", g.arc_error(0.1));
+        assert!(g.arc_error(0.09).is_some_and(|e| e.contains("chord 9.61e-2 mm inside")));
+        let (lo, hi) = g.bounds();
+        assert!((lo - Point::new(0.0, 0.0)).norm() < 1e-12 && (hi - Point::new(10.0, 5.0)).norm() < 1e-12, "{lo:?} {hi:?}");
     }
 }

@@ -269,9 +269,11 @@ impl<'a> Importer<'a> {
         };
         self.points += subpaths.iter().map(|(p, _)| p.len() as u64).sum::<u64>();
         for (i, (points, closed)) in subpaths.into_iter().enumerate() {
-            if let Some((points, closed)) = super::clean_polyline(points.into_iter().map(|p| Point::new(p.x, p.y)).collect(), closed) {
+            // usvg gives every curve as Béziers: SVG arcs come in as points.
+            if let Some((trace, closed)) = super::clean_polyline(super::Trace::of(points.into_iter().map(|p| Point::new(p.x, p.y)).collect()), closed) {
                 self.geometries.push(Geometry {
-                    points,
+                    points: trace.points,
+                    arcs: Vec::new(),
                     closed,
                     process: layer,
                     source: format!("{}: {} subpath {}", self.source, name, i + 1),

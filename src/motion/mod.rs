@@ -661,7 +661,7 @@ mod tests {
     use crate::plan::{nearest::NearestNeighbour, PlanContext, Planner};
 
     fn job() -> Job {
-        let sq = |x: f64, y: f64| Geometry {
+        let sq = |x: f64, y: f64| Geometry { arcs: Vec::new(),
             points: vec![Point::new(x, y), Point::new(x + 5.0, y), Point::new(x + 5.0, y + 5.0), Point::new(x, y + 5.0)],
             closed: true,
             process: 0,
@@ -765,7 +765,7 @@ mod tests {
                 (0..8).map(move |n| {
                     let (x, y) = (10.0 + 20.0 * k as f64 + 0.25 * n as f64, 100.0 + 3.0 * (k % 3) as f64 + 0.25 * n as f64);
                     let a = 5.0 - 0.5 * n as f64;
-                    Geometry { points: vec![Point::new(x, y), Point::new(x + a, y), Point::new(x + a, y + a), Point::new(x, y + a)], closed: true, process: 0, source: format!("sq {k}.{n}") }
+                    Geometry { arcs: Vec::new(), points: vec![Point::new(x, y), Point::new(x + a, y), Point::new(x + a, y + a), Point::new(x, y + a)], closed: true, process: 0, source: format!("sq {k}.{n}") }
                 })
             })
             .collect();
@@ -794,7 +794,7 @@ mod tests {
         j.geometries = (0..8)
             .map(|k| {
                 let (x, y) = (20.0 + 30.0 * k as f64, if k % 2 == 0 { 30.0 } else { 150.0 });
-                Geometry { points: vec![Point::new(x, y), Point::new(x + 4.0, y), Point::new(x + 4.0, y + 4.0), Point::new(x, y + 4.0)], closed: true, process: 0, source: format!("sq {k}") }
+                Geometry { arcs: Vec::new(), points: vec![Point::new(x, y), Point::new(x + 4.0, y), Point::new(x + 4.0, y + 4.0), Point::new(x, y + 4.0)], closed: true, process: 0, source: format!("sq {k}") }
             })
             .collect();
         j
@@ -915,7 +915,7 @@ mod tests {
     /// A stage-only trajectory of `paths` marked in this order (no scanner).
     fn stage_only_in_order(paths: &[Vec<Point>], machine: &MachineConfig) -> Trajectory {
         let mut j = job();
-        j.geometries = paths.iter().enumerate().map(|(k, p)| Geometry { points: p.clone(), closed: false, process: 0, source: format!("path {k}") }).collect();
+        j.geometries = paths.iter().enumerate().map(|(k, p)| Geometry { arcs: Vec::new(), points: p.clone(), closed: false, process: 0, source: format!("path {k}") }).collect();
         let paths = paths.iter().enumerate().map(|(k, p)| crate::plan::PlannedPath { geometry: k, points: p.clone(), process: 0, pierce: true }).collect();
         let seq = Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths }] };
         build(&j, &seq, machine, Mode::StageOnly, Point::origin()).unwrap()

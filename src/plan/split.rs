@@ -43,6 +43,8 @@ pub fn split_at_field_borders(job: &Job, usable_half: f64) -> Job {
         geometries.extend(pieces.into_iter().enumerate().map(|(i, points)| Geometry {
             points,
             closed: false,
+            // A piece of a field is marked as points; its arcs are the whole's.
+            arcs: Vec::new(),
             process: g.process,
             source: format!("{} piece {}/{n}", g.source, i + 1),
         }));
@@ -144,7 +146,7 @@ mod tests {
     use crate::job::Process;
 
     fn geometry(points: &[(f64, f64)], closed: bool, source: &str) -> Geometry {
-        Geometry { points: points.iter().map(|&(x, y)| Point::new(x, y)).collect(), closed, process: 0, source: source.into() }
+        Geometry { arcs: Vec::new(), points: points.iter().map(|&(x, y)| Point::new(x, y)).collect(), closed, process: 0, source: source.into() }
     }
 
     fn job(geometries: Vec<Geometry>) -> Job {

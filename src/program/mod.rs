@@ -691,7 +691,7 @@ mod tests {
             .collect();
         Job {
             source: "t".into(),
-            geometries: vec![Geometry { points, closed: true, process: 0, source: "circle".into() }],
+            geometries: vec![Geometry { arcs: Vec::new(), points, closed: true, process: 0, source: "circle".into() }],
             processes: vec![Process { layer: "mark".into(), speed: 1000.0, power: 250.0, passes: 1 }],
         }
     }

@@ -109,6 +109,7 @@ impl PlateLayout {
         geometries.extend(self.faces.iter().enumerate().map(|(k, f)| Geometry {
             points: f.ring.clone(),
             closed: true,
+            arcs: Vec::new(),
             process,
             source: format!("plate: {}", face_name(k, f)),
         }));
@@ -253,7 +254,7 @@ pub fn lay_out(job: &Job, cuts: &[bool], plate: &PlateConfig, process: usize, op
         if is_remnant { &mut remnant_cuts } else { &mut skeleton }.push(e.points.clone());
     }
     let mut laid = job.clone();
-    let named = |kind: &str, k: usize, points: Vec<Point>| Geometry { points, closed: false, process, source: format!("plate: {kind} cut {}", k + 1) };
+    let named = |kind: &str, k: usize, points: Vec<Point>| Geometry::polyline(points, false, process, format!("plate: {kind} cut {}", k + 1));
     let (s, r) = (skeleton.len(), remnant_cuts.len());
     laid.geometries.extend(skeleton.into_iter().enumerate().map(|(k, p)| named("skeleton", k, p)));
     laid.geometries.extend(remnant_cuts.into_iter().enumerate().map(|(k, p)| named("remnant", k, p)));
