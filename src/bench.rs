@@ -258,9 +258,14 @@ pub struct PlateBench {
 /// One plan of `bench plate`, from its report.
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct PlateRun {
+    /// Paths that cut: each starts with a pierce, on the plate's edge, or
+    /// where the path before it ended (cutting on without a pierce).
+    pub cut_paths: usize,
     pub pierces: usize,
     /// Cuts that start on the plate's edge, without a pierce.
     pub edge_starts: usize,
+    /// Cuts that go on from where the one before ended, off the edge.
+    pub cut_on: usize,
     pub cut_length_mm: f64,
     pub idle_stroke_mm: f64,
     pub trajectory_time_s: f64,
@@ -312,9 +317,13 @@ pub fn plate_bench(machine: &MachineConfig, elements: usize, seed: u64, skeleton
         machine.clone().checked("bench plate")?;
         let planned = crate::run::plan(&path, &machine, crate::plan::PlannerKind::Auto, Some(crate::mode::Mode::StageOnly))?;
         let r = &planned.report;
+        let cut_paths = planned.sequence.paths().filter(|p| machine.pierce(&planned.job.processes[p.process].layer).active()).count();
+        let edge_starts = r.edge_starts.unwrap_or(0);
         let run = PlateRun {
+            cut_paths,
             pierces: r.pierces,
-            edge_starts: r.edge_starts.unwrap_or(0),
+            edge_starts,
+            cut_on: cut_paths - r.pierces - edge_starts,
             cut_length_mm: r.cut_length_mm,
             idle_stroke_mm: r.idle_stroke_mm,
             trajectory_time_s: r.trajectory_time_s,

@@ -244,8 +244,8 @@ fn plate_bench(config: Option<PathBuf>, elements: usize, seed: u64, skeleton_pie
         for (name, o) in [("free", &r.free), ("on plate", &r.on_plate), ("scrap in route", &r.scrap_in_route), ("scrap after", &r.scrap_after)] {
             let violations = o.precedence_violations.map_or("unknown".to_string(), |v| v.to_string());
             println!(
-                "  {name:<14} cut {:>10.3} mm, {:>5} pierces, {:>4} edge starts, air {:>9.1} mm, {:>3} skeleton + {} remnant cuts, {:.2} s machine time, {violations} precedence violations",
-                o.cut_length_mm, o.pierces, o.edge_starts, o.idle_stroke_mm, o.skeleton_cuts.unwrap_or(0), o.remnant_cuts.unwrap_or(0), o.trajectory_time_s
+                "  {name:<14} cut {:>10.3} mm in {:>5} paths: {:>5} pierces, {:>4} edge starts, {:>4} cut on, air {:>9.1} mm, {:>3} skeleton + {} remnant cuts, {:.2} s machine time, {violations} precedence violations",
+                o.cut_length_mm, o.cut_paths, o.pierces, o.edge_starts, o.cut_on, o.idle_stroke_mm, o.skeleton_cuts.unwrap_or(0), o.remnant_cuts.unwrap_or(0), o.trajectory_time_s
             );
         }
         println!(
