@@ -33,7 +33,12 @@ pub struct Geometry {
     /// (DXF arcs, circles and bulges, G-code G2/G3): length and bounds are
     /// theirs, not their chords'. Empty for a plain polyline.
     pub arcs: Vec<ArcSpan>,
-    /// Index into `Job::processes`.
+    /// The process of each segment where it changes along the geometry (a
+    /// raster line's power profile, from G-code); empty: every segment is
+    /// `process`'s. Planners order the geometry as one; the plan's paths
+    /// are then cut where the process changes.
+    pub profile: Vec<usize>,
+    /// Index into `Job::processes` (a profile's first segment's).
     pub process: usize,
     /// Where it came from, for messages: e.g. `sample.svg: <path id="p12">` (subpath 2).
     pub source: String,
@@ -78,7 +83,7 @@ pub fn arc_length(a: Point, b: Point, bulge: f64) -> f64 {
 impl Geometry {
     /// A polyline with no arcs.
     pub fn polyline(points: Vec<Point>, closed: bool, process: usize, source: String) -> Geometry {
-        Geometry { points, closed, arcs: Vec::new(), process, source }
+        Geometry { points, closed, arcs: Vec::new(), profile: Vec::new(), process, source }
     }
 
     /// Vertex `i`, counting on past the last to the first.

@@ -29,7 +29,7 @@ fn circles() -> Job {
                 Point::new(cx + r * a.cos(), cy + r * a.sin())
             })
             .collect();
-        Geometry { arcs: Vec::new(), points, closed: true, process: 0, source: format!("circle at {cx},{cy}") }
+        Geometry { arcs: Vec::new(), profile: Vec::new(), points, closed: true, process: 0, source: format!("circle at {cx},{cy}") }
     };
     Job {
         source: "circles".into(),

@@ -77,3 +77,59 @@ fn another_tools_gcode_re_plans_with_less_idle_stroke_within_the_limits() {
     let idle = report["idle_stroke_mm"].as_f64().unwrap();
     assert!(idle <= own, "re-planned idle stroke {idle} mm, the file's own {own} mm");
 }
+
+/// A raster engraving as other tools write it (S per pixel, scan lines
+/// both ways): each scan line is planned as one geometry, the program
+/// gives every pixel its power in the direction the line is marked, and the
+/// dry-run keeps every limit.
+#[test]
+fn a_raster_gcode_keeps_each_scan_lines_power_profile() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = tempfile::tempdir().unwrap();
+    let mut text = String::from("G21 G90\nM4 S0\n");
+    let mut lines: Vec<Vec<u32>> = Vec::new();
+    for row in 0..8 {
+        let y = 20.0 + row as f64 * 0.5;
+        let xs: Vec<f64> = (0..=12).map(|k| 20.0 + k as f64).collect();
+        let xs: Vec<f64> = if row % 2 == 1 { xs.into_iter().rev().collect() } else { xs };
+        text += &format!("G0 X{} Y{y}\n", xs[0]);
+        let powers: Vec<u32> = (0..12).map(|k| 100 + 50 * ((k * 7 + row * 3) % 9) as u32).collect();
+        for (x, s) in xs[1..].iter().zip(&powers) {
+            text += &format!("G1 X{x} S{s} F1200\n");
+        }
+        let mut run = powers.clone();
+        run.dedup();
+        lines.push(run);
+    }
+    text += "M5\n";
+    std::fs::write(dir.path().join("raster.nc"), text).unwrap();
+    let run = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_laserd")).args(args).arg("--config").arg(root.join("config/flatbed-cutter.toml")).arg("raster.nc").current_dir(dir.path()).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
+    };
+    let plan = run(&["plan", "--json", "-o", "program.nc"]);
+    assert_eq!(plan["geometries"], 8, "one geometry per scan line: {plan}");
+    // The program's powers, cut at every S0 (a jump): one run per scan line
+    // (the cutter pierces each at M3 first: not a pixel).
+    let program = std::fs::read_to_string(dir.path().join("program.nc")).unwrap();
+    let mut marked: Vec<Vec<u32>> = vec![Vec::new()];
+    for s in program.lines().filter(|l| !l.contains("M3")).filter_map(|l| l.split('S').nth(1)).map(|w| w.trim_end_matches(|c: char| !c.is_ascii_digit()).split(|c: char| !c.is_ascii_digit()).next().unwrap().parse::<u32>().unwrap()) {
+        let current = marked.last_mut().unwrap();
+        if s == 0 {
+            if !current.is_empty() {
+                marked.push(Vec::new());
+            }
+        } else if current.last() != Some(&s) {
+            current.push(s);
+        }
+    }
+    marked.retain(|r| !r.is_empty());
+    assert_eq!(marked.len(), 8, "{marked:?}");
+    for r in &marked {
+        let back: Vec<u32> = r.iter().rev().copied().collect();
+        assert!(lines.contains(r) || lines.contains(&back), "{r:?} is no scan line's powers, either way: {lines:?}");
+    }
+    let dry = run(&["dry-run", "--json"]);
+    assert_eq!(dry["sim"]["limit_violations"], 0, "{dry}");
+}

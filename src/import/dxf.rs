@@ -747,7 +747,7 @@ fn check_size(pieces: &[Piece], mm: f64, source: &str, config: &MachineConfig) -
 
 /// The job: the layers used, in config order, as processes.
 fn job_of(pieces: Vec<Piece>, source: &str, config: &MachineConfig) -> Job {
-    let geometries = pieces.into_iter().map(|p| Geometry { process: p.layer, points: p.trace.points, arcs: p.trace.arcs, closed: p.closed, source: p.source }).collect();
+    let geometries = pieces.into_iter().map(|p| Geometry { process: p.layer, points: p.trace.points, arcs: p.trace.arcs, profile: Vec::new(), closed: p.closed, source: p.source }).collect();
     super::job_of_layers(source, geometries, config)
 }
 

@@ -6,9 +6,10 @@
 //! (`laserd_sim::gcode`). Read: G0 G1 G2 G3 (I J, or R), G17, G20 G21, G90
 //! G91, G92 (offsets), G4 and G94 (ignored), M3 M4 M5 and S, F, M2 M30, and
 //! the line numbers N. Each laser-on run (M3 or M4 with S > 0, cutting moves
-//! from one laser-off move or laser change to the next) is one geometry;
-//! a run whose power changes is split where it does, so every piece keeps
-//! its own power. Processes are the (S, F) pairs: speed F/60 mm/s, power S.
+//! from one laser-off move, M3/M4/M5 or S0 to the next) is one geometry; where
+//! its power or feed changes along it (a raster line), its segments keep
+//! theirs as the geometry's profile. Processes are the (S, F) pairs: speed
+//! F/60 mm/s, power S.
 //! Anything else is an error naming the line: laserd does not guess what a
 //! word it does not know was meant to do to the laser.
 
@@ -37,9 +38,10 @@ struct State {
     laser_on: bool,
 }
 
+/// A laser-on run: its segments tagged with their (S, F) pair's index in
+/// the pairs met so far.
 struct Run {
     trace: Trace,
-    key: (u64, u64),
     line: usize,
 }
 
@@ -49,6 +51,8 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
     let mut runs: Vec<Run> = Vec::new();
     let mut current: Option<Run> = None;
     let mut points = 0u64;
+    // The (S, F) pairs met, in order.
+    let mut keys: Vec<(u64, u64)> = Vec::new();
     let tolerance = config.import.tolerance;
     let finish = |current: &mut Option<Run>, runs: &mut Vec<Run>| {
         if let Some(r) = current.take() {
@@ -104,10 +108,8 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
                     2 | 30 | 7 | 8 | 9 => {}
                     other => return Err(at(format!("M{other} is not a laser job word laserd reads"))),
                 },
-                'S' => {
-                    laser_changed |= v != s.power;
-                    s.power = v;
-                }
+                // A new power goes on in the same run (a raster line's profile).
+                'S' => s.power = v,
                 'F' => s.feed = v,
                 'X' => target[0] = Some(v),
                 'Y' => target[1] = Some(v),
@@ -155,10 +157,12 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
                 return Err(at("a cutting move with no feed (F)".into()));
             }
             let key = (s.power.to_bits(), s.feed.to_bits());
-            if current.as_ref().is_some_and(|c| c.key != key) {
-                finish(&mut current, &mut runs);
-            }
-            let run = current.get_or_insert_with(|| Run { trace: Trace::of(vec![s.at]), key, line: n });
+            let tag = keys.iter().position(|k| *k == key).unwrap_or_else(|| {
+                keys.push(key);
+                keys.len() - 1
+            });
+            let path = path.tagged(tag);
+            let run = current.get_or_insert_with(|| Run { trace: Trace::of(vec![s.at]), line: n });
             points += path.points.len() as u64 - 1;
             if points > config.import.max_points {
                 return Err(Error::TooLarge(format!("{source}: more than {} points ([import] max_points)", config.import.max_points)));
@@ -176,19 +180,29 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
     if runs.len() as u64 > config.import.max_elements {
         return Err(Error::TooLarge(format!("{source}: more than {} laser runs ([import] max_elements)", config.import.max_elements)));
     }
-    // Processes: the (S, F) pairs, in the order they first mark.
-    let mut keys: Vec<(u64, u64)> = Vec::new();
+    // Processes: the (S, F) pairs that mark, in the order they first do.
     let mut geometries = Vec::with_capacity(runs.len());
+    let mut used: Vec<Option<usize>> = vec![None; keys.len()];
+    let mut marking: Vec<(u64, u64)> = Vec::new();
     for run in runs {
-        let process = keys.iter().position(|k| *k == run.key).unwrap_or_else(|| {
-            keys.push(run.key);
-            keys.len() - 1
-        });
-        if let Some((trace, closed)) = super::clean_polyline(run.trace, false) {
-            geometries.push(Geometry { points: trace.points, arcs: trace.arcs, closed, process, source: format!("{source}:{}", run.line) });
+        let Some((trace, closed)) = super::clean_polyline(run.trace, false) else { continue };
+        let mut profile: Vec<usize> = trace
+            .tags
+            .iter()
+            .map(|&t| {
+                *used[t].get_or_insert_with(|| {
+                    marking.push(keys[t]);
+                    marking.len() - 1
+                })
+            })
+            .collect();
+        let Some(&process) = profile.first() else { continue };
+        if profile.iter().all(|&p| p == process) {
+            profile.clear();
         }
+        geometries.push(Geometry { points: trace.points, arcs: trace.arcs, profile, closed, process, source: format!("{source}:{}", run.line) });
     }
-    let processes = keys
+    let processes = marking
         .iter()
         .map(|&(s, f)| {
             let (s, f) = (f64::from_bits(s), f64::from_bits(f));
@@ -284,11 +298,22 @@ mod tests {
     }
 
     #[test]
-    fn a_run_whose_power_changes_is_split_where_it_does() {
-        let job = import("G0 X0 Y0\nM4 F3000\nG1 X1 S100\nG1 X2 S200\nG1 X3 S200\nG1 X4 S100\nM5\n").unwrap();
-        let powers: Vec<f64> = job.geometries.iter().map(|g| job.processes[g.process].power).collect();
-        assert_eq!(powers, vec![100.0, 200.0, 100.0]);
-        assert!((job.mark_length() - 4.0).abs() < 1e-9);
+    fn a_raster_line_whose_power_changes_is_one_geometry_with_its_power_profile() {
+        // Two scan lines as raster engravers write them: S per pixel, an S0
+        // gap and a laser-off move between the lines.
+        let job = import("G0 X0 Y0\nM4 F3000\nG1 X1 S100\nG1 X2 S200\nG1 X3 S200\nG1 X4 S100\nG1 X5 S0\nG1 X6 S300\nG0 X6 Y1\nG1 X0 S200\nM5\n").unwrap();
+        assert_eq!(job.geometries.len(), 3, "the S0 gap and the laser-off move end a run");
+        let power = |g: &Geometry| -> Vec<f64> {
+            if g.profile.is_empty() { vec![job.processes[g.process].power] } else { g.profile.iter().map(|&p| job.processes[p].power).collect() }
+        };
+        assert_eq!(power(&job.geometries[0]), vec![100.0, 200.0, 200.0, 100.0]);
+        assert_eq!(job.geometries[0].points.len(), 5);
+        assert_eq!(job.processes[job.geometries[0].process].power, 100.0);
+        assert_eq!((power(&job.geometries[1]), power(&job.geometries[2])), (vec![300.0], vec![200.0]));
+        assert!(job.geometries[1].profile.is_empty() && job.geometries[2].profile.is_empty(), "one power: no profile");
+        // The processes: the (S, F) pairs that mark, in the order they first do.
+        assert_eq!(job.processes.iter().map(|p| p.power).collect::<Vec<_>>(), vec![100.0, 200.0, 300.0]);
+        assert!((job.mark_length() - 11.0).abs() < 1e-9);
     }
 
     #[test]

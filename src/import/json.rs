@@ -53,6 +53,10 @@ pub struct GeometryFile {
     /// of a quarter of its sweep, + counter-clockwise, |bulge| <= 1).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub arcs: Vec<ArcSpan>,
+    /// The process of each segment (index into `processes`) where it
+    /// changes along the geometry (a raster line's power); absent: `process`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub profile: Vec<usize>,
     /// Index into `processes`.
     pub process: usize,
     /// Where it came from, for messages.
@@ -70,7 +74,7 @@ pub fn to_file(job: &Job, plate: Option<&PlateConfig>) -> JobFile {
         geometries: job
             .geometries
             .iter()
-            .map(|g| GeometryFile { points: g.points.iter().map(|p| [p.x, p.y]).collect(), closed: g.closed, arcs: g.arcs.clone(), process: g.process, source: g.source.clone() })
+            .map(|g| GeometryFile { points: g.points.iter().map(|p| [p.x, p.y]).collect(), closed: g.closed, arcs: g.arcs.clone(), profile: g.profile.clone(), process: g.process, source: g.source.clone() })
             .collect(),
     }
 }
@@ -128,9 +132,16 @@ pub fn import_json(bytes: &[u8], source: &str, config: &MachineConfig) -> Result
         if g.points.len() < 2 {
             return Err(Error::Import(format!("{name}: fewer than two points")));
         }
-        let geometry = Geometry { points: g.points.iter().map(|p| Point::new(p[0], p[1])).collect(), closed: g.closed, arcs: g.arcs, process: g.process, source: g.source };
+        let geometry = Geometry { points: g.points.iter().map(|p| Point::new(p[0], p[1])).collect(), closed: g.closed, arcs: g.arcs, profile: g.profile, process: g.process, source: g.source };
         if let Some(wrong) = geometry.arc_error(config.import.tolerance) {
             return Err(Error::Import(format!("{name}: {wrong}")));
+        }
+        let segments = if geometry.closed && geometry.points.len() > 2 { geometry.points.len() } else { geometry.points.len() - 1 };
+        if !geometry.profile.is_empty() && geometry.profile.len() != segments {
+            return Err(Error::Import(format!("{name}: a profile of {} processes for {segments} segments", geometry.profile.len())));
+        }
+        if let Some(k) = geometry.profile.iter().position(|&p| p >= file.processes.len()) {
+            return Err(Error::Import(format!("{name}: profile[{k}]: process {} of {}", geometry.profile[k], file.processes.len())));
         }
         geometries.push(geometry);
     }
@@ -149,7 +160,7 @@ mod tests {
         let config = crate::import::test_config();
         let job = Job {
             source: "a.svg".into(),
-            geometries: vec![Geometry { arcs: Vec::new(), points: vec![Point::new(0.1, 1.0 / 3.0), Point::new(2.0f64.sqrt(), 7.0)], closed: false, process: 0, source: "a.svg: <path>".into() }],
+            geometries: vec![Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(0.1, 1.0 / 3.0), Point::new(2.0f64.sqrt(), 7.0)], closed: false, process: 0, source: "a.svg: <path>".into() }],
             processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 200.0, passes: 2 }],
         };
         let text = serde_json::to_string(&to_file(&job, None)).unwrap();
@@ -189,5 +200,21 @@ mod tests {
         // Straight points said to be an arc: the length would lie.
         assert!(bad(&|v| v["geometries"][0]["arcs"][2]["bulge"] = 0.9.into()).contains("off the arc"));
         assert!(bad(&|v| v["geometries"][0]["arcs"][0]["bulge"] = 1.0.into()).contains("arc 0: vertex"));
+    }
+
+    #[test]
+    fn a_power_profile_round_trips_and_one_that_does_not_fit_is_refused() {
+        let config = crate::import::test_config();
+        let job = crate::import::gcode::import_gcode("M4 F600\nG1 X1 S10\nG1 X2 S20\nG1 X3 S10\nM5\n", "t.nc", &config).unwrap();
+        assert_eq!(job.geometries[0].profile, vec![0, 1, 0]);
+        let text = serde_json::to_string(&to_file(&job, None)).unwrap();
+        assert_eq!(import_json(text.as_bytes(), "j.json", &config).unwrap().geometries, job.geometries);
+        let bad = |edit: &dyn Fn(&mut serde_json::Value)| {
+            let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+            edit(&mut v);
+            import_json(v.to_string().as_bytes(), "j.json", &config).unwrap_err().to_string()
+        };
+        assert!(bad(&|v| v["geometries"][0]["profile"] = serde_json::json!([0, 1])).contains("geometries[0]: a profile of 2 processes for 3 segments"));
+        assert!(bad(&|v| v["geometries"][0]["profile"] = serde_json::json!([0, 5, 0])).contains("geometries[0]: profile[1]: process 5 of 2"));
     }
 }

@@ -105,11 +105,19 @@ const SAME_POINT_MM: f64 = 1e-9;
 pub(crate) struct Trace {
     pub points: Vec<Point>,
     pub arcs: Vec<ArcSpan>,
+    /// A tag per segment where the importer keeps one (G-code: its process); else empty.
+    pub tags: Vec<usize>,
 }
 
 impl Trace {
     pub fn of(points: Vec<Point>) -> Trace {
-        Trace { points, arcs: Vec::new() }
+        Trace { points, arcs: Vec::new(), tags: Vec::new() }
+    }
+
+    /// Tags every segment with `tag`.
+    pub fn tagged(mut self, tag: usize) -> Trace {
+        self.tags = vec![tag; self.points.len().saturating_sub(1)];
+        self
     }
 
     /// Adds `points` (which continue from the last point, not repeating it)
@@ -133,6 +141,7 @@ impl Trace {
             return;
         }
         self.points.extend(next.points.into_iter().skip(1));
+        self.tags.extend(next.tags);
         self.arcs.extend(next.arcs.into_iter().map(|a| ArcSpan { from: a.from + shift, to: a.to + shift, ..a }));
     }
 
@@ -140,6 +149,7 @@ impl Trace {
     pub fn reversed(mut self) -> Trace {
         let last = self.points.len() - 1;
         self.points.reverse();
+        self.tags.reverse();
         self.arcs = self.arcs.iter().rev().map(|a| ArcSpan { from: last - a.to, to: last - a.from, bulge: -a.bulge }).collect();
         self
     }
@@ -172,7 +182,9 @@ pub(crate) fn clean_polyline(trace: Trace, mut closed: bool) -> Option<(Trace, b
     }
     let ends = if closed { out.len() } else { out.len() - 1 };
     let arcs = trace.arcs.iter().map(|a| ArcSpan { from: kept[a.from], to: kept[a.to], ..*a }).filter(|a| a.to > a.from && a.to <= ends).collect();
-    Some((Trace { points: out, arcs }, closed))
+    // A segment stays where its ends are kept apart (the closing one ends on vertex 0).
+    let tags = trace.tags.iter().enumerate().filter(|&(i, _)| kept[i + 1] != kept[i] && kept[i + 1] <= ends).map(|(_, &t)| t).collect();
+    Some((Trace { points: out, arcs, tags }, closed))
 }
 
 /// Segments of an arc of `radius` over `sweep` (radians) whose chords stay
@@ -389,7 +401,7 @@ mod tests {
         arc.arc_to(half, 1.0);
         t.append(arc);
         assert_eq!(t.arcs, vec![ArcSpan { from: 1, to: 9, bulge: 1.0 }]);
-        let length = |t: &Trace, closed: bool| Geometry { points: t.points.clone(), closed, arcs: t.arcs.clone(), process: 0, source: String::new() }.length();
+        let length = |t: &Trace, closed: bool| Geometry { points: t.points.clone(), closed, arcs: t.arcs.clone(), profile: Vec::new(), process: 0, source: String::new() }.length();
         let want = 10.0 + 5.0 * std::f64::consts::PI;
         assert!((length(&t, false) - want).abs() < 1e-12);
         let back = t.clone().reversed();
@@ -404,7 +416,7 @@ mod tests {
         assert!(closed && clean.points.len() == 9, "{:?}", clean.points);
         assert_eq!(clean.arcs, vec![ArcSpan { from: 1, to: 9, bulge: 1.0 }]);
         assert!((length(&clean, true) - want).abs() < 1e-12);
-        let g = Geometry { points: clean.points, closed: true, arcs: clean.arcs, process: 0, source: String::new() };
+        let g = Geometry { points: clean.points, closed: true, arcs: clean.arcs, profile: Vec::new(), process: 0, source: String::new() };
         // Eight chords over a half circle of r = 5 cut 0.096 mm inside it.
         assert!(g.arc_error(0.1).is_none(), "{:?}", g.arc_error(0.1));
         assert!(g.arc_error(0.09).is_some_and(|e| e.contains("chord 9.61e-2 mm inside")));

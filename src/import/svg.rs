@@ -273,7 +273,7 @@ impl<'a> Importer<'a> {
             if let Some((trace, closed)) = super::clean_polyline(super::Trace::of(points.into_iter().map(|p| Point::new(p.x, p.y)).collect()), closed) {
                 self.geometries.push(Geometry {
                     points: trace.points,
-                    arcs: Vec::new(),
+                    arcs: Vec::new(), profile: Vec::new(),
                     closed,
                     process: layer,
                     source: format!("{}: {} subpath {}", self.source, name, i + 1),

@@ -282,8 +282,10 @@ pub(super) fn bisect(lo: f64, hi: f64, steps: usize, ok: &dyn Fn(f64) -> bool) -
 /// than two points). It starts at rest, or, after a laser-off move along
 /// `entry` (its chord to the first point), at the speed `hand_over_speed`
 /// allows; it ends at rest or hands over to the laser-off move along `exit`.
-pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector2<f64>>, exit: Option<Vector2<f64>>) -> Option<Run> {
-    plan_legs(s, points, speed, entry, exit, true).map(|(legs, _)| Run::new(legs))
+/// With `one_leg_per_segment` its legs are the segments (the run's pieces
+/// are told apart by them), never one smooth curve.
+pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector2<f64>>, exit: Option<Vector2<f64>>, one_leg_per_segment: bool) -> Option<Run> {
+    plan_legs(s, points, speed, entry, exit, !one_leg_per_segment).map(|(legs, _)| Run::new(legs))
 }
 
 /// `plan_run`'s legs and duration; with `curves`, a run of gentle vertices

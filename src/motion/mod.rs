@@ -182,28 +182,71 @@ fn mark_all(
             (speed, power, if path.pierce { pierce } else { crate::config::Pierce { time: 0.0, ..pierce } })
         })
         .collect();
+    let chains = chains(sequence, &processes, b.settings.junctions);
     if runs.is_none() {
-        let requests: Vec<_> = sequence
-            .paths()
-            .zip(&processes)
-            .map(|(path, (speed, _, pierce))| MarkRequest { points: &path.points, speed: *speed, pierce: pierce.time > 0.0 })
-            .collect();
+        let requests: Vec<_> = chains.iter().map(|c| MarkRequest { points: &c.points, speed: processes[c.paths[0]].0, pierce: processes[c.paths[0]].2.time > 0.0, breaks: &c.breaks }).collect();
         *runs = Some(b.prepare(&requests)?);
     }
     let planned = runs.as_ref().expect("planned above");
-    let mut k = 0;
-    for (g, group) in sequence.groups.iter().enumerate() {
-        if group.paths.is_empty() {
-            continue;
+    let paths: Vec<&crate::plan::PlannedPath> = sequence.paths().collect();
+    let mut last_group = None;
+    for (chain, run) in chains.iter().zip(planned) {
+        if last_group != Some(chain.group) {
+            before_group(b, chain.group)?;
+            last_group = Some(chain.group);
         }
-        before_group(b, g)?;
+        let marks: Vec<(usize, f64)> = chain.paths.iter().map(|&k| (paths[k].geometry, processes[k].1)).collect();
+        let pierce = processes[chain.paths[0]].2;
+        b.mark_run(&marks, chain.group, run.as_ref(), pierce.time, pierce.power)?;
+    }
+    b.stop(sequence.groups.len().saturating_sub(1))
+}
+
+/// Paths marked as one run: each after the first goes on from where the one
+/// before ended, straight on, at the same speed, without a pierce, and is
+/// of the same geometry (a raster line cut where its power changes).
+struct Chain {
+    group: usize,
+    /// Indices of the paths in the sequence.
+    paths: Vec<usize>,
+    points: Vec<Point>,
+    /// Where in `points` each path after the first begins.
+    breaks: Vec<usize>,
+}
+
+/// The sequence's paths in chains (with `junctions` only: elsewhere each
+/// path is a run of its own).
+fn chains(sequence: &Sequence, processes: &[(f64, f64, crate::config::Pierce)], junctions: bool) -> Vec<Chain> {
+    let mut out: Vec<Chain> = Vec::new();
+    let mut k = 0;
+    let mut previous: Option<&crate::plan::PlannedPath> = None;
+    for (g, group) in sequence.groups.iter().enumerate() {
         for path in &group.paths {
-            let (_, power, pierce) = processes[k];
-            b.mark_run(path.geometry, g, planned[k].as_ref(), power, pierce.time, pierce.power)?;
+            let goes_on = previous.zip(out.last()).filter(|(before, _)| before.points.len() >= 2 && path.points.len() >= 2).is_some_and(|(before, chain)| {
+                let n = before.points.len();
+                let (a, b) = (before.points[n - 1] - before.points[n - 2], path.points[1] - path.points[0]);
+                junctions
+                    && chain.group == g
+                    && before.geometry == path.geometry
+                    && processes[k].2.time == 0.0
+                    && processes[k].0 == processes[chain.paths[0]].0
+                    && before.end() == path.start()
+                    && a.dot(&b) > 0.0
+                    && a.perp(&b).abs() <= 1e-9 * a.norm() * b.norm()
+            });
+            match out.last_mut() {
+                Some(chain) if goes_on => {
+                    chain.breaks.push(chain.points.len() - 1);
+                    chain.points.extend_from_slice(&path.points[1..]);
+                    chain.paths.push(k);
+                }
+                _ => out.push(Chain { group: g, paths: vec![k], points: path.points.clone(), breaks: Vec::new() }),
+            }
+            previous = Some(path);
             k += 1;
         }
     }
-    b.stop(sequence.groups.len().saturating_sub(1))
+    out
 }
 
 fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Point, first: Option<Point>) -> Result<Trajectory> {
@@ -661,7 +704,7 @@ mod tests {
     use crate::plan::{nearest::NearestNeighbour, PlanContext, Planner};
 
     fn job() -> Job {
-        let sq = |x: f64, y: f64| Geometry { arcs: Vec::new(),
+        let sq = |x: f64, y: f64| Geometry { arcs: Vec::new(), profile: Vec::new(),
             points: vec![Point::new(x, y), Point::new(x + 5.0, y), Point::new(x + 5.0, y + 5.0), Point::new(x, y + 5.0)],
             closed: true,
             process: 0,
@@ -765,7 +808,7 @@ mod tests {
                 (0..8).map(move |n| {
                     let (x, y) = (10.0 + 20.0 * k as f64 + 0.25 * n as f64, 100.0 + 3.0 * (k % 3) as f64 + 0.25 * n as f64);
                     let a = 5.0 - 0.5 * n as f64;
-                    Geometry { arcs: Vec::new(), points: vec![Point::new(x, y), Point::new(x + a, y), Point::new(x + a, y + a), Point::new(x, y + a)], closed: true, process: 0, source: format!("sq {k}.{n}") }
+                    Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(x, y), Point::new(x + a, y), Point::new(x + a, y + a), Point::new(x, y + a)], closed: true, process: 0, source: format!("sq {k}.{n}") }
                 })
             })
             .collect();
@@ -794,7 +837,7 @@ mod tests {
         j.geometries = (0..8)
             .map(|k| {
                 let (x, y) = (20.0 + 30.0 * k as f64, if k % 2 == 0 { 30.0 } else { 150.0 });
-                Geometry { arcs: Vec::new(), points: vec![Point::new(x, y), Point::new(x + 4.0, y), Point::new(x + 4.0, y + 4.0), Point::new(x, y + 4.0)], closed: true, process: 0, source: format!("sq {k}") }
+                Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(x, y), Point::new(x + 4.0, y), Point::new(x + 4.0, y + 4.0), Point::new(x, y + 4.0)], closed: true, process: 0, source: format!("sq {k}") }
             })
             .collect();
         j
@@ -915,7 +958,7 @@ mod tests {
     /// A stage-only trajectory of `paths` marked in this order (no scanner).
     fn stage_only_in_order(paths: &[Vec<Point>], machine: &MachineConfig) -> Trajectory {
         let mut j = job();
-        j.geometries = paths.iter().enumerate().map(|(k, p)| Geometry { arcs: Vec::new(), points: p.clone(), closed: false, process: 0, source: format!("path {k}") }).collect();
+        j.geometries = paths.iter().enumerate().map(|(k, p)| Geometry { arcs: Vec::new(), profile: Vec::new(), points: p.clone(), closed: false, process: 0, source: format!("path {k}") }).collect();
         let paths = paths.iter().enumerate().map(|(k, p)| crate::plan::PlannedPath { geometry: k, points: p.clone(), process: 0, pierce: true }).collect();
         let seq = Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths }] };
         build(&j, &seq, machine, Mode::StageOnly, Point::origin()).unwrap()
@@ -954,6 +997,38 @@ mod tests {
         let tr = stage_only_in_order(&dashes, &pierced);
         for p in tr.tcp.pieces.iter().filter(|p| matches!(p.kind, PieceKind::Pierce { .. })) {
             assert!(speed_at(&tr, p.start) < 1e-6 && speed_at(&tr, p.end_time()) < 1e-6);
+        }
+    }
+
+    #[test]
+    fn a_raster_line_cut_where_its_power_changes_runs_through_at_speed_with_each_pieces_power() {
+        let mut plain = MachineConfig::load(None).unwrap();
+        plain.scanner = None;
+        let mut j = job();
+        let line: Vec<Point> = (0..=6).map(|k| Point::new(20.0 + 5.0 * k as f64, 50.0)).collect();
+        j.geometries = vec![Geometry { arcs: Vec::new(), profile: vec![0, 1, 1, 2, 0, 1], points: line.clone(), closed: false, process: 0, source: "t.nc:3".into() }];
+        let power = |p: f64| crate::job::Process { power: p, ..j.processes[0].clone() };
+        j.processes = vec![power(100.0), power(200.0), power(300.0)];
+        let path = crate::plan::PlannedPath { geometry: 0, points: line.clone(), process: 0, pierce: true };
+        let seq = crate::plan::split_profiles(Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths: vec![path] }] }, &j);
+        assert_eq!(seq.paths().count(), 5);
+        let tr = build(&j, &seq, &plain, Mode::StageOnly, Point::origin()).unwrap();
+        check_sampled(&tr, &plain, 1e-4);
+        let marks: Vec<_> = tr.tcp.pieces.iter().filter(|p| p.is_marking()).collect();
+        let powers: Vec<f64> = marks.iter().map(|m| m.power()).collect();
+        assert_eq!(powers, vec![100.0, 200.0, 300.0, 100.0, 200.0], "a leg per piece (straight on inside one), each with its power");
+        let ends = [20.0, 25.0, 35.0, 40.0, 45.0, 50.0];
+        for (m, w) in marks.iter().zip(ends.windows(2)) {
+            assert!((m.start_point().x - w[0]).abs() < 1e-9 && (m.end_point().x - w[1]).abs() < 1e-9, "{m:?}");
+        }
+        // Through every change of power as through none: one run, no stop.
+        let whole = stage_only_in_order(std::slice::from_ref(&line), &plain);
+        // (Each leg's ramp starts and ends without acceleration: a little
+        // slower than one leg where the line is still speeding up.)
+        assert!(tr.job_time() < 1.2 * whole.job_time(), "{} s, the line in one power {} s", tr.job_time(), whole.job_time());
+        for m in &marks[1..] {
+            let v = speed_at(&tr, m.start);
+            assert!(v > 0.5 * speed_at(&whole, m.start), "{v} mm/s at x = {}, in one power {}", m.start_point().x, speed_at(&whole, m.start));
         }
     }
 

@@ -241,6 +241,9 @@ pub type Legs = Vec<(f64, f64, Motion)>;
 /// start and their durations (consecutive legs may overlap at a corner).
 pub struct Run {
     legs: Legs,
+    /// The legs where each piece after the first of a run of several marks
+    /// begins (a raster line whose power changes); empty for one mark.
+    breaks: Vec<usize>,
     duration: f64,
     entry: Point,
     entry_velocity: Vector2<f64>,
@@ -257,7 +260,7 @@ impl Run {
         let exit_velocity = last.velocity(*last_duration);
         let (entry, exit) = (first.start(), last.end());
         let duration = last_start + last_duration;
-        Run { legs, duration, entry, entry_velocity, exit, exit_velocity }
+        Run { legs, breaks: Vec::new(), duration, entry, entry_velocity, exit, exit_velocity }
     }
 
     fn entry_velocity(&self) -> Vector2<f64> {
@@ -416,17 +419,33 @@ pub fn path_limits(axis: Limits, d: Vector2<f64>) -> Limits {
 
 /// The run of legs marking `points` at `speed` (none for fewer than two
 /// distinct points); corners already in `corners` are taken from there.
-fn plan_run(s: &TcpSettings, corners: &mut Corners, points: &[Point], speed: f64, ramp_in: bool, hand_over: HandOver) -> Result<Option<Run>> {
+fn plan_run(s: &TcpSettings, corners: &mut Corners, points: &[Point], speed: f64, ramp_in: bool, hand_over: HandOver, breaks: &[usize]) -> Result<Option<Run>> {
     if !(speed.is_finite() && speed > 0.0) {
         return Err(Error::Motion(format!("invalid marking speed {speed}")));
     }
-    let points = simplify(points, s.line_tolerance);
+    // Simplified between breaks, which stay vertices: the legs there.
+    let mut simple: Vec<Point> = Vec::with_capacity(points.len());
+    let mut leg_breaks = Vec::with_capacity(breaks.len());
+    let ends: Vec<usize> = breaks.iter().copied().chain([points.len() - 1]).collect();
+    let mut from = 0;
+    for &to in &ends {
+        let part = simplify(&points[from..=to], s.line_tolerance);
+        if from > 0 {
+            leg_breaks.push(simple.len() - 1);
+        }
+        let skip = usize::from(!simple.is_empty() && part.first().is_some_and(|p| simple.last().is_some_and(|q| (p - q).norm() <= 1e-9)));
+        simple.extend(part.into_iter().skip(skip));
+        from = to;
+    }
+    let points = simple;
     if points.len() < 2 {
         return Ok(None);
     }
     if s.junctions {
-        return Ok(super::blend::plan_run(s, &points, speed, hand_over.entry, hand_over.exit));
+        let run = super::blend::plan_run(s, &points, speed, hand_over.entry, hand_over.exit, !breaks.is_empty());
+        return Ok(run.map(|r| Run { breaks: leg_breaks, ..r }));
     }
+    debug_assert!(breaks.is_empty(), "marks run on through one another only with junctions");
     let n = points.len() - 1;
     let mut legs = Vec::with_capacity(n);
     for i in 0..n {
@@ -621,9 +640,9 @@ impl TcpBuilder {
     /// `pierce_power` first when `pierce` > 0), jumping there first.
     #[allow(clippy::too_many_arguments)]
     pub fn mark(&mut self, geometry: usize, group: usize, points: &[Point], speed: f64, power: f64, pierce: f64, pierce_power: f64) -> Result<()> {
-        let request = MarkRequest { points, speed, pierce: pierce > 0.0 };
+        let request = MarkRequest { points, speed, pierce: pierce > 0.0, breaks: &[] };
         let run = self.prepare(std::slice::from_ref(&request))?.pop().flatten();
-        self.mark_run(geometry, group, run.as_ref(), power, pierce, pierce_power)
+        self.mark_run(&[(geometry, power)], group, run.as_ref(), pierce, pierce_power)
     }
 
     /// Plans the runs of `marks` ahead, on all cores (a run does not depend
@@ -656,7 +675,7 @@ impl TcpBuilder {
             let mut corners = known.clone();
             let runs = part
                 .iter()
-                .map(|(m, h)| plan_run(&settings, &mut corners, m.points, m.speed, m.pierce || !settings.skywrite, *h))
+                .map(|(m, h)| plan_run(&settings, &mut corners, m.points, m.speed, m.pierce || !settings.skywrite, *h, m.breaks))
                 .collect::<Result<Vec<_>>>();
             (runs, corners)
         });
@@ -685,18 +704,20 @@ impl TcpBuilder {
     /// Marks a run planned by `prepare` (nothing for none), jumping to its
     /// start first, with a pierce of `pierce` seconds at `pierce_power` when
     /// `pierce` > 0 (the run must have been planned with its pierce).
-    pub fn mark_run(&mut self, geometry: usize, group: usize, run: Option<&Run>, power: f64, pierce: f64, pierce_power: f64) -> Result<()> {
+    /// `marks`: the geometry and power of each mark the run goes through
+    /// (one, or one per piece of a raster line, as the run's breaks).
+    pub fn mark_run(&mut self, marks: &[(usize, f64)], group: usize, run: Option<&Run>, pierce: f64, pierce_power: f64) -> Result<()> {
         let Some(run) = run else { return Ok(()) };
         let entry = run.entry;
         self.jump(PieceKind::Jump, group, entry, run.entry_velocity())?;
         if pierce > 0.0 {
-            self.still(PieceKind::Pierce { geometry, power: pierce_power }, group, pierce);
+            self.still(PieceKind::Pierce { geometry: marks[0].0, power: pierce_power }, group, pierce);
         }
-        let kind = PieceKind::Mark { geometry, power };
         let t0 = self.time;
-        for (start, duration, motion) in &run.legs {
+        for (i, (start, duration, motion)) in run.legs.iter().enumerate() {
+            let (geometry, power) = marks[run.breaks.partition_point(|&b| b <= i).min(marks.len() - 1)];
             if *duration > 0.0 {
-                self.path.pieces.push(Piece { kind, group, start: t0 + start, duration: *duration, motion: motion.clone() });
+                self.path.pieces.push(Piece { kind: PieceKind::Mark { geometry, power }, group, start: t0 + start, duration: *duration, motion: motion.clone() });
             }
         }
         self.time = t0 + run.duration;
@@ -720,6 +741,8 @@ pub struct MarkRequest<'a> {
     pub points: &'a [Point],
     pub speed: f64,
     pub pierce: bool,
+    /// Where in `points` a mark run on into from the one before begins.
+    pub breaks: &'a [usize],
 }
 
 /// The cache key of a laser-off move: its end states, to the nanometre.
@@ -823,10 +846,10 @@ mod tests {
             one_by_one.mark(k, 0, m, 900.0, 300.0, pierce(k), 500.0).unwrap();
         }
         let mut ahead = TcpBuilder::new(s, Point::origin(), 0.0);
-        let requests: Vec<_> = marks.iter().enumerate().map(|(k, m)| MarkRequest { points: m, speed: 900.0, pierce: pierce(k) > 0.0 }).collect();
+        let requests: Vec<_> = marks.iter().enumerate().map(|(k, m)| MarkRequest { points: m, speed: 900.0, pierce: pierce(k) > 0.0, breaks: &[] }).collect();
         let runs = ahead.prepare(&requests).unwrap();
         for (k, run) in runs.iter().enumerate() {
-            ahead.mark_run(k, 0, run.as_ref(), 300.0, pierce(k), 500.0).unwrap();
+            ahead.mark_run(&[(k, 300.0)], 0, run.as_ref(), pierce(k), 500.0).unwrap();
         }
         assert_eq!(one_by_one.path.pieces.len(), ahead.path.pieces.len());
         assert!((one_by_one.time - ahead.time).abs() < 1e-12, "{} vs {}", one_by_one.time, ahead.time);
@@ -834,7 +857,7 @@ mod tests {
             let t = one_by_one.time * k as f64 / 1000.0;
             assert!((one_by_one.path.position(t) - ahead.path.position(t)).norm() < 1e-9, "t={t}");
         }
-        let bad = MarkRequest { points: &marks[1], speed: f64::NAN, pierce: false };
+        let bad = MarkRequest { points: &marks[1], speed: f64::NAN, pierce: false, breaks: &[] };
         assert!(ahead.prepare(&[bad]).is_err(), "a NaN speed is refused");
     }
 

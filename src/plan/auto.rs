@@ -103,7 +103,7 @@ mod tests {
 
     fn square(x: f64, y: f64, side: f64, process: usize, name: &str) -> Geometry {
         let points = vec![Point::new(x, y), Point::new(x + side, y), Point::new(x + side, y + side), Point::new(x, y + side)];
-        Geometry { arcs: Vec::new(), points, closed: true, process, source: format!("t.svg: {name}") }
+        Geometry { arcs: Vec::new(), profile: Vec::new(), points, closed: true, process, source: format!("t.svg: {name}") }
     }
 
     /// A cutting machine's layers: `cut` pierces, `engrave` does not.

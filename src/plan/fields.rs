@@ -232,7 +232,7 @@ mod tests {
         let geometries = rects
             .iter()
             .enumerate()
-            .map(|(i, &(x, y, w, h))| Geometry { arcs: Vec::new(),
+            .map(|(i, &(x, y, w, h))| Geometry { arcs: Vec::new(), profile: Vec::new(),
                 points: vec![Point::new(x, y), Point::new(x + w, y), Point::new(x + w, y + h), Point::new(x, y + h)],
                 closed: true,
                 process: 0,

@@ -166,6 +166,12 @@ pub struct PlanOutcome {
 /// cutting planner's route by the independent checker, any other planner's
 /// by whole geometries.
 pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
+    let mut outcome = plan_ordered(kind, job, ctx)?;
+    outcome.sequence = split_profiles(outcome.sequence, job);
+    Ok(outcome)
+}
+
+fn plan_ordered(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     match kind {
         PlannerKind::Auto => auto::plan(job, ctx),
         PlannerKind::Ecp => Ok(cutting::plan_cutting(job, ctx)?.outcome()),
@@ -179,6 +185,58 @@ pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
             Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0 })
         }
     }
+}
+
+/// Each path of a geometry with a profile (a raster line whose power changes
+/// along it) cut where its process changes, in the direction it is marked:
+/// the pieces follow each other with no move between, the first with the
+/// path's pierce.
+pub fn split_profiles(sequence: Sequence, job: &Job) -> Sequence {
+    if job.geometries.iter().all(|g| g.profile.is_empty()) {
+        return sequence;
+    }
+    let key = |p: &Point| (p.x.to_bits(), p.y.to_bits());
+    let groups = sequence
+        .groups
+        .into_iter()
+        .map(|group| {
+            let mut paths = Vec::with_capacity(group.paths.len());
+            for path in group.paths {
+                let g = &job.geometries[path.geometry];
+                if g.profile.is_empty() {
+                    paths.push(path);
+                    continue;
+                }
+                // A path's points are its geometry's, forward or back (from
+                // any vertex of a closed one): each segment found by its ends.
+                let mut vertex: std::collections::HashMap<(u64, u64), usize> = std::collections::HashMap::with_capacity(g.points.len());
+                for (i, p) in g.points.iter().enumerate() {
+                    vertex.entry(key(p)).or_insert(i);
+                }
+                let n = g.points.len();
+                let segment = |a: &Point, b: &Point| -> usize {
+                    match (vertex.get(&key(a)), vertex.get(&key(b))) {
+                        (Some(&i), Some(&j)) if j == (i + 1) % n => g.profile.get(i).copied().unwrap_or(g.process),
+                        (Some(&i), Some(&j)) if i == (j + 1) % n => g.profile.get(j).copied().unwrap_or(g.process),
+                        _ => path.process,
+                    }
+                };
+                let first = path.points.get(1).map_or(path.process, |b| segment(&path.points[0], b));
+                let mut piece = PlannedPath { geometry: path.geometry, points: vec![path.points[0]], process: first, pierce: path.pierce };
+                for w in path.points.windows(2) {
+                    let process = segment(&w[0], &w[1]);
+                    if process != piece.process {
+                        let next = PlannedPath { geometry: path.geometry, points: vec![w[0]], process, pierce: false };
+                        paths.push(std::mem::replace(&mut piece, next));
+                    }
+                    piece.points.push(w[1]);
+                }
+                paths.push(piece);
+            }
+            PathGroup { paths, ..group }
+        })
+        .collect();
+    Sequence { groups }
 }
 
 /// Checks that every geometry can be reached: inside the stage travel (stage-only),
@@ -213,5 +271,26 @@ mod tests {
         assert_eq!(seq.stage_reversals(), Some(2));
         let stage_only = Sequence { groups: vec![PathGroup { field_center: None, paths: Vec::new() }] };
         assert_eq!(stage_only.stage_reversals(), None);
+    }
+
+    #[test]
+    fn a_raster_line_is_cut_where_its_power_changes_in_the_direction_it_is_marked() {
+        let points: Vec<Point> = (0..5).map(|k| Point::new(k as f64, 0.0)).collect();
+        use crate::job::Geometry;
+        let line = Geometry { points: points.clone(), closed: false, arcs: Vec::new(), profile: vec![0, 1, 1, 2], process: 0, source: "t.nc:3".into() };
+        let plain = Geometry::polyline(vec![Point::new(0.0, 5.0), Point::new(4.0, 5.0)], false, 1, "t.nc:9".into());
+        let process = |power: f64| crate::job::Process { layer: format!("S{power}"), speed: 10.0, power, passes: 1 };
+        let job = Job { source: "t.nc".into(), geometries: vec![line, plain], processes: vec![process(100.0), process(200.0), process(300.0)] };
+        let path = |geometry: usize, points: Vec<Point>, process: usize| PlannedPath { geometry, points, process, pierce: true };
+        // Marked backwards: the last segment's process first.
+        let back: Vec<Point> = points.iter().rev().copied().collect();
+        let sequence = Sequence { groups: vec![PathGroup { field_center: None, paths: vec![path(0, back, 0), path(1, job.geometries[1].points.clone(), 1)] }] };
+        let split = split_profiles(sequence, &job);
+        let got: Vec<(usize, Vec<f64>, bool)> = split.paths().map(|p| (p.process, p.points.iter().map(|q| q.x).collect(), p.pierce)).collect();
+        assert_eq!(
+            got,
+            vec![(2, vec![4.0, 3.0], true), (1, vec![3.0, 2.0, 1.0], false), (0, vec![1.0, 0.0], false), (1, vec![0.0, 4.0], true)],
+            "pieces follow on with no pierce; a geometry without a profile is left as it is"
+        );
     }
 }

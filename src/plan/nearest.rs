@@ -114,7 +114,7 @@ mod tests {
     use crate::plan::PlanContext;
 
     fn square(x: f64, y: f64, s: f64) -> Geometry {
-        Geometry { arcs: Vec::new(),
+        Geometry { arcs: Vec::new(), profile: Vec::new(),
             points: vec![Point::new(x, y), Point::new(x + s, y), Point::new(x + s, y + s), Point::new(x, y + s)],
             closed: true,
             process: 0,
@@ -151,7 +151,7 @@ mod tests {
     #[test]
     fn open_paths_start_at_the_nearer_end() {
         let machine = MachineConfig::load(None).unwrap();
-        let g = Geometry { arcs: Vec::new(), points: vec![Point::new(20.0, 0.0), Point::new(1.0, 0.0)], closed: false, process: 0, source: "l".into() };
+        let g = Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(20.0, 0.0), Point::new(1.0, 0.0)], closed: false, process: 0, source: "l".into() };
         let ctx = PlanContext { machine: &machine, mode: Mode::StageOnly, start: Point::origin(), plate: None };
         let seq = NearestNeighbour.plan(&job(vec![g]), &ctx).unwrap();
         assert_eq!(seq.paths().next().unwrap().start(), Point::new(1.0, 0.0));

@@ -38,18 +38,42 @@ pub fn split_at_field_borders(job: &Job, usable_half: f64) -> Job {
             geometries.push(g.clone());
             continue;
         }
+        // A raster line whose power changes along it: its runs of one
+        // process are split, each with its process.
+        if !g.profile.is_empty() {
+            let runs = process_runs(g);
+            let n = runs.len();
+            let parts: Vec<Geometry> = runs.into_iter().enumerate().map(|(i, (points, process))| Geometry::polyline(points, false, process, format!("{} run {}/{n}", g.source, i + 1))).collect();
+            geometries.extend(split_at_field_borders(&Job { source: job.source.clone(), geometries: parts, processes: job.processes.clone() }, usable_half).geometries);
+            continue;
+        }
         let pieces = pieces(g, size * (1.0 - 1e-9));
         let n = pieces.len();
         geometries.extend(pieces.into_iter().enumerate().map(|(i, points)| Geometry {
             points,
             closed: false,
             // A piece of a field is marked as points; its arcs are the whole's.
-            arcs: Vec::new(),
+            arcs: Vec::new(), profile: Vec::new(),
             process: g.process,
             source: format!("{} piece {}/{n}", g.source, i + 1),
         }));
     }
     Job { source: job.source.clone(), geometries, processes: job.processes.clone() }
+}
+
+/// The runs of a geometry's segments with one process, in path order.
+fn process_runs(g: &Geometry) -> Vec<(Vec<Point>, usize)> {
+    let n = g.points.len();
+    let segments = if g.closed && n > 2 { n } else { n - 1 };
+    let mut runs: Vec<(Vec<Point>, usize)> = Vec::new();
+    for i in 0..segments {
+        let process = g.profile.get(i).copied().unwrap_or(g.process);
+        match runs.last_mut() {
+            Some((points, p)) if *p == process => points.push(g.points[(i + 1) % n]),
+            _ => runs.push((vec![g.points[i], g.points[(i + 1) % n]], process)),
+        }
+    }
+    runs
 }
 
 /// Fails, naming the first geometry larger than the usable field, when
@@ -146,7 +170,7 @@ mod tests {
     use crate::job::Process;
 
     fn geometry(points: &[(f64, f64)], closed: bool, source: &str) -> Geometry {
-        Geometry { arcs: Vec::new(), points: points.iter().map(|&(x, y)| Point::new(x, y)).collect(), closed, process: 0, source: source.into() }
+        Geometry { arcs: Vec::new(), profile: Vec::new(), points: points.iter().map(|&(x, y)| Point::new(x, y)).collect(), closed, process: 0, source: source.into() }
     }
 
     fn job(geometries: Vec<Geometry>) -> Job {

@@ -317,7 +317,7 @@ fn spans(trajectory: &Trajectory, machine: &MachineConfig) -> Vec<Span> {
     for (k, p) in trajectory.tcp.pieces.iter().enumerate() {
         let kind = line_kind(p.kind);
         if let Some(last) = out.last_mut() {
-            let same = last.kind == kind && kind != LineKind::Pierce && last.geometry == p.geometry() && p.start <= last.end + 1e-12;
+            let same = last.kind == kind && kind != LineKind::Pierce && last.geometry == p.geometry() && last.power == p.power() && p.start <= last.end + 1e-12;
             if same {
                 last.end = last.end.max(p.end_time());
                 last.last = k;
@@ -691,7 +691,7 @@ mod tests {
             .collect();
         Job {
             source: "t".into(),
-            geometries: vec![Geometry { arcs: Vec::new(), points, closed: true, process: 0, source: "circle".into() }],
+            geometries: vec![Geometry { arcs: Vec::new(), profile: Vec::new(), points, closed: true, process: 0, source: "circle".into() }],
             processes: vec![Process { layer: "mark".into(), speed: 1000.0, power: 250.0, passes: 1 }],
         }
     }

@@ -83,7 +83,7 @@ mod tests {
         let square = |x: f64| vec![Point::new(x, 10.0), Point::new(x + 5.0, 10.0), Point::new(x + 5.0, 15.0), Point::new(x, 10.0)];
         let job = Job {
             source: "t".into(),
-            geometries: (0..2).map(|k| Geometry { arcs: Vec::new(), points: square(10.0 * k as f64 + 10.0), closed: false, process: 0, source: format!("g{k}") }).collect(),
+            geometries: (0..2).map(|k| Geometry { arcs: Vec::new(), profile: Vec::new(), points: square(10.0 * k as f64 + 10.0), closed: false, process: 0, source: format!("g{k}") }).collect(),
             processes: vec![Process { layer: "mark".into(), speed: 50.0, power: 300.0, passes: 1 }],
         };
         let paths = (0..2).map(|k| PlannedPath { geometry: k, points: job.geometries[k].points.clone(), process: 0, pierce: true }).collect();

@@ -109,7 +109,7 @@ impl PlateLayout {
         geometries.extend(self.faces.iter().enumerate().map(|(k, f)| Geometry {
             points: f.ring.clone(),
             closed: true,
-            arcs: Vec::new(),
+            arcs: Vec::new(), profile: Vec::new(),
             process,
             source: format!("plate: {}", face_name(k, f)),
         }));

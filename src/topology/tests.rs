@@ -12,7 +12,7 @@ pub(crate) fn p(x: f64, y: f64) -> Point {
 }
 
 pub(crate) fn shape(points: &[(f64, f64)], closed: bool, name: &str) -> Geometry {
-    Geometry { arcs: Vec::new(),
+    Geometry { arcs: Vec::new(), profile: Vec::new(),
         points: points.iter().map(|&(x, y)| p(x, y)).collect(),
         closed,
         process: 0,

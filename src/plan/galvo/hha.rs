@@ -294,13 +294,13 @@ mod tests {
 
     #[test]
     fn entries_are_the_vertices_on_the_way_and_open_shapes_run_onwards() {
-        let square = |x: f64| Geometry { arcs: Vec::new(),
+        let square = |x: f64| Geometry { arcs: Vec::new(), profile: Vec::new(),
             points: vec![Point::new(x, 0.0), Point::new(x + 1.0, 0.0), Point::new(x + 1.0, 1.0), Point::new(x, 1.0)],
             closed: true,
             process: 0,
             source: String::new(),
         };
-        let line = Geometry { arcs: Vec::new(), points: vec![Point::new(6.0, 0.0), Point::new(4.0, 0.0)], closed: false, process: 0, source: String::new() };
+        let line = Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(6.0, 0.0), Point::new(4.0, 0.0)], closed: false, process: 0, source: String::new() };
         let job = Job { source: String::new(), geometries: vec![square(0.0), line, square(10.0)], processes: vec![Process { layer: "m".into(), speed: 1.0, power: 1.0, passes: 1 }] };
         let entries = select_entries(&job, &[0, 1, 2]);
         // The first square left at its corner towards the line, the line run
