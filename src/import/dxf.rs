@@ -478,15 +478,22 @@ impl<'a> Reader<'a> {
         let control: Vec<(f64, f64)> = s.control_points.iter().map(|p| (p.x, p.y)).collect();
         let closed = s.flags & 1 != 0;
         if control.is_empty() {
-            // Fit points only: the curve passes through them; a polyline
-            // through them is within the fit tolerance of most exports.
+            // Fit points only: the curve passes through them (`fit_spline`).
             if s.fit_points.len() < 2 {
                 return Err(Error::Import(format!("{}: {what} has neither control points nor fit points", self.source)));
             }
-            tracing::warn!("{}: {what} has fit points only: marked as the polyline through them", self.source);
-            let pts: Vec<Point> = s.fit_points.iter().map(|p| apply(map, p.x, p.y)).collect();
-            self.room_for(pts.len() as f64, what)?;
-            return Ok((pts, closed));
+            // The cubic CAD programs draw through them (whatever degree the
+            // file says), leaving along the end tangents where both are given.
+            let fit: Vec<(f64, f64)> = s.fit_points.iter().map(|p| (p.x, p.y)).collect();
+            let (a, b) = (&s.start_tangent, &s.end_tangent);
+            let given = |t: &dxf::Point| t.x != 0.0 || t.y != 0.0;
+            let tangents = (given(a) && given(b)).then_some(((a.x, a.y), (b.x, b.y)));
+            if fit.iter().chain(tangents.iter().flat_map(|(a, b)| [a, b])).any(|(x, y)| !(x.is_finite() && y.is_finite() && x.abs() <= MAX_COORD_MM && y.abs() <= MAX_COORD_MM)) {
+                return Err(Error::Import(format!("{}: {what} has a fit point or tangent that is not a usable number", self.source)));
+            }
+            let tol = self.local_tolerance(map);
+            let pts = super::fit_spline::flatten(&fit, tangents, tol, |n| self.room_for(n, what).map(|_| ()))?;
+            return Ok((pts.into_iter().map(|(x, y)| apply(map, x, y)).collect(), closed));
         }
         if !(1..=MAX_SPLINE_DEGREE).contains(&degree) {
             return Err(Error::Import(format!("{}: {what} has degree {degree}; laserd takes 1 to {MAX_SPLINE_DEGREE}", self.source)));
@@ -645,6 +652,8 @@ fn chain(pieces: Vec<Piece>, source: &str) -> Vec<Piece> {
         best.map(|(c, _)| c)
     };
     let mut used = vec![false; open.len()];
+    // Contours that end near their start: said once, naming the first few.
+    let mut almost: Vec<String> = Vec::new();
     for first in 0..open.len() {
         if used[first] {
             continue;
@@ -686,10 +695,20 @@ fn chain(pieces: Vec<Piece>, source: &str) -> Vec<Piece> {
             // An arc that ended on the dropped point now ends on vertex 0.
             points.pop();
         } else if points.len() > 2 && gap <= ALMOST_CLOSED_MM {
-            tracing::warn!("{source}: a contour of {} piece(s) from {} ends {gap:.4} mm from its start: left open", sources.len(), sources[0]);
+            let first = sources[0].strip_prefix(source).and_then(|s| s.strip_prefix(": ")).unwrap_or(&sources[0]);
+            almost.push(format!("{first} ({} piece(s), {gap:.4} mm)", sources.len()));
         }
         let source = if sources.len() == 1 { sources.remove(0) } else { format!("{} (+{} chained)", sources[0], sources.len() - 1) };
         out.push(Piece { trace, closed, layer, source });
+    }
+    if !almost.is_empty() {
+        const SHOWN: usize = 5;
+        let more = if almost.len() > SHOWN { format!(" and {} more", almost.len() - SHOWN) } else { String::new() };
+        tracing::warn!(
+            "{source}: {} contour(s) end within {ALMOST_CLOSED_MM} mm of their start and are left open: {}{more}",
+            almost.len(),
+            almost[..almost.len().min(SHOWN)].join(", ")
+        );
     }
     out
 }
@@ -906,6 +925,8 @@ mod tests {
         assert!(recursive.contains("block 'A' inserts itself") && recursive.contains("handle F5"), "{recursive}");
         let missing = error(&dxf("", "0\nINSERT\n5\nF6\n8\n0\n2\nNOPE\n10\n0\n20\n0\n"));
         assert!(missing.contains("INSERT (handle F6) names block 'NOPE'"), "{missing}");
+        let fit = error(&dxf("", "0\nSPLINE\n5\nF7\n8\n0\n71\n3\n11\n0\n21\n0\n31\n0\n11\n1e300\n21\n1\n31\n0\n"));
+        assert!(fit.contains("SPLINE (handle F7) has a fit point or tangent that is not a usable number"), "{fit}");
     }
 
     #[test]

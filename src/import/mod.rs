@@ -9,6 +9,7 @@ use crate::error::{Error, Result};
 use crate::job::{ArcSpan, Geometry, Job, Point, Process};
 
 pub mod dxf;
+mod fit_spline;
 pub mod gcode;
 pub mod json;
 pub mod svg;

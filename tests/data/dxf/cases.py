@@ -41,6 +41,12 @@ def build(doc, s):
     msp.add_ellipse((110 * u, 70 * u), major_axis=(0, 8 * u), ratio=0.3, start_param=0.3, end_param=2.5)
     msp.add_open_spline([(10 * u, 80 * u), (20 * u, 95 * u), (35 * u, 75 * u), (50 * u, 90 * u), (60 * u, 80 * u)], degree=3)
     msp.add_rational_spline([(70 * u, 85 * u), (80 * u, 100 * u), (95 * u, 85 * u), (100 * u, 95 * u)], [1.0, 2.5, 0.7, 1.0], degree=2)
+    # Splines given by fit points only, as AutoCAD's SPLINE command writes
+    # them: with natural ends, and leaving along given end tangents.
+    msp.add_spline([(110 * u, 80 * u), (118 * u, 92 * u), (126 * u, 84 * u), (134 * u, 96 * u), (140 * u, 88 * u)])
+    tangent = msp.add_spline([(150 * u, 80 * u), (160 * u, 95 * u), (172 * u, 82 * u)])
+    tangent.dxf.start_tangent = (0, 1, 0)
+    tangent.dxf.end_tangent = (1, -1, 0)
     # A block (a triangle with a hole) inserted scaled, rotated, mirrored,
     # nested, and as a 2 x 3 array.
     part = doc.blocks.new(name="PART", base_point=(1 * u, 1 * u))
