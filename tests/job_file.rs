@@ -132,4 +132,8 @@ fn a_raster_gcode_keeps_each_scan_lines_power_profile() {
     }
     let dry = run(&["dry-run", "--json"]);
     assert_eq!(dry["sim"]["limit_violations"], 0, "{dry}");
+    // The sample raster: a scan line per geometry, within the limits.
+    std::fs::copy(root.join("samples/raster-tool.nc"), dir.path().join("raster.nc")).unwrap();
+    let sample = run(&["dry-run", "--json"]);
+    assert_eq!((sample["geometries"].as_u64(), sample["sim"]["limit_violations"].as_u64()), (Some(39), Some(0)), "{sample}");
 }
