@@ -145,12 +145,15 @@ impl Geometry {
         let n = self.points.len();
         let mut next = 0;
         for (k, a) in self.arcs.iter().enumerate() {
-            let last = if self.closed && n > 2 { n } else { n - 1 };
+            let last = if self.closed && n > 2 { n } else { n.saturating_sub(1) };
             if a.from < next || a.to <= a.from || a.to > last {
                 return Some(format!("arc {k} (vertices {} to {}) is out of order or beyond the {n} vertices", a.from, a.to));
             }
             if !(a.bulge.is_finite() && a.bulge != 0.0 && a.bulge.abs() <= 1.0) {
                 return Some(format!("arc {k}: bulge {} is not within -1 to 1 (a half circle) or is 0", a.bulge));
+            }
+            if (self.vertex(a.to) - self.vertex(a.from)).norm() < 1e-9 {
+                return Some(format!("arc {k} ends where it starts (vertices {} and {})", a.from, a.to));
             }
             let (centre, radius, _, sweep) = arc_circle(self.vertex(a.from), self.vertex(a.to), a.bulge);
             let mut turned = 0.0;

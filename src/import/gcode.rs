@@ -23,6 +23,10 @@ use crate::job::{Geometry, Job, Point, Process};
 const ARC_END_MM: f64 = 0.005;
 const ARC_END_SHARE: f64 = 0.001;
 
+/// Most different (S, F) pairs a file may use (each is a process): a raster
+/// of 8-bit grey at a few feeds uses hundreds.
+const MAX_PROCESSES: usize = 65_536;
+
 /// Extensions of G-code files, as CAM tools and senders write them.
 pub const GCODE_EXTENSIONS: [&str; 6] = ["nc", "gcode", "ngc", "gc", "g", "tap"];
 
@@ -51,8 +55,9 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
     let mut runs: Vec<Run> = Vec::new();
     let mut current: Option<Run> = None;
     let mut points = 0u64;
-    // The (S, F) pairs met, in order.
+    // The (S, F) pairs met, in order, and each one's index.
     let mut keys: Vec<(u64, u64)> = Vec::new();
+    let mut key_index: std::collections::HashMap<(u64, u64), usize> = std::collections::HashMap::new();
     let tolerance = config.import.tolerance;
     let finish = |current: &mut Option<Run>, runs: &mut Vec<Run>| {
         if let Some(r) = current.take() {
@@ -157,10 +162,17 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
                 return Err(at("a cutting move with no feed (F)".into()));
             }
             let key = (s.power.to_bits(), s.feed.to_bits());
-            let tag = keys.iter().position(|k| *k == key).unwrap_or_else(|| {
-                keys.push(key);
-                keys.len() - 1
-            });
+            let tag = match key_index.get(&key) {
+                Some(&tag) => tag,
+                None if keys.len() >= MAX_PROCESSES => {
+                    return Err(Error::TooLarge(format!("{source}:{n}: more than {MAX_PROCESSES} different (S, F) pairs, each a process")));
+                }
+                None => {
+                    keys.push(key);
+                    key_index.insert(key, keys.len() - 1);
+                    keys.len() - 1
+                }
+            };
             let path = path.tagged(tag);
             let run = current.get_or_insert_with(|| Run { trace: Trace::of(vec![s.at]), line: n });
             points += path.points.len() as u64 - 1;
@@ -326,5 +338,8 @@ mod tests {
         assert!(err("$H\n").contains("t.nc:1: a system command"));
         assert!(err("G0 X1\n").contains("nothing to mark"));
         assert!(err("M4 S10\nG1 X1\n").contains("no feed"));
+        // Every power its own process: bounded, naming the line.
+        let many: String = std::iter::once("M4 F600\n".to_string()).chain((1..=MAX_PROCESSES + 1).map(|k| format!("G1 X{} S{k}\n", k % 7))).collect();
+        assert!(err(&many).contains(&format!("t.nc:{}: more than {MAX_PROCESSES} different (S, F) pairs", MAX_PROCESSES + 2)), "{}", err(&many));
     }
 }

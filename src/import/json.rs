@@ -200,6 +200,7 @@ mod tests {
         // Straight points said to be an arc: the length would lie.
         assert!(bad(&|v| v["geometries"][0]["arcs"][2]["bulge"] = 0.9.into()).contains("off the arc"));
         assert!(bad(&|v| v["geometries"][0]["arcs"][0]["bulge"] = 1.0.into()).contains("arc 0: vertex"));
+        assert!(bad(&|v| v["geometries"][0]["points"][25] = v["geometries"][0]["points"][0].clone()).contains("arc 0 ends where it starts"));
     }
 
     #[test]
