@@ -38,42 +38,27 @@ pub fn split_at_field_borders(job: &Job, usable_half: f64) -> Job {
             geometries.push(g.clone());
             continue;
         }
-        // A raster line whose power changes along it: its runs of one
-        // process are split, each with its process.
-        if !g.profile.is_empty() {
-            let runs = process_runs(g);
-            let n = runs.len();
-            let parts: Vec<Geometry> = runs.into_iter().enumerate().map(|(i, (points, process))| Geometry::polyline(points, false, process, format!("{} run {}/{n}", g.source, i + 1))).collect();
-            geometries.extend(split_at_field_borders(&Job { source: job.source.clone(), geometries: parts, processes: job.processes.clone() }, usable_half).geometries);
-            continue;
-        }
         let pieces = pieces(g, size * (1.0 - 1e-9));
         let n = pieces.len();
-        geometries.extend(pieces.into_iter().enumerate().map(|(i, points)| Geometry {
-            points,
-            closed: false,
-            // A piece of a field is marked as points; its arcs are the whole's.
-            arcs: Vec::new(), profile: Vec::new(),
-            process: g.process,
-            source: format!("{} piece {}/{n}", g.source, i + 1),
+        geometries.extend(pieces.into_iter().enumerate().map(|(i, (points, from))| {
+            // A raster line's pieces keep the processes of the segments they come from.
+            let mut profile: Vec<usize> = if g.profile.is_empty() { Vec::new() } else { from.iter().map(|&s| g.profile[s]).collect() };
+            let process = profile.first().copied().unwrap_or(g.process);
+            if profile.iter().all(|&p| p == process) {
+                profile.clear();
+            }
+            Geometry {
+                points,
+                closed: false,
+                // A piece of a field is marked as points; its arcs are the whole's.
+                arcs: Vec::new(),
+                profile,
+                process,
+                source: format!("{} piece {}/{n}", g.source, i + 1),
+            }
         }));
     }
     Job { source: job.source.clone(), geometries, processes: job.processes.clone() }
-}
-
-/// The runs of a geometry's segments with one process, in path order.
-fn process_runs(g: &Geometry) -> Vec<(Vec<Point>, usize)> {
-    let n = g.points.len();
-    let segments = if g.closed && n > 2 { n } else { n - 1 };
-    let mut runs: Vec<(Vec<Point>, usize)> = Vec::new();
-    for i in 0..segments {
-        let process = g.profile.get(i).copied().unwrap_or(g.process);
-        match runs.last_mut() {
-            Some((points, p)) if *p == process => points.push(g.points[(i + 1) % n]),
-            _ => runs.push((vec![g.points[i], g.points[(i + 1) % n]], process)),
-        }
-    }
-    runs
 }
 
 /// Fails, naming the first geometry larger than the usable field, when
@@ -95,8 +80,9 @@ pub fn check_fits(job: &Job, usable_half: f64) -> Result<()> {
 }
 
 /// The pieces of `g` on a grid of cells of side `cell` anchored at its
-/// bounding box's minimum, in path order.
-fn pieces(g: &Geometry, cell: f64) -> Vec<Vec<Point>> {
+/// bounding box's minimum, in path order, each with the index of the
+/// segment of `g` each of its segments lies on.
+fn pieces(g: &Geometry, cell: f64) -> Vec<(Vec<Point>, Vec<usize>)> {
     let (lo, _) = g.bounds();
     let n = g.points.len();
     let cell_of = |p: Point| (((p.x - lo.x) / cell).floor() as i64, ((p.y - lo.y) / cell).floor() as i64);
@@ -115,8 +101,10 @@ fn pieces(g: &Geometry, cell: f64) -> Vec<Vec<Point>> {
     if g.closed && n > 2 {
         segments.push((g.points[n - 1], g.points[0]));
     }
-    let mut out: Vec<((i64, i64), Vec<Point>)> = Vec::new();
-    for (a, b) in segments {
+    // Per piece: its cell, its points, the segment of `g` each segment lies on.
+    type Piece = ((i64, i64), Vec<Point>, Vec<usize>);
+    let mut out: Vec<Piece> = Vec::new();
+    for (s, (a, b)) in segments.into_iter().enumerate() {
         let d = b - a;
         let len = d.norm();
         if len == 0.0 {
@@ -150,18 +138,23 @@ fn pieces(g: &Geometry, cell: f64) -> Vec<Vec<Point>> {
             let (p, q) = (at(w[0]), at(w[1]));
             match out.last_mut() {
                 // Along the path in the current cell (or on its border): go on.
-                Some((c, piece)) if inside(*c, p) && inside(*c, q) && piece[piece.len() - 1] == p => piece.push(q),
-                _ => out.push((cell_of(Point::new((p.x + q.x) / 2.0, (p.y + q.y) / 2.0)), vec![p, q])),
+                Some((c, piece, from)) if inside(*c, p) && inside(*c, q) && piece[piece.len() - 1] == p => {
+                    piece.push(q);
+                    from.push(s);
+                }
+                _ => out.push((cell_of(Point::new((p.x + q.x) / 2.0, (p.y + q.y) / 2.0)), vec![p, q], vec![s])),
             }
         }
     }
     // A closed path's last piece leads into its first: one piece if in the same cell.
     if g.closed && out.len() > 1 && out[0].0 == out[out.len() - 1].0 && out[out.len() - 1].1.last() == out[0].1.first() {
-        let (_, mut last) = out.pop().unwrap();
+        let (_, mut last, mut from) = out.pop().unwrap();
         last.extend_from_slice(&out[0].1[1..]);
+        from.extend_from_slice(&out[0].2);
         out[0].1 = last;
+        out[0].2 = from;
     }
-    out.into_iter().map(|(_, p)| p).filter(|p| p.windows(2).any(|w| w[0] != w[1])).collect()
+    out.into_iter().map(|(_, p, from)| (p, from)).filter(|(p, _)| p.windows(2).any(|w| w[0] != w[1])).collect()
 }
 
 #[cfg(test)]
@@ -313,5 +306,25 @@ mod tests {
         let original = job(vec![geometry(&[(0.0, 0.0), (5.0, 5.0)], false, "a.svg: <path id=\"ok\">"), geometry(&[(0.0, 10.0), (100.0, 10.0)], false, "a.svg: <path id=\"long\">")]);
         let err = check_fits(&original, 32.0).unwrap_err().to_string();
         assert!(err.contains("<path id=\"long\">") && err.contains("split_oversize = false"), "{err}");
+    }
+
+    #[test]
+    fn a_raster_line_split_at_field_borders_keeps_each_segments_power() {
+        // 100 pixels of 1 mm along x, the power rising every 10: fields of 32 mm.
+        let mut line = geometry(&(0..=100).map(|k| (k as f64, 5.0)).collect::<Vec<_>>(), false, "t.nc:3");
+        line.profile = (0..100).map(|k| k / 10).collect();
+        let mut original = job(vec![line]);
+        original.processes = (0..10).map(|k| Process { layer: format!("S{k}"), speed: 100.0, power: k as f64, passes: 1 }).collect();
+        let split = split_at_field_borders(&original, 16.0);
+        check(&original, &split, 16.0);
+        assert!(split.geometries.len() >= 4 && split.geometries.len() <= 8, "pieces, not a geometry per power: {}", split.geometries.len());
+        // Every piece's segment has the power of the pixel it lies on.
+        for g in &split.geometries {
+            for (i, w) in g.points.windows(2).enumerate() {
+                let process = if g.profile.is_empty() { g.process } else { g.profile[i] };
+                let pixel = ((w[0].x + w[1].x) / 2.0).floor() as usize;
+                assert_eq!(process, pixel / 10, "{}: segment {i} at x = {}", g.source, w[0].x);
+            }
+        }
     }
 }
