@@ -423,6 +423,9 @@ fn plan_run(s: &TcpSettings, corners: &mut Corners, points: &[Point], speed: f64
     if !(speed.is_finite() && speed > 0.0) {
         return Err(Error::Motion(format!("invalid marking speed {speed}")));
     }
+    if points.len() < 2 {
+        return Ok(None);
+    }
     // Simplified between breaks, which stay vertices: the legs there.
     let mut simple: Vec<Point> = Vec::with_capacity(points.len());
     let mut leg_breaks = Vec::with_capacity(breaks.len());
