@@ -1,5 +1,5 @@
-//! Property tests of the job and config parsers: generated SVG path data and
-//! config text, on stable, in the normal suite. The fuzz targets in fuzz/
+//! Property tests of the job and config parsers: generated SVG path data,
+//! G-code, job files and config text, on stable, in the normal suite. The fuzz targets in fuzz/
 //! search the same parsers far longer (and with the hostile sizes left out
 //! here until the importer refuses them: issue 16, findings 4 and 9).
 
@@ -152,6 +152,75 @@ proptest! {
     fn any_config_text_never_panics(text in "(.|\n){0,300}") {
         if let Err(e) = MachineConfig::parse(&text, "any.toml") {
             prop_assert!(e.to_string().starts_with("config: any.toml: "), "{}", e);
+        }
+    }
+}
+
+/// A line of another tool's G-code: moves, arcs (I/J or R, sometimes off
+/// their circle), powers and feeds, laser on and off, now and then a word
+/// laserd does not read.
+fn gcode_line() -> impl Strategy<Value = String> {
+    let c = || (-50.0f64..350.0).prop_map(|x| format!("{x:.3}"));
+    prop_oneof![
+        4 => (0u8..2, c(), c(), prop::option::of(0u32..1200)).prop_map(|(g, x, y, s)| format!("G{g} X{x} Y{y}{}", s.map(|s| format!(" S{s}")).unwrap_or_default())),
+        2 => (2u8..4, c(), c(), (-30.0f64..30.0), (-30.0f64..30.0)).prop_map(|(g, x, y, i, j)| format!("G{g} X{x} Y{y} I{i:.3} J{j:.3}")),
+        2 => (2u8..4, c(), c(), prop_oneof![(150.0f64..400.0), (-400.0f64..-150.0), (-80.0f64..80.0)]).prop_map(|(g, x, y, r)| format!("G{g} X{x} Y{y} R{r:.3}")),
+        1 => (0u32..1000).prop_map(|s| format!("S{s}")),
+        1 => (1u32..6000).prop_map(|f| format!("F{f}")),
+        1 => prop::sample::select(vec!["M3", "M4", "M5", "G90", "G91", "G20", "G21", "G92 X0 Y0", "G38.2 X1", "Q5", "%"]).prop_map(String::from),
+    ]
+}
+
+/// A job file: one geometry's points with arcs and a profile of any values.
+fn job_file() -> impl Strategy<Value = String> {
+    let point = (0.0f64..300.0, 0.0f64..300.0).prop_map(|(x, y)| format!("[{x:.4},{y:.4}]"));
+    let arc = (0usize..12, 0usize..12, prop_oneof![(-1.5f64..1.5).prop_map(|b| b.to_string()), Just("1e308".to_string())]).prop_map(|(a, b, bulge)| format!("{{\"from\":{a},\"to\":{b},\"bulge\":{bulge}}}"));
+    (prop::collection::vec(point, 0..10), any::<bool>(), prop::collection::vec(arc, 0..3), prop::collection::vec(0usize..3, 0..10)).prop_map(|(points, closed, arcs, profile)| {
+        format!(
+            "{{\"format\":\"laserd-job\",\"version\":1,\"source\":\"t\",\"processes\":[{{\"layer\":\"a\",\"speed\":10,\"power\":1,\"passes\":1}},{{\"layer\":\"b\",\"speed\":20,\"power\":2,\"passes\":1}}],\
+             \"geometries\":[{{\"points\":[{}],\"closed\":{closed},\"arcs\":[{}],\"profile\":[{}],\"process\":0,\"source\":\"g\"}}]}}",
+            points.join(","),
+            arcs.join(","),
+            profile.iter().map(|p| p.to_string()).collect::<Vec<_>>().join(",")
+        )
+    })
+}
+
+proptest! {
+    #![proptest_config(reproducible())]
+
+    /// Generated G-code never panics: it imports to geometries whose arcs
+    /// match their points and whose profile has a process per segment, or is
+    /// refused naming the file.
+    #[test]
+    fn gcode_imports_with_consistent_arcs_and_profiles_or_names_the_file(lines in prop::collection::vec(gcode_line(), 1..40)) {
+        let text = format!("M4 F600\n{}\n", lines.join("\n"));
+        match laserd::import::gcode::import_gcode(&text, "t.nc", config()) {
+            Ok(job) => {
+                for g in &job.geometries {
+                    let segments = if g.closed && g.points.len() > 2 { g.points.len() } else { g.points.len() - 1 };
+                    prop_assert!(g.profile.is_empty() || g.profile.len() == segments, "{:?}", g);
+                    prop_assert!(g.profile.iter().chain([&g.process]).all(|&p| p < job.processes.len()));
+                    prop_assert!(g.arc_error(config().import.tolerance + 0.01).is_none(), "{:?}: {:?}", g.arc_error(config().import.tolerance + 0.01), g);
+                    prop_assert!(g.length().is_finite() && g.length() > 0.0);
+                }
+            }
+            Err(e) => prop_assert!(e.to_string().contains("t.nc"), "{}", e),
+        }
+    }
+
+    /// A job file's arcs and profile of any values: read or refused naming
+    /// the file, never a panic.
+    #[test]
+    fn a_job_files_arcs_and_profile_are_read_or_refused(text in job_file()) {
+        match laserd::import::json::import_json(text.as_bytes(), "j.json", config()) {
+            Ok(job) => {
+                let g = &job.geometries[0];
+                prop_assert!(g.length().is_finite());
+                let (lo, hi) = g.bounds();
+                prop_assert!(lo.x.is_finite() && hi.y.is_finite());
+            }
+            Err(e) => prop_assert!(e.to_string().contains("j.json"), "{}", e),
         }
     }
 }
