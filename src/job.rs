@@ -92,7 +92,7 @@ impl Geometry {
     }
 
     /// Segments of the polyline (the closing one of a closed shape included).
-    fn segments(&self) -> usize {
+    pub fn segments(&self) -> usize {
         let n = self.points.len();
         if self.closed && n > 2 { n } else { n.saturating_sub(1) }
     }
@@ -145,8 +145,7 @@ impl Geometry {
         let n = self.points.len();
         let mut next = 0;
         for (k, a) in self.arcs.iter().enumerate() {
-            let last = if self.closed && n > 2 { n } else { n.saturating_sub(1) };
-            if a.from < next || a.to <= a.from || a.to > last {
+            if a.from < next || a.to <= a.from || a.to > self.segments() {
                 return Some(format!("arc {k} (vertices {} to {}) is out of order or beyond the {n} vertices", a.from, a.to));
             }
             if !(a.bulge.is_finite() && a.bulge != 0.0 && a.bulge.abs() <= 1.0) {

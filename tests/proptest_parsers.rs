@@ -198,8 +198,7 @@ proptest! {
         match laserd::import::gcode::import_gcode(&text, "t.nc", config()) {
             Ok(job) => {
                 for g in &job.geometries {
-                    let segments = if g.closed && g.points.len() > 2 { g.points.len() } else { g.points.len() - 1 };
-                    prop_assert!(g.profile.is_empty() || g.profile.len() == segments, "{:?}", g);
+                    prop_assert!(g.profile.is_empty() || g.profile.len() == g.segments(), "{:?}", g);
                     prop_assert!(g.profile.iter().chain([&g.process]).all(|&p| p < job.processes.len()));
                     prop_assert!(g.arc_error(config().import.tolerance + 0.01).is_none(), "{:?}: {:?}", g.arc_error(config().import.tolerance + 0.01), g);
                     prop_assert!(g.length().is_finite() && g.length() > 0.0);

@@ -136,7 +136,7 @@ pub fn import_json(bytes: &[u8], source: &str, config: &MachineConfig) -> Result
         if let Some(wrong) = geometry.arc_error(config.import.tolerance) {
             return Err(Error::Import(format!("{name}: {wrong}")));
         }
-        let segments = if geometry.closed && geometry.points.len() > 2 { geometry.points.len() } else { geometry.points.len() - 1 };
+        let segments = geometry.segments();
         if !geometry.profile.is_empty() && geometry.profile.len() != segments {
             return Err(Error::Import(format!("{name}: a profile of {} processes for {segments} segments", geometry.profile.len())));
         }
