@@ -95,6 +95,8 @@ pub const TIME_LIMIT: Range<f64> = Range { lo: 0.01, hi: 86_400.0, unit: "s" };
 pub const DIRECTION_WEIGHT: Range<f64> = Range { lo: 0.0, hi: 1000.0, unit: "" };
 /// How often a layer is marked: each pass is a copy of its geometry in the plan.
 pub const PASSES: Range<u32> = Range { lo: 1, hi: 1000, unit: "passes" };
+/// Width of a cut (mm): a fibre laser's 0.02 to a plasma's few mm, with room.
+pub const KERF: Range<f64> = Range { lo: 0.0, hi: 10.0, unit: "mm (0: cut on the line)" };
 
 /// The default machine, shipped in the repository (for tests and tools run
 /// in the checkout; an installed binary carries it as `DEFAULT_CONFIG_TEXT`).
@@ -952,6 +954,27 @@ pub struct LayerConfig {
     /// The layer's pierce power (S); None: `laser.pierce_power`, else `power`.
     #[serde(default)]
     pub pierce_power: Option<f64>,
+    /// The width of the cut (mm): closed contours are cut half of it into
+    /// the waste (parts outward, holes inward) so parts come out as drawn;
+    /// 0: cut on the drawn line.
+    #[serde(default)]
+    pub kerf: f64,
+    /// How an offset contour goes round a part's outer corner: on an arc
+    /// about it ("round") or out to the point of the corner ("sharp").
+    #[serde(default)]
+    pub kerf_corners: KerfCorners,
+}
+
+/// How a kerf offset goes round a convex corner (`[[layer]] kerf_corners`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum KerfCorners {
+    /// An arc of half the kerf about the corner: the beam's edge touches the
+    /// corner all the way round (the offset every CAM tool makes first).
+    #[default]
+    Round,
+    /// The two offset sides extended until they meet (a miter).
+    Sharp,
 }
 
 fn one() -> u32 {
@@ -1157,6 +1180,7 @@ impl MachineConfig {
                 power(&name("pierce_power"), p)?;
             }
             PASSES.check(&name("passes"), l.passes)?;
+            KERF.check(&name("kerf"), l.kerf)?;
             if let Some(c) = l.color.filter(|c| !(1..=255).contains(c)) {
                 return Err(format!("{}: {c} is not an AutoCAD colour index (1 to 255)", name("color")));
             }
@@ -1558,6 +1582,9 @@ mod tests {
             ("layer.0.passes", I(0)),
             ("layer.2.pierce_time", F(1e300)),
             ("layer.2.pierce_power", F(-1.0)),
+            ("layer.1.kerf", F(-0.1)),
+            ("layer.1.kerf", F(f64::NAN)),
+            ("layer.1.kerf", F(11.0)),
         ];
         for (path, value) in cases {
             let shown = value.to_string();

@@ -70,6 +70,30 @@ pub fn arc_circle(a: Point, b: Point, bulge: f64) -> (Point, f64, f64, f64) {
     (centre, radius, (a.y - centre.y).atan2(a.x - centre.x), sweep)
 }
 
+/// Segments of an arc of `radius` over `sweep` (radians) whose chords stay
+/// within `tolerance` of it: a chord over angle φ lies r·(1 − cos(φ/2))
+/// inside the arc. At least one; two or more for a full circle.
+pub fn arc_segments(radius: f64, sweep: f64, tolerance: f64) -> f64 {
+    let tolerance = tolerance.min(radius);
+    let step = if radius > 0.0 { 2.0 * (1.0 - tolerance / radius).clamp(-1.0, 1.0).acos() } else { sweep.abs() };
+    (sweep.abs() / step.max(1e-9)).ceil().max(1.0)
+}
+
+/// The flattening of the arc from `a` to `b` of `bulge` within `tolerance`:
+/// its vertices after `a`, ending on `b` exactly.
+pub fn arc_points(a: Point, b: Point, bulge: f64, tolerance: f64) -> Vec<Point> {
+    let (centre, radius, start, sweep) = arc_circle(a, b, bulge);
+    let n = arc_segments(radius, sweep, tolerance).min(1e6) as usize;
+    let mut points: Vec<Point> = (1..n)
+        .map(|i| {
+            let t = start + sweep * i as f64 / n as f64;
+            centre + nalgebra::Vector2::new(t.cos(), t.sin()) * radius
+        })
+        .collect();
+    points.push(b);
+    points
+}
+
 /// Length of the arc from `a` to `b` of `bulge` (the chord for bulge 0).
 pub fn arc_length(a: Point, b: Point, bulge: f64) -> f64 {
     let chord = (b - a).norm();

@@ -44,6 +44,10 @@ pub struct PlanReport {
     /// starts where the one before ended, or on the plate's edge, does not).
     #[serde(default)]
     pub pierces: usize,
+    /// The largest kerf the closed contours were offset by (half of it into
+    /// the waste, `[[layer]] kerf`); `null` when no layer sets one.
+    #[serde(default)]
+    pub kerf_mm: Option<f64>,
     /// Length cut on layers that pierce, every pass counted, mm.
     #[serde(default)]
     pub cut_length_mm: f64,
@@ -105,6 +109,9 @@ impl PlanReport {
         let precedence = self.precedence_violations.map_or("unknown".to_string(), |n| n.to_string());
         if self.pierces > 0 || self.cut_length_mm > 0.0 {
             s.push_str(&format!("  cutting {:.1} mm with {} pierces", self.cut_length_mm, self.pierces));
+            if let Some(kerf) = self.kerf_mm {
+                s.push_str(&format!(", offset by half the kerf of {kerf} mm"));
+            }
             if let (Some(edge), Some(skeleton), Some(remnant)) = (self.edge_length_saved_mm, self.skeleton_cuts, self.remnant_cuts) {
                 s.push_str(&format!("; plate: {edge:.1} mm of edge not cut, {skeleton} skeleton and {remnant} remnant cuts"));
             }

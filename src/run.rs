@@ -20,6 +20,7 @@ use crate::mode::Mode;
 use crate::motion::{self, Trajectory};
 use crate::plan::split::{check_fits, split_at_field_borders};
 use crate::plan::cutting::{cuts_through, describe, topology_options};
+use crate::topology::kerf;
 use crate::topology::plate::{lay_out, PlateLayout};
 use crate::plan::{plan_job, PlanContext, PlanOutcome, PlannerKind, Sequence};
 use crate::program::{self, Program};
@@ -48,6 +49,8 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let mode = mode.unwrap_or_else(|| Mode::default_for(machine));
     mode.check(machine)?;
     let job = import_job(job_path, machine)?;
+    let kerfed = kerf::compensate(&job, &kerf_layers(&job, machine), machine.import.tolerance)?;
+    let (job, kerf_mm) = (kerfed.job, (kerfed.offset > 0).then_some(kerfed.kerf_mm));
     // In step-and-scan a geometry larger than the scanner's usable field is
     // split at field borders into pieces, which are then the job's geometries
     // from planning to the report; with splitting off, the job fails naming it.
@@ -122,6 +125,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         search_stopped_by: outcome.search_stopped_by,
         precedence_violations: broken_rules.as_ref().map(|r| r.len() as u64),
         pierces: cut_paths().filter(|p| p.pierce).count(),
+        kerf_mm,
         cut_length_mm: cut_paths().map(|p| p.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>()).sum(),
         edge_length_saved_mm: plate.as_ref().map(|_| outcome_edge_saved),
         edge_starts: plate.as_ref().map(|p| cut_paths().filter(|c| !c.pierce && p.on_edge(c.start())).count()),
@@ -141,6 +145,21 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         config: None,
     };
     Ok(Planned { job, sequence, trajectory, program, report, broken_rules })
+}
+
+/// Per process of `job`: its layer's kerf, and whether its contours cut parts out.
+pub fn kerf_layers(job: &Job, machine: &MachineConfig) -> Vec<kerf::KerfLayer> {
+    job.processes
+        .iter()
+        .map(|p| {
+            let layer = machine.layers.iter().find(|l| l.name == p.layer);
+            kerf::KerfLayer {
+                kerf: layer.map_or(0.0, |l| l.kerf),
+                corners: layer.map(|l| l.kerf_corners).unwrap_or_default(),
+                cuts: machine.pierce(&p.layer).active(),
+            }
+        })
+        .collect()
 }
 
 /// The job laid out on `plate` (`topology::plate`): with

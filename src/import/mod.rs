@@ -7,6 +7,7 @@ use std::path::Path;
 use crate::config::{Anchor, MachineConfig};
 use crate::error::{Error, Result};
 use crate::job::{ArcSpan, Geometry, Job, Point, Process};
+pub(crate) use crate::job::arc_segments;
 
 pub mod dxf;
 mod fit_spline;
@@ -186,15 +187,6 @@ pub(crate) fn clean_polyline(trace: Trace, mut closed: bool) -> Option<(Trace, b
     // A segment stays where its ends are kept apart (the closing one ends on vertex 0).
     let tags = trace.tags.iter().enumerate().filter(|&(i, _)| kept[i + 1] != kept[i] && kept[i + 1] <= ends).map(|(_, &t)| t).collect();
     Some((Trace { points: out, arcs, tags }, closed))
-}
-
-/// Segments of an arc of `radius` over `sweep` (radians) whose chords stay
-/// within `tolerance` of it: a chord over angle φ lies r·(1 − cos(φ/2))
-/// inside the arc. At least one; two or more for a full circle.
-pub(crate) fn arc_segments(radius: f64, sweep: f64, tolerance: f64) -> f64 {
-    let tolerance = tolerance.min(radius);
-    let step = if radius > 0.0 { 2.0 * (1.0 - tolerance / radius).clamp(-1.0, 1.0).acos() } else { sweep.abs() };
-    (sweep.abs() / step.max(1e-9)).ceil().max(1.0)
 }
 
 /// The job of `geometries` whose `process` is still an index into the

@@ -5,19 +5,22 @@
 use rstar::primitives::GeomWithData;
 use rstar::{RTree, AABB};
 
-use super::contours::{signed_area, Chain};
+use super::contours::signed_area;
 use super::{rect, Box2};
 use crate::job::{bounds_of, Point};
 
+/// A contour as containment sees it: its vertices, and whether it is closed.
+pub(super) type Outline<'a> = (&'a [Point], bool);
+
 /// Per contour: the smallest closed contour containing it.
-pub(super) fn containment(chains: &[Chain], tol: f64) -> Vec<Option<usize>> {
-    let bounds: Vec<(Point, Point)> = chains.iter().map(|c| bounds_of(c.points.iter())).collect();
-    let areas: Vec<f64> = chains.iter().map(|c| if c.closed { signed_area(&c.points).abs() } else { 0.0 }).collect();
+pub(super) fn containment(chains: &[Outline], tol: f64) -> Vec<Option<usize>> {
+    let bounds: Vec<(Point, Point)> = chains.iter().map(|c| bounds_of(c.0.iter())).collect();
+    let areas: Vec<f64> = chains.iter().map(|&(points, closed)| if closed { signed_area(points).abs() } else { 0.0 }).collect();
     let tree: RTree<Box2> = RTree::bulk_load(
         chains
             .iter()
             .enumerate()
-            .filter(|(_, c)| c.closed)
+            .filter(|(_, c)| c.1)
             .map(|(k, _)| GeomWithData::new(rect(bounds[k].0, bounds[k].1), (k, 0)))
             .collect(),
     );
@@ -36,7 +39,7 @@ pub(super) fn containment(chains: &[Chain], tol: f64) -> Vec<Option<usize>> {
                 .filter(|&b| b != a && areas[b] > areas[a] && holds(bounds[b], bounds[a]))
                 .collect();
             candidates.sort_by(|&x, &y| areas[x].total_cmp(&areas[y]).then(x.cmp(&y)));
-            candidates.into_iter().find(|&b| inside(&chains[a], &chains[b].points, tol))
+            candidates.into_iter().find(|&b| inside(chains[a], chains[b].0, tol))
         })
         .collect()
 }
@@ -52,9 +55,10 @@ enum Side {
 
 /// Chain `a` lies inside polygon `b`: decided by its first vertex (or segment
 /// midpoint) off `b`'s boundary; a chain all on the boundary is not inside.
-fn inside(a: &Chain, b: &[Point], tol: f64) -> bool {
-    let vertices = a.points.iter().copied();
-    let midpoints = (0..a.subsegments()).map(|j| nalgebra::center(&a.points[j], &a.points[a.next(j)]));
+fn inside((points, closed): Outline, b: &[Point], tol: f64) -> bool {
+    let n = points.len();
+    let vertices = points.iter().copied();
+    let midpoints = (0..if closed { n } else { n - 1 }).map(|j| nalgebra::center(&points[j], &points[(j + 1) % n]));
     vertices.chain(midpoints).map(|p| side(p, b, tol)).find(|&s| s != Side::Boundary) == Some(Side::Inside)
 }
 

@@ -28,6 +28,7 @@
 //! thousand segments builds in well under a second.
 
 mod common_cuts;
+pub mod kerf;
 mod containment;
 mod contours;
 pub mod plate;
@@ -155,7 +156,8 @@ impl Topology {
         let partners = common_cuts::match_common_cuts(&chains);
         let (elements, contours) = contours::elements(&chains, &partners, angle.to_radians().cos());
         let shared = common_cuts::common_cuts(&contours, elements.len());
-        let outer = containment::containment(&chains, tol);
+        let outlines: Vec<containment::Outline> = chains.iter().map(|c| (c.points.as_slice(), c.closed)).collect();
+        let outer = containment::containment(&outlines, tol);
         let levels = containment::levels(&outer);
         let ranks = common_cuts::ranks(&contours, elements.len(), &shared);
         let groups = groups(contours.len(), &inner_outer(&outer), &shared);
