@@ -415,7 +415,7 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
             let paths = model
                 .polylines(&route)
                 .into_iter()
-                .map(|l| PlannedPath { geometry: l.geometry, process: job.geometries[l.geometry].process, points: l.points, pierce: l.pierce })
+                .map(|l| PlannedPath::new(l.geometry, l.points, job.geometries[l.geometry].process, l.pierce))
                 .collect();
             Ok((Sequence { groups: vec![PathGroup { field_center: None, paths }] }, checker::check(&model.instance, &route).len()))
         })

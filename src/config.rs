@@ -95,6 +95,10 @@ pub const TIME_LIMIT: Range<f64> = Range { lo: 0.01, hi: 86_400.0, unit: "s" };
 pub const DIRECTION_WEIGHT: Range<f64> = Range { lo: 0.0, hi: 1000.0, unit: "" };
 /// How often a layer is marked: each pass is a copy of its geometry in the plan.
 pub const PASSES: Range<u32> = Range { lo: 1, hi: 1000, unit: "passes" };
+/// Lead-in and lead-out lengths, overcut and closing gaps (mm).
+pub const LEAD_LENGTH: Range<f64> = Range { lo: 0.0, hi: 100.0, unit: "mm" };
+/// A lead's angle to its contour (degrees): a line from along it to straight at it.
+pub const LEAD_ANGLE: Range<f64> = Range { lo: 1.0, hi: 180.0, unit: "degrees" };
 /// Width of a cut (mm): a fibre laser's 0.02 to a plasma's few mm, with room.
 pub const KERF: Range<f64> = Range { lo: 0.0, hi: 10.0, unit: "mm (0: cut on the line)" };
 
@@ -963,6 +967,68 @@ pub struct LayerConfig {
     /// about it ("round") or out to the point of the corner ("sharp").
     #[serde(default)]
     pub kerf_corners: KerfCorners,
+    /// How a cut that starts with a pierce gets onto its contour: from a
+    /// pierce in the waste along a line or an arc ("none": pierce on it).
+    #[serde(default)]
+    pub lead_in: LeadKind,
+    /// The lead-in's length (mm).
+    #[serde(default = "lead_length")]
+    pub lead_in_length: f64,
+    /// Line: its angle to the contour (90: straight at it); arc: how far
+    /// it turns before it runs along the contour (degrees).
+    #[serde(default = "lead_angle")]
+    pub lead_in_angle: f64,
+    /// Where on a closed contour the lead-in goes: where the planner enters
+    /// it ("entry"), the corner nearest to that ("corner"), or the middle of
+    /// its longest straight side ("longest").
+    #[serde(default)]
+    pub lead_in_at: LeadAt,
+    /// How a cut leaves its contour into the waste at its end.
+    #[serde(default)]
+    pub lead_out: LeadKind,
+    #[serde(default = "lead_length")]
+    pub lead_out_length: f64,
+    #[serde(default = "lead_angle")]
+    pub lead_out_angle: f64,
+    /// How far a closed contour is cut past its start (mm): the pierce's
+    /// mark and the start are cut twice, so nothing holds the part.
+    #[serde(default)]
+    pub overcut: f64,
+    /// How much of a closed contour is left uncut before its start (mm), so
+    /// that the part stays in the sheet (taken out by hand later).
+    #[serde(default)]
+    pub closing_gap: f64,
+}
+
+fn lead_length() -> f64 {
+    2.0
+}
+
+fn lead_angle() -> f64 {
+    90.0
+}
+
+/// The shape of a lead-in or lead-out (`[[layer]] lead_in`, `lead_out`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum LeadKind {
+    #[default]
+    None,
+    Line,
+    Arc,
+}
+
+/// Where a closed contour's lead-in goes (`[[layer]] lead_in_at`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum LeadAt {
+    /// Where the planner enters the contour.
+    #[default]
+    Entry,
+    /// The contour's corner nearest to the planner's entry.
+    Corner,
+    /// The middle of the contour's longest straight side.
+    Longest,
 }
 
 /// How a kerf offset goes round a convex corner (`[[layer]] kerf_corners`).
@@ -1181,6 +1247,20 @@ impl MachineConfig {
             }
             PASSES.check(&name("passes"), l.passes)?;
             KERF.check(&name("kerf"), l.kerf)?;
+            LEAD_LENGTH.check(&name("lead_in_length"), l.lead_in_length)?;
+            LEAD_LENGTH.check(&name("lead_out_length"), l.lead_out_length)?;
+            LEAD_ANGLE.check(&name("lead_in_angle"), l.lead_in_angle)?;
+            LEAD_ANGLE.check(&name("lead_out_angle"), l.lead_out_angle)?;
+            LEAD_LENGTH.check(&name("overcut"), l.overcut)?;
+            LEAD_LENGTH.check(&name("closing_gap"), l.closing_gap)?;
+            for (kind, length, setting) in [(l.lead_in, l.lead_in_length, "lead_in_length"), (l.lead_out, l.lead_out_length, "lead_out_length")] {
+                if kind != LeadKind::None {
+                    in_range(&name(setting), length, 0.05, LEAD_LENGTH.hi, "mm (a lead needs a length)")?;
+                }
+            }
+            if l.overcut > 0.0 && l.closing_gap > 0.0 {
+                return Err(format!("{}: a contour is either cut past its start (overcut) or left short of it (closing_gap), not both", name("closing_gap")));
+            }
             if let Some(c) = l.color.filter(|c| !(1..=255).contains(c)) {
                 return Err(format!("{}: {c} is not an AutoCAD colour index (1 to 255)", name("color")));
             }
@@ -1253,6 +1333,14 @@ impl MachineConfig {
             .or(l.map(|l| l.power))
             .unwrap_or(self.laser.max_power);
         Pierce { power, time }
+    }
+
+    /// Whether `layer`'s closed contours cut parts out of the sheet (it
+    /// pierces, or sets a kerf or leads): they decide what is a part, a
+    /// hole, and the waste.
+    pub fn cuts_parts(&self, layer: &str) -> bool {
+        let l = self.layers.iter().find(|l| l.name == layer);
+        self.pierce(layer).active() || l.is_some_and(|l| l.kerf > 0.0 || l.lead_in != LeadKind::None || l.lead_out != LeadKind::None)
     }
 
     fn validate_plate(&self, p: &PlateConfig) -> std::result::Result<(), String> {
@@ -1585,6 +1673,12 @@ mod tests {
             ("layer.1.kerf", F(-0.1)),
             ("layer.1.kerf", F(f64::NAN)),
             ("layer.1.kerf", F(11.0)),
+            ("layer.1.lead_in_length", F(-1.0)),
+            ("layer.1.lead_out_length", F(1e9)),
+            ("layer.1.lead_in_angle", F(0.0)),
+            ("layer.1.lead_out_angle", F(181.0)),
+            ("layer.1.overcut", F(f64::NAN)),
+            ("layer.1.closing_gap", F(-0.5)),
         ];
         for (path, value) in cases {
             let shown = value.to_string();

@@ -94,6 +94,21 @@ pub fn arc_points(a: Point, b: Point, bulge: f64, tolerance: f64) -> Vec<Point> 
     points
 }
 
+/// The distance between two segments.
+pub fn segment_distance(a: Point, b: Point, c: Point, d: Point) -> f64 {
+    let cross = |o: Point, p: Point, q: Point| (p - o).perp(&(q - o));
+    let (d1, d2, d3, d4) = (cross(c, d, a), cross(c, d, b), cross(a, b, c), cross(a, b, d));
+    if d1 * d2 < 0.0 && d3 * d4 < 0.0 {
+        return 0.0;
+    }
+    let to = |p: Point, s: Point, e: Point| {
+        let v = e - s;
+        let t = if v.norm_squared() > 0.0 { ((p - s).dot(&v) / v.norm_squared()).clamp(0.0, 1.0) } else { 0.0 };
+        (s + v * t - p).norm()
+    };
+    to(a, c, d).min(to(b, c, d)).min(to(c, a, b)).min(to(d, a, b))
+}
+
 /// Length of the arc from `a` to `b` of `bulge` (the chord for bulge 0).
 pub fn arc_length(a: Point, b: Point, bulge: f64) -> f64 {
     let chord = (b - a).norm();

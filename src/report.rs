@@ -48,6 +48,15 @@ pub struct PlanReport {
     /// the waste, `[[layer]] kerf`); `null` when no layer sets one.
     #[serde(default)]
     pub kerf_mm: Option<f64>,
+    /// Cuts entered from a pierce in the waste along a lead-in, and left
+    /// along a lead-out (`[[layer]] lead_in`, `lead_out`); lead-ins placed
+    /// away from the planned entry for want of room there.
+    #[serde(default)]
+    pub lead_ins: usize,
+    #[serde(default)]
+    pub lead_outs: usize,
+    #[serde(default)]
+    pub lead_ins_moved: usize,
     /// Length cut on layers that pierce, every pass counted, mm.
     #[serde(default)]
     pub cut_length_mm: f64,
@@ -111,6 +120,9 @@ impl PlanReport {
             s.push_str(&format!("  cutting {:.1} mm with {} pierces", self.cut_length_mm, self.pierces));
             if let Some(kerf) = self.kerf_mm {
                 s.push_str(&format!(", offset by half the kerf of {kerf} mm"));
+            }
+            if self.lead_ins + self.lead_outs > 0 {
+                s.push_str(&format!(", {} lead-ins ({} moved for room), {} lead-outs", self.lead_ins, self.lead_ins_moved, self.lead_outs));
             }
             if let (Some(edge), Some(skeleton), Some(remnant)) = (self.edge_length_saved_mm, self.skeleton_cuts, self.remnant_cuts) {
                 s.push_str(&format!("; plate: {edge:.1} mm of edge not cut, {skeleton} skeleton and {remnant} remnant cuts"));

@@ -103,6 +103,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         }
     }
     let outcome_edge_saved = outcome.edge_length_saved_mm;
+    let outcome_leads = outcome.leads;
     let sequence = outcome.sequence;
     let cut_paths = || sequence.paths().filter(|p| machine.pierce(&job.processes[p.process].layer).active());
     let broken_rules: Option<Vec<String>> = outcome.broken_rules.map(|rules| rules.iter().map(|r| describe(&job, r)).collect());
@@ -126,6 +127,9 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         precedence_violations: broken_rules.as_ref().map(|r| r.len() as u64),
         pierces: cut_paths().filter(|p| p.pierce).count(),
         kerf_mm,
+        lead_ins: outcome_leads.lead_ins,
+        lead_outs: outcome_leads.lead_outs,
+        lead_ins_moved: outcome_leads.moved,
         cut_length_mm: cut_paths().map(|p| p.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>()).sum(),
         edge_length_saved_mm: plate.as_ref().map(|_| outcome_edge_saved),
         edge_starts: plate.as_ref().map(|p| cut_paths().filter(|c| !c.pierce && p.on_edge(c.start())).count()),
@@ -156,7 +160,7 @@ pub fn kerf_layers(job: &Job, machine: &MachineConfig) -> Vec<kerf::KerfLayer> {
             kerf::KerfLayer {
                 kerf: layer.map_or(0.0, |l| l.kerf),
                 corners: layer.map(|l| l.kerf_corners).unwrap_or_default(),
-                cuts: machine.pierce(&p.layer).active(),
+                cuts: machine.cuts_parts(&p.layer),
             }
         })
         .collect()

@@ -959,7 +959,7 @@ mod tests {
     fn stage_only_in_order(paths: &[Vec<Point>], machine: &MachineConfig) -> Trajectory {
         let mut j = job();
         j.geometries = paths.iter().enumerate().map(|(k, p)| Geometry { arcs: Vec::new(), profile: Vec::new(), points: p.clone(), closed: false, process: 0, source: format!("path {k}") }).collect();
-        let paths = paths.iter().enumerate().map(|(k, p)| crate::plan::PlannedPath { geometry: k, points: p.clone(), process: 0, pierce: true }).collect();
+        let paths = paths.iter().enumerate().map(|(k, p)| crate::plan::PlannedPath::new(k, p.clone(), 0, true)).collect();
         let seq = Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths }] };
         build(&j, &seq, machine, Mode::StageOnly, Point::origin()).unwrap()
     }
@@ -1009,7 +1009,7 @@ mod tests {
         j.geometries = vec![Geometry { arcs: Vec::new(), profile: vec![0, 1, 1, 2, 0, 1], points: line.clone(), closed: false, process: 0, source: "t.nc:3".into() }];
         let power = |p: f64| crate::job::Process { power: p, ..j.processes[0].clone() };
         j.processes = vec![power(100.0), power(200.0), power(300.0)];
-        let path = crate::plan::PlannedPath { geometry: 0, points: line.clone(), process: 0, pierce: true };
+        let path = crate::plan::PlannedPath::new(0, line.clone(), 0, true);
         let seq = crate::plan::split_profiles(Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths: vec![path] }] }, &j);
         assert_eq!(seq.paths().count(), 5);
         let tr = build(&j, &seq, &plain, Mode::StageOnly, Point::origin()).unwrap();

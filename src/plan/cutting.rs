@@ -49,6 +49,7 @@ impl CuttingPlan {
             broken_rules: Some(self.broken_rules),
             search_stopped_by: self.search_stopped_by,
             edge_length_saved_mm: self.edge_length_saved_mm,
+            leads: Default::default(),
         }
     }
 }
@@ -124,7 +125,7 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     for line in polylines {
         let process = job.geometries[line.geometry].process;
         for _ in 0..job.processes[process].passes {
-            paths.push(PlannedPath { geometry: line.geometry, points: line.points.clone(), process, pierce: line.pierce });
+            paths.push(PlannedPath::new(line.geometry, line.points.clone(), process, line.pierce));
         }
     }
     let scanner = ctx.machine.scanner.as_ref().filter(|_| ctx.mode != Mode::StageOnly);
@@ -286,7 +287,7 @@ mod tests {
     }
 
     fn path(geometry: usize, from: (f64, f64), to: (f64, f64)) -> PlannedPath {
-        PlannedPath { geometry, points: vec![Point::new(from.0, from.1), Point::new(to.0, to.1)], process: 0, pierce: true }
+        PlannedPath::new(geometry, vec![Point::new(from.0, from.1), Point::new(to.0, to.1)], 0, true)
     }
 
     #[test]

@@ -7,6 +7,7 @@ pub mod cutting;
 pub mod ecp;
 pub mod fields;
 pub mod galvo;
+pub mod lead;
 pub mod nearest;
 pub mod split;
 pub mod stop;
@@ -29,9 +30,18 @@ pub struct PlannedPath {
     /// Whether its layer's pierce (if any) is made at its start: not where
     /// a cut through ended just before, nor on the plate's edge.
     pub pierce: bool,
+    /// Points of a lead-in before the contour's own (the first one is the
+    /// pierce), and of an overcut and lead-out after them (`lead`).
+    pub lead_in: usize,
+    pub lead_out: usize,
 }
 
 impl PlannedPath {
+    /// A path of `points` with no lead-in or lead-out.
+    pub fn new(geometry: usize, points: Vec<Point>, process: usize, pierce: bool) -> PlannedPath {
+        PlannedPath { geometry, points, process, pierce, lead_in: 0, lead_out: 0 }
+    }
+
     pub fn start(&self) -> Point {
         self.points[0]
     }
@@ -160,6 +170,8 @@ pub struct PlanOutcome {
     /// The length of the parts' outlines on the plate's edge, not cut (the
     /// cutting planner's; 0 without a plate).
     pub edge_length_saved_mm: f64,
+    /// The lead-ins and lead-outs added to the paths.
+    pub leads: lead::LeadCount,
 }
 
 /// Plans `job` with the planner `kind` stands for, and judges its order: the
@@ -168,6 +180,10 @@ pub struct PlanOutcome {
 pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     let mut outcome = plan_ordered(kind, job, ctx)?;
     outcome.sequence = split_profiles(outcome.sequence, job);
+    let (settings, waste, travel) = lead::settings(job, ctx.machine);
+    let leads = lead::add_leads(job, outcome.sequence, &settings, &waste, travel, ctx.machine.import.tolerance)?;
+    outcome.sequence = leads.sequence;
+    outcome.leads = leads.count;
     Ok(outcome)
 }
 
@@ -182,7 +198,7 @@ fn plan_ordered(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
                 _ => (planner.plan(job, ctx)?, stop::SearchStop::Budget),
             };
             let broken_rules = cutting::sequence_violations(job, &sequence, ctx);
-            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0 })
+            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default() })
         }
     }
 }
@@ -222,11 +238,11 @@ pub fn split_profiles(sequence: Sequence, job: &Job) -> Sequence {
                     }
                 };
                 let first = path.points.get(1).map_or(path.process, |b| segment(&path.points[0], b));
-                let mut piece = PlannedPath { geometry: path.geometry, points: vec![path.points[0]], process: first, pierce: path.pierce };
+                let mut piece = PlannedPath::new(path.geometry, vec![path.points[0]], first, path.pierce);
                 for w in path.points.windows(2) {
                     let process = segment(&w[0], &w[1]);
                     if process != piece.process {
-                        let next = PlannedPath { geometry: path.geometry, points: vec![w[0]], process, pierce: false };
+                        let next = PlannedPath::new(path.geometry, vec![w[0]], process, false);
                         paths.push(std::mem::replace(&mut piece, next));
                     }
                     piece.points.push(w[1]);
@@ -281,7 +297,7 @@ mod tests {
         let plain = Geometry::polyline(vec![Point::new(0.0, 5.0), Point::new(4.0, 5.0)], false, 1, "t.nc:9".into());
         let process = |power: f64| crate::job::Process { layer: format!("S{power}"), speed: 10.0, power, passes: 1 };
         let job = Job { source: "t.nc".into(), geometries: vec![line, plain], processes: vec![process(100.0), process(200.0), process(300.0)] };
-        let path = |geometry: usize, points: Vec<Point>, process: usize| PlannedPath { geometry, points, process, pierce: true };
+        let path = |geometry: usize, points: Vec<Point>, process: usize| PlannedPath::new(geometry, points, process, true);
         // Marked backwards: the last segment's process first.
         let back: Vec<Point> = points.iter().rev().copied().collect();
         let sequence = Sequence { groups: vec![PathGroup { field_center: None, paths: vec![path(0, back, 0), path(1, job.geometries[1].points.clone(), 1)] }] };

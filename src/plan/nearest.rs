@@ -72,7 +72,7 @@ fn order_paths(job: &Job, members: &[usize], from: Point) -> Vec<PlannedPath> {
         let points = path_points(g, best.1, best.2);
         here = points[points.len() - 1];
         for _ in 0..job.processes[g.process].passes {
-            out.push(PlannedPath { geometry: gi, points: points.clone(), process: g.process, pierce: true });
+            out.push(PlannedPath::new(gi, points.clone(), g.process, true));
         }
     }
     out

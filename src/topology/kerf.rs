@@ -22,7 +22,7 @@ use super::containment::{self, Outline};
 use super::{contours, rect, Box2};
 use crate::config::KerfCorners;
 use crate::error::{Error, Result};
-use crate::job::{arc_points, ArcSpan, Geometry, Job, Point};
+use crate::job::{arc_points, segment_distance, ArcSpan, Geometry, Job, Point};
 
 /// The kerf settings of one process (a layer).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -377,21 +377,6 @@ fn check_clearance(drawn: &Job, kerfed: &Job, cutting: &[usize], paths: &[(usize
 /// Where segment `a`-`b` comes within `reach` of segment `c`-`d`, if it does.
 fn closer_than(a: Point, b: Point, c: Point, d: Point, reach: f64) -> Option<Point> {
     (segment_distance(a, b, c, d) < reach).then(|| nalgebra::center(&a, &b))
-}
-
-/// The distance between two segments.
-fn segment_distance(a: Point, b: Point, c: Point, d: Point) -> f64 {
-    let cross = |o: Point, p: Point, q: Point| (p - o).perp(&(q - o));
-    let (d1, d2, d3, d4) = (cross(c, d, a), cross(c, d, b), cross(a, b, c), cross(a, b, d));
-    if d1 * d2 < 0.0 && d3 * d4 < 0.0 {
-        return 0.0;
-    }
-    let to = |p: Point, s: Point, e: Point| {
-        let v = e - s;
-        let t = if v.norm_squared() > 0.0 { ((p - s).dot(&v) / v.norm_squared()).clamp(0.0, 1.0) } else { 0.0 };
-        (s + v * t - p).norm()
-    };
-    to(a, c, d).min(to(b, c, d)).min(to(c, a, b)).min(to(d, a, b))
 }
 
 #[cfg(test)]

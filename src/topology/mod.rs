@@ -32,6 +32,7 @@ pub mod kerf;
 mod containment;
 mod contours;
 pub mod plate;
+pub mod waste;
 #[cfg(test)]
 pub(crate) mod tests;
 

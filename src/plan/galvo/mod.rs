@@ -115,7 +115,7 @@ impl Layout {
             let choice = route.choices()[s] as usize;
             let points = if geometry.closed { path_points(geometry, choice, false) } else { path_points(geometry, 0, choice == 1) };
             for _ in 0..job.processes[geometry.process].passes {
-                groups.last_mut().unwrap().paths.push(PlannedPath { geometry: s, points: points.clone(), process: geometry.process, pierce: true });
+                groups.last_mut().unwrap().paths.push(PlannedPath::new(s, points.clone(), geometry.process, true));
             }
             let field_ends = p + 1 == order.len() || route.fields()[order[p + 1] as usize] != route.fields()[s];
             if field_ends && !self.stage_only {
