@@ -57,6 +57,10 @@ pub struct PlanReport {
     pub lead_outs: usize,
     #[serde(default)]
     pub lead_ins_moved: usize,
+    /// Cuts left without a lead because no waste touches where they start
+    /// or end (between parts that share their cuts).
+    #[serde(default)]
+    pub leads_skipped: usize,
     /// Length cut on layers that pierce, every pass counted, mm.
     #[serde(default)]
     pub cut_length_mm: f64,
@@ -123,6 +127,9 @@ impl PlanReport {
             }
             if self.lead_ins + self.lead_outs > 0 {
                 s.push_str(&format!(", {} lead-ins ({} moved for room), {} lead-outs", self.lead_ins, self.lead_ins_moved, self.lead_outs));
+                if self.leads_skipped > 0 {
+                    s.push_str(&format!(", {} cuts without a lead (no waste where they start or end)", self.leads_skipped));
+                }
             }
             if let (Some(edge), Some(skeleton), Some(remnant)) = (self.edge_length_saved_mm, self.skeleton_cuts, self.remnant_cuts) {
                 s.push_str(&format!("; plate: {edge:.1} mm of edge not cut, {skeleton} skeleton and {remnant} remnant cuts"));

@@ -130,6 +130,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         lead_ins: outcome_leads.lead_ins,
         lead_outs: outcome_leads.lead_outs,
         lead_ins_moved: outcome_leads.moved,
+        leads_skipped: outcome_leads.skipped,
         cut_length_mm: cut_paths().map(|p| p.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>()).sum(),
         edge_length_saved_mm: plate.as_ref().map(|_| outcome_edge_saved),
         edge_starts: plate.as_ref().map(|p| cut_paths().filter(|c| !c.pierce && p.on_edge(c.start())).count()),

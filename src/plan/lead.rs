@@ -44,6 +44,10 @@ pub struct LeadSettings {
     pub kerf: f64,
     /// A turn sharper than this (degrees) is a corner (`lead_in_at = "corner"`).
     pub corner_angle_deg: f64,
+    /// Contours closer than this share their cut (`[cutting]
+    /// common_cut_tolerance`): a gap between them is no waste, so the
+    /// waste is looked for twice this far from a contour.
+    pub common_cut_mm: f64,
     /// The layer's name, for errors.
     pub layer: String,
 }
@@ -75,6 +79,15 @@ pub struct LeadCount {
     pub lead_outs: usize,
     /// Lead-ins placed away from the planned entry, for want of room there.
     pub moved: usize,
+    /// Cuts with a lead left out where no waste touches their start or end
+    /// (between parts that share their cuts).
+    pub skipped: usize,
+}
+
+/// Where a path's leads went.
+struct Placement {
+    moved: bool,
+    skipped: bool,
 }
 
 /// Where the machine can go: leads outside it are not placed.
@@ -97,6 +110,7 @@ pub fn settings(job: &Job, machine: &MachineConfig) -> (Vec<LeadSettings>, Waste
                 closing_gap: l.map_or(0.0, |l| l.closing_gap),
                 kerf: l.map_or(0.0, |l| l.kerf),
                 corner_angle_deg: machine.cutting.corner_angle,
+                common_cut_mm: machine.cutting.common_cut_tolerance,
                 layer: p.layer.clone(),
             }
         })
@@ -117,10 +131,11 @@ pub fn add_leads(job: &Job, sequence: Sequence, settings: &[LeadSettings], waste
             number += 1;
             let Some(s) = settings.get(path.process).filter(|s| s.any() && path.pierce && path.lead_in == 0) else { continue };
             let context = Context { job, waste, travel, tolerance, settings: s, placed: &placed, path: number };
-            let (leaded, moved) = context.lead(path)?;
+            let (leaded, placement) = context.lead(path)?;
             out.count.lead_ins += usize::from(leaded.lead_in > 0);
-            out.count.lead_outs += usize::from(s.lead_out.kind != LeadKind::None && leaded.lead_out > 0);
-            out.count.moved += usize::from(moved);
+            out.count.lead_outs += usize::from(leaded.lead_out > 0);
+            out.count.moved += usize::from(placement.moved);
+            out.count.skipped += usize::from(placement.skipped);
             placed.add(&leaded, number);
             *path = leaded;
         }
@@ -160,6 +175,15 @@ impl Placed {
     }
 }
 
+/// Whether a lead fits at a place.
+enum Fit {
+    Lead(Vec<Point>),
+    /// There is waste, but not room for the lead.
+    NoRoom,
+    /// No waste touches the place (between parts sharing their cuts).
+    NoWaste,
+}
+
 /// Where the waste is beside a cut.
 enum Side {
     /// On one side, this normal's.
@@ -181,8 +205,8 @@ struct Context<'a> {
 }
 
 impl Context<'_> {
-    /// `path` with its leads, and whether its lead-in had to move.
-    fn lead(&self, path: &PlannedPath) -> Result<(PlannedPath, bool)> {
+    /// `path` with its leads, and where they went.
+    fn lead(&self, path: &PlannedPath) -> Result<(PlannedPath, Placement)> {
         let s = self.settings;
         let g = &self.job.geometries[path.geometry];
         let closed_loop = is_loop(path, g.closed.then(|| g.length()));
@@ -195,24 +219,39 @@ impl Context<'_> {
             }
         }
         let mut lead_in = Vec::new();
-        let mut moved = false;
+        let (mut moved, mut skipped) = (false, false);
         let through_waste = matches!(self.waste_side(points[0], points[1]), Side::Both);
         if s.lead_in.kind != LeadKind::None && !through_waste {
             let starts = if closed_loop { loop_starts(&points) } else { vec![0] };
+            let mut no_room = false;
             let found = starts.iter().find_map(|&h| {
                 let candidate = start_at(&points, h);
-                self.lead_in(&candidate, path.geometry).map(|lead| (h, candidate, lead))
+                match self.lead_in(&candidate, path.geometry) {
+                    Fit::Lead(lead) => Some((h, candidate, lead)),
+                    Fit::NoRoom => {
+                        no_room = true;
+                        None
+                    }
+                    Fit::NoWaste => None,
+                }
             });
-            let Some((k, candidate, lead)) = found else {
-                let place = if closed_loop { " anywhere along its contour".to_string() } else { format!(" at ({:.3}, {:.3})", points[0].x, points[0].y) };
-                return Err(Error::Plan(format!(
-                    "{}: no room in the waste for a lead-in of {} mm at {}° (layer '{}': lead_in_length, lead_in_angle){place}: shorten it",
-                    g.source, s.lead_in.length, s.lead_in.angle_deg, s.layer
-                )));
-            };
-            moved = k != 0;
-            points = candidate;
-            lead_in = lead;
+            match found {
+                Some((h, candidate, lead)) => {
+                    moved = h != 0;
+                    points = candidate;
+                    lead_in = lead;
+                }
+                None if no_room => {
+                    let room = self.room(&points, &starts, path.geometry);
+                    let place = if closed_loop { " anywhere along its contour".to_string() } else { format!(" at ({:.3}, {:.3})", points[0].x, points[0].y) };
+                    return Err(Error::Plan(format!(
+                        "{}: no room in the waste for a lead-in of {} mm at {}° (layer '{}': lead_in_length, lead_in_angle){place}, {room}: shorten it",
+                        g.source, s.lead_in.length, s.lead_in.angle_deg, s.layer
+                    )));
+                }
+                // Between parts that share their cuts: no lead can go here.
+                None => skipped = true,
+            }
         }
         if closed_loop && s.closing_gap > 0.0 {
             let length: f64 = points.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
@@ -224,32 +263,36 @@ impl Context<'_> {
             }
             points = walk(&points, length - s.closing_gap);
         }
-        let contour = points.len();
         if closed_loop && s.overcut > 0.0 {
             let past = walk(&points, s.overcut);
             points.extend(past.into_iter().skip(1));
         }
+        let contour = points.len();
         if s.lead_out.kind != LeadKind::None && s.closing_gap == 0.0 && !through_waste {
-            let lead_out = self.lead_out(&points, &lead_in, path.geometry).ok_or_else(|| {
-                let end = points[points.len() - 1];
-                Error::Plan(format!(
-                    "{}: no room in the waste for a lead-out of {} mm at {}° at ({:.3}, {:.3}) (layer '{}': lead_out_length, lead_out_angle): shorten it",
-                    g.source, s.lead_out.length, s.lead_out.angle_deg, end.x, end.y, s.layer
-                ))
-            })?;
-            points.extend(lead_out);
+            match self.lead_out(&points, &lead_in, path.geometry) {
+                Fit::Lead(lead) => points.extend(lead),
+                Fit::NoRoom => {
+                    let end = points[points.len() - 1];
+                    return Err(Error::Plan(format!(
+                        "{}: no room in the waste for a lead-out of {} mm at {}° at ({:.3}, {:.3}) (layer '{}': lead_out_length, lead_out_angle): shorten it",
+                        g.source, s.lead_out.length, s.lead_out.angle_deg, end.x, end.y, s.layer
+                    )));
+                }
+                Fit::NoWaste => skipped = true,
+            }
         }
         let (before, after) = (lead_in.len(), points.len() - contour);
         lead_in.extend(points);
-        Ok((PlannedPath { points: lead_in, lead_in: before, lead_out: after, ..path.clone() }, moved))
+        Ok((PlannedPath { points: lead_in, lead_in: before, lead_out: after, ..path.clone() }, Placement { moved, skipped }))
     }
 
     /// The lead-in points before `points[0]` (the first is the pierce),
     /// if one fits: the setting's shape, else (a line) its mirror image, else
     /// a line straight into the middle of the waste around the start (at a
     /// corner, or where the path begins between two parts).
-    fn lead_in(&self, points: &[Point], own: usize) -> Option<Vec<Point>> {
-        let (start, t) = (points[0], direction(points[0], points[1])?);
+    fn lead_in(&self, points: &[Point], own: usize) -> Fit {
+        let Some(t) = direction(points[0], points[1]) else { return Fit::NoWaste };
+        let start = points[0];
         let lead = self.settings.lead_in;
         let mut candidates: Vec<Vec<Point>> = Vec::new();
         if let Side::One(n) = self.waste_side(start, points[1]) {
@@ -261,24 +304,53 @@ impl Context<'_> {
         if let Some(u) = self.waste_direction(start) {
             candidates.push(vec![start + u * lead.length]);
         }
-        candidates.into_iter().find_map(|mut pts| {
+        if candidates.is_empty() {
+            return Fit::NoWaste;
+        }
+        let found = candidates.into_iter().find_map(|mut pts| {
             pts.push(start);
             self.fits(&pts, pts[0], start, own, &[]).then(|| {
                 pts.pop();
                 pts
             })
-        })
+        });
+        found.map_or(Fit::NoRoom, Fit::Lead)
+    }
+
+    /// In words, the longest lead-in that fits at any of `starts` (to
+    /// 0.01 mm), for an error that says how far to shorten it.
+    fn room(&self, points: &[Point], starts: &[usize], own: usize) -> String {
+        let fits_at = |length: f64| {
+            let settings = LeadSettings { lead_in: Lead { length, ..self.settings.lead_in }, ..self.settings.clone() };
+            let context = Context { settings: &settings, ..*self };
+            starts.iter().any(|&h| matches!(context.lead_in(&start_at(points, h), own), Fit::Lead(_)))
+        };
+        let (mut lo, mut hi) = (0.0, self.settings.lead_in.length);
+        while hi - lo > 0.01 {
+            let mid = (lo + hi) / 2.0;
+            if fits_at(mid) {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        if lo > 0.0 {
+            format!("where {lo:.2} mm would fit")
+        } else {
+            "where no lead-in fits".to_string()
+        }
     }
 
     /// The direction from `at` into the middle of the widest wedge of waste
-    /// around it (looked for a micrometre away, every 5°).
+    /// around it (looked for twice the common-cut tolerance away, every 5°).
     fn waste_direction(&self, at: Point) -> Option<Vector2<f64>> {
         const STEPS: usize = 72;
         let unit = |i: usize| {
             let a = i as f64 / STEPS as f64 * std::f64::consts::TAU;
             Vector2::new(a.cos(), a.sin())
         };
-        let waste: Vec<bool> = (0..STEPS).map(|i| self.waste.in_waste(at + unit(i) * 1e-3)).collect();
+        let away = 2.0 * self.settings.common_cut_mm;
+        let waste: Vec<bool> = (0..STEPS).map(|i| self.clear_waste(at + unit(i) * away)).collect();
         let first_solid = waste.iter().position(|w| !w)?;
         // Runs of waste, walking once round from a direction that is not.
         let (mut best, mut run) = ((0, 0), (0, 0));
@@ -302,9 +374,10 @@ impl Context<'_> {
 
     /// The lead-out points after the last of `points`, if one fits (the
     /// same choices as a lead-in's, from the end).
-    fn lead_out(&self, points: &[Point], lead_in: &[Point], own: usize) -> Option<Vec<Point>> {
+    fn lead_out(&self, points: &[Point], lead_in: &[Point], own: usize) -> Fit {
         let k = points.len();
-        let (end, t) = (points[k - 1], direction(points[k - 2], points[k - 1])?);
+        let Some(t) = direction(points[k - 2], points[k - 1]) else { return Fit::NoWaste };
+        let end = points[k - 1];
         let lead = self.settings.lead_out;
         let mut candidates: Vec<Vec<Point>> = Vec::new();
         if let Side::One(n) = self.waste_side(end, points[k - 2]) {
@@ -316,11 +389,21 @@ impl Context<'_> {
         if let Some(u) = self.waste_direction(end) {
             candidates.push(vec![end + u * lead.length]);
         }
-        candidates.into_iter().find_map(|lead| {
+        if candidates.is_empty() {
+            return Fit::NoWaste;
+        }
+        let found = candidates.into_iter().find_map(|lead| {
             let mut pts = vec![end];
             pts.extend(lead);
             self.fits(&pts, pts[pts.len() - 1], end, own, lead_in).then(|| pts.split_off(1))
-        })
+        });
+        found.map_or(Fit::NoRoom, Fit::Lead)
+    }
+
+    /// Whether `p` lies in the waste, and not in a sliver between contours
+    /// that share a cut.
+    fn clear_waste(&self, p: Point) -> bool {
+        self.waste.in_waste(p) && self.waste.near(p, p, self.settings.common_cut_mm).next().is_none()
     }
 
     /// Which side of the segment from `at` to (or from) `other` is waste.
@@ -329,8 +412,8 @@ impl Context<'_> {
         let len = (other - at).norm();
         let left = Vector2::new(-t.y, t.x);
         let probe = at + t * (len / 2.0).min(1e-3);
-        let step = (len / 4.0).clamp(1e-6, 1e-4);
-        match (self.waste.in_waste(probe + left * step), self.waste.in_waste(probe - left * step)) {
+        let step = 2.0 * self.settings.common_cut_mm;
+        match (self.clear_waste(probe + left * step), self.clear_waste(probe - left * step)) {
             (true, false) => Side::One(left),
             (false, true) => Side::One(-left),
             (true, true) => Side::Both,

@@ -31,7 +31,7 @@ pub struct PlannedPath {
     /// a cut through ended just before, nor on the plate's edge.
     pub pierce: bool,
     /// Points of a lead-in before the contour's own (the first one is the
-    /// pierce), and of an overcut and lead-out after them (`lead`).
+    /// pierce), and of a lead-out after them and any overcut (`lead`).
     pub lead_in: usize,
     pub lead_out: usize,
 }

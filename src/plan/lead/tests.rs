@@ -18,6 +18,7 @@ fn settings(lead_in: LeadKind, lead_out: LeadKind) -> LeadSettings {
         closing_gap: 0.0,
         kerf: 0.0,
         corner_angle_deg: 30.0,
+        common_cut_mm: 0.01,
         layer: "cut".into(),
     }
 }

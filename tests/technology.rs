@@ -1,0 +1,183 @@
+//! Cutting technology on whole jobs: kerf offsets and leads through the
+//! pipeline as a user runs it, checked here independently of the planner's
+//! own bookkeeping (material and waste by a crossing-number count of the
+//! drawn contours, crossings by segment tests over a grid of buckets).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use laserd::config::MachineConfig;
+use laserd::gen::sheet::{generate_sheet, to_svg, SheetParams};
+use laserd::job::{Job, Point};
+use laserd::plan::PlannerKind;
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The flatbed cutter with `settings` added to its "cut" layer.
+fn flatbed_with(settings: &str) -> MachineConfig {
+    let text = std::fs::read_to_string(root().join("config/flatbed-cutter.toml")).unwrap();
+    MachineConfig::parse(&text.replacen("name = \"cut\"\n", &format!("name = \"cut\"\n{settings}\n"), 1), "flatbed.toml").unwrap()
+}
+
+/// Segments in square buckets, for finding the ones near a point or segment.
+struct Buckets {
+    cell: f64,
+    map: HashMap<(i64, i64), Vec<(Point, Point, usize)>>,
+}
+
+impl Buckets {
+    fn new(cell: f64) -> Buckets {
+        Buckets { cell, map: HashMap::new() }
+    }
+
+    fn cells(&self, a: Point, b: Point, margin: f64) -> impl Iterator<Item = (i64, i64)> {
+        let c = |v: f64| (v / self.cell).floor() as i64;
+        let (x0, x1, y0, y1) = (c(a.x.min(b.x) - margin), c(a.x.max(b.x) + margin), c(a.y.min(b.y) - margin), c(a.y.max(b.y) + margin));
+        (x0..=x1).flat_map(move |x| (y0..=y1).map(move |y| (x, y)))
+    }
+
+    fn add(&mut self, a: Point, b: Point, tag: usize) {
+        for cell in self.cells(a, b, 0.0).collect::<Vec<_>>() {
+            self.map.entry(cell).or_default().push((a, b, tag));
+        }
+    }
+
+    fn near(&self, a: Point, b: Point, margin: f64) -> Vec<(Point, Point, usize)> {
+        self.cells(a, b, margin).flat_map(|c| self.map.get(&c).into_iter().flatten().copied()).collect()
+    }
+}
+
+fn cross(o: Point, p: Point, q: Point) -> f64 {
+    (p - o).perp(&(q - o))
+}
+
+/// Where two segments cross properly, if they do.
+fn crossing(a: Point, b: Point, c: Point, d: Point) -> Option<Point> {
+    let (d1, d2, d3, d4) = (cross(c, d, a), cross(c, d, b), cross(a, b, c), cross(a, b, d));
+    (d1 * d2 < 0.0 && d3 * d4 < 0.0).then(|| a + (b - a) * (d1 / (d1 - d2)))
+}
+
+fn point_to_segment(p: Point, a: Point, b: Point) -> f64 {
+    let v = b - a;
+    let t = ((p - a).dot(&v) / v.norm_squared()).clamp(0.0, 1.0);
+    (a + v * t - p).norm()
+}
+
+/// How many closed contours of `job` hold `p` (even: waste).
+fn depth(job: &Job, p: Point) -> usize {
+    job.geometries
+        .iter()
+        .filter(|g| g.closed)
+        .filter(|g| {
+            let n = g.points.len();
+            (0..n).fold(false, |odd, i| {
+                let (a, b) = (g.points[i], g.points[(i + 1) % n]);
+                odd ^ ((a.y > p.y) != (b.y > p.y) && a.x + (p.y - a.y) / (b.y - a.y) * (b.x - a.x) > p.x)
+            })
+        })
+        .count()
+}
+
+/// Issue 21's acceptance: on a dense generated sheet of at least 500 parts,
+/// every pierce lies in the waste and clear of every contour, and no lead
+/// crosses a contour (other than where it runs onto its own) or another lead.
+#[test]
+fn leads_on_a_dense_generated_sheet_pierce_in_the_waste_and_cross_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let params = SheetParams::with_target(5000);
+    let sheet = generate_sheet(&params, 1);
+    let parts = {
+        let inst = &sheet.instance;
+        let outer: HashMap<usize, usize> = inst.inner_outer.iter().map(|&(i, o)| (i, o)).collect();
+        let level = |mut k: usize| {
+            let mut l = 0;
+            while let Some(&o) = outer.get(&k) {
+                k = o;
+                l += 1;
+            }
+            l
+        };
+        (0..inst.contours.len()).filter(|&k| level(k) % 2 == 0).count()
+    };
+    assert!(parts >= 500, "a dense sheet: {parts} parts");
+    let path = dir.path().join("sheet.svg");
+    std::fs::write(&path, to_svg(&sheet, &params)).unwrap();
+    let machine = flatbed_with("lead_in = \"line\"\nlead_in_length = 0.8\nlead_in_angle = 60.0\nlead_out = \"arc\"\nlead_out_length = 0.5\novercut = 0.3");
+    let planned = laserd::run::plan(&path, &machine, PlannerKind::Auto, None).unwrap();
+    let job = &planned.job;
+
+    let mut drawing = Buckets::new(5.0);
+    for (k, g) in job.geometries.iter().enumerate() {
+        for i in 0..g.segments() {
+            drawing.add(g.points[i], g.points[(i + 1) % g.points.len()], k);
+        }
+    }
+    // Every lead piece, with its path and the contour point it meets.
+    let mut leads = Buckets::new(5.0);
+    let mut pieces: Vec<(Point, Point, usize, Point)> = Vec::new();
+    let paths: Vec<_> = planned.sequence.paths().collect();
+    for (number, p) in paths.iter().enumerate() {
+        let n = p.points.len();
+        let (entry, exit) = (p.points[p.lead_in], p.points[n - 1 - p.lead_out]);
+        for (w, on) in p.points[..=p.lead_in].windows(2).map(|w| (w, entry)).chain(p.points[n - 1 - p.lead_out..].windows(2).map(|w| (w, exit))) {
+            pieces.push((w[0], w[1], number, on));
+            leads.add(w[0], w[1], number);
+        }
+    }
+    let pierces: Vec<_> = paths.iter().filter(|p| p.pierce).collect();
+    assert!(pierces.len() >= 500);
+    let with_lead = pierces.iter().filter(|p| p.lead_in > 0).count();
+    assert_eq!(with_lead, planned.report.lead_ins);
+    assert!(with_lead * 10 >= pierces.len() * 9, "{with_lead} of {} pierces have a lead-in", pierces.len());
+    for p in pierces.iter().filter(|p| p.lead_in > 0) {
+        let pierce = p.points[0];
+        assert!(depth(job, pierce) % 2 == 0, "pierce {pierce:?} lies in a part");
+        let nearest = drawing.near(pierce, pierce, 0.2).iter().map(|&(a, b, _)| point_to_segment(pierce, a, b)).fold(f64::INFINITY, f64::min);
+        assert!(nearest >= 0.1 - 1e-9, "pierce {pierce:?} is {nearest} mm from a contour");
+    }
+    for &(a, b, number, on) in &pieces {
+        for (c, d, _) in drawing.near(a, b, 0.0) {
+            if let Some(x) = crossing(a, b, c, d) {
+                assert!((x - on).norm() < 1e-6, "a lead of path {number} ({a:?}-{b:?}, onto {on:?}) crosses a contour ({c:?}-{d:?}) at {x:?}");
+            }
+        }
+        for (c, d, other) in leads.near(a, b, 0.0) {
+            if other != number {
+                let shared = pieces.iter().any(|&(e, f, o, at)| o == other && e == c && f == d && (at - on).norm() < 1e-9);
+                assert!(shared || crossing(a, b, c, d).is_none(), "leads of paths {number} and {other} cross");
+            }
+        }
+    }
+    assert_eq!(planned.report.precedence_violations, Some(0));
+}
+
+/// Kerf through the pipeline: the report names it, and parts drawn touching
+/// are refused naming both.
+#[test]
+fn kerf_through_the_pipeline_is_reported_and_touching_parts_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let spaced = dir.path().join("spaced.svg");
+    std::fs::write(
+        &spaced,
+        r##"<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="60mm" viewBox="0 0 100 60">
+<rect id="left" x="10" y="10" width="30" height="30" fill="none" stroke="#000000"/>
+<rect id="right" x="40.3" y="10" width="30" height="30" fill="none" stroke="#000000"/>
+<circle id="hole" cx="25" cy="25" r="5" fill="none" stroke="#000000"/>
+</svg>"##,
+    )
+    .unwrap();
+    let machine = flatbed_with("kerf = 0.3\nkerf_corners = \"sharp\"");
+    let planned = laserd::run::plan(&spaced, &machine, PlannerKind::Auto, None).unwrap();
+    assert_eq!(planned.report.kerf_mm, Some(0.3));
+    let (lo, hi) = planned.job.bounds();
+    assert!((lo.x - 9.85).abs() < 1e-4 && (hi.x - 70.45).abs() < 1e-4, "{lo:?} {hi:?}");
+    // A kerf apart: the two parts share the cut between them.
+    assert!(planned.report.cut_length_mm < planned.job.mark_length() - 29.0, "{} of {}", planned.report.cut_length_mm, planned.job.mark_length());
+    let touching = dir.path().join("touching.svg");
+    std::fs::write(&touching, std::fs::read_to_string(&spaced).unwrap().replace("x=\"40.3\"", "x=\"40\"")).unwrap();
+    let err = laserd::run::plan(&touching, &machine, PlannerKind::Auto, None).err().unwrap().to_string();
+    assert!(err.contains("'left'") || err.contains("left"), "{err}");
+    assert!(err.contains("closer than the kerf"), "{err}");
+}
