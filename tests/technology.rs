@@ -24,8 +24,11 @@ fn flatbed_with(settings: &str) -> MachineConfig {
 /// Segments in square buckets, for finding the ones near a point or segment.
 struct Buckets {
     cell: f64,
-    map: HashMap<(i64, i64), Vec<(Point, Point, usize)>>,
+    map: HashMap<(i64, i64), Vec<Tagged>>,
 }
+
+/// A segment and whose it is.
+type Tagged = (Point, Point, usize);
 
 impl Buckets {
     fn new(cell: f64) -> Buckets {
@@ -44,7 +47,7 @@ impl Buckets {
         }
     }
 
-    fn near(&self, a: Point, b: Point, margin: f64) -> Vec<(Point, Point, usize)> {
+    fn near(&self, a: Point, b: Point, margin: f64) -> Vec<Tagged> {
         self.cells(a, b, margin).flat_map(|c| self.map.get(&c).into_iter().flatten().copied()).collect()
     }
 }
@@ -133,7 +136,7 @@ fn leads_on_a_dense_generated_sheet_pierce_in_the_waste_and_cross_nothing() {
     assert!(with_lead * 10 >= pierces.len() * 9, "{with_lead} of {} pierces have a lead-in", pierces.len());
     for p in pierces.iter().filter(|p| p.lead_in > 0) {
         let pierce = p.points[0];
-        assert!(depth(job, pierce) % 2 == 0, "pierce {pierce:?} lies in a part");
+        assert!(depth(job, pierce).is_multiple_of(2), "pierce {pierce:?} lies in a part");
         let nearest = drawing.near(pierce, pierce, 0.2).iter().map(|&(a, b, _)| point_to_segment(pierce, a, b)).fold(f64::INFINITY, f64::min);
         assert!(nearest >= 0.1 - 1e-9, "pierce {pierce:?} is {nearest} mm from a contour");
     }
