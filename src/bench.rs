@@ -405,7 +405,7 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
         let sequence = crate::plan::nearest::NearestNeighbour.plan(&job, &ctx)?;
         let topology = topology(&job, &machine.cutting)?;
         // Every contour of the sheet is cut through, whatever the config's layers.
-        let violations = whole_geometry_violations(&topology, &sequence, &vec![true; job.geometries.len()]).len();
+        let violations = whole_geometry_violations(&topology, &sequence, &vec![true; job.geometries.len()], &[]).len();
         Ok((sequence, violations))
     })?;
     let constructed = |build: fn(&crate::plan::ecp::Instance) -> Vec<crate::plan::ecp::Cut>| {

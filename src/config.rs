@@ -998,6 +998,20 @@ pub struct LayerConfig {
     /// that the part stays in the sheet (taken out by hand later).
     #[serde(default)]
     pub closing_gap: f64,
+    /// Micro-joints on every part outline of the layer: this many, evenly
+    /// spaced (0: none) ...
+    #[serde(default)]
+    pub tabs: u32,
+    /// ... or one every this many mm of outline (0: by count).
+    #[serde(default)]
+    pub tab_spacing: f64,
+    /// The length of outline each tab leaves uncut (mm).
+    #[serde(default = "tab_width")]
+    pub tab_width: f64,
+}
+
+fn tab_width() -> f64 {
+    0.5
 }
 
 fn lead_length() -> f64 {
@@ -1258,6 +1272,9 @@ impl MachineConfig {
                     in_range(&name(setting), length, 0.05, LEAD_LENGTH.hi, "mm (a lead needs a length)")?;
                 }
             }
+            in_range(&name("tabs"), l.tabs, 0, 1000, "tabs per outline")?;
+            in_range(&name("tab_spacing"), l.tab_spacing, 0.0, TRAVEL.hi, "mm (0: by count)")?;
+            in_range(&name("tab_width"), l.tab_width, 0.01, 50.0, "mm")?;
             if l.overcut > 0.0 && l.closing_gap > 0.0 {
                 return Err(format!("{}: a contour is either cut past its start (overcut) or left short of it (closing_gap), not both", name("closing_gap")));
             }
@@ -1679,6 +1696,9 @@ mod tests {
             ("layer.1.lead_out_angle", F(181.0)),
             ("layer.1.overcut", F(f64::NAN)),
             ("layer.1.closing_gap", F(-0.5)),
+            ("layer.1.tabs", I(1001)),
+            ("layer.1.tab_spacing", F(-1.0)),
+            ("layer.1.tab_width", F(0.0)),
         ];
         for (path, value) in cases {
             let shown = value.to_string();

@@ -61,6 +61,9 @@ pub struct PlanReport {
     /// or end (between parts that share their cuts).
     #[serde(default)]
     pub leads_skipped: usize,
+    /// Tabs (micro-joints) left uncut on part outlines (`[[layer]] tabs`).
+    #[serde(default)]
+    pub tabs: usize,
     /// Length cut on layers that pierce, every pass counted, mm.
     #[serde(default)]
     pub cut_length_mm: f64,
@@ -124,6 +127,9 @@ impl PlanReport {
             s.push_str(&format!("  cutting {:.1} mm with {} pierces", self.cut_length_mm, self.pierces));
             if let Some(kerf) = self.kerf_mm {
                 s.push_str(&format!(", offset by half the kerf of {kerf} mm"));
+            }
+            if self.tabs > 0 {
+                s.push_str(&format!(", {} tabs left uncut", self.tabs));
             }
             if self.lead_ins + self.lead_outs > 0 {
                 s.push_str(&format!(", {} lead-ins ({} moved for room), {} lead-outs", self.lead_ins, self.lead_ins_moved, self.lead_outs));

@@ -184,3 +184,48 @@ fn kerf_through_the_pipeline_is_reported_and_touching_parts_are_refused() {
     assert!(err.contains("'left'") || err.contains("left"), "{err}");
     assert!(err.contains("closer than the kerf"), "{err}");
 }
+
+/// Tabs: each leaves its width of a part's outline uncut, a tabbed part's
+/// hole need not come before its outline (the planner and the checker both
+/// treat the part as staying), and tabs that would take half an outline are
+/// refused naming the part and the setting.
+#[test]
+fn tabs_leave_the_outline_uncut_where_they_are_and_hold_the_part() {
+    use laserd::plan::cutting::{topology, whole_geometry_violations};
+    use laserd::plan::{tabs, PathGroup, PlannedPath, Sequence};
+    let dir = tempfile::tempdir().unwrap();
+    let job_path = dir.path().join("part.svg");
+    std::fs::write(
+        &job_path,
+        r##"<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="60mm" viewBox="0 0 100 60">
+<rect id="part" x="10" y="10" width="50" height="30" fill="none" stroke="#000000"/>
+<circle id="hole" cx="25" cy="25" r="5" fill="none" stroke="#000000"/>
+</svg>"##,
+    )
+    .unwrap();
+    let plain = laserd::run::plan(&job_path, &flatbed_with(""), PlannerKind::Auto, None).unwrap();
+    let machine = flatbed_with("tabs = 3\ntab_width = 1.2");
+    let tabbed = laserd::run::plan(&job_path, &machine, PlannerKind::Auto, None).unwrap();
+    assert_eq!((plain.report.tabs, tabbed.report.tabs), (0, 3));
+    let uncut = plain.report.cut_length_mm - tabbed.report.cut_length_mm;
+    assert!((uncut - 3.6).abs() < 1e-6, "3 tabs of 1.2 mm: {uncut}");
+    assert_eq!(tabbed.report.precedence_violations, Some(0));
+    // The cut goes on past each tab with a pierce.
+    assert_eq!(tabbed.report.pierces, plain.report.pierces + 3);
+
+    // The outline before the hole: a broken rule, unless tabs hold the part.
+    let job = &plain.job;
+    let outline = job.geometries.iter().position(|g| g.source.contains("part")).unwrap();
+    let hole = 1 - outline;
+    let whole = |k: usize| PlannedPath::new(k, job.geometries[k].points.clone(), 0, true);
+    let outline_first = Sequence { groups: vec![PathGroup { field_center: None, paths: vec![whole(outline), whole(hole)] }] };
+    let topo = topology(job, &machine.cutting).unwrap();
+    assert_eq!(whole_geometry_violations(&topo, &outline_first, &[true], &[]).len(), 1);
+    let held = tabs::held(&tabs::place(job, &machine).unwrap());
+    assert!(held[outline]);
+    assert!(!held[hole], "holes get no tabs");
+    assert!(whole_geometry_violations(&topo, &outline_first, &[true], &held).is_empty());
+
+    let err = laserd::run::plan(&job_path, &flatbed_with("tabs = 40\ntab_width = 2.0"), PlannerKind::Auto, None).err().unwrap().to_string();
+    assert!(err.contains("part") && err.contains("tab_width") && err.contains("less than half"), "{err}");
+}

@@ -50,6 +50,7 @@ impl CuttingPlan {
             search_stopped_by: self.search_stopped_by,
             edge_length_saved_mm: self.edge_length_saved_mm,
             leads: Default::default(),
+            tabs: 0,
         }
     }
 }
@@ -83,10 +84,15 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     let started = Instant::now();
     check_reach(job, ctx.machine, ctx.mode)?;
     let settings = &ctx.machine.cutting;
-    let model = match ctx.plate {
+    let mut model = match ctx.plate {
         Some(plate) => CuttingModel::with_plate(job, plate, 0, ctx.start, settings.pierce_cost, &topology_options(settings))?,
         None => cutting_model(job, ctx.start, settings)?,
     };
+    // A part held by tabs stays where it is when its outline is cut: what
+    // lies inside it need not come first (contour k < the job's geometries
+    // is geometry k, with or without a plate).
+    let held = super::tabs::held(&super::tabs::place(job, ctx.machine)?);
+    model.instance.inner_outer.retain(|&(_, outer)| !held.get(outer).copied().unwrap_or(false));
     let inst = &model.instance;
     // A time limit (none by default) is for the whole planning step, topology
     // included, with a little kept back for turning the route into paths.
@@ -111,7 +117,7 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     let broken_rules = match ctx.plate {
         // The plate's regions are contours beyond the job's geometries:
         // named after them (see `describe`).
-        Some(plate) => checker::check_plate(&model.topology, plate, &model.topology_route(&route))
+        Some(plate) => checker::check_plate(&model.topology, plate, &model.topology_route(&route), &held)
             .into_iter()
             .map(|v| renumbered(v, |c| if c >= plate.first_cut { job.geometries.len() + c - plate.first_cut } else { c }))
             .collect(),
@@ -226,7 +232,7 @@ pub fn cuts_through(job: &Job, machine: &MachineConfig) -> Vec<bool> {
 /// nearest contour around it that cuts through (`cuts`), its part having
 /// fallen out by then. A marking contour holds nothing: what lies inside an
 /// engraved frame belongs to the part the frame is on.
-pub fn whole_geometry_violations(topology: &Topology, sequence: &Sequence, cuts: &[bool]) -> Vec<Violation> {
+pub fn whole_geometry_violations(topology: &Topology, sequence: &Sequence, cuts: &[bool], held: &[bool]) -> Vec<Violation> {
     let mut closes = vec![None; topology.outer.len()];
     for (i, p) in sequence.paths().enumerate() {
         if let Some(c) = closes.get_mut(p.geometry) {
@@ -244,7 +250,7 @@ pub fn whole_geometry_violations(topology: &Topology, sequence: &Sequence, cuts:
     };
     (0..topology.outer.len())
         .filter_map(|inner| part_around(inner).map(|outer| (inner, outer)))
-        .filter(|&(inner, outer)| closes[inner] >= closes[outer])
+        .filter(|&(inner, outer)| closes[inner] >= closes[outer] && !held.get(outer).copied().unwrap_or(false))
         .map(|(inner, outer)| Violation::InnerAfterOuter { inner, outer })
         .collect()
 }
@@ -258,7 +264,8 @@ pub fn sequence_violations(job: &Job, sequence: &Sequence, ctx: &PlanContext) ->
         return Some(Vec::new());
     }
     let topology = topology(job, &ctx.machine.cutting).ok()?;
-    Some(whole_geometry_violations(&topology, sequence, &cuts))
+    let held = super::tabs::held(&super::tabs::place(job, ctx.machine).ok()?);
+    Some(whole_geometry_violations(&topology, sequence, &cuts, &held))
 }
 
 /// A broken rule in words, its geometries named as the job names them
@@ -325,7 +332,7 @@ mod tests {
         };
         let seq = |order: &[usize]| Sequence { groups: vec![PathGroup { field_center: None, paths: order.iter().map(|&g| path(g, (0.0, 0.0), (1.0, 0.0))).collect() }] };
         let all_cut = [true; 3];
-        let broken = |order: &[usize], cuts: &[bool]| whole_geometry_violations(&model, &seq(order), cuts);
+        let broken = |order: &[usize], cuts: &[bool]| whole_geometry_violations(&model, &seq(order), cuts, &[]);
         assert_eq!(broken(&[2, 1, 0], &all_cut), vec![]);
         assert_eq!(broken(&[0, 1, 2], &all_cut), vec![Violation::InnerAfterOuter { inner: 1, outer: 0 }, Violation::InnerAfterOuter { inner: 2, outer: 1 }]);
         // A second pass of the outer after its inner: closed last, fine.

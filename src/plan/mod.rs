@@ -11,6 +11,7 @@ pub mod lead;
 pub mod nearest;
 pub mod split;
 pub mod stop;
+pub mod tabs;
 
 use std::str::FromStr;
 
@@ -172,6 +173,8 @@ pub struct PlanOutcome {
     pub edge_length_saved_mm: f64,
     /// The lead-ins and lead-outs added to the paths.
     pub leads: lead::LeadCount,
+    /// Tabs left uncut on part outlines.
+    pub tabs: usize,
 }
 
 /// Plans `job` with the planner `kind` stands for, and judges its order: the
@@ -182,8 +185,9 @@ pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
     outcome.sequence = split_profiles(outcome.sequence, job);
     let (settings, waste, travel) = lead::settings(job, ctx.machine);
     let leads = lead::add_leads(job, outcome.sequence, &settings, &waste, travel, ctx.machine.import.tolerance)?;
-    outcome.sequence = leads.sequence;
     outcome.leads = leads.count;
+    let tabs = tabs::place(job, ctx.machine)?;
+    (outcome.sequence, outcome.tabs) = tabs::cut_tabs(leads.sequence, &tabs, ctx.machine.cutting.common_cut_tolerance);
     Ok(outcome)
 }
 
@@ -198,7 +202,7 @@ fn plan_ordered(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
                 _ => (planner.plan(job, ctx)?, stop::SearchStop::Budget),
             };
             let broken_rules = cutting::sequence_violations(job, &sequence, ctx);
-            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default() })
+            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0 })
         }
     }
 }

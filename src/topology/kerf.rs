@@ -18,8 +18,7 @@ use cavalier_contours::polyline::{seg_closest_point, PlineCreation, PlineOffsetO
 use rstar::primitives::GeomWithData;
 use rstar::{RTree, AABB};
 
-use super::containment::{self, Outline};
-use super::{contours, rect, Box2};
+use super::{rect, Box2};
 use crate::config::KerfCorners;
 use crate::error::{Error, Result};
 use crate::job::{arc_points, segment_distance, ArcSpan, Geometry, Job, Point};
@@ -60,13 +59,11 @@ pub fn compensate(job: &Job, layers: &[KerfLayer], tolerance: f64) -> Result<Ker
     if !job.geometries.iter().any(|g| g.closed && kerf_of(g) > 0.0) {
         return Ok(Kerfed { job: job.clone(), offset: 0, kerf_mm: 0.0 });
     }
-    // Which contours are parts and which holes: the containment levels of
-    // the closed contours that cut (an engraved outline is neither).
-    let cutting: Vec<usize> =
-        (0..job.geometries.len()).filter(|&k| job.geometries[k].closed && layers.get(job.geometries[k].process).is_some_and(|l| l.cuts || l.kerf > 0.0)).collect();
-    let shapes = cutting.iter().map(|&k| contours::clean(&job.geometries[k])).collect::<Result<Vec<_>>>()?;
-    let outlines: Vec<Outline> = shapes.iter().map(|s| (s.points.as_slice(), true)).collect();
-    let levels = containment::levels(&containment::containment(&outlines, EXACT_MM.max(tolerance * 1e-3)));
+    // Which contours are parts and which holes.
+    let cuts: Vec<bool> = layers.iter().map(|l| l.cuts || l.kerf > 0.0).collect();
+    let part_levels = super::part_levels(job, &cuts)?;
+    let cutting: Vec<usize> = (0..job.geometries.len()).filter(|&k| part_levels[k].is_some()).collect();
+    let levels: Vec<usize> = cutting.iter().map(|&k| part_levels[k].unwrap_or(0)).collect();
 
     let mut out = job.clone();
     let (mut offset, mut kerf_mm) = (0, 0.0f64);

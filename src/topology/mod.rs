@@ -176,6 +176,22 @@ impl Topology {
     }
 }
 
+/// Per geometry of `job`: its level among the closed contours that cut parts
+/// out (`cuts`, per process) — a part's outline even, a hole odd — or `None`
+/// for the others (open paths, engraved outlines). Errors as
+/// [`Topology::build`] does on a degenerate contour.
+pub fn part_levels(job: &Job, cuts: &[bool]) -> Result<Vec<Option<usize>>> {
+    let cutting: Vec<usize> = (0..job.geometries.len()).filter(|&k| job.geometries[k].closed && cuts.get(job.geometries[k].process).copied().unwrap_or(false)).collect();
+    let shapes = cutting.iter().map(|&k| contours::clean(&job.geometries[k])).collect::<Result<Vec<_>>>()?;
+    let outlines: Vec<containment::Outline> = shapes.iter().map(|s| (s.points.as_slice(), true)).collect();
+    let levels = containment::levels(&containment::containment(&outlines, 1e-7));
+    let mut out = vec![None; job.geometries.len()];
+    for (c, &k) in cutting.iter().enumerate() {
+        out[k] = Some(levels[c]);
+    }
+    Ok(out)
+}
+
 fn inner_outer(outer: &[Option<usize>]) -> Vec<(usize, usize)> {
     outer.iter().enumerate().filter_map(|(k, o)| o.map(|o| (k, o))).collect()
 }

@@ -73,8 +73,9 @@ pub fn check(inst: &Instance, route: &[Cut]) -> Vec<Violation> {
 /// it; a contour closes at its last element cut; no rule binds a fixed
 /// region (clamped, the remnant, the largest without clamps, all of them
 /// when cut after the parts): neither what waits for it, nor it waiting
-/// inside another, nor its common cuts.
-pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut]) -> Vec<Violation> {
+/// inside another, nor its common cuts. Nothing waits for a contour `held`
+/// in the sheet by tabs either (per contour; missing: not held).
+pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut], held: &[bool]) -> Vec<Violation> {
     let uncut: Vec<bool> = topology.elements.iter().map(|e| plate.uncut(e)).collect();
     let fixed: Vec<bool> = (0..topology.contours.len()).map(|c| plate.is_fixed(c)).collect();
     let (position, mut violations) = positions(route, &uncut.iter().map(|&u| usize::from(!u)).collect::<Vec<_>>());
@@ -85,7 +86,7 @@ pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut]) -> V
     let pos = |e: usize| position[e].map_or(-1, |p| p as i64);
     let closes = |k: usize| topology.contours[k].iter().map(|&e| pos(e)).max().unwrap_or(-1);
     for (inner, outer) in topology.inner_outer() {
-        if fixed[outer] || fixed[inner] || closes(outer) < 0 {
+        if fixed[outer] || fixed[inner] || closes(outer) < 0 || held.get(outer).copied().unwrap_or(false) {
             continue;
         }
         if topology.contours[inner].iter().any(|&e| position[e].is_some() && pos(e) >= closes(outer)) {

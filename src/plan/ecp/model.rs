@@ -275,7 +275,7 @@ mod tests {
         let edge_ends: usize = corner.iter().map(|&e| m.instance.edge_starts[e].iter().filter(|&&b| b).count()).sum();
         assert_eq!(edge_ends, 2);
         let route = crate::plan::ecp::construct::construct(&m.instance);
-        assert_eq!(checker::check_plate(&m.topology, &plate, &m.topology_route(&route)), vec![]);
+        assert_eq!(checker::check_plate(&m.topology, &plate, &m.topology_route(&route), &[]), vec![]);
         let lines = m.polylines(&route);
         let pierced = lines.iter().filter(|l| l.pierce).count();
         assert!(lines.iter().any(|l| !l.pierce && plate.on_edge(l.points[0])), "the corner part is cut from the edge");
@@ -283,7 +283,7 @@ mod tests {
         // Cutting an edge element, or leaving a cut out, breaks the count.
         let mut bad = m.topology_route(&route);
         bad.pop();
-        assert!(!checker::check_plate(&m.topology, &plate, &bad).is_empty());
+        assert!(!checker::check_plate(&m.topology, &plate, &bad, &[]).is_empty());
     }
 
     #[test]
@@ -310,7 +310,7 @@ mod tests {
             }
         }
         route.extend(m.instance.contours[inside].iter().map(|&element| Cut { element, reversed: false }));
-        let broken = checker::check_plate(&m.topology, &plate, &m.topology_route(&route));
+        let broken = checker::check_plate(&m.topology, &plate, &m.topology_route(&route), &[]);
         assert!(broken.iter().any(|v| matches!(v, checker::Violation::InnerAfterOuter { outer, .. } if *outer == free_piece)), "{broken:?}");
         assert_eq!(checker::check(&m.instance, &route).is_empty(), broken.is_empty(), "the instance has the same rules");
         // Clamped on both sides, nothing waits for the pieces.
@@ -319,7 +319,7 @@ mod tests {
         let (laid, plate) = lay_out(&j, &[true, true], &clamped, 0, &options).unwrap();
         let m = CuttingModel::with_plate(&laid, &plate, 0, p(0.0, 0.0), 10.0, &options).unwrap();
         assert!(m.instance.inner_outer.is_empty() && m.instance.common_cuts().is_empty());
-        assert_eq!(checker::check_plate(&m.topology, &plate, &m.topology_route(&route)), vec![]);
+        assert_eq!(checker::check_plate(&m.topology, &plate, &m.topology_route(&route), &[]), vec![]);
     }
 
     #[test]
@@ -354,11 +354,11 @@ mod tests {
             .chain(&m.instance.contours[1])
             .map(|&element| Cut { element, reversed: false })
             .collect();
-        let broken = checker::check_plate(&m.topology, &plate, &m.topology_route(&arch_first));
+        let broken = checker::check_plate(&m.topology, &plate, &m.topology_route(&arch_first), &[]);
         assert!(broken.iter().any(|v| matches!(v, checker::Violation::InnerAfterOuter { inner: 1, .. })), "{broken:?}");
         assert!(broken.iter().any(|v| matches!(v, checker::Violation::ClosesBoth { .. })), "{broken:?}");
         // The search's route keeps both rules.
         let route = crate::plan::ecp::construct::construct(&m.instance);
-        assert_eq!(checker::check_plate(&m.topology, &plate, &m.topology_route(&route)), vec![]);
+        assert_eq!(checker::check_plate(&m.topology, &plate, &m.topology_route(&route), &[]), vec![]);
     }
 }
