@@ -1,9 +1,11 @@
 //! `laserd plan --plot OUT.svg`: a picture of a plan, to see the order and the
 //! split between scanner and stage at a glance.
 //!
-//! Top: the machine's travel with the geometries (grey), the scan fields
+//! Top: the machine's travel with the geometries (grey; with a kerf, the
+//! offset paths, the drawn contours thin dashed over them), the scan fields
 //! (usable squares, blue), the TCP path (marking solid black, laser-off jumps
-//! dashed red) and the stage path (green, a dot per stage position). Bottom:
+//! dashed red), lead-ins (orange) and lead-outs (purple), pierces (red dots),
+//! tabs (blue rings) and the stage path (green, a dot per stage position). Bottom:
 //! the scanner's field use over time (largest |scanner axis| / half the
 //! usable field; 1 is the field's edge). Machine y points up; the picture is
 //! drawn that way.
@@ -23,7 +25,7 @@ const TIME_PLOT_SHARE: f64 = 0.25;
 const TIME_SAMPLES: usize = 600;
 
 /// The picture as SVG text (mm units).
-pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &MachineConfig) -> String {
+pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &MachineConfig, drawn: Option<&Job>) -> String {
     let half = machine.scanner.as_ref().map(|s| s.usable_half_field);
     // The drawing spans the travel and everything drawn (fields may reach past it).
     let (mut lo, mut hi) = (Point::new(0.0, 0.0), Point::new(machine.stage.travel_x, machine.stage.travel_y));
@@ -73,6 +75,17 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
         polyline(&mut svg, "", &points, &format!(r##"stroke="#bbb" stroke-width="{:.3}""##, 2.0 * stroke));
     }
     let _ = writeln!(svg, "</g>");
+    if let Some(drawn) = drawn {
+        let _ = writeln!(svg, r#"<g id="drawn">"#);
+        for g in &drawn.geometries {
+            let mut points = g.points.clone();
+            if g.closed && !points.is_empty() {
+                points.push(points[0]);
+            }
+            polyline(&mut svg, "", &points, &format!(r##"stroke="#555" stroke-width="{:.3}" stroke-dasharray="{:.3}""##, 0.5 * stroke, 2.0 * stroke));
+        }
+        let _ = writeln!(svg, "</g>");
+    }
     if let Some(h) = half {
         let _ = writeln!(svg, r#"<g id="fields">"#);
         for group in &sequence.groups {
@@ -128,6 +141,26 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
         }
     }
     flush(&mut svg, &mut run, marking);
+    let _ = writeln!(svg, "</g>");
+    // Cutting technology: leads, pierces, tabs.
+    let _ = writeln!(svg, r#"<g id="technology">"#);
+    for p in sequence.paths() {
+        let n = p.points.len();
+        if p.lead_in > 0 {
+            polyline(&mut svg, "", &p.points[..=p.lead_in], &format!(r#"class="lead-in" stroke="orange" stroke-width="{:.3}""#, 1.5 * stroke));
+        }
+        if p.lead_out > 0 {
+            polyline(&mut svg, "", &p.points[n - 1 - p.lead_out..], &format!(r#"class="lead-out" stroke="purple" stroke-width="{:.3}""#, 1.5 * stroke));
+        }
+        if p.pierce && machine.pierce(&job.processes[p.process].layer).active() {
+            let (x, y) = at(p.points[0]);
+            let _ = writeln!(svg, r#"<circle class="pierce" cx="{x:.3}" cy="{y:.3}" r="{:.3}" fill="red"/>"#, 1.5 * stroke);
+        }
+    }
+    for tab in crate::plan::tabs::place(job, machine).unwrap_or_default().iter().flatten() {
+        let (x, y) = at(tab.centre);
+        let _ = writeln!(svg, r##"<circle class="tab" cx="{x:.3}" cy="{y:.3}" r="{:.3}" fill="none" stroke="#36c" stroke-width="{stroke:.3}"/>"##, tab.width.max(3.0 * stroke));
+    }
     let _ = writeln!(svg, "</g>");
     // The stage path, with a dot where it rests (the start and the end of
     // each of its moves).
@@ -213,7 +246,7 @@ mod tests {
         let ctx = PlanContext { machine: &machine, mode: Mode::StepAndScan, start: Point::origin(), plate: None };
         let sequence = planner(PlannerKind::Hha).plan(&job, &ctx).unwrap();
         let trajectory = crate::motion::build(&job, &sequence, &machine, Mode::StepAndScan, Point::origin()).unwrap();
-        let svg = plot(&job, &sequence, &trajectory, &machine);
+        let svg = plot(&job, &sequence, &trajectory, &machine, None);
         // It parses as SVG.
         usvg::Tree::from_str(&svg, &usvg::Options::default()).unwrap();
         let fields = svg.split(r#"<g id="fields">"#).nth(1).unwrap().split("</g>").next().unwrap().matches("<rect").count();

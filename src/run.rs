@@ -43,6 +43,8 @@ pub struct Planned {
     /// The precedence rules the order breaks, in words (`None`: unknown,
     /// the job's topology could not be built).
     pub broken_rules: Option<Vec<String>>,
+    /// The job as drawn, where kerf offsets made `job` differ from it.
+    pub drawn: Option<Job>,
 }
 
 pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: Option<Mode>) -> Result<Planned> {
@@ -50,7 +52,8 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     mode.check(machine)?;
     let job = import_job(job_path, machine)?;
     let kerfed = kerf::compensate(&job, &kerf_layers(&job, machine), machine.import.tolerance)?;
-    let (job, kerf_mm) = (kerfed.job, (kerfed.offset > 0).then_some(kerfed.kerf_mm));
+    let (drawn, kerf_mm) = ((kerfed.offset > 0).then_some(job), (kerfed.offset > 0).then_some(kerfed.kerf_mm));
+    let job = kerfed.job;
     // In step-and-scan a geometry larger than the scanner's usable field is
     // split at field borders into pieces, which are then the job's geometries
     // from planning to the report; with splitting off, the job fails naming it.
@@ -151,7 +154,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         recording: None,
         config: None,
     };
-    Ok(Planned { job, sequence, trajectory, program, report, broken_rules })
+    Ok(Planned { job, sequence, trajectory, program, report, broken_rules, drawn })
 }
 
 /// Per process of `job`: its layer's kerf, and whether its contours cut parts out.

@@ -174,6 +174,9 @@ fn kerf_through_the_pipeline_is_reported_and_touching_parts_are_refused() {
     let machine = flatbed_with("kerf = 0.3\nkerf_corners = \"sharp\"");
     let planned = laserd::run::plan(&spaced, &machine, PlannerKind::Auto, None).unwrap();
     assert_eq!(planned.report.kerf_mm, Some(0.3));
+    // The picture shows the drawn contours over the offset paths.
+    let picture = laserd::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, &machine, planned.drawn.as_ref());
+    assert!(picture.contains(r#"<g id="drawn">"#) && planned.drawn.as_ref().is_some_and(|d| d.geometries.len() == 3));
     let (lo, hi) = planned.job.bounds();
     assert!((lo.x - 9.85).abs() < 1e-4 && (hi.x - 70.45).abs() < 1e-4, "{lo:?} {hi:?}");
     // A kerf apart: the two parts share the cut between them.
@@ -212,6 +215,9 @@ fn tabs_leave_the_outline_uncut_where_they_are_and_hold_the_part() {
     assert_eq!(tabbed.report.precedence_violations, Some(0));
     // The cut goes on past each tab with a pierce.
     assert_eq!(tabbed.report.pierces, plain.report.pierces + 3);
+    let picture = laserd::plot::plot(&tabbed.job, &tabbed.sequence, &tabbed.trajectory, &machine, tabbed.drawn.as_ref());
+    assert_eq!(picture.matches(r#"class="tab""#).count(), 3);
+    assert_eq!(picture.matches(r#"class="pierce""#).count(), tabbed.report.pierces);
 
     // The outline before the hole: a broken rule, unless tabs hold the part.
     let job = &plain.job;

@@ -249,7 +249,7 @@ pub fn plan(args: PlanArgs) -> Result<ExitCode> {
         write_file(out, planned.program.to_gcode())?;
     }
     if let Some(out) = &plot {
-        write_file(out, laserd::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, &machine))?;
+        write_file(out, laserd::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, &machine, planned.drawn.as_ref()))?;
     }
     if json {
         print_json(&planned.report)?;
