@@ -704,6 +704,11 @@ pub struct CuttingConfig {
     #[serde(default, with = "search_kind")]
     #[schemars(with = "String")]
     pub search: SearchKind,
+    /// Bridges (seed 000): where a cut ends at most this far (mm) from where
+    /// the next one starts with a pierce, cut straight across the waste to it
+    /// if that is faster than the air move and the pierce; 0: no bridges.
+    #[serde(default)]
+    pub bridge_max: f64,
 }
 
 /// Which search improves the cutting planner's construction (`[cutting] search`).
@@ -796,6 +801,7 @@ impl Default for CuttingConfig {
             corner_angle: default_corner_angle(),
             time_limit: None,
             search: Default::default(),
+            bridge_max: 0.0,
         }
     }
 }
@@ -1225,6 +1231,7 @@ impl MachineConfig {
         in_range("cutting.pierce_cost", c.pierce_cost, 0.0, TRAVEL.hi, TRAVEL.unit)?;
         TOLERANCE.check("cutting.common_cut_tolerance", c.common_cut_tolerance)?;
         in_range("cutting.corner_angle", c.corner_angle, 1.0, 180.0, "degrees")?;
+        in_range("cutting.bridge_max", c.bridge_max, 0.0, 1000.0, "mm (0: no bridges)")?;
         if let Some(t) = c.time_limit {
             TIME_LIMIT.check("cutting.time_limit", t)?;
         }
@@ -1675,6 +1682,8 @@ mod tests {
             ("cutting.common_cut_tolerance", F(1e-300)),
             ("cutting.corner_angle", F(1e-300)),
             ("cutting.corner_angle", F(720.0)),
+            ("cutting.bridge_max", F(-1.0)),
+            ("cutting.bridge_max", F(1e4)),
             ("cutting.time_limit", F(1e-300)),
             ("galvo.direction_weight", F(1e300)),
             ("galvo.direction_weight_single_field", F(-0.5)),

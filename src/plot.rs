@@ -4,7 +4,7 @@
 //! Top: the machine's travel with the geometries (grey; with a kerf, the
 //! offset paths, the drawn contours thin dashed over them), the scan fields
 //! (usable squares, blue), the TCP path (marking solid black, laser-off jumps
-//! dashed red), lead-ins (orange) and lead-outs (purple), pierces (red dots),
+//! dashed red), lead-ins (orange), lead-outs (purple), bridges (teal), pierces (red dots),
 //! tabs (blue rings) and the stage path (green, a dot per stage position). Bottom:
 //! the scanner's field use over time (largest |scanner axis| / half the
 //! usable field; 1 is the field's edge). Machine y points up; the picture is
@@ -146,8 +146,12 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
     let _ = writeln!(svg, r#"<g id="technology">"#);
     for p in sequence.paths() {
         let n = p.points.len();
-        if p.lead_in > 0 {
-            polyline(&mut svg, "", &p.points[..=p.lead_in], &format!(r#"class="lead-in" stroke="orange" stroke-width="{:.3}""#, 1.5 * stroke));
+        let bridge = usize::from(p.bridge);
+        if p.bridge {
+            polyline(&mut svg, "", &p.points[..=1], &format!(r#"class="bridge" stroke="teal" stroke-width="{:.3}""#, 2.0 * stroke));
+        }
+        if p.lead_in > bridge {
+            polyline(&mut svg, "", &p.points[bridge..=p.lead_in], &format!(r#"class="lead-in" stroke="orange" stroke-width="{:.3}""#, 1.5 * stroke));
         }
         if p.lead_out > 0 {
             polyline(&mut svg, "", &p.points[n - 1 - p.lead_out..], &format!(r#"class="lead-out" stroke="purple" stroke-width="{:.3}""#, 1.5 * stroke));

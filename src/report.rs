@@ -64,6 +64,12 @@ pub struct PlanReport {
     /// Tabs (micro-joints) left uncut on part outlines (`[[layer]] tabs`).
     #[serde(default)]
     pub tabs: usize,
+    /// Bridges cut across the waste from one cut to the next instead of an
+    /// air move and a pierce (`[cutting] bridge_max`), and the pierces they save.
+    #[serde(default)]
+    pub bridges: usize,
+    #[serde(default)]
+    pub pierces_saved: usize,
     /// Length cut on layers that pierce, every pass counted, mm.
     #[serde(default)]
     pub cut_length_mm: f64,
@@ -127,6 +133,9 @@ impl PlanReport {
             s.push_str(&format!("  cutting {:.1} mm with {} pierces", self.cut_length_mm, self.pierces));
             if let Some(kerf) = self.kerf_mm {
                 s.push_str(&format!(", offset by half the kerf of {kerf} mm"));
+            }
+            if self.bridges > 0 {
+                s.push_str(&format!(", {} bridges saving {} pierces", self.bridges, self.pierces_saved));
             }
             if self.tabs > 0 {
                 s.push_str(&format!(", {} tabs left uncut", self.tabs));

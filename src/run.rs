@@ -108,6 +108,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let outcome_edge_saved = outcome.edge_length_saved_mm;
     let outcome_leads = outcome.leads;
     let outcome_tabs = outcome.tabs;
+    let outcome_bridges = outcome.bridges;
     let sequence = outcome.sequence;
     let cut_paths = || sequence.paths().filter(|p| machine.pierce(&job.processes[p.process].layer).active());
     let broken_rules: Option<Vec<String>> = outcome.broken_rules.map(|rules| rules.iter().map(|r| describe(&job, r)).collect());
@@ -136,6 +137,8 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         lead_ins_moved: outcome_leads.moved,
         leads_skipped: outcome_leads.skipped,
         tabs: outcome_tabs,
+        bridges: outcome_bridges.bridges,
+        pierces_saved: outcome_bridges.pierces_saved,
         cut_length_mm: cut_paths().map(|p| p.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>()).sum(),
         edge_length_saved_mm: plate.as_ref().map(|_| outcome_edge_saved),
         edge_starts: plate.as_ref().map(|p| cut_paths().filter(|c| !c.pierce && p.on_edge(c.start())).count()),

@@ -21,6 +21,14 @@ fn flatbed_with(settings: &str) -> MachineConfig {
     MachineConfig::parse(&text.replacen("name = \"cut\"\n", &format!("name = \"cut\"\n{settings}\n"), 1), "flatbed.toml").unwrap()
 }
 
+/// An SVG document of 100 x 60 mm holding `body`, written to `dir/name`.
+fn svg_job(dir: &Path, name: &str, body: &str) -> std::path::PathBuf {
+    let path = dir.join(name);
+    let svg = format!("<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"100mm\" height=\"60mm\" viewBox=\"0 0 100 60\">\n{body}</svg>\n");
+    std::fs::write(&path, svg).unwrap();
+    path
+}
+
 /// Segments in square buckets, for finding the ones near a point or segment.
 struct Buckets {
     cell: f64,
@@ -161,16 +169,14 @@ fn leads_on_a_dense_generated_sheet_pierce_in_the_waste_and_cross_nothing() {
 #[test]
 fn kerf_through_the_pipeline_is_reported_and_touching_parts_are_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let spaced = dir.path().join("spaced.svg");
-    std::fs::write(
-        &spaced,
-        r##"<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="60mm" viewBox="0 0 100 60">
-<rect id="left" x="10" y="10" width="30" height="30" fill="none" stroke="#000000"/>
+    let spaced = svg_job(
+        dir.path(),
+        "spaced.svg",
+        r##"<rect id="left" x="10" y="10" width="30" height="30" fill="none" stroke="#000000"/>
 <rect id="right" x="40.3" y="10" width="30" height="30" fill="none" stroke="#000000"/>
 <circle id="hole" cx="25" cy="25" r="5" fill="none" stroke="#000000"/>
-</svg>"##,
-    )
-    .unwrap();
+"##,
+    );
     let machine = flatbed_with("kerf = 0.3\nkerf_corners = \"sharp\"");
     let planned = laserd::run::plan(&spaced, &machine, PlannerKind::Auto, None).unwrap();
     assert_eq!(planned.report.kerf_mm, Some(0.3));
@@ -197,15 +203,13 @@ fn tabs_leave_the_outline_uncut_where_they_are_and_hold_the_part() {
     use laserd::plan::cutting::{topology, whole_geometry_violations};
     use laserd::plan::{tabs, PathGroup, PlannedPath, Sequence};
     let dir = tempfile::tempdir().unwrap();
-    let job_path = dir.path().join("part.svg");
-    std::fs::write(
-        &job_path,
-        r##"<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="60mm" viewBox="0 0 100 60">
-<rect id="part" x="10" y="10" width="50" height="30" fill="none" stroke="#000000"/>
+    let job_path = svg_job(
+        dir.path(),
+        "part.svg",
+        r##"<rect id="part" x="10" y="10" width="50" height="30" fill="none" stroke="#000000"/>
 <circle id="hole" cx="25" cy="25" r="5" fill="none" stroke="#000000"/>
-</svg>"##,
-    )
-    .unwrap();
+"##,
+    );
     let plain = laserd::run::plan(&job_path, &flatbed_with(""), PlannerKind::Auto, None).unwrap();
     let machine = flatbed_with("tabs = 3\ntab_width = 1.2");
     let tabbed = laserd::run::plan(&job_path, &machine, PlannerKind::Auto, None).unwrap();
@@ -234,4 +238,56 @@ fn tabs_leave_the_outline_uncut_where_they_are_and_hold_the_part() {
 
     let err = laserd::run::plan(&job_path, &flatbed_with("tabs = 40\ntab_width = 2.0"), PlannerKind::Auto, None).err().unwrap().to_string();
     assert!(err.contains("part") && err.contains("tab_width") && err.contains("less than half"), "{err}");
+}
+
+/// Bridges: where one cut ends near the next one's pierce, the cut goes on
+/// across the waste instead; a bridge crosses no contour, runs through the
+/// waste and closes no piece of it (bridges join contours that do not touch
+/// otherwise, never twice the same pair of groups).
+#[test]
+fn bridges_replace_an_air_move_and_a_pierce_and_cut_only_waste() {
+    let dir = tempfile::tempdir().unwrap();
+    let params = SheetParams::with_target(1500);
+    let sheet = generate_sheet(&params, 2);
+    let path = dir.path().join("sheet.svg");
+    std::fs::write(&path, to_svg(&sheet, &params)).unwrap();
+    let text = std::fs::read_to_string(root().join("config/flatbed-cutter.toml")).unwrap();
+    let bridging = MachineConfig::parse(&text.replacen("search = \"ils\"\n", "search = \"ils\"\nbridge_max = 15.0\n", 1), "bridge.toml").unwrap();
+    let plain = laserd::run::plan(&path, &flatbed_with(""), PlannerKind::Auto, None).unwrap();
+    let bridged = laserd::run::plan(&path, &bridging, PlannerKind::Auto, None).unwrap();
+    let (b, saved) = (bridged.report.bridges, bridged.report.pierces_saved);
+    assert!(b > 0 && saved == b, "{b} bridges, {saved} pierces saved");
+    assert_eq!(bridged.report.pierces + saved, plain.report.pierces);
+    assert_eq!(bridged.report.precedence_violations, Some(0));
+    assert!(bridged.report.trajectory_time_s < plain.report.trajectory_time_s);
+    let job = &bridged.job;
+    let topology = laserd::plan::cutting::topology(job, &bridging.cutting).unwrap();
+    let mut parent: Vec<usize> = (0..topology.group_count()).collect();
+    fn root_of(parent: &mut [usize], mut k: usize) -> usize {
+        while parent[k] != k {
+            k = parent[k];
+        }
+        k
+    }
+    let paths: Vec<_> = bridged.sequence.paths().collect();
+    let mut drawing = Buckets::new(5.0);
+    for (k, g) in job.geometries.iter().enumerate() {
+        for i in 0..g.segments() {
+            drawing.add(g.points[i], g.points[(i + 1) % g.points.len()], k);
+        }
+    }
+    for i in (1..paths.len()).filter(|&i| paths[i].bridge) {
+        let (from, to) = (paths[i].points[0], paths[i].points[1]);
+        assert_eq!(from, paths[i - 1].points[paths[i - 1].points.len() - 1], "a bridge starts where the cut before ended");
+        assert!(!paths[i].pierce && (to - from).norm() <= 15.0);
+        assert!(depth(job, nalgebra::center(&from, &to)).is_multiple_of(2), "a bridge runs through the waste");
+        for (c, d, _) in drawing.near(from, to, 0.0) {
+            if let Some(x) = crossing(from, to, c, d) {
+                assert!((x - from).norm() < 1e-6 || (x - to).norm() < 1e-6, "a bridge crosses a contour at {x:?}");
+            }
+        }
+        let (a, b) = (root_of(&mut parent, topology.groups[paths[i - 1].geometry]), root_of(&mut parent, topology.groups[paths[i].geometry]));
+        assert_ne!(a, b, "a bridge between contours already joined would cut a piece of waste free");
+        parent[a] = b;
+    }
 }

@@ -51,6 +51,7 @@ impl CuttingPlan {
             edge_length_saved_mm: self.edge_length_saved_mm,
             leads: Default::default(),
             tabs: 0,
+            bridges: Default::default(),
         }
     }
 }

@@ -293,17 +293,7 @@ impl Context<'_> {
     fn lead_in(&self, points: &[Point], own: usize) -> Fit {
         let Some(t) = direction(points[0], points[1]) else { return Fit::NoWaste };
         let start = points[0];
-        let lead = self.settings.lead_in;
-        let mut candidates: Vec<Vec<Point>> = Vec::new();
-        if let Side::One(n) = self.waste_side(start, points[1]) {
-            candidates.push(shape(lead, start, t, n, true, false, self.tolerance));
-            if lead.kind == LeadKind::Line {
-                candidates.push(shape(lead, start, t, n, true, true, self.tolerance));
-            }
-        }
-        if let Some(u) = self.waste_direction(start) {
-            candidates.push(vec![start + u * lead.length]);
-        }
+        let candidates = self.candidates(self.settings.lead_in, start, t, points[1], true);
         if candidates.is_empty() {
             return Fit::NoWaste;
         }
@@ -315,6 +305,25 @@ impl Context<'_> {
             })
         });
         found.map_or(Fit::NoRoom, Fit::Lead)
+    }
+
+    /// The leads to try at contour point `on` (the path runs along `t`
+    /// there, its neighbouring vertex `beside`), lead-in or lead-out
+    /// (`into`): the setting's shape on the waste side, (a line) its mirror
+    /// image, then a line straight into the middle of the waste around `on`.
+    /// None where no waste touches `on`.
+    fn candidates(&self, lead: Lead, on: Point, t: Vector2<f64>, beside: Point, into: bool) -> Vec<Vec<Point>> {
+        let mut candidates = Vec::new();
+        if let Side::One(n) = self.waste_side(on, beside) {
+            candidates.push(shape(lead, on, t, n, into, false, self.tolerance));
+            if lead.kind == LeadKind::Line {
+                candidates.push(shape(lead, on, t, n, into, true, self.tolerance));
+            }
+        }
+        if let Some(u) = self.waste_direction(on) {
+            candidates.push(vec![on + u * lead.length]);
+        }
+        candidates
     }
 
     /// In words, the longest lead-in that fits at any of `starts` (to
@@ -378,17 +387,7 @@ impl Context<'_> {
         let k = points.len();
         let Some(t) = direction(points[k - 2], points[k - 1]) else { return Fit::NoWaste };
         let end = points[k - 1];
-        let lead = self.settings.lead_out;
-        let mut candidates: Vec<Vec<Point>> = Vec::new();
-        if let Side::One(n) = self.waste_side(end, points[k - 2]) {
-            candidates.push(shape(lead, end, t, n, false, false, self.tolerance));
-            if lead.kind == LeadKind::Line {
-                candidates.push(shape(lead, end, t, n, false, true, self.tolerance));
-            }
-        }
-        if let Some(u) = self.waste_direction(end) {
-            candidates.push(vec![end + u * lead.length]);
-        }
+        let candidates = self.candidates(self.settings.lead_out, end, t, points[k - 2], false);
         if candidates.is_empty() {
             return Fit::NoWaste;
         }

@@ -3,6 +3,7 @@
 //! each belongs to. Input: `Job`; output: `Sequence`.
 
 pub mod auto;
+pub mod bridges;
 pub mod cutting;
 pub mod ecp;
 pub mod fields;
@@ -35,12 +36,15 @@ pub struct PlannedPath {
     /// pierce), and of a lead-out after them and any overcut (`lead`).
     pub lead_in: usize,
     pub lead_out: usize,
+    /// Whether it starts with a bridge from where the path before ended
+    /// (its first segment, counted in `lead_in`; `bridges`).
+    pub bridge: bool,
 }
 
 impl PlannedPath {
     /// A path of `points` with no lead-in or lead-out.
     pub fn new(geometry: usize, points: Vec<Point>, process: usize, pierce: bool) -> PlannedPath {
-        PlannedPath { geometry, points, process, pierce, lead_in: 0, lead_out: 0 }
+        PlannedPath { geometry, points, process, pierce, lead_in: 0, lead_out: 0, bridge: false }
     }
 
     pub fn start(&self) -> Point {
@@ -175,6 +179,8 @@ pub struct PlanOutcome {
     pub leads: lead::LeadCount,
     /// Tabs left uncut on part outlines.
     pub tabs: usize,
+    /// Bridges cut instead of an air move and a pierce.
+    pub bridges: bridges::BridgeCount,
 }
 
 /// Plans `job` with the planner `kind` stands for, and judges its order: the
@@ -187,7 +193,14 @@ pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
     let leads = lead::add_leads(job, outcome.sequence, &settings, &waste, travel, ctx.machine.import.tolerance)?;
     outcome.leads = leads.count;
     let tabs = tabs::place(job, ctx.machine)?;
-    (outcome.sequence, outcome.tabs) = tabs::cut_tabs(leads.sequence, &tabs, ctx.machine.cutting.common_cut_tolerance);
+    let (sequence, tab_count) = tabs::cut_tabs(leads.sequence, &tabs, ctx.machine.cutting.common_cut_tolerance);
+    outcome.tabs = tab_count;
+    outcome.sequence = sequence;
+    if ctx.machine.cutting.bridge_max > 0.0 && ctx.plate.is_none() {
+        if let Ok(topology) = cutting::topology(job, &ctx.machine.cutting) {
+            (outcome.sequence, outcome.bridges) = bridges::add_bridges(job, outcome.sequence, ctx.machine, &waste, &topology.groups);
+        }
+    }
     Ok(outcome)
 }
 
@@ -202,7 +215,7 @@ fn plan_ordered(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
                 _ => (planner.plan(job, ctx)?, stop::SearchStop::Budget),
             };
             let broken_rules = cutting::sequence_violations(job, &sequence, ctx);
-            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0 })
+            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default() })
         }
     }
 }

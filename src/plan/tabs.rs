@@ -135,7 +135,7 @@ fn split_at_tabs(path: PlannedPath, tabs: &[Tab], on_cut: f64) -> (Vec<PlannedPa
             let points = sub_path(&path.points, &along, w[0], w[1]);
             let lead_in = if j == 0 { path.lead_in } else { 0 };
             let lead_out = if j == last { path.lead_out } else { 0 };
-            PlannedPath { points, pierce: if j == 0 { path.pierce } else { true }, lead_in, lead_out, ..path.clone() }
+            PlannedPath { points, pierce: if j == 0 { path.pierce } else { true }, lead_in, lead_out, bridge: j == 0 && path.bridge, ..path.clone() }
         })
         .collect();
     (pieces, cut)
