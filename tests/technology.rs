@@ -252,7 +252,7 @@ fn bridges_replace_an_air_move_and_a_pierce_and_cut_only_waste() {
     let path = dir.path().join("sheet.svg");
     std::fs::write(&path, to_svg(&sheet, &params)).unwrap();
     let text = std::fs::read_to_string(root().join("config/flatbed-cutter.toml")).unwrap();
-    let bridging = MachineConfig::parse(&text.replacen("search = \"ils\"\n", "search = \"ils\"\nbridge_max = 15.0\n", 1), "bridge.toml").unwrap();
+    let bridging = MachineConfig::parse(&text.replacen("bridge_max = 0.0\n", "bridge_max = 15.0\n", 1), "bridge.toml").unwrap();
     let plain = laserd::run::plan(&path, &flatbed_with(""), PlannerKind::Auto, None).unwrap();
     let bridged = laserd::run::plan(&path, &bridging, PlannerKind::Auto, None).unwrap();
     let (b, saved) = (bridged.report.bridges, bridged.report.pierces_saved);

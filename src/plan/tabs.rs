@@ -68,15 +68,15 @@ pub fn held(tabs: &[Vec<Tab>]) -> Vec<bool> {
     tabs.iter().map(|t| !t.is_empty()).collect()
 }
 
-/// `sequence` with every tab cut out of the path that runs over it, and how
-/// many were. `on_cut` (mm): how near a path must pass a tab's centre to
+/// `sequence` with every tab cut out of the paths that run over it, and how
+/// many tabs were (one where two pieces of a cut meet counts once). `on_cut` (mm): how near a path must pass a tab's centre to
 /// run over it (the common-cut tolerance).
 pub fn cut_tabs(sequence: Sequence, tabs: &[Vec<Tab>], on_cut: f64) -> (Sequence, usize) {
     let all: Vec<Tab> = tabs.iter().flatten().copied().collect();
     if all.is_empty() {
         return (sequence, 0);
     }
-    let mut count = 0;
+    let mut hit = vec![false; all.len()];
     let groups = sequence
         .groups
         .into_iter()
@@ -86,24 +86,25 @@ pub fn cut_tabs(sequence: Sequence, tabs: &[Vec<Tab>], on_cut: f64) -> (Sequence
                 .into_iter()
                 .flat_map(|path| {
                     let (pieces, cut) = split_at_tabs(path, &all, on_cut);
-                    count += cut;
+                    cut.into_iter().for_each(|t| hit[t] = true);
                     pieces
                 })
                 .collect();
             group
         })
         .collect();
-    (Sequence { groups }, count)
+    (Sequence { groups }, hit.iter().filter(|&&h| h).count())
 }
 
-/// A path cut where it runs over tabs: its pieces, and how many tabs.
-fn split_at_tabs(path: PlannedPath, tabs: &[Tab], on_cut: f64) -> (Vec<PlannedPath>, usize) {
+/// A path cut where it runs over tabs: its pieces, and which tabs.
+fn split_at_tabs(path: PlannedPath, tabs: &[Tab], on_cut: f64) -> (Vec<PlannedPath>, Vec<usize>) {
     let n = path.points.len();
     let along = cumulative(&path.points);
     // The contour's own part, between the leads.
     let (from, to) = (along[path.lead_in], along[n - 1 - path.lead_out]);
     let mut windows: Vec<(f64, f64)> = Vec::new();
-    for tab in tabs {
+    let mut cut = Vec::new();
+    for (k, tab) in tabs.iter().enumerate() {
         let hit = (path.lead_in..n - 1 - path.lead_out).find_map(|i| {
             let (a, b) = (path.points[i], path.points[i + 1]);
             let v = b - a;
@@ -112,13 +113,13 @@ fn split_at_tabs(path: PlannedPath, tabs: &[Tab], on_cut: f64) -> (Vec<PlannedPa
         });
         if let Some(s) = hit {
             windows.push(((s - tab.width / 2.0).max(from), (s + tab.width / 2.0).min(to)));
+            cut.push(k);
         }
     }
     if windows.is_empty() {
-        return (vec![path], 0);
+        return (vec![path], cut);
     }
     windows.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let cut = windows.len();
     // The pieces between the windows: the first keeps the lead-in, the last the lead-out.
     let mut bounds = vec![0.0];
     for (a, b) in &windows {
