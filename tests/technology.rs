@@ -148,6 +148,14 @@ fn leads_on_a_dense_generated_sheet_pierce_in_the_waste_and_cross_nothing() {
         let nearest = drawing.near(pierce, pierce, 0.2).iter().map(|&(a, b, _)| point_to_segment(pierce, a, b)).fold(f64::INFINITY, f64::min);
         assert!(nearest >= 0.1 - 1e-9, "pierce {pierce:?} is {nearest} mm from a contour");
     }
+    eprintln!(
+        "dense sheet: {parts} parts, {} pierces, {with_lead} lead-ins ({} moved for room), {} lead-outs, {} cuts without a lead; {} lead pieces checked",
+        pierces.len(),
+        planned.report.lead_ins_moved,
+        planned.report.lead_outs,
+        planned.report.leads_skipped,
+        pieces.len()
+    );
     for &(a, b, number, on) in &pieces {
         for (c, d, _) in drawing.near(a, b, 0.0) {
             if let Some(x) = crossing(a, b, c, d) {
@@ -260,6 +268,14 @@ fn bridges_replace_an_air_move_and_a_pierce_and_cut_only_waste() {
     assert_eq!(bridged.report.pierces + saved, plain.report.pierces);
     assert_eq!(bridged.report.precedence_violations, Some(0));
     assert!(bridged.report.trajectory_time_s < plain.report.trajectory_time_s);
+    eprintln!(
+        "bridges: {b} on {} contours, pierces {} -> {}, trajectory {:.3} s -> {:.3} s",
+        bridged.job.geometries.len(),
+        plain.report.pierces,
+        bridged.report.pierces,
+        plain.report.trajectory_time_s,
+        bridged.report.trajectory_time_s
+    );
     let job = &bridged.job;
     let topology = laserd::plan::cutting::topology(job, &bridging.cutting).unwrap();
     let mut parent: Vec<usize> = (0..topology.group_count()).collect();

@@ -102,3 +102,22 @@ fn overcut_cuts_past_the_start_and_a_closing_gap_stops_short() {
     let cut: f64 = p.points[p.lead_in..].windows(2).map(|w| (w[1] - w[0]).norm()).sum();
     assert!((cut - 158.5).abs() < 1e-9 && p.lead_out == 0, "{cut}, no lead-out after a gap");
 }
+
+#[test]
+fn lead_in_at_moves_the_start_to_a_corner_or_the_longest_side() {
+    let wide = Geometry::polyline(vec![Point::new(10.0, 10.0), Point::new(50.0, 10.0), Point::new(50.0, 20.0), Point::new(10.0, 20.0)], true, 0, "wide".into());
+    let job = Job { source: "t".into(), geometries: vec![wide], processes: vec![process()] };
+    // The planner entered on the short side, in its middle.
+    let entry = vec![Point::new(50.0, 15.0), Point::new(50.0, 20.0), Point::new(10.0, 20.0), Point::new(10.0, 10.0), Point::new(50.0, 10.0), Point::new(50.0, 15.0)];
+    let run = |at: LeadAt| {
+        let sequence = Sequence { groups: vec![PathGroup { field_center: None, paths: vec![PlannedPath::new(0, entry.clone(), 0, true)] }] };
+        let waste = Waste::new(&job, &[true]);
+        let leads = add_leads(&job, sequence, &[LeadSettings { at, ..settings(LeadKind::Line, LeadKind::None) }], &waste, (Point::new(0.0, 0.0), Point::new(500.0, 500.0)), 0.01).unwrap();
+        let p = leads.sequence.groups[0].paths[0].clone();
+        p.points[p.lead_in]
+    };
+    assert_eq!(run(LeadAt::Entry), Point::new(50.0, 15.0));
+    assert_eq!(run(LeadAt::Corner), Point::new(50.0, 20.0));
+    let middle = run(LeadAt::Longest);
+    assert!((middle - Point::new(30.0, 20.0)).norm() < 1e-12 || (middle - Point::new(30.0, 10.0)).norm() < 1e-12, "{middle:?}");
+}
