@@ -53,7 +53,8 @@ pub struct LeadSettings {
 }
 
 impl LeadSettings {
-    fn any(&self) -> bool {
+    /// Whether the layer has any lead, overcut or closing gap.
+    pub fn any(&self) -> bool {
         self.lead_in.kind != LeadKind::None || self.lead_out.kind != LeadKind::None || self.overcut > 0.0 || self.closing_gap > 0.0
     }
 
@@ -93,9 +94,8 @@ struct Placement {
 /// Where the machine can go: leads outside it are not placed.
 pub type Travel = (Point, Point);
 
-/// The leads of the layers of `job`'s processes, the waste they go in, and
-/// the machine's travel.
-pub fn settings(job: &Job, machine: &MachineConfig) -> (Vec<LeadSettings>, Waste, Travel) {
+/// The leads of the layers of `job`'s processes, and the machine's travel.
+pub fn settings(job: &Job, machine: &MachineConfig) -> (Vec<LeadSettings>, Travel) {
     let settings = job
         .processes
         .iter()
@@ -115,9 +115,15 @@ pub fn settings(job: &Job, machine: &MachineConfig) -> (Vec<LeadSettings>, Waste
             }
         })
         .collect();
-    let cuts: Vec<bool> = job.processes.iter().map(|p| machine.cuts_parts(&p.layer)).collect();
     let travel = (Point::origin(), Point::new(machine.stage.travel_x, machine.stage.travel_y));
-    (settings, Waste::new(job, &cuts), travel)
+    (settings, travel)
+}
+
+/// The waste of `job` on `machine`: the closed contours of the layers that
+/// cut parts out hold the material.
+pub fn waste(job: &Job, machine: &MachineConfig) -> Waste {
+    let cuts: Vec<bool> = job.processes.iter().map(|p| machine.cuts_parts(&p.layer)).collect();
+    Waste::new(job, &cuts)
 }
 
 /// `sequence` with the leads of `settings` (per process) added to every path

@@ -189,16 +189,20 @@ pub struct PlanOutcome {
 pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     let mut outcome = plan_ordered(kind, job, ctx)?;
     outcome.sequence = split_profiles(outcome.sequence, job);
-    let (settings, waste, travel) = lead::settings(job, ctx.machine);
-    let leads = lead::add_leads(job, outcome.sequence, &settings, &waste, travel, ctx.machine.import.tolerance)?;
-    outcome.leads = leads.count;
+    let (settings, travel) = lead::settings(job, ctx.machine);
+    let bridging = ctx.machine.cutting.bridge_max > 0.0 && ctx.plate.is_none();
+    // The waste, only where leads or bridges need it (it indexes every segment).
+    let waste = (bridging || settings.iter().any(lead::LeadSettings::any)).then(|| lead::waste(job, ctx.machine));
+    if let Some(waste) = &waste {
+        let leads = lead::add_leads(job, outcome.sequence, &settings, waste, travel, ctx.machine.import.tolerance)?;
+        outcome.sequence = leads.sequence;
+        outcome.leads = leads.count;
+    }
     let tabs = tabs::place(job, ctx.machine)?;
-    let (sequence, tab_count) = tabs::cut_tabs(leads.sequence, &tabs, ctx.machine.cutting.common_cut_tolerance);
-    outcome.tabs = tab_count;
-    outcome.sequence = sequence;
-    if ctx.machine.cutting.bridge_max > 0.0 && ctx.plate.is_none() {
+    (outcome.sequence, outcome.tabs) = tabs::cut_tabs(outcome.sequence, &tabs, ctx.machine.cutting.common_cut_tolerance);
+    if let (true, Some(waste)) = (bridging, &waste) {
         if let Ok(topology) = cutting::topology(job, &ctx.machine.cutting) {
-            (outcome.sequence, outcome.bridges) = bridges::add_bridges(job, outcome.sequence, ctx.machine, &waste, &topology.groups);
+            (outcome.sequence, outcome.bridges) = bridges::add_bridges(job, outcome.sequence, ctx.machine, waste, &topology.groups);
         }
     }
     Ok(outcome)
