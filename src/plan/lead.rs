@@ -215,7 +215,9 @@ impl Context<'_> {
     fn lead(&self, path: &PlannedPath) -> Result<(PlannedPath, Placement)> {
         let s = self.settings;
         let g = &self.job.geometries[path.geometry];
-        let closed_loop = is_loop(path, g.closed.then(|| g.length()));
+        // The polyline's length (its chords), as the path's points are.
+        let outline = g.closed.then(|| (0..g.points.len()).map(|i| (g.points[(i + 1) % g.points.len()] - g.points[i]).norm()).sum());
+        let closed_loop = is_loop(path, outline);
         let mut points = path.points.clone();
         if closed_loop {
             match s.at {
@@ -504,8 +506,8 @@ fn direction(a: Point, b: Point) -> Option<Vector2<f64>> {
     (len > 1e-9).then(|| v / len)
 }
 
-/// Whether `path` cuts a closed contour of `length` whole, ending where it
-/// started.
+/// Whether `path` cuts a closed contour of `length` (its polyline's) whole,
+/// ending where it started.
 fn is_loop(path: &PlannedPath, length: Option<f64>) -> bool {
     let (first, last) = (path.points[0], path.points[path.points.len() - 1]);
     let cut: f64 = path.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum();

@@ -121,3 +121,25 @@ fn lead_in_at_moves_the_start_to_a_corner_or_the_longest_side() {
     let middle = run(LeadAt::Longest);
     assert!((middle - Point::new(30.0, 20.0)).norm() < 1e-12 || (middle - Point::new(30.0, 10.0)).norm() < 1e-12, "{middle:?}");
 }
+
+#[test]
+fn a_small_circle_kept_as_arcs_is_a_loop_for_its_overcut() {
+    // A 1.5 mm hole flattened to 0.01 mm: its chords are 0.2 % shorter than its arcs.
+    let (c, r) = (Point::new(30.0, 30.0), 1.5);
+    let (a, b) = (c + Vector2::new(r, 0.0), c - Vector2::new(r, 0.0));
+    let mut points = vec![a];
+    points.extend(crate::job::arc_points(a, b, 1.0, 0.01));
+    let mid = points.len() - 1;
+    points.extend(crate::job::arc_points(b, a, 1.0, 0.01));
+    points.pop();
+    let n = points.len();
+    let arcs = vec![crate::job::ArcSpan { from: 0, to: mid, bulge: 1.0 }, crate::job::ArcSpan { from: mid, to: n, bulge: 1.0 }];
+    let hole = Geometry { arcs, ..Geometry::polyline(points, true, 0, "hole".into()) };
+    let job = Job { source: "t".into(), geometries: vec![square(10.0, 10.0, 40.0, "part"), hole], processes: vec![process()] };
+    let chords: f64 = (0..n).map(|i| (job.geometries[1].points[(i + 1) % n] - job.geometries[1].points[i]).norm()).sum();
+    assert!((job.geometries[1].length() - chords) / chords > 1e-3);
+    let leads = lead(&job, &[1], LeadSettings { overcut: 1.0, ..settings(LeadKind::Line, LeadKind::None) }).unwrap();
+    let p = &leads.sequence.groups[0].paths[0];
+    let cut: f64 = p.points[p.lead_in..].windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+    assert!((cut - chords - 1.0).abs() < 1e-9, "{cut} = {chords} + the overcut");
+}
