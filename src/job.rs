@@ -94,11 +94,17 @@ pub fn arc_points(a: Point, b: Point, bulge: f64, tolerance: f64) -> Vec<Point> 
     points
 }
 
-/// The distance between two segments.
-pub fn segment_distance(a: Point, b: Point, c: Point, d: Point) -> f64 {
+/// Where segments `a`-`b` and `c`-`d` cross properly (each strictly
+/// between the other's ends), if they do.
+pub fn segment_crossing(a: Point, b: Point, c: Point, d: Point) -> Option<Point> {
     let cross = |o: Point, p: Point, q: Point| (p - o).perp(&(q - o));
     let (d1, d2, d3, d4) = (cross(c, d, a), cross(c, d, b), cross(a, b, c), cross(a, b, d));
-    if d1 * d2 < 0.0 && d3 * d4 < 0.0 {
+    (d1 * d2 < 0.0 && d3 * d4 < 0.0).then(|| a + (b - a) * (d1 / (d1 - d2)))
+}
+
+/// The distance between two segments.
+pub fn segment_distance(a: Point, b: Point, c: Point, d: Point) -> f64 {
+    if segment_crossing(a, b, c, d).is_some() {
         return 0.0;
     }
     let to = |p: Point, s: Point, e: Point| {
@@ -107,6 +113,41 @@ pub fn segment_distance(a: Point, b: Point, c: Point, d: Point) -> f64 {
         (s + v * t - p).norm()
     };
     to(a, c, d).min(to(b, c, d)).min(to(c, a, b)).min(to(d, a, b))
+}
+
+/// Distances along a polyline to each of its vertices.
+pub fn lengths_along(points: &[Point]) -> Vec<f64> {
+    let mut along = Vec::with_capacity(points.len());
+    let mut total = 0.0;
+    along.push(0.0);
+    for w in points.windows(2) {
+        total += (w[1] - w[0]).norm();
+        along.push(total);
+    }
+    along
+}
+
+/// The point `s` along a polyline.
+pub fn point_along(points: &[Point], along: &[f64], s: f64) -> Point {
+    let i = along.partition_point(|&a| a <= s).clamp(1, points.len() - 1) - 1;
+    let span = along[i + 1] - along[i];
+    if span <= 0.0 {
+        return points[i];
+    }
+    points[i] + (points[i + 1] - points[i]) * ((s - along[i]) / span).clamp(0.0, 1.0)
+}
+
+/// The piece of a polyline from `a` to `b` along it, its vertices kept.
+/// Vertices closer than a nanometre to a cut end are one point.
+pub fn piece_along(points: &[Point], along: &[f64], a: f64, b: f64) -> Vec<Point> {
+    let mut out = vec![point_along(points, along, a)];
+    for (i, &p) in points.iter().enumerate() {
+        if along[i] > a + 1e-9 && along[i] < b - 1e-9 {
+            out.push(p);
+        }
+    }
+    out.push(point_along(points, along, b));
+    out
 }
 
 /// Length of the arc from `a` to `b` of `bulge` (the chord for bulge 0).

@@ -145,16 +145,15 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
     // Cutting technology: leads, pierces, tabs.
     let _ = writeln!(svg, r#"<g id="technology">"#);
     for p in sequence.paths() {
-        let n = p.points.len();
         let bridge = usize::from(p.bridge);
         if p.bridge {
             polyline(&mut svg, "", &p.points[..=1], &format!(r#"class="bridge" stroke="teal" stroke-width="{:.3}""#, 2.0 * stroke));
         }
         if p.lead_in > bridge {
-            polyline(&mut svg, "", &p.points[bridge..=p.lead_in], &format!(r#"class="lead-in" stroke="orange" stroke-width="{:.3}""#, 1.5 * stroke));
+            polyline(&mut svg, "", &p.lead_in_points()[bridge..], &format!(r#"class="lead-in" stroke="orange" stroke-width="{:.3}""#, 1.5 * stroke));
         }
         if p.lead_out > 0 {
-            polyline(&mut svg, "", &p.points[n - 1 - p.lead_out..], &format!(r#"class="lead-out" stroke="purple" stroke-width="{:.3}""#, 1.5 * stroke));
+            polyline(&mut svg, "", p.lead_out_points(), &format!(r#"class="lead-out" stroke="purple" stroke-width="{:.3}""#, 1.5 * stroke));
         }
         if p.pierce && machine.pierce(&job.processes[p.process].layer).active() {
             let (x, y) = at(p.points[0]);

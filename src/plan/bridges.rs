@@ -21,7 +21,7 @@ use rstar::{RTree, AABB};
 
 use super::{PlannedPath, Sequence};
 use crate::config::MachineConfig;
-use crate::job::{segment_distance, Job, Point};
+use crate::job::{segment_crossing, segment_distance, Job, Point};
 use crate::topology::waste::Waste;
 
 /// How far a bridge keeps off contours, leads and other bridges between its
@@ -118,13 +118,7 @@ fn clear(from: Point, to: Point, reach: f64, waste: &Waste, drawn: &Drawn) -> bo
 
 /// Whether segments `a`-`b` and `c`-`d` cross properly, away from `a` and `b`.
 fn crosses_inside(a: Point, b: Point, c: Point, d: Point) -> bool {
-    let cross = |o: Point, p: Point, q: Point| (p - o).perp(&(q - o));
-    let (d1, d2, d3, d4) = (cross(c, d, a), cross(c, d, b), cross(a, b, c), cross(a, b, d));
-    if !(d1 * d2 < 0.0 && d3 * d4 < 0.0) {
-        return false;
-    }
-    let x = a + (b - a) * (d1 / (d1 - d2));
-    (x - a).norm() > 1e-6 && (x - b).norm() > 1e-6
+    segment_crossing(a, b, c, d).is_some_and(|x| (x - a).norm() > 1e-6 && (x - b).norm() > 1e-6)
 }
 
 /// A drawn segment in the R-tree: its ends.
@@ -141,8 +135,7 @@ impl Drawn {
     }
 
     fn add_leads(&mut self, p: &PlannedPath) {
-        let n = p.points.len();
-        for w in p.points[..=p.lead_in].windows(2).chain(p.points[n - 1 - p.lead_out..].windows(2)) {
+        for w in p.lead_in_points().windows(2).chain(p.lead_out_points().windows(2)) {
             self.add(w[0], w[1]);
         }
     }

@@ -20,7 +20,7 @@ use rstar::{RTree, AABB};
 use super::{PlannedPath, Sequence};
 use crate::config::{LeadAt, LeadKind, MachineConfig};
 use crate::error::{Error, Result};
-use crate::job::{arc_points, segment_distance, Job, Point};
+use crate::job::{arc_points, lengths_along, piece_along, segment_crossing, segment_distance, Job, Point};
 use crate::topology::waste::Waste;
 
 /// One lead's shape.
@@ -160,9 +160,9 @@ type PlacedPiece = GeomWithData<Rectangle<[f64; 2]>, (Point, Point, usize, Point
 
 impl Placed {
     fn add(&mut self, path: &PlannedPath, number: usize) {
-        let n = path.points.len();
-        let (entry, exit) = (path.points[path.lead_in], path.points[n - 1 - path.lead_out]);
-        let pieces = path.points[..=path.lead_in].windows(2).map(|w| (w, entry)).chain(path.points[n - 1 - path.lead_out..].windows(2).map(|w| (w, exit)));
+        let (lead_in, lead_out) = (path.lead_in_points(), path.lead_out_points());
+        let (entry, exit) = (lead_in[lead_in.len() - 1], lead_out[0]);
+        let pieces = lead_in.windows(2).map(|w| (w, entry)).chain(lead_out.windows(2).map(|w| (w, exit)));
         for (w, on) in pieces {
             let (a, b) = (w[0], w[1]);
             self.tree.insert(GeomWithData::new(Rectangle::from_corners([a.x.min(b.x), a.y.min(b.y)], [a.x.max(b.x), a.y.max(b.y)]), (a, b, number, on)));
@@ -262,17 +262,18 @@ impl Context<'_> {
             }
         }
         if closed_loop && s.closing_gap > 0.0 {
-            let length: f64 = points.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+            let along = lengths_along(&points);
+            let length = along[along.len() - 1];
             if s.closing_gap >= length / 2.0 {
                 return Err(Error::Plan(format!(
                     "{}: a closing gap of {} mm (layer '{}': closing_gap) leaves less than half of its {length:.3} mm contour cut",
                     g.source, s.closing_gap, s.layer
                 )));
             }
-            points = walk(&points, length - s.closing_gap);
+            points = piece_along(&points, &along, 0.0, length - s.closing_gap);
         }
         if closed_loop && s.overcut > 0.0 {
-            let past = walk(&points, s.overcut);
+            let past = piece_along(&points, &lengths_along(&points), 0.0, s.overcut);
             points.extend(past.into_iter().skip(1));
         }
         let contour = points.len();
@@ -458,13 +459,7 @@ impl Context<'_> {
 
 /// Whether segments `a`-`b` and `c`-`d` cross at a point other than `at`.
 fn crosses_away_from(a: Point, b: Point, c: Point, d: Point, at: Point) -> bool {
-    let cross = |o: Point, p: Point, q: Point| (p - o).perp(&(q - o));
-    let (d1, d2, d3, d4) = (cross(c, d, a), cross(c, d, b), cross(a, b, c), cross(a, b, d));
-    if !(d1 * d2 < 0.0 && d3 * d4 < 0.0) {
-        return false;
-    }
-    let t = d1 / (d1 - d2);
-    (a + (b - a) * t - at).norm() > 1e-6
+    segment_crossing(a, b, c, d).is_some_and(|x| (x - at).norm() > 1e-6)
 }
 
 /// A lead's points from the contour point `on` (excluded), whose path runs
@@ -569,24 +564,6 @@ fn start_on_longest_side(points: &[Point]) -> Vec<Point> {
     let n = points.len() - 1;
     let k = (0..n).max_by(|&a, &b| (points[a + 1] - points[a]).norm().total_cmp(&(points[b + 1] - points[b]).norm())).unwrap_or(0);
     start_at(points, 2 * k + 1)
-}
-
-/// The first `length` of a path along `points`, its last point on it.
-fn walk(points: &[Point], length: f64) -> Vec<Point> {
-    let mut out = vec![points[0]];
-    let mut left = length;
-    for w in points.windows(2) {
-        let step = (w[1] - w[0]).norm();
-        if step >= left {
-            if step > 0.0 {
-                out.push(w[0] + (w[1] - w[0]) * (left / step));
-            }
-            return out;
-        }
-        left -= step;
-        out.push(w[1]);
-    }
-    out
 }
 
 #[cfg(test)]

@@ -53,6 +53,16 @@ impl PlannedPath {
     pub fn end(&self) -> Point {
         self.points[self.points.len() - 1]
     }
+
+    /// The lead-in (a bridge before it included), ending on the contour.
+    pub fn lead_in_points(&self) -> &[Point] {
+        &self.points[..=self.lead_in]
+    }
+
+    /// The lead-out, from where it leaves the contour.
+    pub fn lead_out_points(&self) -> &[Point] {
+        &self.points[self.points.len() - 1 - self.lead_out..]
+    }
 }
 
 /// Paths marked from one stage position (a scan field), or, on a machine without a

@@ -14,7 +14,7 @@
 use super::{PlannedPath, Sequence};
 use crate::config::MachineConfig;
 use crate::error::{Error, Result};
-use crate::job::{Job, Point};
+use crate::job::{lengths_along, piece_along, point_along, Job, Point};
 
 /// One tab: the middle of the uncut piece, on its outline, and its length.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,7 +42,7 @@ pub fn place(job: &Job, machine: &MachineConfig) -> Result<Vec<Vec<Tab>>> {
             let Some(l) = layer(g.process).filter(|_| wanted(g.process) && levels[k].is_some_and(|v| v.is_multiple_of(2))) else { return Ok(Vec::new()) };
             let mut ring = g.points.clone();
             ring.push(g.points[0]);
-            let along = cumulative(&ring);
+            let along = lengths_along(&ring);
             let length = along[along.len() - 1];
             let count = if l.tab_spacing > 0.0 { ((length / l.tab_spacing).floor() as usize).max(1) } else { l.tabs as usize };
             if count as f64 * l.tab_width >= length / 2.0 {
@@ -56,7 +56,7 @@ pub fn place(job: &Job, machine: &MachineConfig) -> Result<Vec<Vec<Tab>>> {
                 .map(|i| {
                     let spacing = length / count as f64;
                     let at = slide_off_corners((i as f64 + 0.5) * spacing, l.tab_width, spacing / 2.0, &corners, length);
-                    Tab { centre: point_at(&ring, &along, at), width: l.tab_width }
+                    Tab { centre: point_along(&ring, &along, at), width: l.tab_width }
                 })
                 .collect())
         })
@@ -99,7 +99,7 @@ pub fn cut_tabs(sequence: Sequence, tabs: &[Vec<Tab>], on_cut: f64) -> (Sequence
 /// A path cut where it runs over tabs: its pieces, and which tabs.
 fn split_at_tabs(path: PlannedPath, tabs: &[Tab], on_cut: f64) -> (Vec<PlannedPath>, Vec<usize>) {
     let n = path.points.len();
-    let along = cumulative(&path.points);
+    let along = lengths_along(&path.points);
     // The contour's own part, between the leads.
     let (from, to) = (along[path.lead_in], along[n - 1 - path.lead_out]);
     let mut windows: Vec<(f64, f64)> = Vec::new();
@@ -133,48 +133,13 @@ fn split_at_tabs(path: PlannedPath, tabs: &[Tab], on_cut: f64) -> (Vec<PlannedPa
         .enumerate()
         .filter(|(_, w)| w[1] - w[0] > 1e-9)
         .map(|(j, w)| {
-            let points = sub_path(&path.points, &along, w[0], w[1]);
+            let points = piece_along(&path.points, &along, w[0], w[1]);
             let lead_in = if j == 0 { path.lead_in } else { 0 };
             let lead_out = if j == last { path.lead_out } else { 0 };
             PlannedPath { points, pierce: if j == 0 { path.pierce } else { true }, lead_in, lead_out, bridge: j == 0 && path.bridge, ..path.clone() }
         })
         .collect();
     (pieces, cut)
-}
-
-/// Distances along a polyline to each of its vertices.
-fn cumulative(points: &[Point]) -> Vec<f64> {
-    let mut along = Vec::with_capacity(points.len());
-    let mut total = 0.0;
-    along.push(0.0);
-    for w in points.windows(2) {
-        total += (w[1] - w[0]).norm();
-        along.push(total);
-    }
-    along
-}
-
-/// The point `s` along a polyline.
-fn point_at(points: &[Point], along: &[f64], s: f64) -> Point {
-    let i = along.partition_point(|&a| a <= s).clamp(1, points.len() - 1) - 1;
-    let span = along[i + 1] - along[i];
-    if span <= 0.0 {
-        return points[i];
-    }
-    points[i] + (points[i + 1] - points[i]) * ((s - along[i]) / span).clamp(0.0, 1.0)
-}
-
-/// The piece of a polyline from `a` to `b` along it, its vertices kept.
-/// Vertices closer than a nanometre to a cut end are one point.
-fn sub_path(points: &[Point], along: &[f64], a: f64, b: f64) -> Vec<Point> {
-    let mut out = vec![point_at(points, along, a)];
-    for (i, &p) in points.iter().enumerate() {
-        if along[i] > a + 1e-9 && along[i] < b - 1e-9 {
-            out.push(p);
-        }
-    }
-    out.push(point_at(points, along, b));
-    out
 }
 
 /// Distances along a closed ring to its corners (turns sharper than the
@@ -227,7 +192,7 @@ mod tests {
         assert_eq!(paths[1].points[0], Point::new(5.5, 0.0));
         assert!(paths[1].pierce, "the cut starts again past a tab");
         assert!((paths[2].points[0] - Point::new(0.0, 4.5)).norm() < 1e-12 && paths[2].points.len() == 2);
-        let length: f64 = paths.iter().map(|p| cumulative(&p.points).last().copied().unwrap()).sum();
+        let length: f64 = paths.iter().map(|p| lengths_along(&p.points).last().copied().unwrap()).sum();
         assert!((length - 38.0).abs() < 1e-9, "{length}");
     }
 

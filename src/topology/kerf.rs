@@ -18,10 +18,11 @@ use cavalier_contours::polyline::{seg_closest_point, PlineCreation, PlineOffsetO
 use rstar::primitives::GeomWithData;
 use rstar::{RTree, AABB};
 
+use super::waste::Waste;
 use super::{rect, Box2};
 use crate::config::KerfCorners;
 use crate::error::{Error, Result};
-use crate::job::{arc_points, segment_distance, ArcSpan, Geometry, Job, Point};
+use crate::job::{arc_points, ArcSpan, Geometry, Job, Point};
 
 /// The kerf settings of one process (a layer).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -66,9 +67,9 @@ pub fn compensate(job: &Job, layers: &[KerfLayer], tolerance: f64) -> Result<Ker
     let levels: Vec<usize> = cutting.iter().map(|&k| part_levels[k].unwrap_or(0)).collect();
 
     let mut out = job.clone();
-    let (mut offset, mut kerf_mm) = (0, 0.0f64);
+    let mut kerf_mm = 0.0f64;
     let mut open_skipped = 0;
-    let mut paths: Vec<(usize, Polyline)> = Vec::new();
+    let mut offset_geometries = Vec::new();
     for (c, &k) in cutting.iter().enumerate() {
         let g = &job.geometries[k];
         let layer = layers[g.process];
@@ -82,8 +83,7 @@ pub fn compensate(job: &Job, layers: &[KerfLayer], tolerance: f64) -> Result<Ker
         let half = layer.kerf / 2.0;
         let path = offset_contour(g, half, levels[c].is_multiple_of(2), layer, &job.processes[g.process].layer)?;
         out.geometries[k] = geometry_of(&path, g, tolerance);
-        paths.push((k, path));
-        offset += 1;
+        offset_geometries.push(k);
         kerf_mm = kerf_mm.max(layer.kerf);
     }
     for g in job.geometries.iter().filter(|g| !g.closed && kerf_of(g) > 0.0) {
@@ -95,8 +95,8 @@ pub fn compensate(job: &Job, layers: &[KerfLayer], tolerance: f64) -> Result<Ker
     if open_skipped > 1 {
         tracing::warn!("{}: {open_skipped} open paths on layers with a kerf are cut on the drawn line", job.source);
     }
-    check_clearance(job, &out, &cutting, &paths, layers, tolerance)?;
-    Ok(Kerfed { job: out, offset, kerf_mm })
+    check_clearance(job, &out, &cutting, &offset_geometries, layers, tolerance)?;
+    Ok(Kerfed { job: out, offset: offset_geometries.len(), kerf_mm })
 }
 
 /// The polyline of a geometry, its arcs as bulges.
@@ -326,54 +326,36 @@ fn geometry_of(path: &Polyline, drawn: &Geometry, tolerance: f64) -> Geometry {
     Geometry { points, closed: true, arcs, profile: Vec::new(), process: drawn.process, source: drawn.source.clone() }
 }
 
-/// Parts nested closer than the kerf: an offset contour that comes nearer
-/// than half its kerf to another drawn contour (it would cut into it).
-fn check_clearance(drawn: &Job, kerfed: &Job, cutting: &[usize], paths: &[(usize, Polyline)], layers: &[KerfLayer], tolerance: f64) -> Result<()> {
-    let boxes: Vec<Box2> = cutting
-        .iter()
-        .flat_map(|&k| {
-            let g = &drawn.geometries[k];
-            (0..g.segments()).map(move |i| {
-                let (a, b) = (g.points[i], g.points[(i + 1) % g.points.len()]);
-                GeomWithData::new(rect(Point::new(a.x.min(b.x), a.y.min(b.y)), Point::new(a.x.max(b.x), a.y.max(b.y))), (k, i))
-            })
-        })
-        .collect();
-    let tree = RTree::bulk_load(boxes);
+/// Parts nested closer than the kerf: an offset contour (`offset`, by
+/// geometry) that comes nearer than half its kerf to another drawn contour
+/// that cuts (it would cut into it).
+fn check_clearance(drawn: &Job, kerfed: &Job, cutting: &[usize], offset: &[usize], layers: &[KerfLayer], tolerance: f64) -> Result<()> {
+    let cuts: Vec<bool> = layers.iter().map(|l| l.cuts || l.kerf > 0.0).collect();
+    let waste = Waste::new(drawn, &cuts);
+    let mut cuts_parts = vec![false; drawn.geometries.len()];
+    cutting.iter().for_each(|&k| cuts_parts[k] = true);
     // The chords of a flattened arc lie up to the tolerance off it.
     let slack = tolerance + EXACT_MM;
-    for &(k, _) in paths {
+    for &k in offset {
         let g = &kerfed.geometries[k];
-        let half = layers[g.process].kerf / 2.0;
-        let reach = half - slack;
+        let reach = layers[g.process].kerf / 2.0 - slack;
         for i in 0..g.segments() {
             let (a, b) = (g.points[i], g.points[(i + 1) % g.points.len()]);
-            let query = AABB::from_corners([a.x.min(b.x) - reach, a.y.min(b.y) - reach], [a.x.max(b.x) + reach, a.y.max(b.y) + reach]);
-            for other in tree.locate_in_envelope_intersecting(query).filter(|o| o.data.0 != k) {
-                let (o, j) = other.data;
-                let h = &drawn.geometries[o];
-                let (c, d) = (h.points[j], h.points[(j + 1) % h.points.len()]);
-                if let Some(at) = closer_than(a, b, c, d, reach) {
-                    return Err(Error::Plan(format!(
-                        "{} and {}: nested closer than the kerf of {} mm (layer '{}'): the cut of the first passes {:.3} mm from the second at ({:.3}, {:.3}); space them by the kerf at least (exactly the kerf to share a cut)",
-                        g.source,
-                        h.source,
-                        layers[g.process].kerf,
-                        kerfed.processes[g.process].layer,
-                        segment_distance(a, b, c, d),
-                        at.x,
-                        at.y
-                    )));
-                }
+            if let Some((o, _, _, distance)) = waste.near(a, b, reach).find(|&(o, ..)| o != k && cuts_parts[o]) {
+                let at = nalgebra::center(&a, &b);
+                return Err(Error::Plan(format!(
+                    "{} and {}: nested closer than the kerf of {} mm (layer '{}'): the cut of the first passes {distance:.3} mm from the second at ({:.3}, {:.3}); space them by the kerf at least (exactly the kerf to share a cut)",
+                    g.source,
+                    drawn.geometries[o].source,
+                    layers[g.process].kerf,
+                    kerfed.processes[g.process].layer,
+                    at.x,
+                    at.y
+                )));
             }
         }
     }
     Ok(())
-}
-
-/// Where segment `a`-`b` comes within `reach` of segment `c`-`d`, if it does.
-fn closer_than(a: Point, b: Point, c: Point, d: Point, reach: f64) -> Option<Point> {
-    (segment_distance(a, b, c, d) < reach).then(|| nalgebra::center(&a, &b))
 }
 
 #[cfg(test)]
