@@ -305,6 +305,7 @@ pub fn plate_bench(machine: &MachineConfig, elements: usize, seed: u64, skeleton
         scrap_cuts: ScrapCuts::InRoute,
         layer: None,
         clamps: Vec::new(),
+        support_grid: None,
     };
     let scrap = PlateConfig {
         skeleton_piece,

@@ -260,6 +260,9 @@ pub struct MachineConfig {
     /// The plate on the machine; none: parts are planned as if in empty space.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub plate: Option<PlateConfig>,
+    /// The cutting head's Z axis; none: the machine has X and Y only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub head: Option<HeadConfig>,
     pub default_layer: String,
     #[serde(rename = "layer")]
     pub layers: Vec<LayerConfig>,
@@ -476,6 +479,41 @@ pub struct PlateConfig {
     /// Clamps holding the plate: the pieces of skeleton they touch never move.
     #[serde(default, rename = "clamp")]
     pub clamps: Vec<ClampConfig>,
+    /// Spacing of the bed's support grid (slats or pins), mm. Pieces cut
+    /// free that are smaller than twice it may tip, and the head lifts over
+    /// them (`[head]`); none: nothing is taken to tip.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub support_grid: Option<f64>,
+}
+
+/// The cutting head's Z axis (`[head]`, seed 000's lift moves): 0 is the
+/// cutting height, up is positive. Air moves that would pass over a piece
+/// that may have tipped lift the head to `lift_height` on the way.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct HeadConfig {
+    /// The Z travel above the cutting height, mm.
+    pub travel_z: f64,
+    /// h_max: the height that clears a tipped piece, mm.
+    pub lift_height: f64,
+    pub max_velocity: f64,
+    pub max_acceleration: f64,
+    pub max_jerk: f64,
+    /// How far around a piece that may have tipped the head is up, mm.
+    #[serde(default = "default_lift_clearance")]
+    pub clearance: f64,
+    /// Lift over pieces that may have tipped (false: the head stays down;
+    /// the dry-run still counts the collisions).
+    #[serde(default = "default_true")]
+    pub lift_moves: bool,
+}
+
+fn default_lift_clearance() -> f64 {
+    2.0
+}
+
+fn default_true() -> bool {
+    true
 }
 
 fn default_plate_thickness() -> f64 {
@@ -1250,6 +1288,7 @@ impl MachineConfig {
         if let Some(plate) = &self.plate {
             self.validate_plate(plate)?;
         }
+        self.validate_head()?;
         if let Some(folder) = self.service.job_folders.iter().find(|f| !Path::new(f).is_absolute()) {
             return Err(format!("service.job_folders: {folder:?} is not an absolute path"));
         }
@@ -1320,6 +1359,17 @@ impl MachineConfig {
         m
     }
 
+    /// The head's Z limits, where it has a Z axis.
+    pub fn head_limits(&self) -> Option<Limits> {
+        self.head.as_ref().map(|h| Limits { velocity: h.max_velocity, acceleration: h.max_acceleration, jerk: h.max_jerk })
+    }
+
+    /// The support grid's spacing where pieces cut free may tip and the
+    /// head lifts over them.
+    pub fn support_grid(&self) -> Option<f64> {
+        self.plate.as_ref().and_then(|p| p.support_grid)
+    }
+
     pub fn stage_limits(&self) -> Limits {
         Limits {
             velocity: self.stage.max_velocity,
@@ -1365,6 +1415,29 @@ impl MachineConfig {
     pub fn cuts_parts(&self, layer: &str) -> bool {
         let l = self.layers.iter().find(|l| l.name == layer);
         self.pierce(layer).active() || l.is_some_and(|l| l.kerf > 0.0 || l.lead_in != LeadKind::None || l.lead_out != LeadKind::None)
+    }
+
+    fn validate_head(&self) -> std::result::Result<(), String> {
+        let grid = self.plate.as_ref().and_then(|p| p.support_grid);
+        if let Some(g) = grid {
+            in_range("plate.support_grid", g, 1.0, 1000.0, "mm")?;
+        }
+        let Some(h) = &self.head else {
+            return match grid {
+                Some(_) => Err("plate.support_grid: lifting over pieces that may tip needs the head's Z axis: add [head]".into()),
+                None => Ok(()),
+            };
+        };
+        in_range("head.travel_z", h.travel_z, 1.0, 1000.0, "mm")?;
+        in_range("head.lift_height", h.lift_height, 0.1, h.travel_z, "mm (up to head.travel_z)")?;
+        VELOCITY.check("head.max_velocity", h.max_velocity)?;
+        ACCELERATION.check("head.max_acceleration", h.max_acceleration)?;
+        JERK.check("head.max_jerk", h.max_jerk)?;
+        in_range("head.clearance", h.clearance, 0.0, 100.0, "mm")?;
+        if self.scanner.is_some() {
+            return Err("head: a Z axis beside a scanner is not supported (lift moves are for stage-only cutters); remove [head] or [scanner]".into());
+        }
+        Ok(())
     }
 
     fn validate_plate(&self, p: &PlateConfig) -> std::result::Result<(), String> {
@@ -1418,6 +1491,9 @@ impl MachineConfig {
     /// Axis letters of the controller: X Y, then the scanner's if there is one.
     pub fn axis_letters(&self) -> Vec<char> {
         let mut letters = vec!['X', 'Y'];
+        if self.head.is_some() {
+            letters.push('Z');
+        }
         if let Some(s) = &self.scanner {
             letters.extend(s.axis_letters.iter().filter_map(|l| l.chars().next()));
         }

@@ -11,6 +11,8 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::job::Point;
+
+mod collisions;
 use crate::program::{tcp_of, CheckPoint, LineKind, Program};
 use crate::stream::LinkEvent;
 
@@ -36,6 +38,12 @@ pub struct RunSetup {
     /// every line the controller received, the sender's own too.
     #[serde(default)]
     pub real_time: bool,
+    /// Closed cutting contours smaller than twice the support grid, which
+    /// may tip once cut free (`[plate] support_grid`); the head's lift height.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub small_pieces: Vec<Vec<[f64; 2]>>,
+    #[serde(default)]
+    pub lift_height: f64,
 }
 
 /// Per program line: its kind and planned check points (marking lines only).
@@ -93,6 +101,11 @@ pub struct SimFigures {
     /// while marking, laser state. Empty: the run kept every limit.
     #[serde(default)]
     pub limit_breaches: Vec<String>,
+    /// The head passing below its lift height, laser off, over a piece cut
+    /// free that may have tipped (`collisions.rs`); `null` without a
+    /// support grid.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collisions: Option<u64>,
 }
 
 /// The program line of each line the controller received, in order (the
@@ -165,7 +178,7 @@ fn executed_at(run: &[Knot], fraction: f64) -> Vec<f64> {
 }
 
 pub fn sim_figures(log: &RunLog) -> SimFigures {
-    let setup = log.setup.clone().unwrap_or(RunSetup { axes: vec![], baud: 115_200, usable_half_field: None, tcp_tolerance_mm: None, machine: None, real_time: false });
+    let setup = log.setup.clone().unwrap_or(RunSetup { axes: vec![], baud: 115_200, usable_half_field: None, tcp_tolerance_mm: None, machine: None, real_time: false, small_pieces: Vec::new(), lift_height: 0.0 });
 
     let mut checker = LimitChecker::new(&setup.axes);
     for k in &log.knots {
@@ -293,7 +306,20 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
         laser_state_errors,
         first_violation: limits.first_violation,
         limit_breaches,
+        collisions: collisions_of(&setup, &log.knots),
     }
+}
+
+/// Collisions with pieces that may have tipped, where the run knew of any.
+fn collisions_of(setup: &RunSetup, knots: &[Knot]) -> Option<u64> {
+    if setup.small_pieces.is_empty() {
+        return None;
+    }
+    let pieces: Vec<Vec<Point>> = setup.small_pieces.iter().map(|o| o.iter().map(|&[x, y]| Point::new(x, y)).collect()).collect();
+    let z = setup.axes.iter().position(|a| a.letter == 'Z');
+    let tol = setup.tcp_tolerance_mm.unwrap_or(0.02) + 1e-6;
+    let cover = tol + setup.machine.as_ref().map_or(0.05, |m| m.import.tolerance + m.motion.corner_tolerance);
+    Some(collisions::count(knots, &pieces, z, setup.lift_height, cover, tol))
 }
 
 /// The axis limits a run broke, each with its worst value: positions outside
@@ -304,7 +330,7 @@ fn breaches(setup: &RunSetup, limits: &LimitReport) -> Vec<String> {
     let mut found = Vec::new();
     for (i, axis) in setup.axes.iter().enumerate() {
         let (lo, hi) = limits.peak_position.get(i).copied().unwrap_or((0.0, 0.0));
-        let range = if i < 2 { "travel" } else { "scanner field" };
+        let range = if "XYZ".contains(axis.letter) { "travel" } else { "scanner field" };
         if lo < axis.min - 1e-6 || hi > axis.max + 1e-6 {
             found.push(format!("{range} of {}: {lo:.3} to {hi:.3} mm, limits {} to {} mm", axis.letter, axis.min, axis.max));
         }

@@ -70,6 +70,13 @@ pub struct PlanReport {
     pub bridges: usize,
     #[serde(default)]
     pub pierces_saved: usize,
+    /// With a support grid (`[plate] support_grid`): the pieces that may
+    /// tip once cut free (smaller than twice the grid), and the air moves
+    /// that lift the head over them; `null` without one.
+    #[serde(default)]
+    pub tipping_pieces: Option<usize>,
+    #[serde(default)]
+    pub lifts: Option<usize>,
     /// Length cut on layers that pierce, every pass counted, mm.
     #[serde(default)]
     pub cut_length_mm: f64,
@@ -139,6 +146,9 @@ impl PlanReport {
             }
             if self.tabs > 0 {
                 s.push_str(&format!(", {} tabs left uncut", self.tabs));
+            }
+            if let (Some(pieces), Some(lifts)) = (self.tipping_pieces, self.lifts) {
+                s.push_str(&format!(", {pieces} pieces that may tip, {lifts} lifts over them"));
             }
             if self.lead_ins + self.lead_outs > 0 {
                 s.push_str(&format!(", {} lead-ins ({} moved for room), {} lead-outs", self.lead_ins, self.lead_ins_moved, self.lead_outs));

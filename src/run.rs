@@ -109,6 +109,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let outcome_leads = outcome.leads;
     let outcome_tabs = outcome.tabs;
     let outcome_bridges = outcome.bridges;
+    let tipping_pieces = machine.support_grid().map(|_| outcome.may_tip);
     let sequence = outcome.sequence;
     let cut_paths = || sequence.paths().filter(|p| machine.pierce(&job.processes[p.process].layer).active());
     let broken_rules: Option<Vec<String>> = outcome.broken_rules.map(|rules| rules.iter().map(|r| describe(&job, r)).collect());
@@ -139,6 +140,8 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         tabs: outcome_tabs,
         bridges: outcome_bridges.bridges,
         pierces_saved: outcome_bridges.pierces_saved,
+        tipping_pieces,
+        lifts: tipping_pieces.and(trajectory.head.as_ref()).map(|h| h.lifts()),
         cut_length_mm: cut_paths().map(|p| p.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>()).sum(),
         edge_length_saved_mm: plate.as_ref().map(|_| outcome_edge_saved),
         edge_starts: plate.as_ref().map(|p| cut_paths().filter(|c| !c.pierce && p.on_edge(c.start())).count()),
@@ -366,6 +369,9 @@ pub fn sim_config(machine: &MachineConfig, faults: Faults) -> SimConfig {
         AxisConfig { letter: 'X', min: 0.0, max: s.travel_x, max_velocity: s.max_velocity, max_acceleration: s.max_acceleration, max_jerk: s.max_jerk },
         AxisConfig { letter: 'Y', min: 0.0, max: s.travel_y, max_velocity: s.max_velocity, max_acceleration: s.max_acceleration, max_jerk: s.max_jerk },
     ];
+    if let (Some(h), Some(z)) = (&machine.head, machine.head_limits()) {
+        axes.push(AxisConfig { letter: 'Z', min: 0.0, max: h.travel_z, max_velocity: z.velocity, max_acceleration: z.acceleration, max_jerk: z.jerk });
+    }
     if let Some(sc) = &machine.scanner {
         for letter in machine.axis_letters().into_iter().skip(2) {
             axes.push(AxisConfig {
@@ -401,7 +407,25 @@ pub fn run_setup(machine: &MachineConfig, sim: &SimConfig) -> RunSetup {
         tcp_tolerance_mm: Some(machine.program.tolerance + 10f64.powi(-(machine.program.decimals as i32)) + 10f64.powi(-(machine.program.scanner_decimals as i32))),
         machine: Some(machine.clone()),
         real_time: false,
+        small_pieces: Vec::new(),
+        lift_height: machine.head.as_ref().map_or(0.0, |h| h.lift_height),
     }
+}
+
+/// The closed contours of `job` on layers that cut parts, smaller than
+/// twice the support grid both ways: what may tip once cut free (for the
+/// figures' own collision count; none without a support grid).
+pub fn small_pieces(job: &Job, machine: &MachineConfig) -> Vec<Vec<[f64; 2]>> {
+    let Some(grid) = machine.support_grid() else { return Vec::new() };
+    job.geometries
+        .iter()
+        .filter(|g| g.closed && g.points.len() >= 3 && machine.cuts_parts(&job.processes[g.process].layer))
+        .filter(|g| {
+            let (lo, hi) = crate::job::bounds_of(g.points.iter());
+            (hi.x - lo.x).max(hi.y - lo.y) < 2.0 * grid
+        })
+        .map(|g| g.points.iter().map(|p| [p.x, p.y]).collect())
+        .collect()
 }
 
 /// Default recording path of a dry-run: `<job stem>.mcap` in the working directory.
@@ -419,7 +443,7 @@ pub struct DryRun {
 /// Streams the planned program into a fresh simulator in virtual time.
 pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, faults: Faults) -> Result<DryRun> {
     let sim = sim_config(machine, faults);
-    let setup = run_setup(machine, &sim);
+    let setup = RunSetup { small_pieces: small_pieces(&planned.job, machine), ..run_setup(machine, &sim) };
     let rec = Recording::create(recording)?;
     let recorder = rec.recorder();
     recorder.write(TOPIC_SETUP, 0.0, &setup);

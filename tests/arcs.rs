@@ -62,7 +62,7 @@ fn a_stage_only_job_of_circles_sends_arcs_in_fewer_lines_as_closely_and_as_fast(
     (machine.stage.max_velocity, machine.stage.max_acceleration, machine.stage.max_jerk) = (scanner.velocity, scanner.acceleration, scanner.jerk);
     machine.serial.baud = 115_200;
     let start = AxisState { stage: on_the_fly.start.tcp(), scanner: Point::origin() };
-    let trajectory = Trajectory { tcp: on_the_fly.tcp, stage: StagePath::FollowsTcp, start, job_start: on_the_fly.job_start, has_scanner: false, stage_flow: None };
+    let trajectory = Trajectory { tcp: on_the_fly.tcp, stage: StagePath::FollowsTcp, start, job_start: on_the_fly.job_start, has_scanner: false, stage_flow: None, head: None };
 
     let with_arcs = program::generate(&job, &trajectory, &machine).unwrap();
     let mut lines_only = machine.clone();

@@ -27,6 +27,7 @@ pub mod blend;
 pub mod curve;
 pub mod flow;
 pub mod leg;
+pub mod lift;
 pub mod profile;
 pub mod qp;
 pub mod stage;
@@ -68,6 +69,8 @@ pub struct Trajectory {
     /// others stop the TCP while the stage catches up); `None` otherwise or
     /// without a field change.
     pub stage_flow: Option<f64>,
+    /// The head's Z, on a machine with one (`[head]`).
+    pub head: Option<lift::HeadPath>,
 }
 
 impl Trajectory {
@@ -78,6 +81,11 @@ impl Trajectory {
     /// The job's machine time (after the approach): the contract's `trajectory_time_s`.
     pub fn job_time(&self) -> f64 {
         self.duration() - self.job_start
+    }
+
+    /// The head's height at `t` (0 without a Z axis).
+    pub fn z_at(&self, t: f64) -> f64 {
+        self.head.as_ref().map_or(0.0, |h| h.z_at(t))
     }
 
     pub fn state_at(&self, t: f64) -> AxisState {
@@ -198,6 +206,8 @@ fn mark_all(
         let marks: Vec<(usize, f64)> = chain.paths.iter().map(|&k| (paths[k].geometry, processes[k].1)).collect();
         let pierce = processes[chain.paths[0]].2;
         b.mark_run(&marks, chain.group, run.as_ref(), pierce.time, pierce.power)?;
+        let at = b.time;
+        b.fell.extend(chain.paths.iter().flat_map(|&k| paths[k].falls.iter().map(move |&g| (at, g))));
     }
     b.stop(sequence.groups.len().saturating_sub(1))
 }
@@ -271,22 +281,53 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
         mark_all(&mut b, job, sequence, machine, &mut None, |_, _| Ok(()))?;
         Ok((b, job_start))
     };
+    // Lifts over pieces that may have tipped wait at a move's end where the
+    // move is short: that end is planned at rest too.
+    let lift = lift_settings(machine);
+    let lifts = |b: &TcpBuilder| -> Result<(Vec<lift::Window>, Vec<Point>)> {
+        let Some(settings) = &lift else { return Ok((Vec::new(), Vec::new())) };
+        let fallen: Vec<lift::Fallen> = b.fell.iter().map(|&(at, g)| lift::Fallen { outline: &job.geometries[g].points, at }).collect();
+        let windows = lift::windows(&b.path, &fallen, settings, machine.stage.max_velocity);
+        let rest = lift::rest_needed(&b.path, &windows, settings)?;
+        Ok((windows, rest))
+    };
     let mut rest_at = Vec::new();
     let (mut b, mut job_start) = plan(true, &rest_at)?;
     let mut outside = moves_leaving_travel(&b.path, machine);
+    let (mut windows, mut waits) = lifts(&b)?;
     for _ in 0..TRAVEL_ROUNDS {
-        if outside.is_empty() {
+        if outside.is_empty() && waits.is_empty() {
             break;
         }
         rest_at.extend(outside.iter().flat_map(|&(from, to)| [from, to]));
+        rest_at.extend(waits);
         (b, job_start) = plan(true, &rest_at)?;
         outside = moves_leaving_travel(&b.path, machine);
+        (windows, waits) = lifts(&b)?;
     }
-    if !outside.is_empty() {
+    if !outside.is_empty() || !waits.is_empty() {
         (b, job_start) = plan(false, &[])?;
+        (windows, waits) = lifts(&b)?;
+        if !waits.is_empty() {
+            return Err(Error::Motion(format!("a lift over a piece that may have tipped cannot wait at ({:.3}, {:.3})", waits[0].x, waits[0].y)));
+        }
     }
+    let (tcp, head) = match &lift {
+        Some(settings) => {
+            let (tcp, head) = lift::apply(b.path, &windows, settings)?;
+            (tcp, Some(head))
+        }
+        None => (b.path, machine.head.as_ref().map(|_| lift::HeadPath::default())),
+    };
     let start_state = AxisState { stage: start, scanner: Point::origin() };
-    Ok(Trajectory { tcp: b.path, stage: StagePath::FollowsTcp, start: start_state, job_start, has_scanner: machine.scanner.is_some(), stage_flow: None })
+    Ok(Trajectory { tcp, stage: StagePath::FollowsTcp, start: start_state, job_start, has_scanner: machine.scanner.is_some(), stage_flow: None, head })
+}
+
+/// What lifting the head takes, where it lifts over pieces that may tip.
+fn lift_settings(machine: &MachineConfig) -> Option<lift::LiftSettings> {
+    let head = machine.head.as_ref().filter(|h| h.lift_moves && machine.support_grid().is_some())?;
+    let limits = machine.head_limits()?.scaled(machine.motion.limit_margin);
+    Some(lift::LiftSettings { height: head.lift_height, limits, clearance: head.clearance })
 }
 
 /// Rounds of `stage_only` that bring marks' ends to rest where moves left the travel.
@@ -345,7 +386,7 @@ fn step_and_scan(job: &Job, sequence: &Sequence, machine: &MachineConfig, start:
         Ok(())
     })?;
     let start_state = AxisState { stage: start, scanner: Point::origin() };
-    Ok(Trajectory { tcp: b.path, stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true, stage_flow: None })
+    Ok(Trajectory { tcp: b.path, stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true, stage_flow: None, head: None })
 }
 
 /// Plans the flowing stage for a TCP and its pads: `flow::plan` (a seam for
@@ -364,7 +405,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     };
     let Some(first) = sequence.paths().next().map(|p| p.start()) else {
         let start_state = AxisState { stage: start, scanner: Point::origin() };
-        return Ok(Trajectory { tcp: TcpPath::default(), stage: StagePath::FollowsTcp, start: start_state, job_start: 0.0, has_scanner: true, stage_flow: None });
+        return Ok(Trajectory { tcp: TcpPath::default(), stage: StagePath::FollowsTcp, start: start_state, job_start: 0.0, has_scanner: true, stage_flow: None, head: None });
     };
     let groups = sequence.groups.len();
     // Field changes where the stage carries the TCP (no burst fits there).
@@ -615,7 +656,7 @@ fn with_flow(tcp: TcpPath, f: flow::Flow, start: Point, first: Point, first_grou
     }
     let start_state = AxisState { stage: start, scanner: Point::origin() };
     let stage = StagePath::Flow { start, approach, flow: f };
-    Ok(Trajectory { tcp: TcpPath::new(all), stage, start: start_state, job_start, has_scanner: true, stage_flow })
+    Ok(Trajectory { tcp: TcpPath::new(all), stage, start: start_state, job_start, has_scanner: true, stage_flow, head: None })
 }
 
 /// How long the change into field `g` of `tcp` takes: from the last mark
@@ -653,7 +694,7 @@ fn with_approach(mut tcp: TcpPath, mut stage_path: StagePath, stage0: Point, sta
         }
     }
     let start_state = AxisState { stage: start, scanner: Point::origin() };
-    Ok(Trajectory { tcp: TcpPath::new(pieces), stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true, stage_flow: None })
+    Ok(Trajectory { tcp: TcpPath::new(pieces), stage: StagePath::Moves { start, axes }, start: start_state, job_start, has_scanner: true, stage_flow: None, head: None })
 }
 
 /// The contract's `lower_bound_s` for this sequence: max(T_proc, T_stage).

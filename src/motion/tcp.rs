@@ -516,8 +516,11 @@ pub struct TcpBuilder {
     /// where the moves may run at speed through the marks' ends).
     pub hand_over: bool,
     /// Mark ends the hand-over leaves at rest (a laser-off move running
-    /// through them at speed would leave the travel).
+    /// through them at speed would leave the travel, or must wait there for
+    /// a lift).
     pub rest_at: Vec<Point>,
+    /// When each piece that may tip was cut free: (time, job geometry).
+    pub fell: Vec<(f64, usize)>,
     /// Corners and laser-off moves already planned (kept from one plan of a
     /// job to the next with `take_cache`: a replan after a field change the
     /// stage cannot make on the fly changes only that change).
@@ -538,7 +541,7 @@ type Corners = std::collections::HashMap<CornerKey, f64>;
 impl TcpBuilder {
     /// Starting at rest at `position` at time `time`.
     pub fn new(settings: TcpSettings, position: Point, time: f64) -> TcpBuilder {
-        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros(), hand_over: false, rest_at: Vec::new(), cache: Default::default() }
+        TcpBuilder { settings, path: TcpPath::default(), time, position, velocity: Vector2::zeros(), hand_over: false, rest_at: Vec::new(), fell: Vec::new(), cache: Default::default() }
     }
 
     fn push(&mut self, kind: PieceKind, group: usize, motion: Motion, duration: f64) {

@@ -52,6 +52,7 @@ impl CuttingPlan {
             leads: Default::default(),
             tabs: 0,
             bridges: Default::default(),
+            may_tip: 0,
         }
     }
 }

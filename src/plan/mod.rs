@@ -13,6 +13,7 @@ pub mod nearest;
 pub mod split;
 pub mod stop;
 pub mod tabs;
+pub mod tipping;
 
 use std::str::FromStr;
 
@@ -39,12 +40,15 @@ pub struct PlannedPath {
     /// Whether it starts with a bridge from where the path before ended
     /// (its first segment, counted in `lead_in`; `bridges`).
     pub bridge: bool,
+    /// Pieces (job geometries) this path cuts free that may tip: the head
+    /// lifts over them from here on (`tipping`).
+    pub falls: Vec<usize>,
 }
 
 impl PlannedPath {
     /// A path of `points` with no lead-in or lead-out.
     pub fn new(geometry: usize, points: Vec<Point>, process: usize, pierce: bool) -> PlannedPath {
-        PlannedPath { geometry, points, process, pierce, lead_in: 0, lead_out: 0, bridge: false }
+        PlannedPath { geometry, points, process, pierce, lead_in: 0, lead_out: 0, bridge: false, falls: Vec::new() }
     }
 
     pub fn start(&self) -> Point {
@@ -191,6 +195,8 @@ pub struct PlanOutcome {
     pub tabs: usize,
     /// Bridges cut instead of an air move and a pierce.
     pub bridges: bridges::BridgeCount,
+    /// Pieces smaller than twice the support grid, which may tip once cut free.
+    pub may_tip: usize,
 }
 
 /// Plans `job` with the planner `kind` stands for, and judges its order: the
@@ -215,6 +221,11 @@ pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
             (outcome.sequence, outcome.bridges) = bridges::add_bridges(job, outcome.sequence, ctx.machine, waste, &topology.groups);
         }
     }
+    if let Some(grid) = ctx.machine.support_grid() {
+        let pieces = tipping::pieces(job, ctx.machine, grid, &tabs::held(&tabs));
+        outcome.may_tip = pieces.len();
+        outcome.sequence = tipping::mark_falls(job, outcome.sequence, ctx.machine, &pieces, ctx.machine.cutting.common_cut_tolerance);
+    }
     Ok(outcome)
 }
 
@@ -229,7 +240,7 @@ fn plan_ordered(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
                 _ => (planner.plan(job, ctx)?, stop::SearchStop::Budget),
             };
             let broken_rules = cutting::sequence_violations(job, &sequence, ctx);
-            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default() })
+            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0 })
         }
     }
 }

@@ -129,6 +129,16 @@ pub fn axis_values(state: &AxisState, has_scanner: bool) -> Vec<f64> {
     v
 }
 
+/// Axis values of the trajectory at `t` in controller order: X Y, the
+/// head's Z where it has one, then the scanner's two.
+fn values_at(trajectory: &Trajectory, t: f64) -> Vec<f64> {
+    let mut v = axis_values(&trajectory.state_at(t), trajectory.has_scanner);
+    if trajectory.head.is_some() {
+        v.insert(2, trajectory.z_at(t));
+    }
+    v
+}
+
 /// TCP from controller axis values (stage + scanner).
 pub fn tcp_of(values: &[f64]) -> Point {
     if values.len() >= 4 {
@@ -377,6 +387,12 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
         p.breakpoints(&mut bp);
         marks.extend(bp.iter().map(|x| p.start + x));
     }
+    // The head's Z moves beside the TCP: a block is straight in Z too.
+    if let Some(head) = &trajectory.head {
+        head.breakpoints(span.start, span.end, &mut marks);
+    }
+    let z = |t: f64| trajectory.z_at(t);
+    let lifting = trajectory.head.as_ref().is_some_and(|h| !h.moves.is_empty());
     marks.retain(|&t| t >= span.start && t <= span.end);
     marks.sort_by(f64::total_cmp);
     marks.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
@@ -410,9 +426,13 @@ fn block_times(trajectory: &Trajectory, span: &Span, tolerance: f64, min_block: 
     // some distance over `cap` as soon as one is found.
     let error = |a: f64, b: f64, cap: f64| -> f64 {
         let ((pa, a_sampled), (pb, b_sampled)) = (position(a), position(b));
+        let (za, zb) = (z(a), z(b));
         let mut worst = 0.0f64;
         let mut off = |t: f64, p: Point| {
-            worst = worst.max((p - (pa + (pb - pa) * ((t - a) / (b - a)))).norm());
+            let f = (t - a) / (b - a);
+            let xy = (p - (pa + (pb - pa) * f)).norm();
+            let dz = if lifting { z(t) - (za + (zb - za) * f) } else { 0.0 };
+            worst = worst.max(xy.hypot(dz));
             worst <= cap
         };
         let lo = sample_t.partition_point(|&t| t <= a);
@@ -565,20 +585,30 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
     // vertex taken from rest, a jump's end): the machine can stop there. In a
     // mark, only where it does stop: a stage-only curve's pieces (`curve.rs`)
     // continue each other at speed.
+    let mut ends: Vec<f64> = (span.first..span.last)
+        .filter_map(|k| {
+            let (p, q) = (&trajectory.tcp.pieces[k], &trajectory.tcp.pieces[k + 1]);
+            let end = p.end_time();
+            let stops = span.kind != LineKind::Mark || p.motion.velocity(p.duration).norm() <= 1e-6;
+            (stops && q.start >= end - 1e-12).then_some(end)
+        })
+        .collect();
+    // The head's Z moves start and end on block ends: it is exactly at its
+    // height wherever it holds it.
+    if let Some(head) = &trajectory.head {
+        ends.extend(head.moves.iter().flat_map(|m| [m.start, m.end_time()]).filter(|&t| t > span.start && t < span.end));
+        ends.sort_by(f64::total_cmp);
+    }
     let mut times = vec![span.start];
     let mut from = span.start;
-    for k in span.first..span.last {
-        let (p, q) = (&trajectory.tcp.pieces[k], &trajectory.tcp.pieces[k + 1]);
-        let end = p.end_time();
-        let stops = span.kind != LineKind::Mark || p.motion.velocity(p.duration).norm() <= 1e-6;
-        if stops && q.start >= end - 1e-12 && end > from + 1e-12 && end < span.end - 1e-12 {
+    for end in ends {
+        if end > from + 1e-12 && end < span.end - 1e-12 {
             let part = Span { start: from, end, ..*span };
             times.extend(block_times(trajectory, &part, tolerance, min_block)?.into_iter().skip(1));
             from = end;
         }
     }
     times.extend(block_times(trajectory, &Span { start: from, ..*span }, tolerance, min_block)?.into_iter().skip(1));
-    let has_scanner = trajectory.has_scanner;
     let stage_only = matches!(trajectory.stage, crate::motion::stage::StagePath::FollowsTcp);
     let blocks: Vec<(usize, Option<arcs::ArcWords>)> = if span.kind == LineKind::Mark && stage_only && machine.program.arcs {
         let position = |t: f64| trajectory.tcp.position(t);
@@ -610,7 +640,7 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
             } else {
                 Vec::new()
             };
-            PlannedBlock { start: a, end: b, axes: axis_values(&trajectory.state_at(b), has_scanner), checks, arc }
+            PlannedBlock { start: a, end: b, axes: values_at(trajectory, b), checks, arc }
         })
         .collect())
 }
@@ -619,8 +649,15 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
 pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> Result<Program> {
     let letters = machine.axis_letters();
     let has_scanner = trajectory.has_scanner;
-    let start = axis_values(&trajectory.start, has_scanner);
-    let decimals: Vec<usize> = (0..start.len()).map(|i| if i < 2 { machine.program.decimals } else { machine.program.scanner_decimals }).collect();
+    let mut start = axis_values(&trajectory.start, has_scanner);
+    // The head's Z (at cutting height where the job starts) is a stage axis.
+    let stage_axes = if trajectory.head.is_some() {
+        start.insert(2, 0.0);
+        3
+    } else {
+        2
+    };
+    let decimals: Vec<usize> = (0..start.len()).map(|i| if i < stage_axes { machine.program.decimals } else { machine.program.scanner_decimals }).collect();
     let mut w = Writer {
         in_g1: false,
         in_g93: true,
@@ -634,6 +671,10 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
     let min_block = match machine.scanner_limits().filter(|_| has_scanner) {
         Some(l) => min_block_time(l, machine.program.scanner_decimals),
         None => min_block_time(machine.stage_limits(), machine.program.decimals),
+    };
+    let min_block = match machine.head_limits().filter(|_| trajectory.head.is_some()) {
+        Some(z) => min_block.max(min_block_time(z, machine.program.decimals)),
+        None => min_block,
     };
     w.setup("G21G90G93");
     let laser_on = match machine.laser.mode {

@@ -46,7 +46,7 @@ pub(super) fn containment(chains: &[Outline], tol: f64) -> Vec<Option<usize>> {
 
 /// Where a point lies with respect to a closed polygon.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Side {
+pub enum Side {
     Inside,
     Outside,
     /// Within the tolerance of its boundary: says nothing.
@@ -64,7 +64,7 @@ fn inside((points, closed): Outline, b: &[Point], tol: f64) -> bool {
 
 /// Crossing-number test (a ray to +x crosses the boundary an odd number of
 /// times from inside), with points within `tol` of an edge on the boundary.
-pub(super) fn side(p: Point, polygon: &[Point], tol: f64) -> Side {
+pub fn side(p: Point, polygon: &[Point], tol: f64) -> Side {
     let n = polygon.len();
     let mut odd = false;
     for i in 0..n {

@@ -43,6 +43,7 @@ use rstar::primitives::{GeomWithData, Rectangle};
 use crate::error::{Error, Result};
 use crate::job::{Job, Point};
 pub use common_cuts::common_cuts;
+pub use containment::{side, Side};
 
 /// How geometry becomes elements and common cuts.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -404,6 +404,7 @@ pub(crate) mod tests {
             scrap_cuts: ScrapCuts::InRoute,
             layer: None,
             clamps: Vec::new(),
+            support_grid: None,
         }
     }
 
