@@ -318,8 +318,10 @@ fn collisions_of(setup: &RunSetup, knots: &[Knot]) -> Option<u64> {
     let pieces: Vec<Vec<Point>> = setup.small_pieces.iter().map(|o| o.iter().map(|&[x, y]| Point::new(x, y)).collect()).collect();
     let z = setup.axes.iter().position(|a| a.letter == 'Z');
     let tol = setup.tcp_tolerance_mm.unwrap_or(0.02) + 1e-6;
-    let cover = tol + setup.machine.as_ref().map_or(0.05, |m| m.import.tolerance + m.motion.corner_tolerance);
-    Some(collisions::count(knots, &pieces, z, setup.lift_height, cover, tol))
+    let machine = setup.machine.as_ref();
+    let cover = tol + machine.map_or(0.05, |m| m.import.tolerance + m.motion.corner_tolerance);
+    let graze = tol + machine.map_or(0.5, |m| m.program.jump_tolerance);
+    Some(collisions::count(knots, &pieces, z, setup.lift_height, cover, tol, graze))
 }
 
 /// The axis limits a run broke, each with its worst value: positions outside

@@ -206,6 +206,11 @@ fn sim_summary(sim: &SimFigures) -> String {
     let field = sim.peak_field_use.map(|f| format!(", field use {:.2}", f)).unwrap_or_default();
     let deviation = sim.max_tcp_deviation_mm.map_or("max TCP deviation not measured (no plan)".to_string(), |d| format!("max TCP deviation {d:.4} mm"));
     s.push_str(&format!("  {deviation}, stage use {:.2}{}, limit violations {}, alarms {:?}\n", sim.peak_stage_use, field, sim.limit_violations, sim.alarms));
+    match sim.collisions {
+        Some(0) => s.push_str("  no collisions with pieces that may have tipped\n"),
+        Some(n) => s.push_str(&format!("  COLLISIONS: the head passed low over a piece that may have tipped {n} time(s)\n")),
+        None => {}
+    }
     if let Some(v) = &sim.first_violation {
         s.push_str(&format!("  first limit violation: {v}\n"));
     }

@@ -19,10 +19,11 @@ const STEP_MM: f64 = 0.1;
 /// Collisions of the head below `lift_height` (Z at axis `z`, none: always
 /// at 0) with `pieces` once fallen. `cover`: how near the laser must pass
 /// every point of an outline to cut it (the program's tolerance, the
-/// corners' and the drawing's flattening); `tol`: how far the executed path
-/// may lie from the plan, so how far inside a piece, or below the lift
-/// height, the head must be to count.
-pub fn count(knots: &[Knot], pieces: &[Vec<Point>], z: Option<usize>, lift_height: f64, cover: f64, tol: f64) -> u64 {
+/// corners' and the drawing's flattening); `tol`: how far an executed cut
+/// may lie from the plan (the head on a piece's edge is not over it);
+/// `graze`: how far an executed air move may (the program's jump
+/// tolerance), so how far inside a piece the head must be to count.
+pub fn count(knots: &[Knot], pieces: &[Vec<Point>], z: Option<usize>, lift_height: f64, cover: f64, tol: f64, graze: f64) -> u64 {
     if pieces.is_empty() || knots.len() < 2 {
         return 0;
     }
@@ -94,11 +95,11 @@ pub fn count(knots: &[Knot], pieces: &[Vec<Point>], z: Option<usize>, lift_heigh
             if s == 0 {
                 continue;
             }
-            let low = za + (zb - za) * f < lift_height - tol;
+            let low = za + (zb - za) * f < lift_height - 1e-3;
             let here = AABB::from_point([p.x, p.y]);
             for c in boxes.locate_in_envelope_intersecting(here) {
                 let i = c.data;
-                let now = armed[i] && !lasered && low && side(p, &pieces[i], tol) == Side::Inside;
+                let now = armed[i] && !lasered && low && side(p, &pieces[i], graze) == Side::Inside;
                 if now && !over[i] {
                     collisions += 1;
                 }
@@ -142,7 +143,7 @@ mod tests {
         let run = |tail: Vec<Knot>| {
             let mut k = cut(0.0);
             k.extend(tail);
-            count(&k, &pieces, Some(2), 5.0, 0.01, 0.01)
+            count(&k, &pieces, Some(2), 5.0, 0.01, 0.01, 0.5)
         };
         assert_eq!(run(across(0.0)), 1, "crossed low after it fell");
         assert_eq!(run(across(5.0)), 0, "crossed at the lift height");
@@ -151,10 +152,10 @@ mod tests {
         let mut open = cut(0.0);
         open.pop();
         open.extend(across(0.0));
-        assert_eq!(count(&open, &pieces, Some(2), 5.0, 0.01, 0.01), 0);
+        assert_eq!(count(&open, &pieces, Some(2), 5.0, 0.01, 0.01, 0.5), 0);
         // Starting over it (a lead-out into a slug) and leaving: none.
         let mut k = cut(0.0);
         k.extend([knot(4.5, 3.0, 3.0, 0.0, 500.0), knot(5.0, -5.0, 3.0, 0.0, 0.0)]);
-        assert_eq!(count(&k, &pieces, Some(2), 5.0, 0.01, 0.01), 0);
+        assert_eq!(count(&k, &pieces, Some(2), 5.0, 0.01, 0.01, 0.5), 0);
     }
 }

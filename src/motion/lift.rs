@@ -84,6 +84,9 @@ impl HeadPath {
 pub struct LiftSettings {
     pub height: f64,
     pub limits: Limits,
+    /// How far around a piece the head is up: `[head] clearance` beyond
+    /// the program's jump tolerance (an air move's blocks may stray that far
+    /// from its plan).
     pub clearance: f64,
 }
 

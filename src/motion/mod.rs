@@ -327,7 +327,7 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
 fn lift_settings(machine: &MachineConfig) -> Option<lift::LiftSettings> {
     let head = machine.head.as_ref().filter(|h| h.lift_moves && machine.support_grid().is_some())?;
     let limits = machine.head_limits()?.scaled(machine.motion.limit_margin);
-    Some(lift::LiftSettings { height: head.lift_height, limits, clearance: head.clearance })
+    Some(lift::LiftSettings { height: head.lift_height, limits, clearance: head.clearance + machine.program.jump_tolerance })
 }
 
 /// Rounds of `stage_only` that bring marks' ends to rest where moves left the travel.
