@@ -307,3 +307,73 @@ fn bridges_replace_an_air_move_and_a_pierce_and_cut_only_waste() {
         parent[a] = b;
     }
 }
+
+/// The flatbed cutter on a plate of `width` x `height` mm at the origin with
+/// a 30 mm support grid, and a fast Z axis lifting 5 mm over pieces that may
+/// have tipped (`lift_moves`: whether it lifts at all).
+fn flatbed_lifting(width: f64, height: f64, lift_moves: bool) -> MachineConfig {
+    let text = std::fs::read_to_string(root().join("config/flatbed-cutter.toml")).unwrap();
+    let extra = format!(
+        "\n[plate]\nwidth = {width}\nheight = {height}\nsupport_grid = 30.0\n\n[head]\ntravel_z = 50.0\nlift_height = 5.0\nmax_velocity = 200.0\nmax_acceleration = 10000.0\nmax_jerk = 1000000.0\nclearance = 2.0\nlift_moves = {lift_moves}\n"
+    );
+    MachineConfig::parse(&(text + &extra), "lifting.toml").unwrap()
+}
+
+/// Seed 000's lift moves on a generated sheet: the simulator's figures count
+/// collisions from the executed motion alone (a piece cut free, then the head
+/// over it low with the laser off). Without lifts there are some, so the
+/// check can fail; with them none, for under 1 % more machine time, every
+/// limit (the Z axis's too) and precedence rule kept.
+#[test]
+fn lifts_keep_the_head_off_pieces_that_may_have_tipped_for_under_one_percent_more_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let params = SheetParams::with_target(1000);
+    let sheet = generate_sheet(&params, 3);
+    let path = dir.path().join("sheet.svg");
+    std::fs::write(&path, to_svg(&sheet, &params)).unwrap();
+    let run = |lift_moves: bool| {
+        let machine = flatbed_lifting(params.width, params.height, lift_moves);
+        let planned = laserd::run::plan(&path, &machine, PlannerKind::Auto, None).unwrap();
+        let dry = laserd::run::dry_run(&planned, &machine, &dir.path().join(format!("{lift_moves}.mcap")), Default::default()).unwrap();
+        assert!(dry.outcome.completed && dry.outcome.errors.is_empty(), "{:?}", dry.outcome.stop_reason);
+        let sim = dry.report.sim.clone().unwrap();
+        assert_eq!((sim.limit_violations, dry.report.precedence_violations), (0, Some(0)), "{:?}", sim.limit_breaches);
+        (dry.report, sim)
+    };
+    let (lifted, lifted_sim) = run(true);
+    let (down, down_sim) = run(false);
+    let pieces = lifted.tipping_pieces.unwrap();
+    let lifts = lifted.lifts.unwrap();
+    let added = lifted_sim.job_time_s / down_sim.job_time_s - 1.0;
+    eprintln!(
+        "lifts: {} contours, {pieces} may tip; collisions without lifts {:?}, with {lifts} lifts {:?}; simulated {:.3} s -> {:.3} s (+{:.3} %)",
+        lifted.geometries,
+        down_sim.collisions,
+        lifted_sim.collisions,
+        down_sim.job_time_s,
+        lifted_sim.job_time_s,
+        100.0 * added
+    );
+    assert!(pieces > 0 && lifts > 0, "{pieces} pieces, {lifts} lifts");
+    assert!(down_sim.collisions.unwrap() > 0, "the head stays down over fallen pieces without lifts");
+    assert_eq!(lifted_sim.collisions, Some(0));
+    assert_eq!(down.lifts, Some(0));
+    assert!(added <= 0.01, "lifts add {:.3} % machine time", 100.0 * added);
+}
+
+/// A support grid of 0, or one without a Z axis to lift, is refused by name.
+#[test]
+fn a_support_grid_of_zero_or_without_a_z_axis_is_refused_by_name() {
+    let text = std::fs::read_to_string(root().join("config/flatbed-cutter.toml")).unwrap();
+    let plate = "\n[plate]\nwidth = 300.0\nheight = 300.0\n";
+    let head = "\n[head]\ntravel_z = 50.0\nlift_height = 5.0\nmax_velocity = 200.0\nmax_acceleration = 10000.0\nmax_jerk = 1000000.0\n";
+    for (extra, wanted) in [
+        (format!("{plate}support_grid = 0.0\n{head}"), "plate.support_grid: must be between 1 and 1000 mm, got 0"),
+        (format!("{plate}support_grid = 30.0\n"), "plate.support_grid: lifting over pieces that may tip needs the head's Z axis: add [head]"),
+        (format!("{plate}support_grid = 30.0\n{head}").replace("lift_height = 5.0", "lift_height = 60.0"), "head.lift_height: must be between 0.1 and 50 mm (up to head.travel_z), got 60"),
+        (format!("{plate}support_grid = 30.0\n{head}clearance = -1.0\n"), "head.clearance: must be between 0 and 100 mm, got -1"),
+    ] {
+        let err = MachineConfig::parse(&(text.clone() + &extra), "grid.toml").unwrap_err().to_string();
+        assert!(err.contains("grid.toml") && err.contains(wanted), "{err}");
+    }
+}
