@@ -747,6 +747,17 @@ pub struct CuttingConfig {
     /// if that is faster than the air move and the pierce; 0: no bridges.
     #[serde(default)]
     pub bridge_max: f64,
+    /// Pre-cuts (seed 000): a cut that would start with a pierce on a
+    /// junction the route passed through earlier is started this far (mm)
+    /// into its element and back when the head passes there, then later
+    /// started in that kerf without a pierce, where that is faster; 0: none.
+    #[serde(default)]
+    pub precut_length: f64,
+    /// What the machine's handling of a turn sharper than `corner_angle` (a
+    /// sharp-angle macro: a loop, a slow-down, a dwell) costs, in seconds:
+    /// pre-cuts at a junction go in the order with the fewest of them.
+    #[serde(default)]
+    pub sharp_angle_cost: f64,
 }
 
 /// Which search improves the cutting planner's construction (`[cutting] search`).
@@ -840,6 +851,8 @@ impl Default for CuttingConfig {
             time_limit: None,
             search: Default::default(),
             bridge_max: 0.0,
+            precut_length: 0.0,
+            sharp_angle_cost: 0.0,
         }
     }
 }
@@ -1270,6 +1283,8 @@ impl MachineConfig {
         TOLERANCE.check("cutting.common_cut_tolerance", c.common_cut_tolerance)?;
         in_range("cutting.corner_angle", c.corner_angle, 1.0, 180.0, "degrees")?;
         in_range("cutting.bridge_max", c.bridge_max, 0.0, 1000.0, "mm (0: no bridges)")?;
+        in_range("cutting.precut_length", c.precut_length, 0.0, 100.0, "mm (0: no pre-cuts)")?;
+        in_range("cutting.sharp_angle_cost", c.sharp_angle_cost, 0.0, 60.0, "s")?;
         if let Some(t) = c.time_limit {
             TIME_LIMIT.check("cutting.time_limit", t)?;
         }
@@ -1760,6 +1775,10 @@ mod tests {
             ("cutting.corner_angle", F(720.0)),
             ("cutting.bridge_max", F(-1.0)),
             ("cutting.bridge_max", F(1e4)),
+            ("cutting.precut_length", F(-1.0)),
+            ("cutting.precut_length", F(1e3)),
+            ("cutting.sharp_angle_cost", F(f64::NAN)),
+            ("cutting.sharp_angle_cost", F(1e3)),
             ("cutting.time_limit", F(1e-300)),
             ("galvo.direction_weight", F(1e300)),
             ("galvo.direction_weight_single_field", F(-0.5)),

@@ -70,6 +70,13 @@ pub struct PlanReport {
     pub bridges: usize,
     #[serde(default)]
     pub pierces_saved: usize,
+    /// Pre-cuts made where a cut would start with a pierce on a junction
+    /// passed before (`[cutting] precut_length`), each saving a pierce, and
+    /// the sharp-angle macros at those junctions in the order made.
+    #[serde(default)]
+    pub precuts: usize,
+    #[serde(default)]
+    pub precut_sharp_angles: usize,
     /// With a support grid (`[plate] support_grid`): the pieces that may
     /// tip once cut free (smaller than twice the grid), and the air moves
     /// that lift the head over them; `null` without one.
@@ -143,6 +150,9 @@ impl PlanReport {
             }
             if self.bridges > 0 {
                 s.push_str(&format!(", {} bridges saving {} pierces", self.bridges, self.pierces_saved));
+            }
+            if self.precuts > 0 {
+                s.push_str(&format!(", {} pre-cuts instead of pierces ({} sharp angles at their junctions)", self.precuts, self.precut_sharp_angles));
             }
             if self.tabs > 0 {
                 s.push_str(&format!(", {} tabs left uncut", self.tabs));

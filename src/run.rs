@@ -110,6 +110,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let outcome_tabs = outcome.tabs;
     let outcome_bridges = outcome.bridges;
     let tipping_pieces = machine.support_grid().map(|_| outcome.may_tip);
+    let precuts = outcome.precuts;
     let sequence = outcome.sequence;
     let cut_paths = || sequence.paths().filter(|p| machine.pierce(&job.processes[p.process].layer).active());
     let broken_rules: Option<Vec<String>> = outcome.broken_rules.map(|rules| rules.iter().map(|r| describe(&job, r)).collect());
@@ -140,6 +141,8 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         tabs: outcome_tabs,
         bridges: outcome_bridges.bridges,
         pierces_saved: outcome_bridges.pierces_saved,
+        precuts: precuts.precuts,
+        precut_sharp_angles: precuts.macros,
         tipping_pieces,
         lifts: tipping_pieces.and(trajectory.head.as_ref()).map(|h| h.lifts()),
         cut_length_mm: cut_paths().map(|p| p.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>()).sum(),

@@ -377,3 +377,107 @@ fn a_support_grid_of_zero_or_without_a_z_axis_is_refused_by_name() {
         assert!(err.contains("grid.toml") && err.contains(wanted), "{err}");
     }
 }
+
+/// Turns sharper than `corner_angle` (degrees) along `headings`: the
+/// sharp-angle macros, counted here from the definition.
+fn sharp_turns(headings: &[nalgebra::Vector2<f64>], corner_angle: f64) -> usize {
+    headings.windows(2).filter(|w| w[0].angle(&w[1]) > corner_angle.to_radians() + 1e-12).count()
+}
+
+/// Every order of `items`.
+fn permutations(items: &[usize]) -> Vec<Vec<usize>> {
+    if items.len() <= 1 {
+        return vec![items.to_vec()];
+    }
+    let mut out = Vec::new();
+    for (i, &first) in items.iter().enumerate() {
+        let rest: Vec<usize> = items.iter().enumerate().filter(|&(j, _)| j != i).map(|(_, &x)| x).collect();
+        for mut p in permutations(&rest) {
+            p.insert(0, first);
+            out.push(p);
+        }
+    }
+    out
+}
+
+/// Seed 000's pre-cut order on a sheet of 60 star junctions (2 to 5 spokes
+/// started later from a junction a cut runs through, at random angles):
+/// every junction's pre-cuts come out in an order with as few sharp-angle
+/// macros as the best of all orders, counted from the written path alone;
+/// each later spoke starts in its pre-cut's kerf without a pierce.
+#[test]
+fn the_precut_order_at_every_junction_of_a_sheet_is_the_brute_force_optimum() {
+    use laserd::job::{Geometry, Process};
+    use laserd::plan::{PathGroup, PlannedPath, Sequence};
+    use rand::{Rng, SeedableRng};
+    let mut machine = flatbed_with("");
+    machine.cutting.precut_length = 2.0;
+    machine.cutting.sharp_angle_cost = 0.02;
+    let layer = machine.layers.iter().find(|l| machine.pierce(&l.name).active()).unwrap().name.clone();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+    let mut geometries = Vec::new();
+    let mut paths = Vec::new();
+    let mut junctions = Vec::new();
+    for j in 0..60 {
+        let centre = Point::new(40.0 + 60.0 * (j % 10) as f64, 40.0 + 60.0 * (j / 10) as f64);
+        let at = |deg: f64, r: f64| centre + nalgebra::Vector2::new(deg.to_radians().cos(), deg.to_radians().sin()) * r;
+        // The cut through: in from one side, out the other (bent a little).
+        let a: f64 = rng.random_range(0.0..360.0);
+        let through = vec![at(a, 20.0), centre, at(a + 180.0 + rng.random_range(-40.0..40.0), 20.0)];
+        let spokes = rng.random_range(2..=5usize);
+        let g = geometries.len();
+        geometries.push(Geometry { arcs: Vec::new(), profile: Vec::new(), points: through.clone(), closed: false, process: 0, source: format!("through {j}") });
+        paths.push(PlannedPath::new(g, through, 0, true));
+        let mut later = Vec::new();
+        for s in 0..spokes {
+            let spoke = vec![centre, at(rng.random_range(0.0..360.0), 15.0)];
+            let g = geometries.len();
+            geometries.push(Geometry { arcs: Vec::new(), profile: Vec::new(), points: spoke.clone(), closed: false, process: 0, source: format!("spoke {j}.{s}") });
+            later.push(PlannedPath::new(g, spoke, 0, true));
+        }
+        junctions.push((centre, spokes));
+        paths.extend(later);
+    }
+    let job = Job { source: "stars".into(), geometries, processes: vec![Process { layer, speed: 50.0, power: 1000.0, passes: 1 }] };
+    let pierces_before = paths.iter().filter(|p| p.pierce).count();
+    let sequence = Sequence { groups: vec![PathGroup { field_center: None, paths }] };
+    let (cut, count) = laserd::plan::precut::add_precuts(&job, sequence, &machine);
+    let spokes: usize = junctions.iter().map(|j| j.1).sum();
+    assert_eq!(count.precuts, spokes, "every spoke pre-cut: a pierce costs more than 2 mm and back");
+    let paths: Vec<&PlannedPath> = cut.paths().collect();
+    assert_eq!(paths.iter().filter(|p| p.pierce).count(), pierces_before - spokes);
+    let corner = machine.cutting.corner_angle;
+    let mut ordered = 0;
+    for (centre, n) in &junctions {
+        // The cut through, from the written points: in, the pre-cuts (out
+        // and back to the centre), out.
+        let through = paths.iter().find(|p| p.pierce && p.points.len() > 3 && p.points[1] == *centre).expect("the cut through the junction");
+        let pts = &through.points;
+        assert_eq!(pts.len(), 3 + 2 * n, "{n} pre-cuts at {centre:?}: {pts:?}");
+        let outs: Vec<nalgebra::Vector2<f64>> = (0..*n).map(|k| (pts[2 + 2 * k] - centre).normalize()).collect();
+        for k in 0..*n {
+            assert_eq!(pts[3 + 2 * k], *centre, "each pre-cut comes back to the junction");
+            assert!(((pts[2 + 2 * k] - centre).norm() - 2.0).abs() < 1e-9, "2 mm into the spoke");
+            // The spoke it belongs to starts there, in the kerf, without a pierce.
+            let spoke = paths.iter().find(|p| p.points[0] == *centre && (p.points[1] - centre).normalize().dot(&outs[k]) > 1.0 - 1e-12).unwrap();
+            assert!(!spoke.pierce);
+        }
+        let headings = |order: &[usize]| {
+            let mut h = vec![(centre - pts[0]).normalize()];
+            for &k in order {
+                h.push(outs[k]);
+                h.push(-outs[k]);
+            }
+            h.push((pts[pts.len() - 1] - centre).normalize());
+            h
+        };
+        let made: Vec<usize> = (0..*n).collect();
+        let chosen = sharp_turns(&headings(&made), corner);
+        let best = permutations(&made).iter().map(|o| sharp_turns(&headings(o), corner)).min().unwrap();
+        assert_eq!(chosen, best, "junction {centre:?}: {chosen} sharp angles, the best order has {best}");
+        let worst = permutations(&made).iter().map(|o| sharp_turns(&headings(o), corner)).max().unwrap();
+        ordered += usize::from(worst > best);
+    }
+    eprintln!("pre-cuts: {spokes} at {} junctions, {ordered} where the order matters, {} sharp angles in all", junctions.len(), count.macros);
+    assert!(ordered > 0, "some junction where the order matters");
+}

@@ -36,7 +36,7 @@ pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     let (cutting, marking): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| cuts[g]);
     if cutting.is_empty() {
         let (sequence, search_stopped_by) = galvo::plan_galvo(job, ctx, false)?;
-        return Ok(PlanOutcome { sequence, planner: "hha".into(), broken_rules: Some(Vec::new()), search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0 });
+        return Ok(PlanOutcome { sequence, planner: "hha".into(), broken_rules: Some(Vec::new()), search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() });
     }
     if marking.is_empty() {
         return Ok(cutting::plan_cutting(job, ctx)?.outcome());
@@ -60,7 +60,7 @@ pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
         broken
     });
     let search_stopped_by = marking_stopped_by.and(cut.search_stopped_by);
-    Ok(PlanOutcome { sequence, planner: "hha+ecp".into(), broken_rules, search_stopped_by, edge_length_saved_mm: cut.edge_length_saved_mm, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0 })
+    Ok(PlanOutcome { sequence, planner: "hha+ecp".into(), broken_rules, search_stopped_by, edge_length_saved_mm: cut.edge_length_saved_mm, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() })
 }
 
 /// The geometries `which` of `job` as a job of their own (the processes

@@ -53,6 +53,7 @@ impl CuttingPlan {
             tabs: 0,
             bridges: Default::default(),
             may_tip: 0,
+            precuts: Default::default(),
         }
     }
 }

@@ -10,6 +10,7 @@ pub mod fields;
 pub mod galvo;
 pub mod lead;
 pub mod nearest;
+pub mod precut;
 pub mod split;
 pub mod stop;
 pub mod tabs;
@@ -197,6 +198,8 @@ pub struct PlanOutcome {
     pub bridges: bridges::BridgeCount,
     /// Pieces smaller than twice the support grid, which may tip once cut free.
     pub may_tip: usize,
+    /// Pre-cuts made instead of pierces.
+    pub precuts: precut::PrecutCount,
 }
 
 /// Plans `job` with the planner `kind` stands for, and judges its order: the
@@ -221,6 +224,7 @@ pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
             (outcome.sequence, outcome.bridges) = bridges::add_bridges(job, outcome.sequence, ctx.machine, waste, &topology.groups);
         }
     }
+    (outcome.sequence, outcome.precuts) = precut::add_precuts(job, outcome.sequence, ctx.machine);
     if let Some(grid) = ctx.machine.support_grid() {
         let pieces = tipping::pieces(job, ctx.machine, grid, &tabs::held(&tabs));
         outcome.may_tip = pieces.len();
@@ -240,7 +244,7 @@ fn plan_ordered(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
                 _ => (planner.plan(job, ctx)?, stop::SearchStop::Budget),
             };
             let broken_rules = cutting::sequence_violations(job, &sequence, ctx);
-            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0 })
+            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() })
         }
     }
 }
