@@ -754,8 +754,10 @@ pub struct CuttingConfig {
     #[serde(default)]
     pub precut_length: f64,
     /// What the machine's handling of a turn sharper than `corner_angle` (a
-    /// sharp-angle macro: a loop, a slow-down, a dwell) costs, in seconds:
-    /// pre-cuts at a junction go in the order with the fewest of them.
+    /// sharp-angle macro: a loop, a slow-down, a dwell) costs, in mm of air
+    /// move as `pierce_cost`: the cutting planner charges it where a cut
+    /// goes on through such a turn, and pre-cuts at a junction go in the
+    /// order with the fewest of them.
     #[serde(default)]
     pub sharp_angle_cost: f64,
 }
@@ -1284,7 +1286,7 @@ impl MachineConfig {
         in_range("cutting.corner_angle", c.corner_angle, 1.0, 180.0, "degrees")?;
         in_range("cutting.bridge_max", c.bridge_max, 0.0, 1000.0, "mm (0: no bridges)")?;
         in_range("cutting.precut_length", c.precut_length, 0.0, 100.0, "mm (0: no pre-cuts)")?;
-        in_range("cutting.sharp_angle_cost", c.sharp_angle_cost, 0.0, 60.0, "s")?;
+        in_range("cutting.sharp_angle_cost", c.sharp_angle_cost, 0.0, 1000.0, "mm")?;
         if let Some(t) = c.time_limit {
             TIME_LIMIT.check("cutting.time_limit", t)?;
         }

@@ -412,7 +412,7 @@ fn the_precut_order_at_every_junction_of_a_sheet_is_the_brute_force_optimum() {
     use rand::{Rng, SeedableRng};
     let mut machine = flatbed_with("");
     machine.cutting.precut_length = 2.0;
-    machine.cutting.sharp_angle_cost = 0.02;
+    machine.cutting.sharp_angle_cost = 2.0;
     let layer = machine.layers.iter().find(|l| machine.pierce(&l.name).active()).unwrap().name.clone();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
     let mut geometries = Vec::new();

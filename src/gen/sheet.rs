@@ -244,6 +244,7 @@ impl Gen {
             metric: Metric::Euclidean,
             pierce_cost: params.pierce_cost,
             edge_starts: Vec::new(),
+            turns: crate::plan::ecp::Turns::default(),
         };
         Sheet { instance, arc_centres: self.arc_centres }
     }

@@ -96,6 +96,7 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     // is geometry k, with or without a plate).
     let held = super::tabs::held(&super::tabs::place(job, ctx.machine)?);
     model.instance.inner_outer.retain(|&(_, outer)| !held.get(outer).copied().unwrap_or(false));
+    model.charge_sharp_turns(settings.sharp_angle_cost, settings.corner_angle);
     let inst = &model.instance;
     // A time limit (none by default) is for the whole planning step, topology
     // included, with a little kept back for turning the route into paths.

@@ -4,7 +4,8 @@
 //! into that element and back (a pre-cut); the later cut then starts there
 //! without a pierce. A pre-cut is made where it is faster than the pierce:
 //! its length there and back at the cut's speed, and two sharp-angle
-//! macros at most (`[cutting] sharp_angle_cost`), against the pierce time.
+//! macros at most (`[cutting] sharp_angle_cost`, in mm of air move as
+//! `pierce_cost`, so in seconds at the pierce's rate), against the pierce time.
 //!
 //! Where several pre-cuts go out from one pass through a junction, they are
 //! made in the order with the fewest sharp-angle macros (turns sharper than
@@ -69,7 +70,7 @@ pub fn cost(j: &Junction, order: &[usize], cos_sharp: f64) -> (usize, f64) {
 pub fn best_order(j: &Junction, cos_sharp: f64) -> Vec<usize> {
     let n = j.out.len();
     let mut order: Vec<usize> = (0..n).collect();
-    if n < 2 || n > MAX_ORDERED {
+    if !(2..=MAX_ORDERED).contains(&n) {
         return order;
     }
     let mut best = (order.clone(), cost(j, &order, cos_sharp));
@@ -117,9 +118,13 @@ pub fn add_precuts(job: &Job, mut sequence: Sequence, machine: &MachineConfig) -
                 let process = &job.processes[path.process];
                 let speed = process.speed.min(machine.stage.max_velocity);
                 let pre = length.min(0.5 * first);
-                let time = 2.0 * pre / speed + 2.0 * ramp(speed) + 2.0 * machine.cutting.sharp_angle_cost;
+                // Macros are priced in mm of air move, as the pierce is
+                // (`pierce_cost`): in seconds at that rate.
+                let pierce = machine.pierce(&process.layer).time;
+                let macro_time = machine.cutting.sharp_angle_cost * pierce / machine.cutting.pierce_cost.max(1e-9);
+                let time = 2.0 * pre / speed + 2.0 * ramp(speed) + 2.0 * macro_time;
                 if let Some(&(j, i)) = passed.get(&key(path.points[0])) {
-                    if pre > 1e-6 && time < machine.pierce(&process.layer).time {
+                    if pre > 1e-6 && time < pierce {
                         wanted.entry((g, j, i)).or_default().push(k);
                     }
                 }

@@ -133,6 +133,7 @@ mod tests {
             metric: Metric::Euclidean,
             pierce_cost: 0.0,
             edge_starts: Vec::new(),
+            turns: crate::plan::ecp::Turns::default(),
         }
     }
 

@@ -84,6 +84,23 @@ pub struct Instance {
     /// Per element, for its ends a and b: a cut starting there needs no
     /// pierce (it lies on the plate's edge). Empty: every start pierces.
     pub edge_starts: Vec<[bool; 2]>,
+    /// What going on through a sharp turn costs (none by default).
+    pub turns: Turns,
+}
+
+/// Sharp-angle macros in the cutting model (seed 000): going on from one cut
+/// onto the next through a turn sharper than the corner angle costs `cost`
+/// (in the unit of the air moves, as a pierce does). The turn is the same
+/// whichever way the two are cut, so costs stay symmetric.
+#[derive(Debug, Clone, Default)]
+pub struct Turns {
+    /// Per element: its unit heading where it leaves `a` and where it
+    /// arrives at `b`. Empty: no turn costs anything.
+    pub headings: Vec<[nalgebra::Vector2<f64>; 2]>,
+    pub cost: f64,
+    /// The cosine of the corner angle: a turn whose headings' dot product
+    /// is below it is sharp.
+    pub cos_sharp: f64,
 }
 
 /// One element cut in one direction: from `a` to `b`, or from `b` to `a` when reversed.
@@ -118,10 +135,26 @@ impl Instance {
         let here = from.map_or(self.depot, |c| self.ends(c).1);
         let (start, _) = self.ends(to);
         let air = self.distance(here, start);
-        if air > 0.0 || from.is_none() {
-            air + self.pierce_at(to)
+        match from {
+            Some(from) if air <= 0.0 => self.turn(from, to),
+            _ => air + self.pierce_at(to),
+        }
+    }
+
+    /// What going on from `from` straight into `to` costs: a sharp-angle
+    /// macro where the turn between them is sharp.
+    pub fn turn(&self, from: Cut, to: Cut) -> f64 {
+        let t = &self.turns;
+        if t.cost <= 0.0 || t.headings.is_empty() {
+            return 0.0;
+        }
+        let (f, g) = (&t.headings[from.element], &t.headings[to.element]);
+        let out = if from.reversed { -f[0] } else { f[1] };
+        let into = if to.reversed { -g[1] } else { g[0] };
+        if out.norm_squared() > 0.0 && into.norm_squared() > 0.0 && out.dot(&into) < t.cos_sharp {
+            t.cost
         } else {
-            air
+            0.0
         }
     }
 
@@ -206,7 +239,7 @@ pub(crate) fn random_instance(n: usize, seed: u64, sizes: std::ops::RangeInclusi
             inner_outer.push((i, o));
         }
     }
-    Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost, edge_starts: Vec::new() }
+    Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost, edge_starts: Vec::new(), turns: Turns::default() }
 }
 
 /// Random instances of 12 elements (contours of 2 to 4, pierce cost 3) that
@@ -239,6 +272,7 @@ mod tests {
             metric: Metric::Euclidean,
             pierce_cost: 2.0,
             edge_starts: Vec::new(),
+            turns: Turns::default(),
         };
         let forward = [Cut { element: 0, reversed: false }, Cut { element: 1, reversed: false }];
         // One pierce at the start, the second cut goes on where the first ended,
@@ -252,6 +286,16 @@ mod tests {
         let broken = [Cut { element: 0, reversed: false }, Cut { element: 1, reversed: true }];
         assert!((inst.cost(&broken) - (2.0 + 10.0 + 2.0 + 10.0)).abs() < 1e-12);
         assert!((inst.air_length(&broken) - 20.0).abs() < 1e-12);
+        // A sharp-angle macro where the cut goes on round the right angle
+        // (sharper than 30°), either way round; none on a straight run on.
+        let v = nalgebra::Vector2::new;
+        let turns = Turns { headings: vec![[v(1.0, 0.0), v(1.0, 0.0)], [v(0.0, 1.0), v(0.0, 1.0)]], cost: 3.0, cos_sharp: 30f64.to_radians().cos() };
+        let sharp = Instance { turns, ..inst.clone() };
+        assert!((sharp.cost(&forward) - inst.cost(&forward) - 3.0).abs() < 1e-12);
+        assert!((sharp.cost(&back) - sharp.cost(&forward)).abs() < 1e-12);
+        assert_eq!(sharp.cost(&broken), inst.cost(&broken), "no turn where an air move comes between");
+        let straight = Instance { turns: Turns { headings: vec![[v(1.0, 0.0); 2], [v(1.0, 0.0); 2]], ..sharp.turns.clone() }, ..sharp.clone() };
+        assert_eq!(straight.turn(forward[0], forward[1]), 0.0);
         let rounded = Instance { metric: Metric::TsplibRounded, ..inst };
         assert_eq!(rounded.distance(p(0.0, 0.0), p(1.0, 1.0)), 1.0);
         assert_eq!(rounded.distance(p(0.0, 0.0), p(1.5, 0.0)), 2.0);

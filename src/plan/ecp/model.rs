@@ -52,6 +52,7 @@ impl CuttingModel {
             metric: Metric::Euclidean,
             pierce_cost,
             edge_starts: Vec::new(),
+            turns: super::Turns::default(),
         };
         let n = topology.elements.len();
         CuttingModel {
@@ -130,8 +131,29 @@ impl CuttingModel {
             .collect();
         let elements = element_of.iter().map(|&e| Element { a: topology.elements[e].start(), b: topology.elements[e].end() }).collect();
         let edge_starts = element_of.iter().map(|&e| [plate.on_edge(topology.elements[e].start()), plate.on_edge(topology.elements[e].end())]).collect();
-        let instance = Instance { elements, contours, inner_outer, depot, metric: Metric::Euclidean, pierce_cost, edge_starts };
+        let instance = Instance { elements, contours, inner_outer, depot, metric: Metric::Euclidean, pierce_cost, edge_starts, turns: super::Turns::default() };
         Ok(CuttingModel { topology, instance, element_of, marked_for, edge_saved })
+    }
+
+    /// Charges `cost` (mm of air move) for going on through a turn sharper
+    /// than `corner_angle` (degrees): the headings of each element's ends.
+    pub fn charge_sharp_turns(&mut self, cost: f64, corner_angle: f64) {
+        if cost <= 0.0 {
+            return;
+        }
+        let unit = |d: nalgebra::Vector2<f64>| d.try_normalize(1e-12).unwrap_or_else(nalgebra::Vector2::zeros);
+        let headings = self
+            .element_of
+            .iter()
+            .map(|&e| {
+                let p = &self.topology.elements[e].points;
+                match p.len() {
+                    0 | 1 => [nalgebra::Vector2::zeros(); 2],
+                    n => [unit(p[1] - p[0]), unit(p[n - 1] - p[n - 2])],
+                }
+            })
+            .collect();
+        self.instance.turns = super::Turns { headings, cost, cos_sharp: corner_angle.to_radians().cos() };
     }
 
     /// The length of the parts' outlines lying on the plate's edge, not cut.
