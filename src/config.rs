@@ -1780,7 +1780,7 @@ mod tests {
             ("cutting.precut_length", F(-1.0)),
             ("cutting.precut_length", F(1e3)),
             ("cutting.sharp_angle_cost", F(f64::NAN)),
-            ("cutting.sharp_angle_cost", F(1e3)),
+            ("cutting.sharp_angle_cost", F(1e4)),
             ("cutting.time_limit", F(1e-300)),
             ("galvo.direction_weight", F(1e300)),
             ("galvo.direction_weight_single_field", F(-0.5)),
