@@ -9,7 +9,7 @@
 use rstar::primitives::{GeomWithData, Rectangle};
 use rstar::{RTree, AABB};
 
-use crate::job::{bounds_of, Point};
+use crate::job::{bounds_of, segment_distance, Point};
 use crate::topology::{side, Side};
 use laserd_sim::controller::Knot;
 
@@ -67,7 +67,10 @@ pub fn count(knots: &[Knot], pieces: &[Vec<Point>], z: Option<usize>, lift_heigh
             let query = AABB::from_corners([a.x.min(b.x) - cover, a.y.min(b.y) - cover], [a.x.max(b.x) + cover, a.y.max(b.y) + cover]);
             let hit: Vec<(usize, usize)> = outline_points
                 .locate_in_envelope_intersecting(query)
-                .filter(|s| !cut[s.data.1] && distance(Point::new(s.geom()[0], s.geom()[1]), a, b) <= cover)
+                .filter(|s| {
+                    let p = Point::new(s.geom()[0], s.geom()[1]);
+                    !cut[s.data.1] && segment_distance(p, p, a, b) <= cover
+                })
                 .map(|s| s.data)
                 .collect();
             for (piece, sample) in hit {
@@ -108,12 +111,6 @@ pub fn count(knots: &[Knot], pieces: &[Vec<Point>], z: Option<usize>, lift_heigh
         }
     }
     collisions
-}
-
-fn distance(p: Point, a: Point, b: Point) -> f64 {
-    let d = b - a;
-    let t = if d.norm_squared() > 0.0 { ((p - a).dot(&d) / d.norm_squared()).clamp(0.0, 1.0) } else { 0.0 };
-    (a + d * t - p).norm()
 }
 
 #[cfg(test)]

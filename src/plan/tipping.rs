@@ -14,7 +14,7 @@ use rstar::{RTree, AABB};
 
 use super::Sequence;
 use crate::config::MachineConfig;
-use crate::job::{bounds_of, Job, Point};
+use crate::job::{bounds_of, segment_distance, Job};
 
 /// Outline points are checked at most this far apart (mm).
 const SAMPLE_SPACING: f64 = 1.0;
@@ -66,7 +66,7 @@ pub fn mark_falls(job: &Job, mut sequence: Sequence, machine: &MachineConfig, pi
             let (a, b) = (w[0], w[1]);
             let query = AABB::from_corners([a.x.min(b.x) - on_cut, a.y.min(b.y) - on_cut], [a.x.max(b.x) + on_cut, a.y.max(b.y) + on_cut]);
             for s in tree.locate_in_envelope_intersecting(query) {
-                if cut_by[s.data].is_none() && distance_to_segment(points[s.data], a, b) <= on_cut {
+                if cut_by[s.data].is_none() && segment_distance(points[s.data], points[s.data], a, b) <= on_cut {
                     cut_by[s.data] = Some(k);
                 }
             }
@@ -97,16 +97,10 @@ pub fn mark_falls(job: &Job, mut sequence: Sequence, machine: &MachineConfig, pi
     sequence
 }
 
-fn distance_to_segment(p: Point, a: Point, b: Point) -> f64 {
-    let d = b - a;
-    let t = if d.norm_squared() > 0.0 { ((p - a).dot(&d) / d.norm_squared()).clamp(0.0, 1.0) } else { 0.0 };
-    (a + d * t - p).norm()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::job::{Geometry, Process};
+    use crate::job::{Geometry, Point, Process};
     use crate::plan::{PathGroup, PlannedPath};
 
     fn square(x: f64, size: f64) -> Vec<Point> {
