@@ -238,11 +238,22 @@ mod tests {
 
     #[test]
     fn moves_predict_positions_cost_and_feasibility() {
-        for seed in 0..40 {
+        let mut turned = 0;
+        for seed in 0..60 {
             let mut inst = random_instance(9, seed % 20);
-            if seed >= 20 {
+            if (20..40).contains(&seed) {
                 // Some ends on a plate's edge: starts there need no pierce.
                 inst.edge_starts = (0..9).map(|e| [e % 3 == 0, e % 4 == 1]).collect();
+            }
+            if seed >= 40 {
+                // Elements end to end, and sharp turns charged where a cut
+                // goes on into the next (either way round).
+                for e in 1..9 {
+                    inst.elements[e].a = inst.elements[e - 1].b;
+                }
+                let heading = |e: &crate::plan::ecp::Element| (e.b - e.a).normalize();
+                let headings = inst.elements.iter().map(|e| [heading(e), heading(e)]).collect();
+                inst.turns = crate::plan::ecp::Turns { headings, cost: 2.5, cos_sharp: 30f64.to_radians().cos() };
             }
             if exact::solve(&inst).is_none() {
                 continue;
@@ -269,11 +280,14 @@ mod tests {
                             apply(&mut tour, &mv);
                             assert_eq!(predicted, tour.pos, "{mv:?}");
                             assert!((inst.cost(&tour.cuts) - inst.cost(&start) - d).abs() < 1e-9, "{mv:?}");
+                            let plain = Instance { turns: Default::default(), ..inst.clone() };
+                            turned += usize::from(inst.cost(&tour.cuts) > plain.cost(&tour.cuts) + 1e-9);
                             assert_eq!(fits, check(&inst, &tour.cuts).is_empty(), "seed {seed} {mv:?}");
                         }
                     }
                 }
             }
         }
+        assert!(turned > 0, "some moved route goes on through a sharp turn");
     }
 }
