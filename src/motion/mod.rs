@@ -270,8 +270,11 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     // laser-off move running through a mark's end would leave the travel
     // (near the table's edge), its two ends are planned at rest and the job
     // again (a few rounds; should that not settle, all of it rest to rest).
-    let plan = |hand_over: bool, rest_at: &[Point]| -> Result<(TcpBuilder, f64)> {
-        let mut b = TcpBuilder::new(settings, start, 0.0);
+    // Each round starts from the corners and moves the one before planned
+    // (the same keys give the same moves), and lets go of that plan first.
+    let plan = |hand_over: bool, rest_at: &[Point], before: Option<TcpBuilder>| -> Result<(TcpBuilder, f64)> {
+        let cache = before.map(|b| b.take_cache()).unwrap_or_default();
+        let mut b = TcpBuilder::new(settings, start, 0.0).with_cache(cache);
         b.hand_over = hand_over;
         b.rest_at = rest_at.to_vec();
         if let Some(f) = first {
@@ -292,7 +295,7 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
         Ok((windows, rest))
     };
     let mut rest_at = Vec::new();
-    let (mut b, mut job_start) = plan(true, &rest_at)?;
+    let (mut b, mut job_start) = plan(true, &rest_at, None)?;
     let mut outside = moves_leaving_travel(&b.path, machine);
     let (mut windows, mut waits) = lifts(&b)?;
     for _ in 0..TRAVEL_ROUNDS {
@@ -301,12 +304,12 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
         }
         rest_at.extend(outside.iter().flat_map(|&(from, to)| [from, to]));
         rest_at.extend(waits);
-        (b, job_start) = plan(true, &rest_at)?;
+        (b, job_start) = plan(true, &rest_at, Some(b))?;
         outside = moves_leaving_travel(&b.path, machine);
         (windows, waits) = lifts(&b)?;
     }
     if !outside.is_empty() || !waits.is_empty() {
-        (b, job_start) = plan(false, &[])?;
+        (b, job_start) = plan(false, &[], Some(b))?;
         (windows, waits) = lifts(&b)?;
         if !waits.is_empty() {
             return Err(Error::Motion(format!("a lift over a piece that may have tipped cannot wait at ({:.3}, {:.3})", waits[0].x, waits[0].y)));
