@@ -287,16 +287,12 @@ pub struct ScannerConfig {
     pub usable_half_field: f64,
     /// A geometry larger than the usable field is split at field borders into
     /// pieces marked one after another (true), or fails the job (false).
-    #[serde(default = "default_split_oversize")]
+    #[serde(default = "default_true")]
     pub split_oversize: bool,
     pub mark_speed: f64,
     pub jump_speed: f64,
     pub max_acceleration: f64,
     pub max_jerk: f64,
-}
-
-fn default_split_oversize() -> bool {
-    true
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -928,12 +924,8 @@ pub struct ProgramConfig {
     pub scanner_decimals: usize,
     /// Stage-only marks: runs of blocks on one circle as one G2/G3 (fewer
     /// lines on the link) where the controller's chords stay within `tolerance`.
-    #[serde(default = "default_arcs")]
+    #[serde(default = "default_true")]
     pub arcs: bool,
-}
-
-fn default_arcs() -> bool {
-    true
 }
 
 fn default_scanner_decimals() -> usize {
@@ -946,7 +938,7 @@ fn default_jump_tolerance() -> f64 {
 
 impl Default for ProgramConfig {
     fn default() -> Self {
-        ProgramConfig { tolerance: 0.01, jump_tolerance: default_jump_tolerance(), decimals: 6, scanner_decimals: default_scanner_decimals(), arcs: default_arcs() }
+        ProgramConfig { tolerance: 0.01, jump_tolerance: default_jump_tolerance(), decimals: 6, scanner_decimals: default_scanner_decimals(), arcs: default_true() }
     }
 }
 

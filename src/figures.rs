@@ -11,10 +11,10 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::job::Point;
-
-mod collisions;
 use crate::program::{tcp_of, CheckPoint, LineKind, Program};
 use crate::stream::LinkEvent;
+
+mod collisions;
 
 /// What the figures need to know about the machine.
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]

@@ -150,6 +150,19 @@ pub fn piece_along(points: &[Point], along: &[f64], a: f64, b: f64) -> Vec<Point
     out
 }
 
+/// Points around a closed outline at most `spacing` apart, its vertices
+/// among them (each side cut into equal steps).
+pub fn points_around(outline: &[Point], spacing: f64) -> Vec<Point> {
+    let n = outline.len();
+    let mut out = Vec::new();
+    for k in 0..n {
+        let (a, b) = (outline[k], outline[(k + 1) % n]);
+        let steps = ((b - a).norm() / spacing).ceil().max(1.0) as usize;
+        out.extend((0..steps).map(|s| a + (b - a) * (s as f64 / steps as f64)));
+    }
+    out
+}
+
 /// Length of the arc from `a` to `b` of `bulge` (the chord for bulge 0).
 pub fn arc_length(a: Point, b: Point, bulge: f64) -> f64 {
     let chord = (b - a).norm();

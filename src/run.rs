@@ -422,11 +422,7 @@ pub fn small_pieces(job: &Job, machine: &MachineConfig) -> Vec<Vec<[f64; 2]>> {
     let Some(grid) = machine.support_grid() else { return Vec::new() };
     job.geometries
         .iter()
-        .filter(|g| g.closed && g.points.len() >= 3 && machine.cuts_parts(&job.processes[g.process].layer))
-        .filter(|g| {
-            let (lo, hi) = crate::job::bounds_of(g.points.iter());
-            (hi.x - lo.x).max(hi.y - lo.y) < 2.0 * grid
-        })
+        .filter(|g| crate::plan::tipping::small(job, g, machine, grid))
         .map(|g| g.points.iter().map(|p| [p.x, p.y]).collect())
         .collect()
 }

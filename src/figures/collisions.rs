@@ -9,7 +9,7 @@
 use rstar::primitives::{GeomWithData, Rectangle};
 use rstar::{RTree, AABB};
 
-use crate::job::{bounds_of, segment_distance, Point};
+use crate::job::{bounds_of, points_around, segment_distance, Point};
 use crate::topology::{side, Side};
 use laserd_sim::controller::Knot;
 
@@ -30,15 +30,9 @@ pub fn count(knots: &[Knot], pieces: &[Vec<Point>], z: Option<usize>, lift_heigh
     let mut samples = Vec::new();
     let mut remaining = vec![0usize; pieces.len()];
     for (i, outline) in pieces.iter().enumerate() {
-        let n = outline.len();
-        for k in 0..n {
-            let (a, b) = (outline[k], outline[(k + 1) % n]);
-            let steps = ((b - a).norm() / STEP_MM).ceil().max(1.0) as usize;
-            for s in 0..steps {
-                let p = a + (b - a) * (s as f64 / steps as f64);
-                samples.push(GeomWithData::new([p.x, p.y], (i, samples.len())));
-                remaining[i] += 1;
-            }
+        for p in points_around(outline, STEP_MM) {
+            samples.push(GeomWithData::new([p.x, p.y], (i, samples.len())));
+            remaining[i] += 1;
         }
     }
     let outline_points = RTree::bulk_load(samples);

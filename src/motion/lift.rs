@@ -63,10 +63,16 @@ impl HeadPath {
         }
     }
 
+    /// The moves that overlap `a..=b`.
+    pub fn moves_in(&self, a: f64, b: f64) -> &[ZMove] {
+        let first = self.moves.partition_point(|m| m.end_time() < a);
+        let last = first + self.moves[first..].partition_point(|m| m.start <= b);
+        &self.moves[first..last]
+    }
+
     /// Times in `a..=b` where Z's motion changes character.
     pub fn breakpoints(&self, a: f64, b: f64, out: &mut Vec<f64>) {
-        let first = self.moves.partition_point(|m| m.end_time() < a);
-        for m in self.moves[first..].iter().take_while(|m| m.start <= b) {
+        for m in self.moves_in(a, b) {
             let mut inner = Vec::new();
             m.leg.breakpoints(&mut inner);
             out.extend([m.start, m.end_time()].into_iter().chain(inner.into_iter().map(|x| m.start + x)).filter(|&t| t >= a && t <= b));

@@ -106,8 +106,9 @@ pub fn add_precuts(job: &Job, mut sequence: Sequence, machine: &MachineConfig) -
     let cuts = |process: usize| machine.pierce(&job.processes[process].layer).active();
     let ramp = |speed: f64| speed / machine.stage.max_acceleration;
     let cos_sharp = machine.cutting.corner_angle.to_radians().cos();
-    // Per pass (group, path, vertex): the later paths pre-cut there.
-    let mut wanted: HashMap<(usize, usize, usize), Vec<usize>> = HashMap::new();
+    // Per pass (group, path, vertex): the later paths pre-cut there, each
+    // with its pre-cut's length.
+    let mut wanted: HashMap<(usize, usize, usize), Vec<(usize, f64)>> = HashMap::new();
     for (g, group) in sequence.groups.iter().enumerate() {
         // Where the cuts of this group ran through, first pass first.
         let mut passed: HashMap<(i64, i64), (usize, usize)> = HashMap::new();
@@ -125,7 +126,7 @@ pub fn add_precuts(job: &Job, mut sequence: Sequence, machine: &MachineConfig) -
                 let time = 2.0 * pre / speed + 2.0 * ramp(speed) + 2.0 * macro_time;
                 if let Some(&(j, i)) = passed.get(&key(path.points[0])) {
                     if pre > 1e-6 && time < pierce {
-                        wanted.entry((g, j, i)).or_default().push(k);
+                        wanted.entry((g, j, i)).or_default().push((k, pre));
                     }
                 }
             }
@@ -150,22 +151,20 @@ pub fn add_precuts(job: &Job, mut sequence: Sequence, machine: &MachineConfig) -
         let through = &paths[j].points;
         let junction = Junction {
             arriving: i.checked_sub(1).and_then(|h| heading(through[h], at)),
-            out: ks.iter().map(|&k| heading(paths[k].points[0], paths[k].points[1]).expect("a first segment longer than the pre-cut")).collect(),
+            out: ks.iter().map(|&(k, _)| heading(paths[k].points[0], paths[k].points[1]).expect("a first segment longer than the pre-cut")).collect(),
             leaving: through.get(i + 1).and_then(|&b| heading(at, b)),
         };
         let order = best_order(&junction, cos_sharp);
         count.macros += cost(&junction, &order, cos_sharp).0;
         let mut detour = Vec::with_capacity(2 * order.len());
         for &o in &order {
-            let k = ks[o];
-            let first = (paths[k].points[1] - paths[k].points[0]).norm();
-            detour.push(at + junction.out[o] * length.min(0.5 * first));
+            detour.push(at + junction.out[o] * ks[o].1);
             detour.push(at);
         }
         let group = &mut sequence.groups[g].paths;
         let path = &mut group[j];
         path.points.splice(i + 1..i + 1, detour);
-        for &k in ks {
+        for &(k, _) in ks {
             group[k].pierce = false;
         }
         count.precuts += ks.len();

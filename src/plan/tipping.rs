@@ -14,24 +14,27 @@ use rstar::{RTree, AABB};
 
 use super::Sequence;
 use crate::config::MachineConfig;
-use crate::job::{bounds_of, segment_distance, Job};
+use crate::job::{bounds_of, points_around, segment_distance, Geometry, Job};
 
 /// Outline points are checked at most this far apart (mm).
 const SAMPLE_SPACING: f64 = 1.0;
 
-/// The geometries of `job` that may tip once cut free: closed, on a layer
-/// that cuts parts, not `held`, and smaller than twice `grid` both ways.
+/// Whether geometry `g` of `job` is small enough to tip once cut free: a
+/// closed contour of a layer that cuts parts, smaller than twice `grid` both
+/// ways (the rule the figures' collision count uses too).
+pub fn small(job: &Job, g: &Geometry, machine: &MachineConfig, grid: f64) -> bool {
+    let (lo, hi) = bounds_of(g.points.iter());
+    g.closed && g.points.len() >= 3 && machine.cuts_parts(&job.processes[g.process].layer) && (hi.x - lo.x).max(hi.y - lo.y) < 2.0 * grid
+}
+
+/// The geometries of `job` that may tip once cut free: `small`, not `held`
+/// by tabs, and not on a layer whose closing gap keeps its parts in.
 pub fn pieces(job: &Job, machine: &MachineConfig, grid: f64, held: &[bool]) -> Vec<usize> {
     let stays = |process: usize| machine.layers.iter().any(|l| l.name == job.processes[process].layer && l.closing_gap > 0.0);
     job.geometries
         .iter()
         .enumerate()
-        .filter(|(k, g)| g.closed && g.points.len() >= 3 && !held.get(*k).copied().unwrap_or(false))
-        .filter(|(_, g)| machine.cuts_parts(&job.processes[g.process].layer) && !stays(g.process))
-        .filter(|(_, g)| {
-            let (lo, hi) = bounds_of(g.points.iter());
-            (hi.x - lo.x).max(hi.y - lo.y) < 2.0 * grid
-        })
+        .filter(|(k, g)| small(job, g, machine, grid) && !held.get(*k).copied().unwrap_or(false) && !stays(g.process))
         .map(|(k, _)| k)
         .collect()
 }
@@ -47,16 +50,9 @@ pub fn mark_falls(job: &Job, mut sequence: Sequence, machine: &MachineConfig, pi
     let mut owner = Vec::new();
     let mut points = Vec::new();
     for (i, &g) in pieces.iter().enumerate() {
-        let outline = &job.geometries[g].points;
-        let n = outline.len();
-        for k in 0..n {
-            let (a, b) = (outline[k], outline[(k + 1) % n]);
-            let steps = ((b - a).norm() / SAMPLE_SPACING).ceil().max(1.0) as usize;
-            for s in 0..steps {
-                points.push(a + (b - a) * (s as f64 / steps as f64));
-                owner.push(i);
-            }
-        }
+        let around = points_around(&job.geometries[g].points, SAMPLE_SPACING);
+        owner.extend(std::iter::repeat_n(i, around.len()));
+        points.extend(around);
     }
     let tree = RTree::bulk_load(points.iter().enumerate().map(|(s, p)| GeomWithData::new([p.x, p.y], s)).collect());
     let mut cut_by: Vec<Option<usize>> = vec![None; points.len()];
@@ -100,7 +96,7 @@ pub fn mark_falls(job: &Job, mut sequence: Sequence, machine: &MachineConfig, pi
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::job::{Geometry, Point, Process};
+    use crate::job::{Point, Process};
     use crate::plan::{PathGroup, PlannedPath};
 
     fn square(x: f64, size: f64) -> Vec<Point> {

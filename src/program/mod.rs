@@ -596,7 +596,7 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
     // The head's Z moves start and end on block ends: it is exactly at its
     // height wherever it holds it.
     if let Some(head) = &trajectory.head {
-        ends.extend(head.moves.iter().flat_map(|m| [m.start, m.end_time()]).filter(|&t| t > span.start && t < span.end));
+        ends.extend(head.moves_in(span.start, span.end).iter().flat_map(|m| [m.start, m.end_time()]).filter(|&t| t > span.start && t < span.end));
         ends.sort_by(f64::total_cmp);
     }
     let mut times = vec![span.start];
