@@ -100,6 +100,9 @@ pub const LEAD_LENGTH: Range<f64> = Range { lo: 0.0, hi: 100.0, unit: "mm" };
 /// A lead's angle to its contour (degrees): a line from along it to straight at it.
 pub const LEAD_ANGLE: Range<f64> = Range { lo: 1.0, hi: 180.0, unit: "degrees" };
 /// Width of a cut (mm): a fibre laser's 0.02 to a plasma's few mm, with room.
+/// Distance between hatch lines (mm): a fibre laser's 0.01 to a coarse 10.
+pub const HATCH_SPACING: Range<f64> = Range { lo: 0.001, hi: 10.0, unit: "mm" };
+pub const HATCH_ANGLE: Range<f64> = Range { lo: -360.0, hi: 360.0, unit: "degrees" };
 pub const KERF: Range<f64> = Range { lo: 0.0, hi: 10.0, unit: "mm (0: cut on the line)" };
 
 /// The default machine, shipped in the repository (for tests and tools run
@@ -1059,6 +1062,55 @@ pub struct LayerConfig {
     /// The length of outline each tab leaves uncut (mm).
     #[serde(default = "tab_width")]
     pub tab_width: f64,
+    /// What is marked of the layer's shapes: their outlines ("line"), the
+    /// area inside them hatched ("fill"), or both, the fill first ("fill+line").
+    #[serde(default)]
+    pub mode: LayerMode,
+    /// Fill: the distance between hatch lines (mm).
+    #[serde(default = "hatch_spacing")]
+    pub hatch_spacing: f64,
+    /// Fill: the hatch lines' angle to the X axis (degrees, counter-clockwise).
+    #[serde(default)]
+    pub hatch_angle: f64,
+    /// Fill: a second hatch at right angles to the first.
+    #[serde(default)]
+    pub cross_hatch: bool,
+    /// Fill: hatch lines marked either way (else each in the hatch angle's direction).
+    #[serde(default = "default_true")]
+    pub bidirectional: bool,
+    /// Fill: every hatch line entered and left at its speed, the laser off
+    /// while the machine turns round outside the shape (a stage's overscan;
+    /// a scanner's skywriting). Off: hatch lines start and end as other marks.
+    #[serde(default = "default_true")]
+    pub overscan: bool,
+}
+
+fn hatch_spacing() -> f64 {
+    0.1
+}
+
+/// What a layer marks of its shapes (`[[layer]] mode`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+pub enum LayerMode {
+    /// The outlines, as drawn.
+    #[default]
+    #[serde(rename = "line")]
+    Line,
+    /// The area inside the closed shapes, hatched.
+    #[serde(rename = "fill")]
+    Fill,
+    /// The area hatched, then the outlines.
+    #[serde(rename = "fill+line")]
+    FillLine,
+}
+
+impl LayerMode {
+    pub fn fills(self) -> bool {
+        self != LayerMode::Line
+    }
+    pub fn lines(self) -> bool {
+        self != LayerMode::Fill
+    }
 }
 
 fn tab_width() -> f64 {
@@ -1330,6 +1382,11 @@ impl MachineConfig {
             in_range(&name("tabs"), l.tabs, 0, 1000, "tabs per outline")?;
             in_range(&name("tab_spacing"), l.tab_spacing, 0.0, TRAVEL.hi, "mm (0: by count)")?;
             in_range(&name("tab_width"), l.tab_width, 0.01, 50.0, "mm")?;
+            HATCH_SPACING.check(&name("hatch_spacing"), l.hatch_spacing)?;
+            HATCH_ANGLE.check(&name("hatch_angle"), l.hatch_angle)?;
+            if l.mode.fills() && self.pierce(&l.name).active() {
+                return Err(format!("{}: a layer that pierces (cuts through) cannot fill; fill on a marking layer (pierce_time = 0)", name("mode")));
+            }
             if l.overcut > 0.0 && l.closing_gap > 0.0 {
                 return Err(format!("{}: a contour is either cut past its start (overcut) or left short of it (closing_gap), not both", name("closing_gap")));
             }
@@ -1797,6 +1854,9 @@ mod tests {
             ("layer.1.tabs", I(1001)),
             ("layer.1.tab_spacing", F(-1.0)),
             ("layer.1.tab_width", F(0.0)),
+            ("layer.1.hatch_spacing", F(0.0)),
+            ("layer.1.hatch_spacing", F(11.0)),
+            ("layer.1.hatch_angle", F(400.0)),
         ];
         for (path, value) in cases {
             let shown = value.to_string();

@@ -18,6 +18,10 @@ pub struct Process {
     /// Laser power as the S value.
     pub power: f64,
     pub passes: u32,
+    /// The hatch lines of a fill layer (`[[layer]] mode`): marked at their
+    /// speed from end to end, ordered as an area (`plan::area`).
+    #[serde(default)]
+    pub fill: bool,
 }
 
 /// One shape to mark or cut: a polyline, open or closed, whose circular

@@ -84,6 +84,16 @@ pub struct PlanReport {
     pub tipping_pieces: Option<usize>,
     #[serde(default)]
     pub lifts: Option<usize>,
+    /// Fill layers (`[[layer]] mode`): the separate areas filled (an
+    /// outline with its holes), the hatch lines marking them, and the areas
+    /// too thin for the hatch's grid, each given one line through its middle;
+    /// `null` without a fill.
+    #[serde(default)]
+    pub fill_areas: Option<usize>,
+    #[serde(default)]
+    pub hatch_lines: Option<usize>,
+    #[serde(default)]
+    pub thin_fill_areas: Option<usize>,
     /// Length cut on layers that pierce, every pass counted, mm.
     #[serde(default)]
     pub cut_length_mm: f64,
@@ -168,6 +178,13 @@ impl PlanReport {
             }
             if let (Some(edge), Some(skeleton), Some(remnant)) = (self.edge_length_saved_mm, self.skeleton_cuts, self.remnant_cuts) {
                 s.push_str(&format!("; plate: {edge:.1} mm of edge not cut, {skeleton} skeleton and {remnant} remnant cuts"));
+            }
+            s.push('\n');
+        }
+        if let (Some(areas), Some(lines)) = (self.fill_areas, self.hatch_lines) {
+            s.push_str(&format!("  filling {areas} areas with {lines} hatch lines"));
+            if let Some(thin) = self.thin_fill_areas.filter(|&t| t > 0) {
+                s.push_str(&format!(" ({thin} too thin for the hatch spacing, one line through each)"));
             }
             s.push('\n');
         }

@@ -51,6 +51,8 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let mode = mode.unwrap_or_else(|| Mode::default_for(machine));
     mode.check(machine)?;
     let job = import_job(job_path, machine)?;
+    let fills = job.processes.iter().any(|p| p.fill);
+    let (job, hatched) = crate::plan::area::hatch::hatch(job, machine)?;
     let kerfed = kerf::compensate(&job, &kerf_layers(&job, machine), machine.import.tolerance)?;
     let (drawn, kerf_mm) = ((kerfed.offset > 0).then_some(job), (kerfed.offset > 0).then_some(kerfed.kerf_mm));
     let job = kerfed.job;
@@ -75,7 +77,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
             // Only the cutting planner knows the plate's rules (what its
             // regions hold, its edge): the others would cut skeleton pieces
             // away under parts, unseen by their precedence count.
-            if !matches!(kind, PlannerKind::Auto | PlannerKind::Ecp) && cuts_through(&job, machine).contains(&true) {
+            if !matches!(kind, PlannerKind::Auto | PlannerKind::Raster | PlannerKind::Ecp) && cuts_through(&job, machine).contains(&true) {
                 return Err(Error::Plan(format!(
                     "{}: on a [plate], parts are planned by the cutting planner (--planner auto or ecp), which keeps the plate's rules; remove [plate] to plan with another",
                     job_path.display()
@@ -145,6 +147,9 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         precut_sharp_angles: precuts.macros,
         tipping_pieces,
         lifts: tipping_pieces.and(trajectory.head.as_ref()).map(|h| h.lifts()),
+        fill_areas: fills.then_some(hatched.areas),
+        hatch_lines: fills.then_some(hatched.lines),
+        thin_fill_areas: fills.then_some(hatched.thin_areas),
         cut_length_mm: cut_paths().map(|p| p.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>()).sum(),
         edge_length_saved_mm: plate.as_ref().map(|_| outcome_edge_saved),
         edge_starts: plate.as_ref().map(|p| cut_paths().filter(|c| !c.pierce && p.on_edge(c.start())).count()),
@@ -190,7 +195,7 @@ fn lay_out_plate(mut job: Job, machine: &MachineConfig, plate: &crate::config::P
         Some(k) => k,
         None => {
             let l = machine.layers.iter().find(|l| l.name == layer).ok_or_else(|| Error::Plan(format!("[plate] layer '{layer}' is no [[layer]]")))?;
-            job.processes.push(crate::job::Process { layer: l.name.clone(), speed: l.speed, power: l.power, passes: l.passes });
+            job.processes.push(crate::job::Process { layer: l.name.clone(), speed: l.speed, power: l.power, passes: l.passes, fill: false });
             job.processes.len() - 1
         }
     };

@@ -34,7 +34,7 @@ fn circles() -> Job {
     Job {
         source: "circles".into(),
         geometries: vec![circle(140.0, 150.0, 8.0), circle(160.0, 150.0, 6.0), circle(150.0, 165.0, 4.0)],
-        processes: vec![Process { layer: "cut".into(), speed: 50.0, power: 500.0, passes: 1 }],
+        processes: vec![Process { layer: "cut".into(), speed: 50.0, power: 500.0, passes: 1, fill: false }],
     }
 }
 

@@ -438,7 +438,7 @@ fn the_precut_order_at_every_junction_of_a_sheet_is_the_brute_force_optimum() {
         junctions.push((centre, spokes));
         paths.extend(later);
     }
-    let job = Job { source: "stars".into(), geometries, processes: vec![Process { layer, speed: 50.0, power: 1000.0, passes: 1 }] };
+    let job = Job { source: "stars".into(), geometries, processes: vec![Process { layer, speed: 50.0, power: 1000.0, passes: 1, fill: false }] };
     let pierces_before = paths.iter().filter(|p| p.pierce).count();
     let sequence = Sequence { groups: vec![PathGroup { field_center: None, paths }] };
     let (cut, count) = laserd::plan::precut::add_precuts(&job, sequence, &machine);

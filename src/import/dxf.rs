@@ -94,7 +94,7 @@ pub fn import_dxf(bytes: &[u8], source: &str, config: &MachineConfig) -> Result<
     if config.import.units.is_none() {
         check_size(&pieces, mm, source, config)?;
     }
-    Ok(job_of(pieces, source, config))
+    job_of(pieces, source, config)
 }
 
 /// The drawing, or an error naming the file; the parser's own panics on a
@@ -764,10 +764,10 @@ fn check_size(pieces: &[Piece], mm: f64, source: &str, config: &MachineConfig) -
     )))
 }
 
-/// The job: the layers used, in config order, as processes.
-fn job_of(pieces: Vec<Piece>, source: &str, config: &MachineConfig) -> Job {
+/// The job: the layers used, in config order, as processes (fill layers as their areas, `fill::layer_areas`).
+fn job_of(pieces: Vec<Piece>, source: &str, config: &MachineConfig) -> Result<Job> {
     let geometries = pieces.into_iter().map(|p| Geometry { process: p.layer, points: p.trace.points, arcs: p.trace.arcs, profile: Vec::new(), closed: p.closed, source: p.source }).collect();
-    super::job_of_layers(source, geometries, config)
+    Ok(super::job_of_layers(source, super::fill::layer_areas(geometries, config, source)?, config))
 }
 
 #[cfg(test)]

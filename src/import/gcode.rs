@@ -218,7 +218,7 @@ pub fn import_gcode(text: &str, source: &str, config: &MachineConfig) -> Result<
         .iter()
         .map(|&(s, f)| {
             let (s, f) = (f64::from_bits(s), f64::from_bits(f));
-            Process { layer: format!("S{s} F{f}"), speed: f / 60.0, power: s, passes: 1 }
+            Process { layer: format!("S{s} F{f}"), speed: f / 60.0, power: s, passes: 1, fill: false }
         })
         .collect();
     Ok(Job { source: source.to_string(), geometries, processes })

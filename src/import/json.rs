@@ -161,7 +161,7 @@ mod tests {
         let job = Job {
             source: "a.svg".into(),
             geometries: vec![Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(0.1, 1.0 / 3.0), Point::new(2.0f64.sqrt(), 7.0)], closed: false, process: 0, source: "a.svg: <path>".into() }],
-            processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 200.0, passes: 2 }],
+            processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 200.0, passes: 2, fill: false }],
         };
         let text = serde_json::to_string(&to_file(&job, None)).unwrap();
         let back = import_json(text.as_bytes(), "j.json", &config).unwrap();

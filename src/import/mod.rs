@@ -10,6 +10,7 @@ use crate::job::{ArcSpan, Geometry, Job, Point, Process};
 pub(crate) use crate::job::arc_segments;
 
 pub mod dxf;
+pub mod fill;
 mod fit_spline;
 pub mod gcode;
 pub mod json;
@@ -198,8 +199,10 @@ pub(crate) fn job_of_layers(source: &str, mut geometries: Vec<Geometry>, config:
     let processes = used
         .iter()
         .map(|&i| {
-            let l = &config.layers[i];
-            Process { layer: l.name.clone(), speed: l.speed, power: l.power, passes: l.passes }
+            // Past the layers: a layer's fill process (`fill::fill_process`).
+            let fill = i >= config.layers.len();
+            let l = &config.layers[i % config.layers.len()];
+            Process { layer: l.name.clone(), speed: l.speed, power: l.power, passes: l.passes, fill }
         })
         .collect();
     for g in &mut geometries {

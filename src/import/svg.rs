@@ -268,10 +268,11 @@ impl<'a> Importer<'a> {
             )));
         };
         self.points += subpaths.iter().map(|(p, _)| p.len() as u64).sum::<u64>();
+        let mut lines = Vec::with_capacity(subpaths.len());
         for (i, (points, closed)) in subpaths.into_iter().enumerate() {
             // usvg gives every curve as Béziers: SVG arcs come in as points.
             if let Some((trace, closed)) = super::clean_polyline(super::Trace::of(points.into_iter().map(|p| Point::new(p.x, p.y)).collect()), closed) {
-                self.geometries.push(Geometry {
+                lines.push(Geometry {
                     points: trace.points,
                     arcs: Vec::new(), profile: Vec::new(),
                     closed,
@@ -279,6 +280,20 @@ impl<'a> Importer<'a> {
                     source: format!("{}: {} subpath {}", self.source, name, i + 1),
                 });
             }
+        }
+        let mode = self.config.layers[layer].mode;
+        if mode.fills() && !lines.is_empty() {
+            // SVG's fill rule (nonzero unless the path says even-odd), whether or not the drawing fills it.
+            let rule = match path.fill().map(|f| f.rule()) {
+                Some(usvg::FillRule::EvenOdd) => super::fill::Rule::EvenOdd,
+                _ => super::fill::Rule::NonZero,
+            };
+            let shapes: Vec<&[Point]> = lines.iter().map(|g| g.points.as_slice()).collect();
+            let area = super::fill::element_area(&shapes, rule, layer, self.config, &format!("{}: {name}", self.source))?;
+            self.geometries.extend(area);
+        }
+        if mode.lines() {
+            self.geometries.extend(lines);
         }
         Ok(())
     }

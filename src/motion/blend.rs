@@ -278,19 +278,30 @@ pub(super) fn bisect(lo: f64, hi: f64, steps: usize, ok: &dyn Fn(f64) -> bool) -
     lo
 }
 
+/// How a stage-only run meets the laser-off move before or after it.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub enum RunEnd {
+    /// At rest.
+    #[default]
+    Rest,
+    /// Through Grbl's junction with the move along this chord (`hand_over_speed`).
+    Junction(Vector2<f64>),
+    /// At the run's own speed: the laser-off move turns round outside the
+    /// mark (a raster engraver's overscan).
+    AtSpeed,
+}
+
 /// The run marking `points` at `speed` through its vertices (none for fewer
-/// than two points). It starts at rest, or, after a laser-off move along
-/// `entry` (its chord to the first point), at the speed `hand_over_speed`
-/// allows; it ends at rest or hands over to the laser-off move along `exit`.
+/// than two points), starting and ending as `entry` and `exit` say.
 /// With `one_leg_per_segment` its legs are the segments (the run's pieces
 /// are told apart by them), never one smooth curve.
-pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector2<f64>>, exit: Option<Vector2<f64>>, one_leg_per_segment: bool) -> Option<Run> {
+pub fn plan_run(s: &TcpSettings, points: &[Point], speed: f64, entry: RunEnd, exit: RunEnd, one_leg_per_segment: bool) -> Option<Run> {
     plan_legs(s, points, speed, entry, exit, !one_leg_per_segment).map(|(legs, _)| Run::new(legs))
 }
 
 /// `plan_run`'s legs and duration; with `curves`, a run of gentle vertices
 /// becomes one smooth curve where that is faster.
-fn plan_legs(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector2<f64>>, exit: Option<Vector2<f64>>, curves: bool) -> Option<(Legs, f64)> {
+fn plan_legs(s: &TcpSettings, points: &[Point], speed: f64, entry: RunEnd, exit: RunEnd, curves: bool) -> Option<(Legs, f64)> {
     let n = points.len().checked_sub(1).filter(|&n| n > 0)?;
     let lengths: Vec<f64> = points.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
     let dirs: Vec<Vector2<f64>> = points.windows(2).zip(&lengths).map(|(w, l)| (w[1] - w[0]) / *l).collect();
@@ -304,8 +315,13 @@ fn plan_legs(s: &TcpSettings, points: &[Point], speed: f64, entry: Option<Vector
     // Vertex i joins legs i-1 and i; the ends rest unless handed over.
     let mut turns: Vec<Option<Turn>> = (0..=n).map(|_| None).collect();
     let mut w = vec![0.0; n + 1];
-    w[0] = entry.map_or(0.0, |c| hand_over_speed(s, c, dirs[0], &limits[0]));
-    w[n] = exit.map_or(0.0, |c| hand_over_speed(s, c, dirs[n - 1], &limits[n - 1]));
+    let end_speed = |end: RunEnd, leg: usize| match end {
+        RunEnd::Rest => 0.0,
+        RunEnd::Junction(chord) => hand_over_speed(s, chord, dirs[leg], &limits[leg]),
+        RunEnd::AtSpeed => limits[leg].velocity,
+    };
+    w[0] = end_speed(entry, 0);
+    w[n] = end_speed(exit, n - 1);
     for i in 1..n {
         let turn = Turn::new(dirs[i - 1], dirs[i], &s.axis);
         let cap = limits[i - 1].velocity.min(limits[i].velocity);
@@ -558,9 +574,9 @@ mod tests {
         // The legs' end, not their estimate of it.
         let end = |legs: &Legs| legs.iter().map(|(start, duration, _)| start + duration).fold(0.0, f64::max);
         for speed in [50.0, 180.0] {
-            let (turned, turned_time) = plan_legs(&settings(), &circle, speed, None, None, false).unwrap();
+            let (turned, turned_time) = plan_legs(&settings(), &circle, speed, RunEnd::Rest, RunEnd::Rest, false).unwrap();
             assert!((end(&turned) - turned_time).abs() < 1e-9, "{speed} mm/s: legs end at {} s, estimated {turned_time} s", end(&turned));
-            let (chosen, time) = plan_legs(&settings(), &circle, speed, None, None, true).unwrap();
+            let (chosen, time) = plan_legs(&settings(), &circle, speed, RunEnd::Rest, RunEnd::Rest, true).unwrap();
             assert!((end(&chosen) - time).abs() < 1e-9 && time <= turned_time, "{speed} mm/s: {time} s, turned {turned_time} s");
         }
     }

@@ -192,7 +192,12 @@ fn mark_all(
         .collect();
     let chains = chains(sequence, &processes, b.settings.junctions);
     if runs.is_none() {
-        let requests: Vec<_> = chains.iter().map(|c| MarkRequest { points: &c.points, speed: processes[c.paths[0]].0, pierce: processes[c.paths[0]].2.time > 0.0, breaks: &c.breaks }).collect();
+        let paths: Vec<&crate::plan::PlannedPath> = sequence.paths().collect();
+        let overscan = |k: usize| {
+            let process = &job.processes[paths[k].process];
+            process.fill && machine.layers.iter().find(|l| l.name == process.layer).is_some_and(|l| l.overscan)
+        };
+        let requests: Vec<_> = chains.iter().map(|c| MarkRequest { points: &c.points, speed: processes[c.paths[0]].0, pierce: processes[c.paths[0]].2.time > 0.0, breaks: &c.breaks, overscan: overscan(c.paths[0]) }).collect();
         *runs = Some(b.prepare(&requests)?);
     }
     let planned = runs.as_ref().expect("planned above");
@@ -337,11 +342,12 @@ fn lift_settings(machine: &MachineConfig) -> Option<lift::LiftSettings> {
 const TRAVEL_ROUNDS: usize = 4;
 
 /// The ends of each moving laser-off piece that leaves the stage's travel
-/// (sampled every millisecond: a move running through its ends may swing out).
+/// (sampled every millisecond: a move running through its ends may swing
+/// out, and so may the braking after the job's last mark).
 fn moves_leaving_travel(path: &TcpPath, machine: &MachineConfig) -> Vec<(Point, Point)> {
     path.pieces
         .iter()
-        .filter(|p| matches!(p.motion, tcp::Motion::Free(_)) && !p.is_marking())
+        .filter(|p| !matches!(p.motion, tcp::Motion::Still(_)) && !p.is_marking())
         .filter(|p| {
             let n = ((p.duration / 1e-3).ceil() as usize).max(8);
             (0..=n).any(|k| check_travel(machine, p.position(p.duration * k as f64 / n as f64), "").is_err())
@@ -757,7 +763,7 @@ mod tests {
         Job {
             source: "t".into(),
             geometries: vec![sq(20.0, 20.0), sq(200.0, 150.0), sq(30.0, 25.0), sq(150.0, 160.0), sq(60.0, 40.0)],
-            processes: vec![Process { layer: "mark".into(), speed: 800.0, power: 200.0, passes: 1 }],
+            processes: vec![Process { layer: "mark".into(), speed: 800.0, power: 200.0, passes: 1, fill: false }],
         }
     }
 

@@ -15,6 +15,7 @@
 
 use nalgebra::Vector2;
 
+use super::blend::RunEnd;
 use super::leg::Leg;
 use super::profile::FreeMove;
 use crate::config::Limits;
@@ -646,7 +647,7 @@ impl TcpBuilder {
     /// `pierce_power` first when `pierce` > 0), jumping there first.
     #[allow(clippy::too_many_arguments)]
     pub fn mark(&mut self, geometry: usize, group: usize, points: &[Point], speed: f64, power: f64, pierce: f64, pierce_power: f64) -> Result<()> {
-        let request = MarkRequest { points, speed, pierce: pierce > 0.0, breaks: &[] };
+        let request = MarkRequest { points, speed, pierce: pierce > 0.0, breaks: &[], overscan: false };
         let run = self.prepare(std::slice::from_ref(&request))?.pop().flatten();
         self.mark_run(&[(geometry, power)], group, run.as_ref(), pierce, pierce_power)
     }
@@ -670,10 +671,22 @@ impl TcpBuilder {
                 let (first, last) = (marks[k].points.first(), marks[k].points.last());
                 let before = k.checked_sub(1).and_then(|j| marks[j].points.last());
                 let after = marks.get(k + 1).and_then(|m| m.points.first());
-                HandOver {
-                    entry: before.zip(first).filter(|(_, f)| !marks[k].pierce && !at_rest(f)).map(|(b, f)| f - b),
-                    exit: last.zip(after).filter(|(l, _)| !at_rest(l)).map(|(l, a)| a - l),
-                }
+                // An overscanned mark (a hatch line) is entered and left at
+                // its speed whatever comes before and after.
+                let over = marks[k].overscan;
+                let entry = match before.zip(first) {
+                    _ if marks[k].pierce || first.is_some_and(&at_rest) => RunEnd::Rest,
+                    _ if over => RunEnd::AtSpeed,
+                    Some((b, f)) => RunEnd::Junction(f - b),
+                    None => RunEnd::Rest,
+                };
+                let exit = match last.zip(after) {
+                    _ if last.is_some_and(&at_rest) => RunEnd::Rest,
+                    _ if over => RunEnd::AtSpeed,
+                    Some((l, a)) => RunEnd::Junction(a - l),
+                    None => RunEnd::Rest,
+                };
+                HandOver { entry, exit }
             })
             .collect();
         let indexed: Vec<(&MarkRequest, HandOver)> = marks.iter().zip(hand_overs).collect();
@@ -737,8 +750,8 @@ impl TcpBuilder {
 /// may take it at speed (none: from or to rest).
 #[derive(Clone, Copy, Default)]
 struct HandOver {
-    entry: Option<Vector2<f64>>,
-    exit: Option<Vector2<f64>>,
+    entry: RunEnd,
+    exit: RunEnd,
 }
 
 /// A mark to plan ahead: its points, its speed, and whether it starts with a
@@ -749,6 +762,9 @@ pub struct MarkRequest<'a> {
     pub pierce: bool,
     /// Where in `points` a mark run on into from the one before begins.
     pub breaks: &'a [usize],
+    /// Stage-only: entered and left at its speed, the laser-off moves
+    /// turning round outside it (a fill's hatch line, `[[layer]] overscan`).
+    pub overscan: bool,
 }
 
 /// The cache key of a laser-off move: its end states, to the nanometre.
@@ -852,7 +868,7 @@ mod tests {
             one_by_one.mark(k, 0, m, 900.0, 300.0, pierce(k), 500.0).unwrap();
         }
         let mut ahead = TcpBuilder::new(s, Point::origin(), 0.0);
-        let requests: Vec<_> = marks.iter().enumerate().map(|(k, m)| MarkRequest { points: m, speed: 900.0, pierce: pierce(k) > 0.0, breaks: &[] }).collect();
+        let requests: Vec<_> = marks.iter().enumerate().map(|(k, m)| MarkRequest { points: m, speed: 900.0, pierce: pierce(k) > 0.0, breaks: &[], overscan: false }).collect();
         let runs = ahead.prepare(&requests).unwrap();
         for (k, run) in runs.iter().enumerate() {
             ahead.mark_run(&[(k, 300.0)], 0, run.as_ref(), pierce(k), 500.0).unwrap();
@@ -863,7 +879,7 @@ mod tests {
             let t = one_by_one.time * k as f64 / 1000.0;
             assert!((one_by_one.path.position(t) - ahead.path.position(t)).norm() < 1e-9, "t={t}");
         }
-        let bad = MarkRequest { points: &marks[1], speed: f64::NAN, pierce: false, breaks: &[] };
+        let bad = MarkRequest { points: &marks[1], speed: f64::NAN, pierce: false, breaks: &[], overscan: false };
         assert!(ahead.prepare(&[bad]).is_err(), "a NaN speed is refused");
     }
 

@@ -13,7 +13,7 @@
 
 use super::cutting::{self, cuts_through};
 use super::ecp::checker::Violation;
-use super::{galvo, PathGroup, PlanContext, PlanOutcome, Planner, Sequence};
+use super::{area, galvo, PathGroup, PlanContext, PlanOutcome, Planner, Sequence};
 use crate::error::Result;
 use crate::job::Job;
 
@@ -30,8 +30,56 @@ impl Planner for Auto {
 }
 
 /// The job planned layer kind by layer kind; `planner` names what planned
-/// it: `hha`, `ecp`, or `hha+ecp` (marked, then cut).
+/// it: `hha`, `ecp`, or `hha+ecp` (marked, then cut), after `fill+` where
+/// fills came first.
 pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
+    plan_filling(job, ctx, FillOrder::Planned)
+}
+
+/// How the hatch lines of fills are ordered (stage-only; with a scanner
+/// they are marks of the galvo planner, field by field).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FillOrder {
+    /// By the fill planner (`area`).
+    Planned,
+    /// As a plain raster, line after line across the job (`--planner raster`).
+    Raster,
+}
+
+/// `plan`, the fills ordered as `fill_order` says: on a stage-only
+/// machine fills first (the outlines of `fill+line` then mark their edges
+/// clean), then the other marks, then the cuts.
+pub fn plan_filling(job: &Job, ctx: &PlanContext, fill_order: FillOrder) -> Result<PlanOutcome> {
+    let stage_only = ctx.mode == crate::mode::Mode::StageOnly || ctx.machine.scanner.is_none();
+    let (fills, rest): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| stage_only && job.processes[job.geometries[g].process].fill);
+    if fills.is_empty() {
+        return plan_layers(job, ctx);
+    }
+    let segments = area::segments(job, &fills, ctx.machine);
+    let order = match fill_order {
+        FillOrder::Raster => area::raster(&segments),
+        FillOrder::Planned => area::raster(&segments),
+    };
+    let filled = Sequence { groups: vec![PathGroup { field_center: None, paths: area::paths(job, &segments, &order) }] };
+    let name = match fill_order {
+        FillOrder::Raster => "raster",
+        FillOrder::Planned => "fill",
+    };
+    if rest.is_empty() {
+        return Ok(PlanOutcome { sequence: filled, planner: name.into(), broken_rules: Some(Vec::new()), search_stopped_by: crate::plan::stop::SearchStop::Budget, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() });
+    }
+    let start = filled.paths().last().map_or(ctx.start, |p| p.end());
+    let plate = ctx.plate.and_then(|p| p.select(&rest));
+    let mut then = plan_layers(&part_of(job, &rest), &PlanContext { machine: ctx.machine, mode: ctx.mode, start, plate: plate.as_ref() })?;
+    renumber(&mut then.sequence, &rest);
+    then.sequence = joined(filled, then.sequence);
+    then.broken_rules = then.broken_rules.map(|rules| rules.into_iter().map(|v| in_job(v, &rest, job.geometries.len())).collect());
+    then.planner = format!("{name}+{}", then.planner);
+    Ok(then)
+}
+
+/// The job (no fills of a stage-only machine) planned layer kind by layer kind.
+fn plan_layers(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     let cuts = cuts_through(job, ctx.machine);
     let (cutting, marking): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| cuts[g]);
     if cutting.is_empty() {
@@ -112,7 +160,7 @@ mod tests {
     }
 
     fn process(layer: &str) -> Process {
-        Process { layer: layer.into(), speed: 50.0, power: 500.0, passes: 1 }
+        Process { layer: layer.into(), speed: 50.0, power: 500.0, passes: 1, fill: false }
     }
 
     #[test]

@@ -294,7 +294,7 @@ mod tests {
 
     fn job_of(n: usize) -> Job {
         let g = |i: usize| Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(0.0, 0.0), Point::new(1.0, 0.0)], closed: false, process: 0, source: format!("g{i}") };
-        Job { source: "t".into(), geometries: (0..n).map(g).collect(), processes: vec![Process { layer: "cut".into(), speed: 10.0, power: 1.0, passes: 1 }] }
+        Job { source: "t".into(), geometries: (0..n).map(g).collect(), processes: vec![Process { layer: "cut".into(), speed: 10.0, power: 1.0, passes: 1, fill: false }] }
     }
 
     fn path(geometry: usize, from: (f64, f64), to: (f64, f64)) -> PlannedPath {

@@ -239,7 +239,7 @@ mod tests {
                 source: format!("r{i}"),
             })
             .collect();
-        Job { source: "t".into(), geometries, processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 1.0, passes: 1 }] }
+        Job { source: "t".into(), geometries, processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 1.0, passes: 1, fill: false }] }
     }
 
     fn check_cover(job: &Job, fields: &[Field], half: f64) {

@@ -2,6 +2,7 @@
 //! entered, and (on machines with a scanner, in step-and-scan) which scan field
 //! each belongs to. Input: `Job`; output: `Sequence`.
 
+pub mod area;
 pub mod auto;
 pub mod bridges;
 pub mod cutting;
@@ -151,6 +152,9 @@ pub enum PlannerKind {
     Hha,
     /// The galvo planner of seed 003, genetic (from the HHA's route).
     Hga,
+    /// As `Auto`, but fills as a plain raster, line after line across the
+    /// job (the yardstick the fill planner is measured against).
+    Raster,
 }
 
 impl FromStr for PlannerKind {
@@ -162,7 +166,8 @@ impl FromStr for PlannerKind {
             "ecp" => Ok(PlannerKind::Ecp),
             "hha" => Ok(PlannerKind::Hha),
             "hga" => Ok(PlannerKind::Hga),
-            _ => Err(format!("unknown planner '{s}' (available: auto, nearest, ecp, hha, hga)")),
+            "raster" => Ok(PlannerKind::Raster),
+            _ => Err(format!("unknown planner '{s}' (available: auto, nearest, ecp, hha, hga, raster)")),
         }
     }
 }
@@ -170,7 +175,7 @@ impl FromStr for PlannerKind {
 /// The planner `kind` stands for (`auto`: see [`auto`]).
 pub fn planner(kind: PlannerKind) -> Box<dyn Planner> {
     match kind {
-        PlannerKind::Auto => Box::new(auto::Auto),
+        PlannerKind::Auto | PlannerKind::Raster => Box::new(auto::Auto),
         PlannerKind::Nearest => Box::new(nearest::NearestNeighbour),
         PlannerKind::Ecp => Box::new(cutting::Ecp),
         PlannerKind::Hha => Box::new(galvo::Hha),
@@ -236,6 +241,7 @@ pub fn plan_job(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
 fn plan_ordered(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     match kind {
         PlannerKind::Auto => auto::plan(job, ctx),
+        PlannerKind::Raster => auto::plan_filling(job, ctx, auto::FillOrder::Raster),
         PlannerKind::Ecp => Ok(cutting::plan_cutting(job, ctx)?.outcome()),
         _ => {
             let planner = planner(kind);
@@ -341,7 +347,7 @@ mod tests {
         use crate::job::Geometry;
         let line = Geometry { points: points.clone(), closed: false, arcs: Vec::new(), profile: vec![0, 1, 1, 2], process: 0, source: "t.nc:3".into() };
         let plain = Geometry::polyline(vec![Point::new(0.0, 5.0), Point::new(4.0, 5.0)], false, 1, "t.nc:9".into());
-        let process = |power: f64| crate::job::Process { layer: format!("S{power}"), speed: 10.0, power, passes: 1 };
+        let process = |power: f64| crate::job::Process { layer: format!("S{power}"), speed: 10.0, power, passes: 1, fill: false };
         let job = Job { source: "t.nc".into(), geometries: vec![line, plain], processes: vec![process(100.0), process(200.0), process(300.0)] };
         let path = |geometry: usize, points: Vec<Point>, process: usize| PlannedPath::new(geometry, points, process, true);
         // Marked backwards: the last segment's process first.

@@ -126,7 +126,7 @@ mod tests {
         Job {
             source: "test".into(),
             geometries,
-            processes: vec![Process { layer: "mark".into(), speed: 1000.0, power: 100.0, passes: 1 }],
+            processes: vec![Process { layer: "mark".into(), speed: 1000.0, power: 100.0, passes: 1, fill: false }],
         }
     }
 

@@ -167,7 +167,7 @@ mod tests {
     }
 
     fn job(geometries: Vec<Geometry>) -> Job {
-        Job { source: "t.svg".into(), geometries, processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 1.0, passes: 1 }] }
+        Job { source: "t.svg".into(), geometries, processes: vec![Process { layer: "mark".into(), speed: 100.0, power: 1.0, passes: 1, fill: false }] }
     }
 
     /// Every geometry fits the field; the lengths add up to the original's.
@@ -314,7 +314,7 @@ mod tests {
         let mut line = geometry(&(0..=100).map(|k| (k as f64, 5.0)).collect::<Vec<_>>(), false, "t.nc:3");
         line.profile = (0..100).map(|k| k / 10).collect();
         let mut original = job(vec![line]);
-        original.processes = (0..10).map(|k| Process { layer: format!("S{k}"), speed: 100.0, power: k as f64, passes: 1 }).collect();
+        original.processes = (0..10).map(|k| Process { layer: format!("S{k}"), speed: 100.0, power: k as f64, passes: 1, fill: false }).collect();
         let split = split_at_field_borders(&original, 16.0);
         check(&original, &split, 16.0);
         assert!(split.geometries.len() >= 4 && split.geometries.len() <= 8, "pieces, not a geometry per power: {}", split.geometries.len());

@@ -118,7 +118,7 @@ mod tests {
         let job = Job {
             source: "t".into(),
             geometries: outlines.iter().enumerate().map(|(k, o)| Geometry { arcs: Vec::new(), profile: Vec::new(), points: o.clone(), closed: true, process: 0, source: format!("g{k}") }).collect(),
-            processes: vec![Process { layer, speed: 20.0, power: 1000.0, passes: 1 }],
+            processes: vec![Process { layer, speed: 20.0, power: 1000.0, passes: 1, fill: false }],
         };
         let pieces = pieces(&job, &machine, 30.0, &[false; 4]);
         assert_eq!(pieces, vec![0, 2, 3], "the 100 mm square is carried by a 30 mm grid");

@@ -733,7 +733,7 @@ mod tests {
         Job {
             source: "t".into(),
             geometries: vec![Geometry { arcs: Vec::new(), profile: Vec::new(), points, closed: true, process: 0, source: "circle".into() }],
-            processes: vec![Process { layer: "mark".into(), speed: 1000.0, power: 250.0, passes: 1 }],
+            processes: vec![Process { layer: "mark".into(), speed: 1000.0, power: 250.0, passes: 1, fill: false }],
         }
     }
 

@@ -84,7 +84,7 @@ mod tests {
         let job = Job {
             source: "t".into(),
             geometries: (0..2).map(|k| Geometry { arcs: Vec::new(), profile: Vec::new(), points: square(10.0 * k as f64 + 10.0), closed: false, process: 0, source: format!("g{k}") }).collect(),
-            processes: vec![Process { layer: "mark".into(), speed: 50.0, power: 300.0, passes: 1 }],
+            processes: vec![Process { layer: "mark".into(), speed: 50.0, power: 300.0, passes: 1, fill: false }],
         };
         let paths = (0..2).map(|k| PlannedPath::new(k, job.geometries[k].points.clone(), 0, true)).collect();
         let sequence = Sequence { groups: vec![PathGroup { field_center: None, paths }] };

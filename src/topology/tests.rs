@@ -26,7 +26,7 @@ pub(crate) fn rect(x0: f64, y0: f64, x1: f64, y1: f64, name: &str) -> Geometry {
 }
 
 pub(crate) fn job(geometries: Vec<Geometry>) -> Job {
-    let process = Process { layer: "cut".into(), speed: 10.0, power: 1000.0, passes: 1 };
+    let process = Process { layer: "cut".into(), speed: 10.0, power: 1000.0, passes: 1, fill: false };
     Job { source: "test.svg".into(), geometries, processes: vec![process] }
 }
 

@@ -301,7 +301,7 @@ mod tests {
             source: String::new(),
         };
         let line = Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(6.0, 0.0), Point::new(4.0, 0.0)], closed: false, process: 0, source: String::new() };
-        let job = Job { source: String::new(), geometries: vec![square(0.0), line, square(10.0)], processes: vec![Process { layer: "m".into(), speed: 1.0, power: 1.0, passes: 1 }] };
+        let job = Job { source: String::new(), geometries: vec![square(0.0), line, square(10.0)], processes: vec![Process { layer: "m".into(), speed: 1.0, power: 1.0, passes: 1, fill: false }] };
         let entries = select_entries(&job, &[0, 1, 2]);
         // The first square left at its corner towards the line, the line run
         // left to right (reversed), the last square entered at its near corner.

@@ -6,7 +6,7 @@ use crate::job::{Geometry, Process};
 use crate::plan::PathGroup;
 
 fn process() -> Process {
-    Process { layer: "cut".into(), speed: 10.0, power: 100.0, passes: 1 }
+    Process { layer: "cut".into(), speed: 10.0, power: 100.0, passes: 1, fill: false }
 }
 
 fn settings(lead_in: LeadKind, lead_out: LeadKind) -> LeadSettings {

@@ -8,7 +8,7 @@ use crate::job::{arc_circle, Process};
 const TOL: f64 = 0.01;
 
 fn process() -> Process {
-    Process { layer: "cut".into(), speed: 10.0, power: 100.0, passes: 1 }
+    Process { layer: "cut".into(), speed: 10.0, power: 100.0, passes: 1, fill: false }
 }
 
 fn layer(kerf: f64, corners: KerfCorners) -> KerfLayer {
