@@ -257,6 +257,8 @@ pub struct MachineConfig {
     #[serde(default)]
     pub galvo: GalvoConfig,
     #[serde(default)]
+    pub fill: FillConfig,
+    #[serde(default)]
     pub service: ServiceConfig,
     #[serde(default)]
     pub job: JobConfig,
@@ -812,6 +814,84 @@ pub struct GalvoConfig {
     pub seed: u64,
 }
 
+/// What the planners minimise, and the fill planner's genetic search
+/// (seed 004).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct FillConfig {
+    /// The objective: `length` (laser-off travel), `time` (machine time),
+    /// `turns`, `heat`, or a weighted sum (`time+0.2*turns`); `--objective`
+    /// overrides it.
+    #[serde(default = "default_objective")]
+    pub objective: String,
+    /// `heat`: marks whose middles lie closer than this share heat (mm) ...
+    #[serde(default = "default_heat_radius")]
+    pub heat_radius: f64,
+    /// ... when made less than this apart (s).
+    #[serde(default = "default_cooling_time")]
+    pub cooling_time: f64,
+    /// Routes in each generation of the fill planner's genetic search.
+    #[serde(default = "default_population")]
+    pub population: usize,
+    /// Generations without a better route before it stops.
+    #[serde(default = "default_stall_generations")]
+    pub stall_generations: usize,
+}
+
+fn default_objective() -> String {
+    "time".into()
+}
+fn default_heat_radius() -> f64 {
+    1.0
+}
+fn default_cooling_time() -> f64 {
+    0.5
+}
+fn default_population() -> usize {
+    25
+}
+fn default_stall_generations() -> usize {
+    30
+}
+
+impl Default for FillConfig {
+    fn default() -> Self {
+        FillConfig {
+            objective: default_objective(),
+            heat_radius: default_heat_radius(),
+            cooling_time: default_cooling_time(),
+            population: default_population(),
+            stall_generations: default_stall_generations(),
+        }
+    }
+}
+
+/// The terms an objective may weigh (`plan::objective` gives each its meaning).
+pub const OBJECTIVE_TERMS: [&str; 4] = ["length", "time", "turns", "heat"];
+
+/// An objective's weighted terms: `time`, `time+0.2*turns`, `0.5*time+2*heat`.
+pub fn objective_terms(s: &str) -> std::result::Result<Vec<(f64, &'static str)>, String> {
+    let known = "length, time, turns, heat, or a weighted sum such as time+0.2*turns";
+    let mut terms = Vec::new();
+    for part in s.split('+').map(str::trim) {
+        let (weight, name) = match part.split_once('*') {
+            Some((w, n)) => (w.trim().parse::<f64>().map_err(|_| format!("objective '{s}': '{}' is not a weight ({known})", w.trim()))?, n.trim()),
+            None => (1.0, part),
+        };
+        if !(weight.is_finite() && (0.0..=1e6).contains(&weight)) {
+            return Err(format!("objective '{s}': weight {weight} is outside 0 to 1e6"));
+        }
+        let Some(term) = OBJECTIVE_TERMS.iter().find(|t| **t == name) else {
+            return Err(format!("objective '{s}': unknown term '{name}' ({known})"));
+        };
+        terms.push((weight, *term));
+    }
+    if terms.iter().all(|&(w, _)| w == 0.0) {
+        return Err(format!("objective '{s}': every weight is 0"));
+    }
+    Ok(terms)
+}
+
 fn default_direction_weight() -> f64 {
     0.5
 }
@@ -1337,6 +1417,12 @@ impl MachineConfig {
         let g = &self.galvo;
         DIRECTION_WEIGHT.check("galvo.direction_weight", g.direction_weight)?;
         DIRECTION_WEIGHT.check("galvo.direction_weight_single_field", g.direction_weight_single_field)?;
+        let f = &self.fill;
+        objective_terms(&f.objective).map_err(|e| format!("fill.objective: {e}"))?;
+        in_range("fill.heat_radius", f.heat_radius, 0.001, 1000.0, "mm")?;
+        in_range("fill.cooling_time", f.cooling_time, 0.001, 3600.0, "s")?;
+        in_range("fill.population", f.population, 2, 1000, "routes")?;
+        in_range("fill.stall_generations", f.stall_generations, 1, 100_000, "generations")?;
         if let Some(t) = g.time_limit {
             TIME_LIMIT.check("galvo.time_limit", t)?;
         }

@@ -52,7 +52,10 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     mode.check(machine)?;
     let job = import_job(job_path, machine)?;
     let fills = job.processes.iter().any(|p| p.fill);
-    let (job, hatched) = crate::plan::area::hatch::hatch(job, machine)?;
+    let (mut job, hatched) = crate::plan::area::hatch::hatch(job, machine)?;
+    if kind == PlannerKind::Raster {
+        job = crate::plan::area::raster_lines(job, machine);
+    }
     let kerfed = kerf::compensate(&job, &kerf_layers(&job, machine), machine.import.tolerance)?;
     let (drawn, kerf_mm) = ((kerfed.offset > 0).then_some(job), (kerfed.offset > 0).then_some(kerfed.kerf_mm));
     let job = kerfed.job;

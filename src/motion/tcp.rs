@@ -663,6 +663,20 @@ impl TcpBuilder {
         // from and goes to); the job's last mark ends at rest, and so does
         // every end in `rest_at`.
         let at_rest = |p: &Point| self.rest_at.iter().any(|r| (r - p).norm() < 1e-6);
+        // Whether mark k's start (or end) may be overscanned: not at rest,
+        // and a mark whose other end rests long enough to stop in.
+        let axis = settings.axis;
+        let at_speed = |k: usize, start: bool| {
+            let m = &marks[k];
+            let (Some(first), Some(last)) = (m.points.first(), m.points.last()) else { return false };
+            let (here, there) = if start { (first, last) } else { (last, first) };
+            if !m.overscan || (start && m.pierce) || at_rest(here) {
+                return false;
+            }
+            let v = m.speed.min(axis.velocity);
+            let stop = v * v / (2.0 * axis.acceleration) + v * axis.acceleration / axis.jerk;
+            !at_rest(there) || m.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>() >= stop
+        };
         let hand_overs: Vec<HandOver> = (0..marks.len())
             .map(|k| {
                 if !(self.hand_over && settings.junctions) {
@@ -672,17 +686,25 @@ impl TcpBuilder {
                 let before = k.checked_sub(1).and_then(|j| marks[j].points.last());
                 let after = marks.get(k + 1).and_then(|m| m.points.first());
                 // An overscanned mark (a hatch line) is entered and left at
-                // its speed whatever comes before and after.
-                let over = marks[k].overscan;
+                // its speed, the move before or after it turning round
+                // outside. A move that goes on ahead (to the next segment of
+                // its line) does so only between two ends that both may be
+                // at speed, else through the junction as between any marks
+                // (it would swing back for a run-up otherwise).
+                let head = marks[k].points.get(1).zip(first).map(|(p, f)| p - f);
+                let tail = last.zip(marks[k].points.len().checked_sub(2).map(|i| marks[k].points[i])).map(|(l, p)| l - p);
+                let ahead = |chord: Vector2<f64>, along: Option<Vector2<f64>>| along.is_some_and(|d| chord.dot(&d) > 0.0);
                 let entry = match before.zip(first) {
                     _ if marks[k].pierce || first.is_some_and(&at_rest) => RunEnd::Rest,
-                    _ if over => RunEnd::AtSpeed,
+                    Some((b, f)) if ahead(f - b, head) => if at_speed(k, true) && at_speed(k - 1, false) { RunEnd::AtSpeed } else { RunEnd::Junction(f - b) },
+                    Some(_) | None if at_speed(k, true) => RunEnd::AtSpeed,
                     Some((b, f)) => RunEnd::Junction(f - b),
                     None => RunEnd::Rest,
                 };
                 let exit = match last.zip(after) {
                     _ if last.is_some_and(&at_rest) => RunEnd::Rest,
-                    _ if over => RunEnd::AtSpeed,
+                    Some((l, a)) if ahead(a - l, tail) => if at_speed(k, false) && at_speed(k + 1, true) { RunEnd::AtSpeed } else { RunEnd::Junction(a - l) },
+                    Some(_) | None if at_speed(k, false) => RunEnd::AtSpeed,
                     Some((l, a)) => RunEnd::Junction(a - l),
                     None => RunEnd::Rest,
                 };

@@ -56,9 +56,13 @@ pub fn plan_filling(job: &Job, ctx: &PlanContext, fill_order: FillOrder) -> Resu
         return plan_layers(job, ctx);
     }
     let segments = area::segments(job, &fills, ctx.machine);
-    let order = match fill_order {
-        FillOrder::Raster => area::raster(&segments),
-        FillOrder::Planned => area::raster(&segments),
+    let (order, search_stopped_by) = match fill_order {
+        FillOrder::Raster => (area::raster(&segments), crate::plan::stop::SearchStop::Budget),
+        FillOrder::Planned => {
+            let objective = crate::plan::objective::parse(&ctx.machine.fill.objective).map_err(|e| crate::error::Error::Config(format!("fill.objective: {e}")))?;
+            let (order, run) = area::plan_fill(job, &segments, ctx.machine, ctx.start, objective.as_ref());
+            (order, run.stopped_by)
+        }
     };
     let filled = Sequence { groups: vec![PathGroup { field_center: None, paths: area::paths(job, &segments, &order) }] };
     let name = match fill_order {
@@ -66,7 +70,7 @@ pub fn plan_filling(job: &Job, ctx: &PlanContext, fill_order: FillOrder) -> Resu
         FillOrder::Planned => "fill",
     };
     if rest.is_empty() {
-        return Ok(PlanOutcome { sequence: filled, planner: name.into(), broken_rules: Some(Vec::new()), search_stopped_by: crate::plan::stop::SearchStop::Budget, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() });
+        return Ok(PlanOutcome { sequence: filled, planner: name.into(), broken_rules: Some(Vec::new()), search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() });
     }
     let start = filled.paths().last().map_or(ctx.start, |p| p.end());
     let plate = ctx.plate.and_then(|p| p.select(&rest));
@@ -75,6 +79,7 @@ pub fn plan_filling(job: &Job, ctx: &PlanContext, fill_order: FillOrder) -> Resu
     then.sequence = joined(filled, then.sequence);
     then.broken_rules = then.broken_rules.map(|rules| rules.into_iter().map(|v| in_job(v, &rest, job.geometries.len())).collect());
     then.planner = format!("{name}+{}", then.planner);
+    then.search_stopped_by = search_stopped_by.and(then.search_stopped_by);
     Ok(then)
 }
 

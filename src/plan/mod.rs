@@ -11,6 +11,7 @@ pub mod fields;
 pub mod galvo;
 pub mod lead;
 pub mod nearest;
+pub mod objective;
 pub mod precut;
 pub mod split;
 pub mod stop;

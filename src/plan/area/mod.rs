@@ -7,11 +7,15 @@
 //!   plain raster order (line after line across the whole job, what
 //!   LightBurn does by default), and the fill planner.
 
+pub mod ga;
 pub mod hatch;
 
+use super::objective::{Mark, MotionModel, Objective, ObjectiveContext};
+use super::stop::TimeCap;
 use super::PlannedPath;
 use crate::config::MachineConfig;
-use crate::job::{Job, Point};
+use ga::{GaRun, GaSettings};
+use crate::job::{Geometry, Job, Point, Process};
 use nalgebra::Vector2;
 
 /// A hatch line to mark: a straight geometry of a fill process.
@@ -47,22 +51,66 @@ impl Segment {
     }
 }
 
-/// The hatch lines among `which` (geometries of `job`), in the job's order.
+/// The hatch lines among `which` (geometries of `job`), in the job's order:
+/// the straight open geometries of fill processes (a hatch line, or a whole
+/// line of the raster yardstick, `raster_lines`).
 pub fn segments(job: &Job, which: &[usize], machine: &MachineConfig) -> Vec<Segment> {
     which
         .iter()
         .filter_map(|&g| {
             let geometry = &job.geometries[g];
             let process = &job.processes[geometry.process];
-            if !process.fill || geometry.closed || geometry.points.len() != 2 {
+            if !process.fill || geometry.closed || geometry.points.len() < 2 {
                 return None;
             }
             let either_way = machine.layers.iter().find(|l| l.name == process.layer).is_none_or(|l| l.bidirectional);
-            let (from, to) = (geometry.points[0], geometry.points[1]);
+            let (from, to) = (geometry.points[0], geometry.points[geometry.points.len() - 1]);
             let d = (to - from).normalize();
             Some(Segment { geometry: g, from, to, either_way, across: d.perp(&from.coords) })
         })
         .collect()
+}
+
+/// The raster yardstick's job (`--planner raster`), as LightBurn fills by
+/// default: each hatch line whole, from its first segment's start to its
+/// last one's end at the fill's speed, the laser off (power 0) across the
+/// gaps between its segments.
+pub fn raster_lines(job: Job, machine: &MachineConfig) -> Job {
+    let all: Vec<usize> = (0..job.geometries.len()).collect();
+    let segments = segments(&job, &all, machine);
+    if segments.is_empty() {
+        return job;
+    }
+    let Job { source, geometries, mut processes } = job;
+    // A process with the laser off beside each fill process.
+    let mut off = vec![usize::MAX; processes.len()];
+    for p in 0..processes.len() {
+        if processes[p].fill {
+            off[p] = processes.len();
+            processes.push(Process { power: 0.0, ..processes[p].clone() });
+        }
+    }
+    let is_segment: std::collections::HashSet<usize> = segments.iter().map(|s| s.geometry).collect();
+    let mut out: Vec<Geometry> = geometries.iter().enumerate().filter(|(g, _)| !is_segment.contains(g)).map(|(_, g)| g.clone()).collect();
+    let mut k = 0;
+    while k < segments.len() {
+        let first = &geometries[segments[k].geometry];
+        let mut line = Geometry { points: vec![segments[k].from, segments[k].to], profile: vec![first.process], ..first.clone() };
+        let mut j = k + 1;
+        while j < segments.len() && same_line(&segments[j], &segments[k]) && geometries[segments[j].geometry].process == first.process {
+            let s = &segments[j];
+            if (s.from - line.points[line.points.len() - 1]).norm() > 1e-9 {
+                line.profile.push(off[first.process]);
+                line.points.push(s.from);
+            }
+            line.profile.push(first.process);
+            line.points.push(s.to);
+            j += 1;
+        }
+        out.push(line);
+        k = j;
+    }
+    Job { source, geometries: out, processes }
 }
 
 /// A route over segments: each by its index and whether it is marked reversed.
@@ -102,9 +150,61 @@ pub fn paths(job: &Job, segments: &[Segment], order: &Order) -> Vec<PlannedPath>
     order
         .iter()
         .map(|&(i, reversed)| {
-            let s = &segments[i as usize];
-            let (a, b) = s.ends(reversed);
-            PlannedPath::new(s.geometry, vec![a, b], job.geometries[s.geometry].process, false)
+            let g = &job.geometries[segments[i as usize].geometry];
+            let mut points = g.points.clone();
+            if reversed {
+                points.reverse();
+            }
+            PlannedPath::new(segments[i as usize].geometry, points, g.process, false)
         })
         .collect()
+}
+
+/// How the objectives see `segments` marked in `order`.
+pub fn marks(order: &Order, forward: &[Mark]) -> Vec<Mark> {
+    order
+        .iter()
+        .map(|&(i, reversed)| {
+            let m = forward[i as usize];
+            if reversed {
+                Mark { from: m.to, to: m.from, dir_in: -m.dir_out, dir_out: -m.dir_in, ..m }
+            } else {
+                m
+            }
+        })
+        .collect()
+}
+
+/// Each segment as a mark the hatch's way: at its layer's speed (within
+/// what the stage can), at speed at its ends where its layer overscans.
+pub fn forward_marks(job: &Job, segments: &[Segment], machine: &MachineConfig) -> Vec<Mark> {
+    let cap = machine.stage_limits().scaled(machine.motion.limit_margin).velocity;
+    segments
+        .iter()
+        .map(|s| {
+            let process = &job.processes[job.geometries[s.geometry].process];
+            let overscan = machine.layers.iter().find(|l| l.name == process.layer).is_some_and(|l| l.overscan);
+            Mark::straight(s.from, s.to, process.speed.min(cap), overscan)
+        })
+        .collect()
+}
+
+/// What the objectives of a stage-only machine's plan need.
+pub fn objective_context(machine: &MachineConfig) -> ObjectiveContext {
+    ObjectiveContext {
+        motion: MotionModel { axis: machine.stage_limits().scaled(machine.motion.limit_margin) },
+        heat_radius: machine.fill.heat_radius,
+        cooling_time: machine.fill.cooling_time,
+    }
+}
+
+/// The fill planner: seed 004's genetic search under `objective` from
+/// `start`, the plain raster among its first routes.
+pub fn plan_fill(job: &Job, segments: &[Segment], machine: &MachineConfig, start: Point, objective: &dyn Objective) -> (Order, GaRun) {
+    let forward = forward_marks(job, segments, machine);
+    let ctx = objective_context(machine);
+    let cost = |order: &Order| objective.cost(&marks(order, &forward), &ctx);
+    let settings = GaSettings { population: machine.fill.population, stall: machine.fill.stall_generations, seed: machine.galvo.seed, ..GaSettings::default() };
+    let cap = TimeCap::after(machine.galvo.time_limit.map(std::time::Duration::from_secs_f64));
+    ga::evolve(segments, start, &cost, vec![raster(segments)], &settings, &cap)
 }

@@ -1,0 +1,297 @@
+//! Seed 004's genetic algorithm over a route of genes (hatch segments, or
+//! grid points as segments of no length), its objective exchangeable.
+//!
+//! * Initial population: randomised nearest-neighbour routes, each next gene
+//!   drawn from the nearest unvisited ones with a probability that halves
+//!   with every rank further down their list of link distances; besides
+//!   them (our addition, so that the result is never worse than the
+//!   yardstick under its own objective) the routes the caller gives.
+//! * Fitness: the inverse of the objective. Selection proportionate to it.
+//! * Crossover: partially matched (PMX) over a stretch of at most half a
+//!   chromosome; a whole generation of offspring replaces its parents (the
+//!   best route ever met is kept aside).
+//! * Mutation, on every offspring: a random gene's nearest neighbour (by
+//!   link distance, in its better direction) is moved to follow it.
+//! * Stop: after `stall` generations without a better route, or when the
+//!   work budget (gene operations) is spent, or at a time cap if one is set.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng as Rand;
+use rstar::primitives::GeomWithData;
+use rstar::RTree;
+
+use super::{Order, Segment};
+use crate::job::Point;
+use crate::plan::stop::{SearchStop, TimeCap};
+
+#[derive(Debug, Clone)]
+pub struct GaSettings {
+    pub population: usize,
+    /// Longest PMX stretch, as a share of the chromosome.
+    pub max_crossover: f64,
+    /// Generations without a better route before it stops.
+    pub stall: usize,
+    /// Gene operations (copies, moves, evaluations) it may spend.
+    pub budget: u64,
+    /// Candidates a randomised construction draws the next gene from.
+    pub candidates: usize,
+    pub seed: u64,
+}
+
+impl Default for GaSettings {
+    fn default() -> Self {
+        GaSettings { population: 25, max_crossover: 0.5, stall: 30, budget: 400_000_000, candidates: 6, seed: 1 }
+    }
+}
+
+/// What a run of the GA did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GaRun {
+    pub generations: usize,
+    /// The generation that found the best route (0: the initial population).
+    pub best_generation: usize,
+    pub cost: f64,
+    pub stopped_by: SearchStop,
+}
+
+/// The best route over `segments` the GA finds from `start` under `cost`
+/// (lower is better), with `seeded` routes in the initial population.
+pub fn evolve(segments: &[Segment], start: Point, cost: &(dyn Fn(&Order) -> f64 + Sync), seeded: Vec<Order>, settings: &GaSettings, cap: &TimeCap) -> (Order, GaRun) {
+    let n = segments.len();
+    if n == 0 {
+        return (Vec::new(), GaRun::default());
+    }
+    let mut rng = Rand::seed_from_u64(settings.seed);
+    let near = Ends::new(segments);
+    let mut population: Vec<Order> = seeded.into_iter().filter(|o| o.len() == n).collect();
+    let mut spent: u64 = 0;
+    let mut constructed = 0;
+    while population.len() < settings.population.max(2) {
+        // The first construction is the plain nearest neighbour.
+        let candidates = if constructed == 0 { 1 } else { settings.candidates };
+        population.push(construct(segments, start, candidates, &mut rng));
+        constructed += 1;
+        spent += 20 * n as u64;
+    }
+    let mut costs: Vec<f64> = population.iter().map(|o| cost(o)).collect();
+    spent += (population.len() * n) as u64;
+    let (mut best, mut best_cost) = best_of(&population, &costs);
+    let mut run = GaRun { cost: best_cost, ..GaRun::default() };
+    let per_generation = (population.len() as u64) * (3 * n as u64 + 64);
+    let mut stalled = 0;
+    while stalled < settings.stall {
+        if spent + per_generation > settings.budget {
+            run.stopped_by = SearchStop::Budget;
+            break;
+        }
+        if cap.reached() {
+            run.stopped_by = SearchStop::TimeLimit;
+            break;
+        }
+        run.generations += 1;
+        let wheel = Wheel::new(&costs);
+        let mut offspring = Vec::with_capacity(population.len());
+        for _ in 0..population.len() {
+            let (a, b) = (wheel.pick(&mut rng), wheel.pick(&mut rng));
+            let mut child = pmx(&population[a], &population[b], settings.max_crossover, &mut rng);
+            mutate(&mut child, segments, &near, &mut rng);
+            offspring.push(child);
+        }
+        costs = offspring.iter().map(|o| cost(o)).collect();
+        spent += per_generation;
+        population = offspring;
+        let (gen_best, gen_cost) = best_of(&population, &costs);
+        if gen_cost < best_cost - 1e-12 * best_cost.abs() {
+            (best, best_cost) = (gen_best, gen_cost);
+            run.best_generation = run.generations;
+            stalled = 0;
+        } else {
+            stalled += 1;
+        }
+    }
+    run.cost = best_cost;
+    (best, run)
+}
+
+fn best_of(population: &[Order], costs: &[f64]) -> (Order, f64) {
+    let k = (0..costs.len()).min_by(|&a, &b| costs[a].total_cmp(&costs[b])).expect("a population");
+    (population[k].clone(), costs[k])
+}
+
+/// Fitness-proportionate selection: fitness 1 / cost.
+struct Wheel {
+    cumulative: Vec<f64>,
+}
+
+impl Wheel {
+    fn new(costs: &[f64]) -> Wheel {
+        let mut total = 0.0;
+        let cumulative = costs
+            .iter()
+            .map(|c| {
+                total += 1.0 / c.max(1e-12);
+                total
+            })
+            .collect();
+        Wheel { cumulative }
+    }
+
+    fn pick(&self, rng: &mut Rand) -> usize {
+        let total = *self.cumulative.last().expect("a population");
+        let x = rng.random::<f64>() * total;
+        self.cumulative.partition_point(|&c| c <= x).min(self.cumulative.len() - 1)
+    }
+}
+
+/// Partially matched crossover: the child is `b` with a stretch of `a` (at
+/// most `max_share` of the chromosome) put in place by swaps, so every gene
+/// stays once; a gene keeps the direction of the parent it came from.
+fn pmx(a: &Order, b: &Order, max_share: f64, rng: &mut Rand) -> Order {
+    let n = a.len();
+    let mut child = b.clone();
+    if n < 2 {
+        return child;
+    }
+    let longest = ((n as f64 * max_share) as usize).clamp(1, n);
+    let len = rng.random_range(1..=longest);
+    let from = rng.random_range(0..=n - len);
+    let mut at = vec![0u32; n];
+    for (i, &(g, _)) in child.iter().enumerate() {
+        at[g as usize] = i as u32;
+    }
+    for i in from..from + len {
+        let (g, dir) = a[i];
+        let j = at[g as usize] as usize;
+        if j != i {
+            let other = child[i].0;
+            child.swap(i, j);
+            at[other as usize] = j as u32;
+            at[g as usize] = i as u32;
+        }
+        child[i].1 = dir;
+    }
+    child
+}
+
+/// Moves the nearest neighbour of a random gene's end to follow it.
+fn mutate(child: &mut Order, segments: &[Segment], near: &Ends, rng: &mut Rand) {
+    let n = child.len();
+    if n < 3 {
+        return;
+    }
+    let i = rng.random_range(0..n - 1);
+    let (g, reversed) = child[i];
+    let end = segments[g as usize].ends(reversed).1;
+    let Some((h, h_reversed)) = near.nearest(end, segments, |s| s != g) else { return };
+    let j = child.iter().position(|&(s, _)| s == h).expect("every gene is in the route");
+    let gene = child.remove(j);
+    let to = if j < i { i } else { i + 1 };
+    child.insert(to, (gene.0, h_reversed));
+}
+
+/// The segments' possible starts in a grid, for nearest-neighbour queries.
+struct Ends {
+    cell: f64,
+    origin: Point,
+    columns: i64,
+    rows: i64,
+    /// Per cell: (segment, reversed) whose start lies in it.
+    cells: Vec<Vec<(u32, bool)>>,
+}
+
+impl Ends {
+    fn new(segments: &[Segment]) -> Ends {
+        let starts = || segments.iter().flat_map(|s| std::iter::once(s.from).chain(s.either_way.then_some(s.to)));
+        let (lo, hi) = crate::job::bounds_of(starts().collect::<Vec<_>>().iter());
+        let area = ((hi.x - lo.x).max(1e-6)) * ((hi.y - lo.y).max(1e-6));
+        let cell = (area / segments.len().max(1) as f64).sqrt().max(1e-6) * 1.5;
+        let columns = (((hi.x - lo.x) / cell).floor() as i64 + 1).max(1);
+        let rows = (((hi.y - lo.y) / cell).floor() as i64 + 1).max(1);
+        let mut cells = vec![Vec::new(); (columns * rows) as usize];
+        let mut ends = Ends { cell, origin: lo, columns, rows, cells: Vec::new() };
+        for (k, s) in segments.iter().enumerate() {
+            cells[ends.index(s.from)].push((k as u32, false));
+            if s.either_way {
+                cells[ends.index(s.to)].push((k as u32, true));
+            }
+        }
+        ends.cells = cells;
+        ends
+    }
+
+    fn coords(&self, p: Point) -> (i64, i64) {
+        let c = |v: f64, o: f64, n: i64| (((v - o) / self.cell).floor() as i64).clamp(0, n - 1);
+        (c(p.x, self.origin.x, self.columns), c(p.y, self.origin.y, self.rows))
+    }
+
+    fn index(&self, p: Point) -> usize {
+        let (x, y) = self.coords(p);
+        (y * self.columns + x) as usize
+    }
+
+    /// Up to `k` starts nearest `p` among segments `keep` takes, nearest first.
+    fn nearest_k(&self, p: Point, segments: &[Segment], k: usize, keep: impl Fn(u32) -> bool) -> Vec<(f64, u32, bool)> {
+        let (cx, cy) = self.coords(p);
+        let mut found: Vec<(f64, u32, bool)> = Vec::new();
+        let most = self.columns.max(self.rows);
+        for ring in 0..=most {
+            for y in (cy - ring).max(0)..=(cy + ring).min(self.rows - 1) {
+                for x in (cx - ring).max(0)..=(cx + ring).min(self.columns - 1) {
+                    if (x - cx).abs() != ring && (y - cy).abs() != ring {
+                        continue;
+                    }
+                    for &(s, reversed) in &self.cells[(y * self.columns + x) as usize] {
+                        if keep(s) {
+                            let start = segments[s as usize].ends(reversed).0;
+                            found.push(((start - p).norm(), s, reversed));
+                        }
+                    }
+                }
+            }
+            // Everything within `ring` cells is in; beyond lies farther.
+            found.sort_by(|a, b| a.0.total_cmp(&b.0));
+            if found.len() >= k && found[k - 1].0 <= ring as f64 * self.cell {
+                break;
+            }
+        }
+        found.truncate(k);
+        found
+    }
+
+    fn nearest(&self, p: Point, segments: &[Segment], keep: impl Fn(u32) -> bool) -> Option<(u32, bool)> {
+        self.nearest_k(p, segments, 1, keep).first().map(|&(_, s, r)| (s, r))
+    }
+}
+
+/// A randomised nearest-neighbour route from `start`: the next gene drawn
+/// from the `candidates` nearest unvisited starts, the nearest with
+/// probability ½, the next ¼, and so on (1: always the nearest).
+fn construct(segments: &[Segment], start: Point, candidates: usize, rng: &mut Rand) -> Order {
+    type Start = GeomWithData<[f64; 2], (u32, bool)>;
+    let starts: Vec<Start> = segments
+        .iter()
+        .enumerate()
+        .flat_map(|(k, s)| std::iter::once((s.from, false)).chain(s.either_way.then_some((s.to, true))).map(move |(p, r)| Start::new([p.x, p.y], (k as u32, r))))
+        .collect();
+    let mut tree = RTree::bulk_load(starts);
+    let mut order = Vec::with_capacity(segments.len());
+    let mut at = start;
+    let mut options: Vec<(u32, bool)> = Vec::with_capacity(candidates);
+    while order.len() < segments.len() {
+        options.clear();
+        options.extend(tree.nearest_neighbor_iter([at.x, at.y]).take(candidates.max(1)).map(|e| e.data));
+        let mut pick = 0;
+        while pick + 1 < options.len() && rng.random::<bool>() {
+            pick += 1;
+        }
+        let (s, reversed) = options[pick];
+        let seg = &segments[s as usize];
+        tree.remove(&Start::new([seg.from.x, seg.from.y], (s, false)));
+        if seg.either_way {
+            tree.remove(&Start::new([seg.to.x, seg.to.y], (s, true)));
+        }
+        order.push((s, reversed));
+        at = seg.ends(reversed).1;
+    }
+    order
+}

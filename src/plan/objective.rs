@@ -1,0 +1,348 @@
+//! Objectives: what a planner minimises over a route of marks, exchangeable
+//! without touching the planner (seed 004's idea, carried to every planner).
+//!
+//! * `length`: the laser-off travel between marks (the seeds' idle stroke).
+//! * `time`: the machine time of the route in laserd's motion model, in
+//!   closed form: each laser-off move per axis the fastest at the axis'
+//!   velocity and acceleration limits from its start state to its end state
+//!   (a mark's ends at rest, or at its speed where it is overscanned), plus
+//!   the jerk's ramps; marks at their speed; pierces.
+//! * `turns`: seed 004's Eq. 10, how far every turn of the tool's path
+//!   strays from going straight on (|ij| + |jk| − |ik| at each vertex j).
+//! * `heat`: marks made near one another within a cooling time, each pair
+//!   weighted by how little time lay between them (the laser's analogue of
+//!   constant engagement: heat spreads evenly).
+//! * weighted sums: `time+0.2*turns`.
+
+use nalgebra::Vector2;
+
+use crate::config::Limits;
+use crate::job::Point;
+
+/// A mark of a route as the objectives see it: where it starts and ends,
+/// its length and speed, and how it is entered and left.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Mark {
+    pub from: Point,
+    pub to: Point,
+    pub length: f64,
+    pub speed: f64,
+    /// Direction at its start and end (unit vectors).
+    pub dir_in: Vector2<f64>,
+    pub dir_out: Vector2<f64>,
+    /// Entered and left at its speed (overscan); else from and to rest.
+    pub at_speed: bool,
+    /// Pierce time at its start (s).
+    pub pierce: f64,
+}
+
+impl Mark {
+    /// A straight mark from `from` to `to`.
+    pub fn straight(from: Point, to: Point, speed: f64, at_speed: bool) -> Mark {
+        let length = (to - from).norm();
+        let dir = if length > 0.0 { (to - from) / length } else { Vector2::x() };
+        Mark { from, to, length, speed, dir_in: dir, dir_out: dir, at_speed, pierce: 0.0 }
+    }
+}
+
+/// The machine's motion in closed form: the axes' limits (the same on X
+/// and Y) and the highest marking speed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionModel {
+    pub axis: Limits,
+}
+
+impl MotionModel {
+    /// Time from `from` at velocity `v0` to `to` at velocity `v1`: each
+    /// axis the fastest at its limits, the slower axis deciding, plus two
+    /// jerk ramps (acceleration / jerk each) when anything moves.
+    pub fn move_time(&self, from: Point, v0: Vector2<f64>, to: Point, v1: Vector2<f64>) -> f64 {
+        let d = to - from;
+        if d.norm() < 1e-12 && (v1 - v0).norm() < 1e-12 {
+            return 0.0;
+        }
+        let Limits { velocity, acceleration, jerk } = self.axis;
+        let t = axis_time(d.x, v0.x, v1.x, velocity, acceleration).max(axis_time(d.y, v0.y, v1.y, velocity, acceleration));
+        t + 2.0 * acceleration / jerk
+    }
+
+    /// Time to mark `mark` (its pierce included).
+    pub fn mark_time(&self, mark: &Mark) -> f64 {
+        let at = if mark.at_speed {
+            mark.length / mark.speed
+        } else {
+            // From rest to rest along its length at its speed (a straight leg).
+            axis_time(mark.length, 0.0, 0.0, mark.speed.min(self.axis.velocity), self.axis.acceleration) + 2.0 * self.axis.acceleration / self.axis.jerk
+        };
+        at + mark.pierce
+    }
+
+    /// The laser-off move from the end of `a` to the start of `b`.
+    pub fn jump_time(&self, a: &Mark, b: &Mark) -> f64 {
+        let v0 = if a.at_speed { a.dir_out * a.speed } else { Vector2::zeros() };
+        let v1 = if b.at_speed { b.dir_in * b.speed } else { Vector2::zeros() };
+        self.move_time(a.to, v0, b.from, v1)
+    }
+
+    /// When each mark of `route` starts, the first at 0 (after the move to it).
+    pub fn start_times(&self, route: &[Mark]) -> Vec<f64> {
+        let mut t = 0.0;
+        let mut out = Vec::with_capacity(route.len());
+        for (k, m) in route.iter().enumerate() {
+            if k > 0 {
+                t += self.jump_time(&route[k - 1], m);
+            }
+            out.push(t);
+            t += self.mark_time(m);
+        }
+        out
+    }
+}
+
+/// The least time for one axis from velocity `v0` to `v1` over the
+/// distance `d`, at speeds up to `vmax` and accelerations up to `a`: full
+/// acceleration one way then the other (either way round), cruising at
+/// `vmax` where the peak would pass it. Speeds above `vmax` are taken as
+/// `vmax`.
+pub fn axis_time(d: f64, v0: f64, v1: f64, vmax: f64, a: f64) -> f64 {
+    let (v0, v1) = (v0.clamp(-vmax, vmax), v1.clamp(-vmax, vmax));
+    let mut best = f64::INFINITY;
+    for s in [1.0, -1.0] {
+        // Peak speed of an up-then-down profile (s = 1) or down-then-up (s = -1).
+        let q = s * a * d + 0.5 * (v0 * v0 + v1 * v1);
+        if q < 0.0 {
+            continue;
+        }
+        let peak = s * q.sqrt();
+        let slack = 1e-12 * (1.0 + vmax);
+        if s * peak < s * v0 - slack || s * peak < s * v1 - slack {
+            continue;
+        }
+        let t = if peak.abs() <= vmax {
+            (s * (peak - v0) + s * (peak - v1)) / a
+        } else {
+            let vc = s * vmax;
+            let (d0, d1) = ((vc * vc - v0 * v0) / (2.0 * s * a), (vc * vc - v1 * v1) / (2.0 * s * a));
+            (s * (vc - v0) + s * (vc - v1)) / a + (d - d0 - d1) / vc
+        };
+        best = best.min(t.max(0.0));
+    }
+    best
+}
+
+/// What an objective needs of the machine and job beyond the route.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObjectiveContext {
+    pub motion: MotionModel,
+    /// `heat`: marks closer than this (mm, between their middles) share heat ...
+    pub heat_radius: f64,
+    /// ... when made less than this apart (s).
+    pub cooling_time: f64,
+}
+
+/// What a planner minimises over a route: lower is better. The planners
+/// take any objective; `of_terms` makes one from the config's grammar.
+pub trait Objective: Send + Sync {
+    /// As the user wrote it (`time`, `time+0.2*turns`).
+    fn name(&self) -> String;
+    /// The objective's value on `route`.
+    fn cost(&self, route: &[Mark], ctx: &ObjectiveContext) -> f64;
+    /// Whether it is the laser-off length alone (the searches' own measure).
+    fn is_length(&self) -> bool {
+        false
+    }
+}
+
+/// The laser-off travel between consecutive marks (mm).
+pub struct Length;
+/// The machine time of the route (s).
+pub struct Time;
+/// Seed 004's Eq. 10 (mm).
+pub struct Turns;
+/// Marks made near one another within a cooling time.
+pub struct Heat;
+/// A weighted sum of objectives.
+pub struct Weighted(pub Vec<(f64, Box<dyn Objective>)>);
+
+impl Objective for Length {
+    fn name(&self) -> String {
+        "length".into()
+    }
+    fn cost(&self, route: &[Mark], _: &ObjectiveContext) -> f64 {
+        route.windows(2).map(|w| (w[1].from - w[0].to).norm()).sum()
+    }
+    fn is_length(&self) -> bool {
+        true
+    }
+}
+
+impl Objective for Time {
+    fn name(&self) -> String {
+        "time".into()
+    }
+    fn cost(&self, route: &[Mark], ctx: &ObjectiveContext) -> f64 {
+        route_time(route, &ctx.motion)
+    }
+}
+
+impl Objective for Turns {
+    fn name(&self) -> String {
+        "turns".into()
+    }
+    fn cost(&self, route: &[Mark], _: &ObjectiveContext) -> f64 {
+        turns(route).0
+    }
+}
+
+impl Objective for Heat {
+    fn name(&self) -> String {
+        "heat".into()
+    }
+    fn cost(&self, route: &[Mark], ctx: &ObjectiveContext) -> f64 {
+        heat(route, ctx)
+    }
+}
+
+impl Objective for Weighted {
+    fn name(&self) -> String {
+        let terms: Vec<String> = self.0.iter().map(|(w, o)| if *w == 1.0 { o.name() } else { format!("{w}*{}", o.name()) }).collect();
+        terms.join("+")
+    }
+    fn cost(&self, route: &[Mark], ctx: &ObjectiveContext) -> f64 {
+        self.0.iter().filter(|(w, _)| *w != 0.0).map(|(w, o)| w * o.cost(route, ctx)).sum()
+    }
+    fn is_length(&self) -> bool {
+        self.0.iter().all(|(w, o)| *w == 0.0 || o.is_length())
+    }
+}
+
+/// The objective of a term's name (`config::OBJECTIVE_TERMS`).
+pub fn of_term(name: &str) -> Box<dyn Objective> {
+    match name {
+        "time" => Box::new(Time),
+        "turns" => Box::new(Turns),
+        "heat" => Box::new(Heat),
+        _ => Box::new(Length),
+    }
+}
+
+/// The objective `spec` names (`time`, `time+0.2*turns`; the grammar is
+/// `config::objective_terms`'s).
+pub fn parse(spec: &str) -> Result<Box<dyn Objective>, String> {
+    let terms = crate::config::objective_terms(spec)?;
+    Ok(match terms.as_slice() {
+        [(w, name)] if *w == 1.0 => of_term(name),
+        _ => Box::new(Weighted(terms.into_iter().map(|(w, name)| (w, of_term(name))).collect())),
+    })
+}
+
+/// The machine time of `route`: its marks and the moves between them.
+pub fn route_time(route: &[Mark], motion: &MotionModel) -> f64 {
+    route.iter().map(|m| motion.mark_time(m)).sum::<f64>() + route.windows(2).map(|w| motion.jump_time(&w[0], &w[1])).sum::<f64>()
+}
+
+/// Seed 004's Eq. 10 over the tool's path through the route's mark ends
+/// (mm), and the number of turns: vertices where the path changes
+/// direction by more than a degree.
+pub fn turns(route: &[Mark]) -> (f64, usize) {
+    let mut points: Vec<Point> = Vec::with_capacity(2 * route.len());
+    for m in route {
+        for p in [m.from, m.to] {
+            if points.last().is_none_or(|q| (p - q).norm() > 1e-9) {
+                points.push(p);
+            }
+        }
+    }
+    let (mut detour, mut count) = (0.0, 0);
+    let straight = 1.0f64.to_radians().cos();
+    for w in points.windows(3) {
+        let (a, b) = (w[1] - w[0], w[2] - w[1]);
+        detour += a.norm() + b.norm() - (w[2] - w[0]).norm();
+        if a.dot(&b) < straight * a.norm() * b.norm() {
+            count += 1;
+        }
+    }
+    (detour, count)
+}
+
+/// Pairs of marks whose middles lie within `heat_radius`, made less than
+/// `cooling_time` apart, each weighted 1 − (time between) / cooling time.
+pub fn heat(route: &[Mark], ctx: &ObjectiveContext) -> f64 {
+    let starts = ctx.motion.start_times(route);
+    let r = ctx.heat_radius.max(1e-9);
+    let cell = |p: Point| ((p.x / r).floor() as i64, (p.y / r).floor() as i64);
+    let mut grid: std::collections::HashMap<(i64, i64), Vec<usize>> = std::collections::HashMap::new();
+    let middle = |m: &Mark| Point::from((m.from.coords + m.to.coords) * 0.5);
+    let mut total = 0.0;
+    for (k, m) in route.iter().enumerate() {
+        let (p, (cx, cy)) = (middle(m), cell(middle(m)));
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for &j in grid.get(&(cx + dx, cy + dy)).into_iter().flatten() {
+                    let since = starts[k] - starts[j];
+                    if since < ctx.cooling_time && (middle(&route[j]) - p).norm() <= r {
+                        total += 1.0 - since / ctx.cooling_time;
+                    }
+                }
+            }
+        }
+        grid.entry((cx, cy)).or_default().push(k);
+    }
+    total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model() -> MotionModel {
+        MotionModel { axis: Limits { velocity: 500.0, acceleration: 5000.0, jerk: 1e12 } }
+    }
+
+    #[test]
+    fn one_axis_time_is_the_bang_bang_profile() {
+        // Rest to rest: 2·√(d/a) without reaching the top speed.
+        assert!((axis_time(10.0, 0.0, 0.0, 500.0, 5000.0) - 2.0 * (10.0f64 / 5000.0).sqrt()).abs() < 1e-12);
+        // With a cruise: 100 mm at 500 mm/s and 5000 mm/s²: 0.1 s each ramp (25 mm), 50 mm cruising.
+        assert!((axis_time(100.0, 0.0, 0.0, 500.0, 5000.0) - 0.3).abs() < 1e-12);
+        // Turning round in place from +v to -v: 2v/a.
+        assert!((axis_time(0.0, 400.0, -400.0, 500.0, 5000.0) - 0.16).abs() < 1e-12);
+        // Going on at speed over a gap at the top speed: d/v.
+        assert!((axis_time(50.0, 500.0, 500.0, 500.0, 5000.0) - 0.1).abs() < 1e-12);
+        // Backwards is the mirror image.
+        assert!((axis_time(-10.0, 0.0, 0.0, 500.0, 5000.0) - axis_time(10.0, 0.0, 0.0, 500.0, 5000.0)).abs() < 1e-12);
+        // Never faster than a simulation of the same limits finds.
+        for (d, v0, v1) in [(3.0, 100.0, -200.0), (-7.0, 300.0, 300.0), (0.5, -400.0, 400.0), (40.0, -100.0, 50.0)] {
+            let t = axis_time(d, v0, v1, 500.0, 5000.0);
+            assert!(t.is_finite() && t >= (v1 - v0).abs() / 5000.0 - 1e-12, "{d} {v0} {v1}: {t}");
+        }
+    }
+
+    #[test]
+    fn the_time_objective_prices_a_turn_round_and_the_length_objective_does_not() {
+        let ctx = ObjectiveContext { motion: model(), heat_radius: 1.0, cooling_time: 1.0 };
+        let a = Mark::straight(Point::new(0.0, 0.0), Point::new(10.0, 0.0), 400.0, true);
+        let back = Mark::straight(Point::new(10.0, 0.1), Point::new(0.0, 0.1), 400.0, true);
+        let on = Mark::straight(Point::new(0.0, 0.1), Point::new(10.0, 0.1), 400.0, true);
+        // Going back is shorter in air but the machine turns round at speed.
+        assert!(Length.cost(&[a, back], &ctx) < Length.cost(&[a, on], &ctx));
+        let (t_back, t_on) = (Time.cost(&[a, back], &ctx), Time.cost(&[a, on], &ctx));
+        assert!(t_back > 2.0 * 10.0 / 400.0 + 0.15 && t_on > t_back, "{t_back} {t_on}");
+        let (_, count) = turns(&[a, back]);
+        assert_eq!(count, 2);
+        assert!(heat(&[a, back], &ctx) > 0.9, "made next to one another at once");
+    }
+
+    #[test]
+    fn objectives_parse_and_print_weighted_sums() {
+        let ctx = ObjectiveContext { motion: model(), heat_radius: 1.0, cooling_time: 1.0 };
+        let o = parse("time+0.2*turns").unwrap();
+        assert_eq!(o.name(), "time+0.2*turns");
+        let route = [Mark::straight(Point::new(0.0, 0.0), Point::new(10.0, 0.0), 400.0, true), Mark::straight(Point::new(10.0, 1.0), Point::new(0.0, 1.0), 400.0, true)];
+        assert!((o.cost(&route, &ctx) - (Time.cost(&route, &ctx) + 0.2 * Turns.cost(&route, &ctx))).abs() < 1e-12);
+        assert!(parse("length").unwrap().is_length() && !o.is_length());
+        for bad in ["speed", "time+x*turns", "-1*time", "0*time", "time+"] {
+            assert!(parse(bad).is_err(), "{bad}");
+        }
+    }
+}
