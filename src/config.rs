@@ -1552,7 +1552,9 @@ impl MachineConfig {
     /// gets `[laser]`'s (power: its pierce power, else full power).
     pub fn pierce(&self, layer: &str) -> Pierce {
         let l = self.layers.iter().find(|l| l.name == layer);
-        let time = l.and_then(|l| l.pierce_time).unwrap_or(self.laser.pierce_time);
+        // A fill marks; it pierces only where its own layer says so (refused).
+        let inherited = if l.is_some_and(|l| l.mode.fills()) { 0.0 } else { self.laser.pierce_time };
+        let time = l.and_then(|l| l.pierce_time).unwrap_or(inherited);
         let power = l
             .and_then(|l| l.pierce_power)
             .or(self.laser.pierce_power)

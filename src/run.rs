@@ -53,7 +53,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let job = import_job(job_path, machine)?;
     let fills = job.processes.iter().any(|p| p.fill);
     let (mut job, hatched) = crate::plan::area::hatch::hatch(job, machine)?;
-    if kind == PlannerKind::Raster {
+    if kind == PlannerKind::Raster && mode == Mode::StageOnly {
         job = crate::plan::area::raster_lines(job, machine);
     }
     let kerfed = kerf::compensate(&job, &kerf_layers(&job, machine), machine.import.tolerance)?;

@@ -330,14 +330,19 @@ impl<'a> Importer<'a> {
         }
     }
 
-    /// Index of the config layer for a path: the first layer whose stroke colour
-    /// matches the path's solid stroke or whose id names an enclosing group; else the
-    /// default layer. Fill-only paths match by group id only.
+    /// Index of the config layer for a path: the first layer whose colour
+    /// (`stroke`) is the path's solid stroke (a path without a stroke: its
+    /// solid fill, as a design program colours a filled shape) or whose id
+    /// names an enclosing group; else the default layer.
     fn layer_for(&self, path: &usvg::Path, groups: &[&str]) -> usize {
-        let stroke = path.stroke().and_then(|s| match s.paint() {
+        let solid = |paint: &usvg::Paint| match paint {
             usvg::Paint::Color(c) => Some([c.red, c.green, c.blue]),
             _ => None,
-        });
+        };
+        let stroke = match path.stroke() {
+            Some(s) => solid(s.paint()),
+            None => path.fill().and_then(|f| solid(f.paint())),
+        };
         self.config
             .layers
             .iter()
@@ -519,13 +524,18 @@ mod tests {
         let job = import(&svg(r##"<path d="M 0 0 L 1 1" stroke="#ff0000"/>
                <path d="M 0 0 L 2 2" stroke="rgb(0,0,255)"/>
                <path d="M 0 0 L 3 3" stroke="#00ff00"/>
-               <rect x="1" y="1" width="5" height="5" fill="red"/>"##));
+               <rect x="1" y="1" width="5" height="5" fill="red"/>
+               <rect x="1" y="1" width="5" height="5" fill="#123456"/>
+               <rect x="1" y="1" width="5" height="5" fill="red" stroke="#00ff00"/>"##));
         let layer = |i: usize| job.processes[job.geometries[i].process].layer.as_str();
         assert_eq!(layer(0), "cut");
         assert_eq!(layer(1), "engrave");
-        // Unknown colour and fill-only: the default layer.
+        // Unknown colour: the default layer.
         assert_eq!(layer(2), "mark");
-        assert_eq!(layer(3), "mark");
+        // A filled shape without a stroke by its fill's colour; with one, by its stroke's.
+        assert_eq!(layer(3), "cut");
+        assert_eq!(layer(4), "mark");
+        assert_eq!(layer(5), "mark");
         assert!(job.geometries[3].closed);
         assert_eq!(job.processes.len(), 3);
         let cut = job.processes.iter().find(|p| p.layer == "cut").unwrap();

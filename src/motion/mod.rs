@@ -190,7 +190,8 @@ fn mark_all(
             (speed, power, if path.pierce { pierce } else { crate::config::Pierce { time: 0.0, ..pierce } })
         })
         .collect();
-    let chains = chains(sequence, &processes, b.settings.junctions);
+    let fills: Vec<bool> = sequence.paths().map(|p| job.processes[p.process].fill).collect();
+    let chains = chains(sequence, &processes, &fills, b.settings.junctions);
     if runs.is_none() {
         let paths: Vec<&crate::plan::PlannedPath> = sequence.paths().collect();
         let overscan = |k: usize| {
@@ -219,7 +220,8 @@ fn mark_all(
 
 /// Paths marked as one run: each after the first goes on from where the one
 /// before ended, straight on, at the same speed, without a pierce, and is
-/// of the same geometry (a raster line cut where its power changes).
+/// of the same geometry (a raster line cut where its power changes) or both
+/// are of fills (a fill's line with the laser off across its gaps).
 struct Chain {
     group: usize,
     /// Indices of the paths in the sequence.
@@ -231,7 +233,7 @@ struct Chain {
 
 /// The sequence's paths in chains (with `junctions` only: elsewhere each
 /// path is a run of its own).
-fn chains(sequence: &Sequence, processes: &[(f64, f64, crate::config::Pierce)], junctions: bool) -> Vec<Chain> {
+fn chains(sequence: &Sequence, processes: &[(f64, f64, crate::config::Pierce)], fills: &[bool], junctions: bool) -> Vec<Chain> {
     let mut out: Vec<Chain> = Vec::new();
     let mut k = 0;
     let mut previous: Option<&crate::plan::PlannedPath> = None;
@@ -242,7 +244,7 @@ fn chains(sequence: &Sequence, processes: &[(f64, f64, crate::config::Pierce)], 
                 let (a, b) = (before.points[n - 1] - before.points[n - 2], path.points[1] - path.points[0]);
                 junctions
                     && chain.group == g
-                    && before.geometry == path.geometry
+                    && (before.geometry == path.geometry || (fills[k - 1] && fills[k]))
                     && processes[k].2.time == 0.0
                     && processes[k].0 == processes[chain.paths[0]].0
                     && before.end() == path.start()

@@ -122,6 +122,14 @@ pub struct FreeMove {
 /// Time between the entries of a free move's table.
 const TABLE_STEP: f64 = 25e-6;
 
+/// The table's step for a move at `jerk`: `TABLE_STEP` at a galvo's jerk
+/// (4e11 mm/s³), longer at a lower one with jerk·step³ kept (the
+/// interpolation error grows with it), at most 4 ms: a stage's turn-round
+/// (overscan) then takes a few hundred entries instead of thousands.
+fn table_step(jerk: f64) -> f64 {
+    (TABLE_STEP * (4e11 / jerk.max(1.0)).cbrt()).clamp(TABLE_STEP, 4e-3)
+}
+
 /// Steps of a free move's table: every `step` seconds, at least 16, at most 8192.
 fn table_steps(duration: f64, step: f64) -> usize {
     ((duration / step).ceil() as usize).clamp(16, 8192)
@@ -142,7 +150,7 @@ impl FreeMove {
     }
 
     pub fn new(from: Point, v_from: Vector2<f64>, to: Point, v_to: Vector2<f64>, axis: Limits) -> Result<FreeMove> {
-        Self::tabulated(from, v_from, to, v_to, axis, TABLE_STEP)
+        Self::tabulated(from, v_from, to, v_to, axis, table_step(axis.jerk))
     }
 
     fn tabulated(from: Point, v_from: Vector2<f64>, to: Point, v_to: Vector2<f64>, axis: Limits, step: f64) -> Result<FreeMove> {

@@ -757,8 +757,10 @@ impl TcpBuilder {
         let t0 = self.time;
         for (i, (start, duration, motion)) in run.legs.iter().enumerate() {
             let (geometry, power) = marks[run.breaks.partition_point(|&b| b <= i).min(marks.len() - 1)];
+            // A stretch at power 0 (across a gap of a fill's line) is a laser-off move.
+            let kind = if power > 0.0 { PieceKind::Mark { geometry, power } } else { PieceKind::Jump };
             if *duration > 0.0 {
-                self.path.pieces.push(Piece { kind: PieceKind::Mark { geometry, power }, group, start: t0 + start, duration: *duration, motion: motion.clone() });
+                self.path.pieces.push(Piece { kind, group, start: t0 + start, duration: *duration, motion: motion.clone() });
             }
         }
         self.time = t0 + run.duration;

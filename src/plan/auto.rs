@@ -36,35 +36,17 @@ pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     plan_filling(job, ctx, FillOrder::Planned)
 }
 
-/// How the hatch lines of fills are ordered (stage-only; with a scanner
-/// they are marks of the galvo planner, field by field).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FillOrder {
-    /// By the fill planner (`area`).
-    Planned,
-    /// As a plain raster, line after line across the job (`--planner raster`).
-    Raster,
-}
+pub use area::FillOrder;
 
-/// `plan`, the fills ordered as `fill_order` says: on a stage-only
-/// machine fills first (the outlines of `fill+line` then mark their edges
-/// clean), then the other marks, then the cuts.
+/// `plan`, the fills ordered as `fill_order` says, first (the outlines of
+/// `fill+line` then mark their edges clean), then the other marks, then
+/// the cuts.
 pub fn plan_filling(job: &Job, ctx: &PlanContext, fill_order: FillOrder) -> Result<PlanOutcome> {
-    let stage_only = ctx.mode == crate::mode::Mode::StageOnly || ctx.machine.scanner.is_none();
-    let (fills, rest): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| stage_only && job.processes[job.geometries[g].process].fill);
+    let (fills, rest): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| job.processes[job.geometries[g].process].fill && !job.geometries[g].closed);
     if fills.is_empty() {
         return plan_layers(job, ctx);
     }
-    let segments = area::segments(job, &fills, ctx.machine);
-    let (order, search_stopped_by) = match fill_order {
-        FillOrder::Raster => (area::raster(&segments), crate::plan::stop::SearchStop::Budget),
-        FillOrder::Planned => {
-            let objective = crate::plan::objective::parse(&ctx.machine.fill.objective).map_err(|e| crate::error::Error::Config(format!("fill.objective: {e}")))?;
-            let (order, run) = area::plan_fill(job, &segments, ctx.machine, ctx.start, objective.as_ref());
-            (order, run.stopped_by)
-        }
-    };
-    let filled = Sequence { groups: vec![PathGroup { field_center: None, paths: area::paths(job, &segments, &order) }] };
+    let (filled, search_stopped_by) = area::plan_fills(job, &fills, ctx, fill_order)?;
     let name = match fill_order {
         FillOrder::Raster => "raster",
         FillOrder::Planned => "fill",

@@ -56,10 +56,18 @@ pub fn cover(job: &Job, usable_half: f64, travel: (f64, f64)) -> Result<Vec<Fiel
 /// the content, but kept inside the travel (the content still fits, being at
 /// most one field wide); `None` when no position in the travel reaches it.
 pub fn centre_within_travel(lo: Point, hi: Point, usable_half: f64, travel: (f64, f64)) -> Option<Point> {
-    let mut c = Point::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0);
-    c.x = c.x.clamp((hi.x - usable_half).max(0.0), (lo.x + usable_half).min(travel.0));
-    c.y = c.y.clamp((hi.y - usable_half).max(0.0), (lo.y + usable_half).min(travel.1));
-    (c.x >= 0.0 && c.y >= 0.0 && c.x <= travel.0 && c.y <= travel.1).then_some(c)
+    // Content exactly one field wide (to rounding) has one centre: its middle.
+    let within = |mid: f64, lo: f64, hi: f64, travel: f64| {
+        let (a, b) = ((hi - usable_half).max(0.0), (lo + usable_half).min(travel));
+        if a <= b {
+            mid.clamp(a, b)
+        } else {
+            mid
+        }
+    };
+    let c = Point::new(within((lo.x + hi.x) / 2.0, lo.x, hi.x, travel.0), within((lo.y + hi.y) / 2.0, lo.y, hi.y, travel.1));
+    let reaches = c.x - usable_half <= lo.x + FIT && c.x + usable_half >= hi.x - FIT && c.y - usable_half <= lo.y + FIT && c.y + usable_half >= hi.y - FIT;
+    (reaches && c.x >= 0.0 && c.y >= 0.0 && c.x <= travel.0 && c.y <= travel.1).then_some(c)
 }
 
 fn group_bounds(bounds: &[(Point, Point)], members: &[usize]) -> (Point, Point) {

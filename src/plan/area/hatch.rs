@@ -63,6 +63,14 @@ pub fn hatch(job: Job, machine: &MachineConfig) -> Result<(Job, HatchCount)> {
         }
     }
     count.lines = kept.iter().filter(|g| processes[g.process].fill).count();
+    // Beside each fill, its laser off: a line's motion runs through the
+    // gaps between its segments at the fill's speed (`super::off_process`).
+    let mut processes = processes;
+    for p in 0..processes.len() {
+        if processes[p].fill {
+            processes.push(crate::job::Process { power: 0.0, ..processes[p].clone() });
+        }
+    }
     Ok((Job { source, geometries: kept, processes }, count))
 }
 

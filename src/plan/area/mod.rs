@@ -12,10 +12,13 @@ pub mod hatch;
 
 use super::objective::{Mark, MotionModel, Objective, ObjectiveContext};
 use super::stop::TimeCap;
-use super::PlannedPath;
+use super::stop::SearchStop;
+use super::{PathGroup, PlanContext, PlannedPath, Sequence};
+use crate::error::{Error, Result};
+use crate::mode::Mode;
 use crate::config::MachineConfig;
 use ga::{GaRun, GaSettings};
-use crate::job::{Geometry, Job, Point, Process};
+use crate::job::{Geometry, Job, Point};
 use nalgebra::Vector2;
 
 /// A hatch line to mark: a straight geometry of a fill process.
@@ -81,15 +84,8 @@ pub fn raster_lines(job: Job, machine: &MachineConfig) -> Job {
     if segments.is_empty() {
         return job;
     }
-    let Job { source, geometries, mut processes } = job;
-    // A process with the laser off beside each fill process.
-    let mut off = vec![usize::MAX; processes.len()];
-    for p in 0..processes.len() {
-        if processes[p].fill {
-            off[p] = processes.len();
-            processes.push(Process { power: 0.0, ..processes[p].clone() });
-        }
-    }
+    let off: Vec<usize> = (0..job.processes.len()).map(|p| off_process(&job, p).unwrap_or(p)).collect();
+    let Job { source, geometries, processes } = job;
     let is_segment: std::collections::HashSet<usize> = segments.iter().map(|s| s.geometry).collect();
     let mut out: Vec<Geometry> = geometries.iter().enumerate().filter(|(g, _)| !is_segment.contains(g)).map(|(_, g)| g.clone()).collect();
     let mut k = 0;
@@ -145,19 +141,38 @@ fn same_line(a: &Segment, b: &Segment) -> bool {
     (a.across - b.across).abs() <= 1e-6 * (1.0 + a.across.abs()) && a.direction().dot(&b.direction()) > 1.0 - 1e-9
 }
 
-/// `order` as planned paths (fills never pierce).
-pub fn paths(job: &Job, segments: &[Segment], order: &Order) -> Vec<PlannedPath> {
-    order
-        .iter()
-        .map(|&(i, reversed)| {
-            let g = &job.geometries[segments[i as usize].geometry];
-            let mut points = g.points.clone();
-            if reversed {
-                points.reverse();
+/// The process marking fill process `p`'s gaps: the same with the laser
+/// off (`hatch` adds one beside each fill).
+pub fn off_process(job: &Job, p: usize) -> Option<usize> {
+    let fill = &job.processes[p];
+    job.processes.iter().position(|q| q.fill && q.power == 0.0 && q.layer == fill.layer && q.speed == fill.speed && q.passes == fill.passes)
+}
+
+/// `order` as planned paths (fills never pierce); with `bridges`, a segment
+/// that goes on ahead along the line of the one before follows a laser-off
+/// path across the gap, which the motion runs through at speed.
+pub fn paths(job: &Job, segments: &[Segment], order: &Order, bridges: bool) -> Vec<PlannedPath> {
+    let mut out: Vec<PlannedPath> = Vec::with_capacity(order.len());
+    for (k, &(i, reversed)) in order.iter().enumerate() {
+        let s = &segments[i as usize];
+        let g = &job.geometries[s.geometry];
+        let mut points = g.points.clone();
+        if reversed {
+            points.reverse();
+        }
+        if let (true, Some(&(j, back)), Some(before)) = (bridges, k.checked_sub(1).map(|k| &order[k]), out.last()) {
+            let (end, start) = (before.end(), points[0]);
+            let way = |a: Point, b: Point| (b - a) / (b - a).norm().max(1e-300);
+            let (d, e) = (way(before.start(), end), way(start, points[points.len() - 1]));
+            let gap = start - end;
+            let goes_on = same_line(s, &segments[j as usize]) && back == reversed && d.dot(&e) > 1.0 - 1e-9 && gap.dot(&d) > 1e-9;
+            if let (true, Some(off)) = (goes_on, off_process(job, before.process)) {
+                out.push(PlannedPath::new(before.geometry, vec![end, start], off, false));
             }
-            PlannedPath::new(segments[i as usize].geometry, points, g.process, false)
-        })
-        .collect()
+        }
+        out.push(PlannedPath::new(s.geometry, points, g.process, false));
+    }
+    out
 }
 
 /// How the objectives see `segments` marked in `order`.
@@ -176,35 +191,92 @@ pub fn marks(order: &Order, forward: &[Mark]) -> Vec<Mark> {
 }
 
 /// Each segment as a mark the hatch's way: at its layer's speed (within
-/// what the stage can), at speed at its ends where its layer overscans.
-pub fn forward_marks(job: &Job, segments: &[Segment], machine: &MachineConfig) -> Vec<Mark> {
-    let cap = machine.stage_limits().scaled(machine.motion.limit_margin).velocity;
+/// what the machine marks at), entered and left at speed where its layer
+/// overscans (stage-only) or the scanner skywrites (on the fly).
+pub fn forward_marks(job: &Job, segments: &[Segment], machine: &MachineConfig, mode: Mode) -> Vec<Mark> {
+    let (cap, skywrite) = match (mode, machine.scanner.as_ref()) {
+        (Mode::StageOnly, _) | (_, None) => (machine.stage_limits().scaled(machine.motion.limit_margin).velocity, None),
+        (mode, Some(s)) => (s.mark_speed, Some(mode == Mode::OnTheFly)),
+    };
     segments
         .iter()
         .map(|s| {
             let process = &job.processes[job.geometries[s.geometry].process];
-            let overscan = machine.layers.iter().find(|l| l.name == process.layer).is_some_and(|l| l.overscan);
+            let overscan = skywrite.unwrap_or_else(|| machine.layers.iter().find(|l| l.name == process.layer).is_some_and(|l| l.overscan));
             Mark::straight(s.from, s.to, process.speed.min(cap), overscan)
         })
         .collect()
 }
 
-/// What the objectives of a stage-only machine's plan need.
-pub fn objective_context(machine: &MachineConfig) -> ObjectiveContext {
-    ObjectiveContext {
-        motion: MotionModel { axis: machine.stage_limits().scaled(machine.motion.limit_margin) },
-        heat_radius: machine.fill.heat_radius,
-        cooling_time: machine.fill.cooling_time,
-    }
+/// What the objectives need of the machine in `mode`: the TCP's limits (the
+/// stage's, or the scanner's).
+pub fn objective_context(machine: &MachineConfig, mode: Mode) -> ObjectiveContext {
+    let axis = match (mode, machine.scanner_limits()) {
+        (Mode::StageOnly, _) | (_, None) => machine.stage_limits(),
+        (_, Some(scanner)) => scanner,
+    };
+    let bridges = mode == Mode::StageOnly || machine.scanner.is_none();
+    ObjectiveContext { motion: MotionModel { axis: axis.scaled(machine.motion.limit_margin), bridges }, heat_radius: machine.fill.heat_radius, cooling_time: machine.fill.cooling_time }
 }
 
 /// The fill planner: seed 004's genetic search under `objective` from
 /// `start`, the plain raster among its first routes.
-pub fn plan_fill(job: &Job, segments: &[Segment], machine: &MachineConfig, start: Point, objective: &dyn Objective) -> (Order, GaRun) {
-    let forward = forward_marks(job, segments, machine);
-    let ctx = objective_context(machine);
+pub fn plan_fill(job: &Job, segments: &[Segment], machine: &MachineConfig, mode: Mode, start: Point, objective: &dyn Objective) -> (Order, GaRun) {
+    let forward = forward_marks(job, segments, machine, mode);
+    let ctx = objective_context(machine, mode);
     let cost = |order: &Order| objective.cost(&marks(order, &forward), &ctx);
     let settings = GaSettings { population: machine.fill.population, stall: machine.fill.stall_generations, seed: machine.galvo.seed, ..GaSettings::default() };
     let cap = TimeCap::after(machine.galvo.time_limit.map(std::time::Duration::from_secs_f64));
     ga::evolve(segments, start, &cost, vec![raster(segments)], &settings, &cap)
+}
+
+/// How the hatch lines of fills are ordered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FillOrder {
+    /// By the fill planner under the config's objective.
+    Planned,
+    /// As a plain raster, line after line (`--planner raster`).
+    Raster,
+}
+
+/// The fills `fills` (job geometries: hatch lines) planned from `start`:
+/// stage-only as one group; with a scanner field by field (the fields
+/// covering them, in nearest-neighbour order), each field's lines ordered
+/// alone. Also why the searches stopped.
+pub fn plan_fills(job: &Job, fills: &[usize], ctx: &PlanContext, order: FillOrder) -> Result<(Sequence, SearchStop)> {
+    let machine = ctx.machine;
+    let objective = super::objective::parse(&machine.fill.objective).map_err(|e| Error::Config(format!("fill.objective: {e}")))?;
+    let scanner_free = ctx.mode == Mode::StageOnly || machine.scanner.is_none();
+    let plan = |members: &[usize], start: Point| -> (Vec<PlannedPath>, SearchStop) {
+        let segments = segments(job, members, machine);
+        let (route, stop) = match order {
+            FillOrder::Raster => (raster(&segments), SearchStop::Budget),
+            FillOrder::Planned => {
+                let (route, run) = plan_fill(job, &segments, machine, ctx.mode, start, objective.as_ref());
+                (route, run.stopped_by)
+            }
+        };
+        (paths(job, &segments, &route, scanner_free), stop)
+    };
+    let scanner = machine.scanner.as_ref().filter(|_| ctx.mode != Mode::StageOnly);
+    let Some(scanner) = scanner else {
+        let (paths, stop) = plan(fills, ctx.start);
+        return Ok((Sequence { groups: vec![PathGroup { field_center: None, paths }] }, stop));
+    };
+    let part = Job { source: job.source.clone(), geometries: fills.iter().map(|&g| job.geometries[g].clone()).collect(), processes: job.processes.clone() };
+    let travel = (machine.stage.travel_x, machine.stage.travel_y);
+    let mut fields = super::fields::cover(&part, scanner.usable_half_field, travel)?;
+    let mut groups = Vec::with_capacity(fields.len());
+    let mut stop = SearchStop::Budget;
+    let mut at = ctx.start;
+    while !fields.is_empty() {
+        let next = (0..fields.len()).min_by(|&a, &b| (fields[a].center - at).norm().total_cmp(&(fields[b].center - at).norm())).expect("fields left");
+        let field = fields.swap_remove(next);
+        let members: Vec<usize> = field.members.iter().map(|&m| fills[m]).collect();
+        let (paths, stopped) = plan(&members, at);
+        stop = stop.and(stopped);
+        at = paths.last().map_or(at, |p| p.end());
+        groups.push(PathGroup { field_center: Some(field.center), paths });
+    }
+    Ok((Sequence { groups }, stop))
 }
