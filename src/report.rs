@@ -27,6 +27,10 @@ pub struct PlanReport {
     pub mark_length_mm: f64,
     pub idle_stroke_mm: f64,
     pub plan_time_s: f64,
+    /// What the fill planner minimised (`[fill] objective`, `--objective`):
+    /// `time`, `length`, `turns`, `heat` or a weighted sum.
+    #[serde(default)]
+    pub objective: String,
     /// `budget` when every search ran its budget of work (the plan is the
     /// same whatever the machine's load and cores), `time-limit` when the
     /// user's time limit ended one first (the plan may differ from run to run).

@@ -135,6 +135,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         mark_length_mm: job.mark_length(),
         idle_stroke_mm: sequence.idle_stroke(),
         plan_time_s,
+        objective: machine.fill.objective.clone(),
         search_stopped_by: outcome.search_stopped_by,
         precedence_violations: broken_rules.as_ref().map(|r| r.len() as u64),
         pierces: cut_paths().filter(|p| p.pierce).count(),

@@ -22,8 +22,10 @@ pub struct JobArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     /// auto (the default): the cutting planner ecp for layers that pierce,
-    /// the galvo planner hha for marking layers, marking first; or one of
-    /// ecp, hha, hga, nearest for the whole job.
+    /// the galvo planner hha for marking layers, marking first, fills
+    /// before all (ordered by the fill planner); or one of ecp, hha, hga,
+    /// nearest for the whole job; or raster: as auto, with fills as a plain
+    /// raster, line after line across the job (the yardstick).
     #[arg(long, default_value = "auto")]
     planner: PlannerKind,
     /// Plan, write and run an order that cuts after a part has fallen out
@@ -40,9 +42,15 @@ pub struct JobArgs {
     /// change it (the report says search_stopped_by: time-limit).
     #[arg(long)]
     time_limit: Option<f64>,
-    /// Seed of the galvo planners' random choices (default: the config's [galvo] seed).
+    /// Seed of the galvo planners' and the fill planner's random choices
+    /// (default: the config's [galvo] seed).
     #[arg(long)]
     seed: Option<u64>,
+    /// What the fill planner minimises: time, length, turns, heat, or a
+    /// weighted sum such as "time+0.2*turns" (default: the config's [fill]
+    /// objective, time).
+    #[arg(long)]
+    objective: Option<String>,
     /// DXF: the unit the drawing was made in, whatever its header says
     /// (default: the config's [import] units, else the header's $INSUNITS).
     #[arg(long)]
@@ -68,6 +76,10 @@ impl JobArgs {
         }
         if let Some(seed) = self.seed {
             machine.galvo.seed = seed;
+        }
+        if let Some(objective) = &self.objective {
+            laserd::config::objective_terms(objective).map_err(|e| Error::Config(format!("--objective: {e}")))?;
+            machine.fill.objective = objective.clone();
         }
         import_flags(&mut machine, &self.job, self.units, self.place)?;
         let mut planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
@@ -179,6 +191,7 @@ fn dry_run_as_it_is(args: DryRunArgs) -> Result<ExitCode> {
         (job.mode.is_some(), "--mode"),
         (job.time_limit.is_some(), "--time-limit"),
         (job.seed.is_some(), "--seed"),
+        (job.objective.is_some(), "--objective"),
         (job.allow_precedence_violations, "--allow-precedence-violations"),
         (job.units.is_some(), "--units"),
         (job.place.is_some(), "--place"),

@@ -73,7 +73,7 @@ pub fn evolve(segments: &[Segment], start: Point, cost: &(dyn Fn(&Order) -> f64 
         constructed += 1;
         spent += 20 * n as u64;
     }
-    let mut costs: Vec<f64> = population.iter().map(|o| cost(o)).collect();
+    let mut costs: Vec<f64> = population.iter().map(cost).collect();
     spent += (population.len() * n) as u64;
     let (mut best, mut best_cost) = best_of(&population, &costs);
     let mut run = GaRun { cost: best_cost, ..GaRun::default() };
@@ -97,7 +97,7 @@ pub fn evolve(segments: &[Segment], start: Point, cost: &(dyn Fn(&Order) -> f64 
             mutate(&mut child, segments, &near, &mut rng);
             offspring.push(child);
         }
-        costs = offspring.iter().map(|o| cost(o)).collect();
+        costs = offspring.iter().map(cost).collect();
         spent += per_generation;
         population = offspring;
         let (gen_best, gen_cost) = best_of(&population, &costs);
@@ -294,4 +294,66 @@ fn construct(segments: &[Segment], start: Point, candidates: usize, rng: &mut Ra
         at = seg.ends(reversed).1;
     }
     order
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(n: usize) -> Vec<Segment> {
+        // Short segments on a grid, some one way only.
+        (0..n)
+            .map(|k| {
+                let (x, y) = ((k % 10) as f64 * 3.0, (k / 10) as f64 * 2.0);
+                let (from, to) = (Point::new(x, y), Point::new(x + 1.0, y));
+                Segment { geometry: k, from, to, either_way: k % 3 != 0, across: y }
+            })
+            .collect()
+    }
+
+    fn valid(order: &Order, segments: &[Segment]) {
+        let mut seen = vec![false; segments.len()];
+        for &(g, reversed) in order {
+            assert!(!seen[g as usize], "gene {g} twice");
+            seen[g as usize] = true;
+            assert!(!reversed || segments[g as usize].either_way, "a one-way segment reversed");
+        }
+        assert!(seen.iter().all(|&s| s), "every gene once");
+    }
+
+    fn air(order: &Order, segments: &[Segment]) -> f64 {
+        order.windows(2).map(|w| (segments[w[1].0 as usize].ends(w[1].1).0 - segments[w[0].0 as usize].ends(w[0].1).1).norm()).sum()
+    }
+
+    #[test]
+    fn crossover_mutation_and_construction_keep_every_gene_once_in_an_allowed_direction() {
+        let segments = grid(60);
+        let mut rng = Rand::seed_from_u64(3);
+        let a = construct(&segments, Point::origin(), 1, &mut rng);
+        let b = construct(&segments, Point::new(30.0, 12.0), 6, &mut rng);
+        valid(&a, &segments);
+        valid(&b, &segments);
+        let near = Ends::new(&segments);
+        for _ in 0..200 {
+            let mut child = pmx(&a, &b, 0.5, &mut rng);
+            valid(&child, &segments);
+            mutate(&mut child, &segments, &near, &mut rng);
+            valid(&child, &segments);
+        }
+    }
+
+    #[test]
+    fn the_search_is_never_worse_than_what_it_is_given_and_the_same_for_the_same_seed() {
+        let segments = grid(80);
+        let cost = |o: &Order| air(o, &segments);
+        // A poor route given: every other segment first.
+        let given: Order = (0..80u32).step_by(2).chain((1..80u32).step_by(2)).map(|g| (g, false)).collect();
+        let settings = GaSettings { stall: 10, ..GaSettings::default() };
+        let (best, run) = evolve(&segments, Point::origin(), &cost, vec![given.clone()], &settings, &TimeCap::none());
+        valid(&best, &segments);
+        assert!((cost(&best) - run.cost).abs() < 1e-9 && run.cost <= cost(&given));
+        assert!(run.cost < 0.5 * cost(&given), "{} against {}", run.cost, cost(&given));
+        let (again, _) = evolve(&segments, Point::origin(), &cost, vec![given], &settings, &TimeCap::none());
+        assert_eq!(best, again);
+    }
 }

@@ -55,7 +55,7 @@ pub fn hatch(job: Job, machine: &MachineConfig) -> Result<(Job, HatchCount)> {
         }
         for (a, &angle) in angles.iter().enumerate() {
             let name = |k: i64| format!("{source}: layer '{}' {}line {k}", process.layer, if a == 0 { "fill " } else { "cross-hatch " });
-            let lines = hatch_lines(&contours, angle, layer.hatch_spacing, &mut count, a == 0);
+            let lines = hatch_lines(&contours, angle, layer.hatch_spacing, machine.import.tolerance, &mut count, a == 0);
             if (kept.len() + lines.len()) as u64 > budget {
                 return Err(too_many(&source, layer, machine));
             }
@@ -86,9 +86,11 @@ fn too_many(source: &str, layer: &LayerConfig, machine: &MachineConfig) -> Error
 
 /// The hatch of the area `contours` enclose (nonzero winding) at `angle`
 /// degrees, `spacing` apart: (line number, start, end), each running the
-/// angle's way, in line order then along the line. `count` takes the areas
+/// angle's way, in line order then along the line; pieces shorter than
+/// `graze` (the import tolerance: they only touch a vertex or a curve's
+/// top) left out. `count` takes the areas
 /// (when `count_areas`) and the thin ones.
-pub fn hatch_lines(contours: &[&[Point]], angle: f64, spacing: f64, count: &mut HatchCount, count_areas: bool) -> Vec<(i64, Point, Point)> {
+pub fn hatch_lines(contours: &[&[Point]], angle: f64, spacing: f64, graze: f64, count: &mut HatchCount, count_areas: bool) -> Vec<(i64, Point, Point)> {
     let to_hatch = Rotation2::new(-angle.to_radians());
     let back = to_hatch.inverse();
     let rotated: Vec<Vec<[f64; 2]>> = contours.iter().map(|c| c.iter().map(|p| to_hatch * p.coords).map(|v| [v.x, v.y]).collect()).collect();
@@ -152,7 +154,9 @@ pub fn hatch_lines(contours: &[&[Point]], angle: f64, spacing: f64, count: &mut 
     }
     merged
         .into_iter()
-        .filter(|&(_, _, a, b)| b - a >= 1e-6)
+        // A line grazing a vertex or a curve's top touches the area over
+        // less than the drawing's own precision: nothing to mark there.
+        .filter(|&(_, _, a, b)| b - a >= graze)
         .map(|(k, y, a, b)| (k, Point::from(back * Vector2::new(a, y)), Point::from(back * Vector2::new(b, y))))
         .collect()
 }
@@ -169,7 +173,7 @@ mod tests {
     fn lines(contours: &[Vec<Point>], angle: f64, spacing: f64) -> (Vec<(i64, Point, Point)>, HatchCount) {
         let refs: Vec<&[Point]> = contours.iter().map(|c| c.as_slice()).collect();
         let mut count = HatchCount::default();
-        (hatch_lines(&refs, angle, spacing, &mut count, true), count)
+        (hatch_lines(&refs, angle, spacing, 1e-3, &mut count, true), count)
     }
 
     #[test]
