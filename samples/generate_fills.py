@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
-"""Generates laserd's filled samples: fill-text.svg, fill-logo.svg, fill-halftone.svg.
+"""Generates laserd's filled samples: fill-text.svg, fill-logo.svg, fill-halftone.svg,
+fishhead.svg.
 
-Run `python3 samples/generate_fills.py`; it rewrites the three files next to this
+Run `python3 samples/generate_fills.py`; it rewrites the four files next to this
 script byte for byte. It needs fontTools and the DejaVu Sans Bold font (the text is
 glyph outlines, as a design program's "object to path" writes it: one path per
 glyph, quadratic curves, counters as subpaths wound the other way, SVG's default
@@ -139,8 +140,34 @@ def fill_halftone():
     write("fill-halftone.svg", "laserd sample: a grey-level picture as halftone dots to fill", body)
 
 
+def fishhead():
+    """A pocket like seed 004's "fishhead" test part: a rounded head with an
+    island (a boss left standing), joined by a narrow neck (8 mm) to a tail
+    pocket, and by a narrow slot (6 mm) to a small pocket above. Drawn as
+    overlapping pieces wound the same way and the island wound the other way,
+    so that SVG's nonzero rule makes them one area with one hole."""
+    cx, cy = 95.0, 150.0
+
+    def rect(x0, y0, x1, y1):
+        # Wound the way the head's ellipse is.
+        return f"M{num(x0)} {num(y0)}H{num(x1)}V{num(y1)}H{num(x0)}Z"
+
+    head = "M" + "L".join(f"{num(cx + 40.0 * math.cos(2 * math.pi * k / 72))} {num(cy + 28.0 * math.sin(2 * math.pi * k / 72))}" for k in range(72)) + "Z"
+    pieces = [
+        head,
+        rect(cx + 35.0, cy - 4.0, cx + 72.0, cy + 4.0),  # the neck
+        rect(cx + 70.0, cy - 18.0, cx + 100.0, cy + 18.0),  # the tail pocket
+        rect(cx - 12.0, cy - 47.0, cx - 6.0, cy - 24.0),  # the slot
+        rect(cx - 26.0, cy - 60.0, cx + 8.0, cy - 45.0),  # the small pocket
+        circle_d(cx - 5.0, cy + 4.0, 9.0, ccw=True),  # the island, wound the other way
+    ]
+    body = ['<g id="fishhead">', f'  <path id="pocket" fill="{GREEN}" d="{"".join(pieces)}"/>', "</g>"]
+    write("fishhead.svg", "laserd sample: a pocket with an island and narrow passages (seed 004's fishhead)", body)
+
+
 if __name__ == "__main__":
     f = font()
     fill_text(f)
     fill_logo(f)
     fill_halftone()
+    fishhead()
