@@ -3,23 +3,25 @@
 //!
 //! * [`hatch`]: a fill layer's areas become hatch lines (the job's
 //!   geometries of its fill process, each one straight segment).
+//! * [`ga`]: seed 004's genetic search over routes of segments.
 //! * Here: the hatch lines as genes (a segment and the way it is marked), the
 //!   plain raster order (line after line across the whole job, what
-//!   LightBurn does by default), and the fill planner.
+//!   LightBurn does by default), and the fill planner: stage-only one route
+//!   for the job, with a scanner one per field.
 
 pub mod ga;
 pub mod hatch;
 
-use super::objective::{Mark, MotionModel, Objective, ObjectiveContext};
-use super::stop::TimeCap;
-use super::stop::SearchStop;
-use super::{PathGroup, PlanContext, PlannedPath, Sequence};
-use crate::error::{Error, Result};
-use crate::mode::Mode;
-use crate::config::MachineConfig;
-use ga::{GaRun, GaSettings};
-use crate::job::{Geometry, Job, Point};
 use nalgebra::Vector2;
+
+use super::objective::{Mark, MotionModel, Objective, ObjectiveContext};
+use super::stop::{SearchStop, TimeCap};
+use super::{PathGroup, PlanContext, PlannedPath, Sequence};
+use crate::config::MachineConfig;
+use crate::error::{Error, Result};
+use crate::job::{Geometry, Job, Point};
+use crate::mode::Mode;
+use ga::{GaRun, GaSettings};
 
 /// A hatch line to mark: a straight geometry of a fill process.
 #[derive(Debug, Clone, Copy, PartialEq)]
