@@ -196,7 +196,7 @@ fn mutate(child: &mut Order, segments: &[Segment], near: &Ends, rng: &mut Rand) 
     let stretch = rng.random_range(1..=REPAIR.min(n - 1 - i));
     let mut left: Vec<u32> = child[i + 1..i + 1 + stretch].iter().map(|&(s, _)| s).collect();
     let mut at = segments[child[i].0 as usize].ends(child[i].1).1;
-    for k in i + 1..i + 1 + stretch {
+    for slot in &mut child[i + 1..i + 1 + stretch] {
         let (best, reversed) = left
             .iter()
             .enumerate()
@@ -208,7 +208,7 @@ fn mutate(child: &mut Order, segments: &[Segment], near: &Ends, rng: &mut Rand) 
             .map(|(_, q, r)| (q, r))
             .expect("genes left in the stretch");
         let s = left.swap_remove(best);
-        child[k] = (s, reversed);
+        *slot = (s, reversed);
         at = segments[s as usize].ends(reversed).1;
     }
 }
