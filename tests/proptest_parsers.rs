@@ -223,3 +223,43 @@ proptest! {
         }
     }
 }
+
+fn fill_config() -> &'static MachineConfig {
+    static CONFIG: std::sync::OnceLock<MachineConfig> = std::sync::OnceLock::new();
+    CONFIG.get_or_init(|| {
+        let text = include_str!("../config/laserd.toml").replace("hatch_spacing = 0.05", "hatch_spacing = 0.5");
+        MachineConfig::parse(&text, "laserd.toml").unwrap()
+    })
+}
+
+proptest! {
+    // Fewer cases: each hatches up to a scaled-up drawing's area.
+    #![proptest_config(ProptestConfig { cases: 48, ..reproducible() })]
+
+    /// Generated path data filled (either rule, any transform) never panics
+    /// and never hatches without bound: its hatch lies inside the area's
+    /// bounds, or the job is refused naming the file.
+    #[test]
+    fn filled_path_data_hatches_inside_its_area_or_names_the_file(text in svg(), even_odd in any::<bool>()) {
+        let rule = if even_odd { "evenodd" } else { "nonzero" };
+        let text = text.replace(r#"fill="none""#, &format!(r##"fill="#008000" fill-rule="{rule}""##)).replace(r#"stroke="#, r#"data-stroke="#);
+        let machine = fill_config();
+        let job = match import_svg(&text, SOURCE, machine) {
+            Ok(job) => job,
+            Err(e) => return { prop_assert!(e.to_string().contains(SOURCE), "{}", e); Ok(()) },
+        };
+        let (lo, hi) = laserd::job::bounds_of(job.geometries.iter().filter(|g| job.processes[g.process].fill).flat_map(|g| g.points.iter()));
+        match laserd::plan::area::hatch::hatch(job, machine) {
+            Ok((job, count)) => {
+                let hatch: Vec<&laserd::job::Geometry> = job.geometries.iter().filter(|g| job.processes[g.process].fill).collect();
+                prop_assert_eq!(count.lines, hatch.len());
+                let slack = 1e-6 * (1.0 + hi.x.abs().max(hi.y.abs()).max(lo.x.abs()).max(lo.y.abs()));
+                for g in hatch {
+                    prop_assert!(g.points.len() == 2 && !g.closed);
+                    prop_assert!(g.points.iter().all(|p| p.x >= lo.x - slack && p.x <= hi.x + slack && p.y >= lo.y - slack && p.y <= hi.y + slack), "{:?} outside {:?}..{:?}", g.points, lo, hi);
+                }
+            }
+            Err(e) => prop_assert!(e.to_string().contains(SOURCE), "{}", e),
+        }
+    }
+}

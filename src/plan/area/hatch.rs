@@ -55,10 +55,10 @@ pub fn hatch(job: Job, machine: &MachineConfig) -> Result<(Job, HatchCount)> {
         }
         for (a, &angle) in angles.iter().enumerate() {
             let name = |k: i64| format!("{source}: layer '{}' {}line {k}", process.layer, if a == 0 { "fill " } else { "cross-hatch " });
-            let lines = hatch_lines(&contours, angle, layer.hatch_spacing, machine.import.tolerance, &mut count, a == 0);
-            if (kept.len() + lines.len()) as u64 > budget {
+            let room = budget.saturating_sub(kept.len() as u64);
+            let Some(lines) = hatch_lines(&contours, angle, layer.hatch_spacing, machine.import.tolerance, room, &mut count, a == 0) else {
                 return Err(too_many(&source, layer, machine));
-            }
+            };
             kept.extend(lines.into_iter().map(|(k, from, to)| Geometry::polyline(vec![from, to], false, p, name(k))));
         }
     }
@@ -88,9 +88,10 @@ fn too_many(source: &str, layer: &LayerConfig, machine: &MachineConfig) -> Error
 /// degrees, `spacing` apart: (line number, start, end), each running the
 /// angle's way, in line order then along the line; pieces shorter than
 /// `graze` (the import tolerance: they only touch a vertex or a curve's
-/// top) left out. `count` takes the areas
+/// top) left out; `None` past `room` lines (checked on the grid's lines
+/// before any is clipped). `count` takes the areas
 /// (when `count_areas`) and the thin ones.
-pub fn hatch_lines(contours: &[&[Point]], angle: f64, spacing: f64, graze: f64, count: &mut HatchCount, count_areas: bool) -> Vec<(i64, Point, Point)> {
+pub fn hatch_lines(contours: &[&[Point]], angle: f64, spacing: f64, graze: f64, room: u64, count: &mut HatchCount, count_areas: bool) -> Option<Vec<(i64, Point, Point)>> {
     let to_hatch = Rotation2::new(-angle.to_radians());
     let back = to_hatch.inverse();
     let rotated: Vec<Vec<[f64; 2]>> = contours.iter().map(|c| c.iter().map(|p| to_hatch * p.coords).map(|v| [v.x, v.y]).collect()).collect();
@@ -105,11 +106,16 @@ pub fn hatch_lines(contours: &[&[Point]], angle: f64, spacing: f64, graze: f64, 
         hi = hi.sup(&Vector2::new(p[0], p[1]));
     }
     if shapes.is_empty() {
-        return Vec::new();
+        return Some(Vec::new());
     }
     let line_of = |y: f64| (y / spacing - 0.5).round() as i64;
     let y_of = |k: i64| (k as f64 + 0.5) * spacing;
     let (first, last) = ((lo.y / spacing - 0.5).ceil() as i64, (hi.y / spacing - 0.5).floor() as i64);
+    // Refused before any is clipped when the grid alone has more lines than
+    // there is room for (a drawing scaled up a thousandfold).
+    if (last - first + 1).max(0) as u64 > room {
+        return None;
+    }
     let (x0, x1) = (lo.x - 1.0, hi.x + 1.0);
     let rule = ClipRule { invert: false, boundary_included: false };
     // (line number, the line's place across the hatch, from, to along it).
@@ -128,6 +134,9 @@ pub fn hatch_lines(contours: &[&[Point]], angle: f64, spacing: f64, graze: f64, 
     while k <= last {
         let ys: Vec<(i64, f64)> = (k..=last.min(k + LINES_PER_CLIP as i64 - 1)).map(|k| (k, y_of(k))).collect();
         clip(&ys, &mut pieces);
+        if pieces.len() as u64 > room {
+            return None;
+        }
         k += LINES_PER_CLIP as i64;
     }
     // Shapes no line of the grid crosses: one line through the middle,
@@ -152,13 +161,17 @@ pub fn hatch_lines(contours: &[&[Point]], angle: f64, spacing: f64, graze: f64, 
             _ => merged.push((k, y, a, b)),
         }
     }
-    merged
+    if merged.len() as u64 > room {
+        return None;
+    }
+    let lines = merged
         .into_iter()
         // A line grazing a vertex or a curve's top touches the area over
         // less than the drawing's own precision: nothing to mark there.
         .filter(|&(_, _, a, b)| b - a >= graze)
         .map(|(k, y, a, b)| (k, Point::from(back * Vector2::new(a, y)), Point::from(back * Vector2::new(b, y))))
-        .collect()
+        .collect();
+    Some(lines)
 }
 
 #[cfg(test)]
@@ -173,7 +186,7 @@ mod tests {
     fn lines(contours: &[Vec<Point>], angle: f64, spacing: f64) -> (Vec<(i64, Point, Point)>, HatchCount) {
         let refs: Vec<&[Point]> = contours.iter().map(|c| c.as_slice()).collect();
         let mut count = HatchCount::default();
-        (hatch_lines(&refs, angle, spacing, 1e-3, &mut count, true), count)
+        (hatch_lines(&refs, angle, spacing, 1e-3, u64::MAX, &mut count, true).unwrap(), count)
     }
 
     #[test]
