@@ -3,6 +3,7 @@
 //! streams into the simulator in virtual time, once with character counting
 //! and once with send-response streaming as the baseline, in the same run.
 
+pub mod fill;
 pub mod vs_grbl;
 
 use schemars::JsonSchema;

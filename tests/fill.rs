@@ -163,3 +163,18 @@ fn the_fill_plan_is_the_same_every_time() {
     assert_eq!(a.program.lines.iter().map(|l| &l.text).collect::<Vec<_>>(), b.program.lines.iter().map(|l| &l.text).collect::<Vec<_>>());
     assert_eq!(a.report.objective, "time");
 }
+
+#[test]
+fn the_fishhead_bench_orders_the_seeds_grid_and_each_objective_wins_its_own_figure() {
+    let machine = engraver();
+    let objectives: Vec<String> = ["time", "heat"].iter().map(|s| s.to_string()).collect();
+    let r = laserd::bench::fill::fill_bench(&machine, &root().join("samples/fishhead.svg"), 3.0, 1.0, &objectives, &[1]).unwrap();
+    assert!(r.points > 300, "{} points", r.points);
+    let (time, heat) = (&r.objectives[0].runs[0], &r.objectives[1].runs[0]);
+    for run in [time, heat] {
+        assert!(run.length_mm >= r.length_lower_bound_mm - 1e-9 && run.time_s >= r.time_lower_bound_s - 1e-9);
+        assert!(run.turns < r.points);
+    }
+    assert!(time.time_s < heat.time_s, "time {} against heat's {}", time.time_s, heat.time_s);
+    assert!(heat.heat < time.heat, "heat {} against time's {}", heat.heat, time.heat);
+}

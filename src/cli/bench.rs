@@ -90,6 +90,32 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Seed 004's Table 1: the area of a job's fill layer as the seed's grid,
+    /// ordered by its genetic search under each objective (path length,
+    /// turns, machine time, heat, convergence; median and worst over seeds).
+    Fill {
+        /// Machine config (default: the XY engraver, config/xy-engraver.toml,
+        /// whose layers fill).
+        #[arg(long, default_value = "config/xy-engraver.toml")]
+        config: PathBuf,
+        /// The part (its fill layer's area).
+        #[arg(long, default_value = "samples/fishhead.svg")]
+        job: PathBuf,
+        /// Grid spacing (mm).
+        #[arg(long, default_value_t = 2.0)]
+        spacing: f64,
+        /// Tool (spot) radius the boundary is offset by (mm).
+        #[arg(long, default_value_t = 1.0)]
+        radius: f64,
+        /// Objectives, comma-separated (each as --objective takes it).
+        #[arg(long, default_value = "length,time,turns,heat,time+0.2*turns")]
+        objectives: String,
+        /// Seeds 1 to this.
+        #[arg(long, default_value_t = 5)]
+        seeds: u64,
+        #[arg(long)]
+        json: bool,
+    },
     /// The galvo planners on the 12 cases of seed 003's families against the
     /// reference reimplementation's figures (`reference.json` in the folder).
     Galvo {
@@ -176,6 +202,9 @@ fn check_flags(command: &BenchCommand) -> Result<()> {
             in_range("--elements", *elements, 1, 100_000, "elements").and(in_range("--skeleton-piece", *skeleton_piece, 10.0, 100_000.0, "mm"))
         }
         BenchCommand::Galvo { seeds, time_limit: t, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds").and(check_time_limit(*t)),
+        BenchCommand::Fill { seeds, spacing, radius, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds")
+            .and(in_range("--spacing", *spacing, 0.01, 100.0, "mm"))
+            .and(in_range("--radius", *radius, 0.0, 100.0, "mm")),
         BenchCommand::Motion { repeats, .. } | BenchCommand::Import { repeats, .. } => in_range("--repeats", *repeats, 1, 1000, "runs"),
         BenchCommand::Link { blocks, block_ms, baud: b, .. } => in_range("--blocks", *blocks, 1, 1_000_000, "blocks")
             .and(in_range("--block-ms", *block_ms, 0.01, 1000.0, "ms"))
@@ -195,6 +224,7 @@ pub fn run(command: BenchCommand) -> Result<ExitCode> {
         BenchCommand::Motion { jobs, config, mode, repeats, json, .. } => motion_bench(jobs, config, mode, repeats, json),
         BenchCommand::Import { jobs, config, repeats, json } => import_bench(jobs, config, repeats, json),
         BenchCommand::Galvo { config, dir, planner, seeds, time_limit, json } => galvo_bench(config, dir, planner, seeds, time_limit, json),
+        BenchCommand::Fill { config, job, spacing, radius, objectives, seeds, json } => fill_bench(config, job, spacing, radius, objectives, seeds, json),
         BenchCommand::Link { config, blocks, block_ms, motion, baud, json } => link_bench(config, blocks, block_ms, motion, baud, json),
     }
 }
@@ -372,6 +402,38 @@ fn galvo_bench(config: Option<PathBuf>, dir: PathBuf, planner: PlannerKind, seed
             );
         }
         println!("  fields in all {} against the reference's {:.1} ({:.3})", r.fields_total, r.reference_fields_total, r.fields_total as f64 / r.reference_fields_total);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn fill_bench(config: PathBuf, job: PathBuf, spacing: f64, radius: f64, objectives: String, seeds: u64, json: bool) -> Result<ExitCode> {
+    let machine = machine_config(Some(&config), json)?.machine;
+    let objectives: Vec<String> = objectives.split(',').map(|o| o.trim().to_string()).collect();
+    let seeds: Vec<u64> = (1..=seeds).collect();
+    let r = laserd::bench::fill::fill_bench(&machine, &job, spacing, radius, &objectives, &seeds)?;
+    if json {
+        print_json(&r)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    println!(
+        "{}: {} grid points {} mm apart, {} mm inside; at {} mm/s; lower bounds {:.0} mm, {:.2} s (median / worst of seeds 1-{})",
+        r.job, r.points, r.spacing_mm, r.radius_mm, r.speed_mm_s, r.length_lower_bound_mm, r.time_lower_bound_s, seeds.len()
+    );
+    let median_worst = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        (v[v.len() / 2], v[v.len() - 1])
+    };
+    for o in &r.objectives {
+        let figure = |f: &dyn Fn(&laserd::bench::fill::FillRun) -> f64| median_worst(o.runs.iter().map(f).collect());
+        let (length, length_w) = figure(&|run| run.length_mm);
+        let (turns, turns_w) = figure(&|run| run.turns as f64);
+        let (time, time_w) = figure(&|run| run.time_s);
+        let (heat, heat_w) = figure(&|run| run.heat);
+        let (conv, conv_w) = figure(&|run| run.converged_s);
+        println!(
+            "  {:<16} length {length:.0} / {length_w:.0} mm  turns {turns:.0} / {turns_w:.0}  time {time:.2} / {time_w:.2} s  heat {heat:.1} / {heat_w:.1}  converged in {conv:.2} / {conv_w:.2} s",
+            o.objective
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

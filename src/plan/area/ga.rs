@@ -10,9 +10,9 @@
 //! * Crossover: partially matched (PMX) over a stretch of at most half a
 //!   chromosome; a whole generation of offspring replaces its parents (the
 //!   best route ever met is kept aside).
-//! * Mutation, on every offspring: a random gene's nearest neighbour (by
-//!   link distance, in its better direction) is moved to follow it, and a
-//!   short stretch after it put back in nearest-neighbour order.
+//! * Mutation, on every offspring: a random gene is joined to its nearest
+//!   neighbour (by link distance, in its better direction): the stretch
+//!   between them reversed (a 2-opt move), else the neighbour moved.
 //! * Stop: after `stall` generations without a better route, or when the
 //!   work budget (gene operations) is spent, or at a time cap if one is set.
 
@@ -174,10 +174,10 @@ fn pmx(a: &Order, b: &Order, max_share: f64, rng: &mut Rand) -> Order {
     child
 }
 
-/// Nearest-neighbour mutation: the nearest neighbour of a random gene's end
-/// is moved to follow it, and the stretch after it (up to `REPAIR` genes)
-/// is put back in nearest-neighbour order from there, each in its better
-/// direction: a crossover's broken links are mended where they fall.
+/// Nearest-neighbour mutation: a random gene is joined to the nearest
+/// neighbour of its end by reversing the stretch between them (a 2-opt move;
+/// the reversed genes are marked the other way), or, where a one-way gene
+/// lies in that stretch, the neighbour is moved to follow it.
 fn mutate(child: &mut Order, segments: &[Segment], near: &Ends, rng: &mut Rand) {
     let n = child.len();
     if n < 3 {
@@ -186,35 +186,25 @@ fn mutate(child: &mut Order, segments: &[Segment], near: &Ends, rng: &mut Rand) 
     let i = rng.random_range(0..n - 1);
     let (g, reversed) = child[i];
     let end = segments[g as usize].ends(reversed).1;
-    if let Some((h, h_reversed)) = near.nearest(end, segments, |s| s != g) {
-        let j = child.iter().position(|&(s, _)| s == h).expect("every gene is in the route");
-        let gene = child.remove(j);
-        let to = if j < i { i } else { i + 1 };
-        child.insert(to, (gene.0, h_reversed));
+    let Some((h, h_reversed)) = near.nearest(end, segments, |s| s != g) else { return };
+    let j = child.iter().position(|&(s, _)| s == h).expect("every gene is in the route");
+    // h to follow g as h_reversed says: reversing i+1..=j brings it there
+    // when it lies after g, turned round.
+    let turns_right = j > i && child[j].1 != h_reversed;
+    let stretch = i + 1..=j;
+    if turns_right && child[stretch.clone()].iter().all(|&(s, _)| segments[s as usize].either_way || segments[s as usize].from == segments[s as usize].to) {
+        child[stretch.clone()].reverse();
+        for gene in &mut child[stretch] {
+            if segments[gene.0 as usize].either_way {
+                gene.1 = !gene.1;
+            }
+        }
+        return;
     }
-    let i = i.min(n - 2);
-    let stretch = rng.random_range(1..=REPAIR.min(n - 1 - i));
-    let mut left: Vec<u32> = child[i + 1..i + 1 + stretch].iter().map(|&(s, _)| s).collect();
-    let mut at = segments[child[i].0 as usize].ends(child[i].1).1;
-    for slot in &mut child[i + 1..i + 1 + stretch] {
-        let (best, reversed) = left
-            .iter()
-            .enumerate()
-            .flat_map(|(q, &s)| {
-                let seg = &segments[s as usize];
-                std::iter::once((q, false)).chain(seg.either_way.then_some((q, true))).map(move |(q, r)| ((seg.ends(r).0 - at).norm(), q, r))
-            })
-            .min_by(|a, b| a.0.total_cmp(&b.0))
-            .map(|(_, q, r)| (q, r))
-            .expect("genes left in the stretch");
-        let s = left.swap_remove(best);
-        *slot = (s, reversed);
-        at = segments[s as usize].ends(reversed).1;
-    }
+    let gene = child.remove(j);
+    let to = if j < i { i } else { i + 1 };
+    child.insert(to, (gene.0, h_reversed));
 }
-
-/// Longest stretch a mutation puts back in nearest-neighbour order.
-const REPAIR: usize = 24;
 
 /// The segments' possible starts in a grid, for nearest-neighbour queries.
 struct Ends {

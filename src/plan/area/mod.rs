@@ -10,6 +10,7 @@
 //!   for the job, with a scanner one per field.
 
 pub mod ga;
+pub mod grid;
 pub mod hatch;
 
 use nalgebra::Vector2;
