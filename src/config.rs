@@ -1547,11 +1547,21 @@ impl MachineConfig {
         })
     }
 
+    /// The `[[layer]]` named `name`.
+    pub fn layer(&self, name: &str) -> Option<&LayerConfig> {
+        self.layers.iter().find(|l| l.name == name)
+    }
+
+    /// Whether the fill of the layer named `layer` is overscanned (unknown: not).
+    pub fn overscans(&self, layer: &str) -> bool {
+        self.layer(layer).is_some_and(|l| l.overscan)
+    }
+
     /// The pierce of the layer named `layer`: its own settings, else those of
     /// `[laser]`, the power falling back to the layer's own. An unknown layer
     /// gets `[laser]`'s (power: its pierce power, else full power).
     pub fn pierce(&self, layer: &str) -> Pierce {
-        let l = self.layers.iter().find(|l| l.name == layer);
+        let l = self.layer(layer);
         // A fill marks; it pierces only where its own layer says so (refused).
         let inherited = if l.is_some_and(|l| l.mode.fills()) { 0.0 } else { self.laser.pierce_time };
         let time = l.and_then(|l| l.pierce_time).unwrap_or(inherited);
@@ -1567,7 +1577,7 @@ impl MachineConfig {
     /// pierces, or sets a kerf or leads): they decide what is a part, a
     /// hole, and the waste.
     pub fn cuts_parts(&self, layer: &str) -> bool {
-        let l = self.layers.iter().find(|l| l.name == layer);
+        let l = self.layer(layer);
         self.pierce(layer).active() || l.is_some_and(|l| l.kerf > 0.0 || l.lead_in != LeadKind::None || l.lead_out != LeadKind::None)
     }
 

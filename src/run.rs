@@ -180,7 +180,7 @@ pub fn kerf_layers(job: &Job, machine: &MachineConfig) -> Vec<kerf::KerfLayer> {
     job.processes
         .iter()
         .map(|p| {
-            let layer = machine.layers.iter().find(|l| l.name == p.layer);
+            let layer = machine.layer(&p.layer);
             kerf::KerfLayer {
                 kerf: layer.map_or(0.0, |l| l.kerf),
                 corners: layer.map(|l| l.kerf_corners).unwrap_or_default(),
@@ -198,7 +198,7 @@ fn lay_out_plate(mut job: Job, machine: &MachineConfig, plate: &crate::config::P
     let process = match job.processes.iter().position(|p| p.layer == layer) {
         Some(k) => k,
         None => {
-            let l = machine.layers.iter().find(|l| l.name == layer).ok_or_else(|| Error::Plan(format!("[plate] layer '{layer}' is no [[layer]]")))?;
+            let l = machine.layer(layer).ok_or_else(|| Error::Plan(format!("[plate] layer '{layer}' is no [[layer]]")))?;
             job.processes.push(crate::job::Process { layer: l.name.clone(), speed: l.speed, power: l.power, passes: l.passes, fill: false });
             job.processes.len() - 1
         }

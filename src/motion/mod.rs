@@ -190,19 +190,15 @@ fn mark_all(
             (speed, power, if path.pierce { pierce } else { crate::config::Pierce { time: 0.0, ..pierce } })
         })
         .collect();
-    let fills: Vec<bool> = sequence.paths().map(|p| job.processes[p.process].fill).collect();
+    let paths: Vec<&crate::plan::PlannedPath> = sequence.paths().collect();
+    let fills: Vec<bool> = paths.iter().map(|p| job.processes[p.process].fill).collect();
     let chains = chains(sequence, &processes, &fills, b.settings.junctions);
     if runs.is_none() {
-        let paths: Vec<&crate::plan::PlannedPath> = sequence.paths().collect();
-        let overscan = |k: usize| {
-            let process = &job.processes[paths[k].process];
-            process.fill && machine.layers.iter().find(|l| l.name == process.layer).is_some_and(|l| l.overscan)
-        };
+        let overscan = |k: usize| fills[k] && machine.overscans(&job.processes[paths[k].process].layer);
         let requests: Vec<_> = chains.iter().map(|c| MarkRequest { points: &c.points, speed: processes[c.paths[0]].0, pierce: processes[c.paths[0]].2.time > 0.0, breaks: &c.breaks, overscan: overscan(c.paths[0]) }).collect();
         *runs = Some(b.prepare(&requests)?);
     }
     let planned = runs.as_ref().expect("planned above");
-    let paths: Vec<&crate::plan::PlannedPath> = sequence.paths().collect();
     let mut last_group = None;
     for (chain, run) in chains.iter().zip(planned) {
         if last_group != Some(chain.group) {

@@ -10,12 +10,16 @@
 //! * A job with both is marked first, then cut: a mark on a part is made while
 //!   the sheet still holds the part, never after it has fallen or moved. The
 //!   cuts start where the marking ended.
+//! * Fills (hatch lines of fill layers) come before both, ordered by the fill
+//!   planner (`area`); the outlines of `fill+line` then mark their edges clean.
 
 use super::cutting::{self, cuts_through};
 use super::ecp::checker::Violation;
 use super::{area, galvo, PathGroup, PlanContext, PlanOutcome, Planner, Sequence};
 use crate::error::Result;
 use crate::job::Job;
+
+pub use area::FillOrder;
 
 pub struct Auto;
 
@@ -35,8 +39,6 @@ impl Planner for Auto {
 pub fn plan(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     plan_filling(job, ctx, FillOrder::Planned)
 }
-
-pub use area::FillOrder;
 
 /// `plan`, the fills ordered as `fill_order` says, first (the outlines of
 /// `fill+line` then mark their edges clean), then the other marks, then
@@ -65,7 +67,7 @@ pub fn plan_filling(job: &Job, ctx: &PlanContext, fill_order: FillOrder) -> Resu
     Ok(then)
 }
 
-/// The job (no fills of a stage-only machine) planned layer kind by layer kind.
+/// The job (without fills) planned layer kind by layer kind.
 fn plan_layers(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     let cuts = cuts_through(job, ctx.machine);
     let (cutting, marking): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| cuts[g]);

@@ -100,7 +100,7 @@ pub fn settings(job: &Job, machine: &MachineConfig) -> (Vec<LeadSettings>, Trave
         .processes
         .iter()
         .map(|p| {
-            let l = machine.layers.iter().find(|l| l.name == p.layer);
+            let l = machine.layer(&p.layer);
             let lead = |kind: Option<LeadKind>, length: f64, angle_deg: f64| Lead { kind: kind.unwrap_or_default(), length, angle_deg };
             LeadSettings {
                 lead_in: lead(l.map(|l| l.lead_in), l.map_or(0.0, |l| l.lead_in_length), l.map_or(90.0, |l| l.lead_in_angle)),

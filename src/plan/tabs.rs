@@ -27,7 +27,7 @@ pub struct Tab {
 /// layers with tabs). Errors naming the part and the setting where the tabs
 /// would leave less than half of the outline cut.
 pub fn place(job: &Job, machine: &MachineConfig) -> Result<Vec<Vec<Tab>>> {
-    let layer = |process: usize| machine.layers.iter().find(|l| l.name == job.processes[process].layer);
+    let layer = |process: usize| machine.layer(&job.processes[process].layer);
     let wanted = |process: usize| layer(process).is_some_and(|l| l.tabs > 0 || l.tab_spacing > 0.0);
     if !job.geometries.iter().any(|g| g.closed && wanted(g.process)) {
         return Ok(vec![Vec::new(); job.geometries.len()]);

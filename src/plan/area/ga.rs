@@ -63,14 +63,14 @@ pub fn evolve(segments: &[Segment], start: Point, cost: &(dyn Fn(&Order) -> f64 
         return (Vec::new(), GaRun::default());
     }
     let mut rng = Rand::seed_from_u64(settings.seed);
-    let near = Ends::new(segments);
+    let near = starts(segments);
     let mut population: Vec<Order> = seeded.into_iter().filter(|o| o.len() == n).collect();
     let mut spent: u64 = 0;
     let mut constructed = 0;
     while population.len() < settings.population.max(2) {
         // The first construction is the plain nearest neighbour.
         let candidates = if constructed == 0 { 1 } else { settings.candidates };
-        population.push(construct(segments, start, candidates, &mut rng));
+        population.push(construct(segments, near.clone(), start, candidates, &mut rng));
         constructed += 1;
         spent += 20 * n as u64;
     }
@@ -178,7 +178,7 @@ fn pmx(a: &Order, b: &Order, max_share: f64, rng: &mut Rand) -> Order {
 /// neighbour of its end by reversing the stretch between them (a 2-opt move;
 /// the reversed genes are marked the other way), or, where a one-way gene
 /// lies in that stretch, the neighbour is moved to follow it.
-fn mutate(child: &mut Order, segments: &[Segment], near: &Ends, rng: &mut Rand) {
+fn mutate(child: &mut Order, segments: &[Segment], near: &RTree<Start>, rng: &mut Rand) {
     let n = child.len();
     if n < 3 {
         return;
@@ -186,7 +186,7 @@ fn mutate(child: &mut Order, segments: &[Segment], near: &Ends, rng: &mut Rand) 
     let i = rng.random_range(0..n - 1);
     let (g, reversed) = child[i];
     let end = segments[g as usize].ends(reversed).1;
-    let Some((h, h_reversed)) = near.nearest(end, segments, |s| s != g) else { return };
+    let Some((h, h_reversed)) = near.nearest_neighbor_iter([end.x, end.y]).map(|e| e.data).find(|&(s, _)| s != g) else { return };
     let j = child.iter().position(|&(s, _)| s == h).expect("every gene is in the route");
     // h to follow g as h_reversed says: reversing i+1..=j brings it there
     // when it lies after g, turned round.
@@ -206,91 +206,24 @@ fn mutate(child: &mut Order, segments: &[Segment], near: &Ends, rng: &mut Rand) 
     child.insert(to, (gene.0, h_reversed));
 }
 
-/// The segments' possible starts in a grid, for nearest-neighbour queries.
-struct Ends {
-    cell: f64,
-    origin: Point,
-    columns: i64,
-    rows: i64,
-    /// Per cell: (segment, reversed) whose start lies in it.
-    cells: Vec<Vec<(u32, bool)>>,
-}
+/// The segments' possible starts (a one-way segment's only), for
+/// nearest-neighbour queries: (segment, reversed) at each.
+type Start = GeomWithData<[f64; 2], (u32, bool)>;
 
-impl Ends {
-    fn new(segments: &[Segment]) -> Ends {
-        let starts = || segments.iter().flat_map(|s| std::iter::once(s.from).chain(s.either_way.then_some(s.to)));
-        let (lo, hi) = crate::job::bounds_of(starts().collect::<Vec<_>>().iter());
-        let area = ((hi.x - lo.x).max(1e-6)) * ((hi.y - lo.y).max(1e-6));
-        let cell = (area / segments.len().max(1) as f64).sqrt().max(1e-6) * 1.5;
-        let columns = (((hi.x - lo.x) / cell).floor() as i64 + 1).max(1);
-        let rows = (((hi.y - lo.y) / cell).floor() as i64 + 1).max(1);
-        let mut cells = vec![Vec::new(); (columns * rows) as usize];
-        let mut ends = Ends { cell, origin: lo, columns, rows, cells: Vec::new() };
-        for (k, s) in segments.iter().enumerate() {
-            cells[ends.index(s.from)].push((k as u32, false));
-            if s.either_way {
-                cells[ends.index(s.to)].push((k as u32, true));
-            }
-        }
-        ends.cells = cells;
-        ends
-    }
-
-    fn coords(&self, p: Point) -> (i64, i64) {
-        let c = |v: f64, o: f64, n: i64| (((v - o) / self.cell).floor() as i64).clamp(0, n - 1);
-        (c(p.x, self.origin.x, self.columns), c(p.y, self.origin.y, self.rows))
-    }
-
-    fn index(&self, p: Point) -> usize {
-        let (x, y) = self.coords(p);
-        (y * self.columns + x) as usize
-    }
-
-    /// Up to `k` starts nearest `p` among segments `keep` takes, nearest first.
-    fn nearest_k(&self, p: Point, segments: &[Segment], k: usize, keep: impl Fn(u32) -> bool) -> Vec<(f64, u32, bool)> {
-        let (cx, cy) = self.coords(p);
-        let mut found: Vec<(f64, u32, bool)> = Vec::new();
-        let most = self.columns.max(self.rows);
-        for ring in 0..=most {
-            for y in (cy - ring).max(0)..=(cy + ring).min(self.rows - 1) {
-                for x in (cx - ring).max(0)..=(cx + ring).min(self.columns - 1) {
-                    if (x - cx).abs() != ring && (y - cy).abs() != ring {
-                        continue;
-                    }
-                    for &(s, reversed) in &self.cells[(y * self.columns + x) as usize] {
-                        if keep(s) {
-                            let start = segments[s as usize].ends(reversed).0;
-                            found.push(((start - p).norm(), s, reversed));
-                        }
-                    }
-                }
-            }
-            // Everything within `ring` cells is in; beyond lies farther.
-            found.sort_by(|a, b| a.0.total_cmp(&b.0));
-            if found.len() >= k && found[k - 1].0 <= ring as f64 * self.cell {
-                break;
-            }
-        }
-        found.truncate(k);
-        found
-    }
-
-    fn nearest(&self, p: Point, segments: &[Segment], keep: impl Fn(u32) -> bool) -> Option<(u32, bool)> {
-        self.nearest_k(p, segments, 1, keep).first().map(|&(_, s, r)| (s, r))
-    }
-}
-
-/// A randomised nearest-neighbour route from `start`: the next gene drawn
-/// from the `candidates` nearest unvisited starts, the nearest with
-/// probability ½, the next ¼, and so on (1: always the nearest).
-fn construct(segments: &[Segment], start: Point, candidates: usize, rng: &mut Rand) -> Order {
-    type Start = GeomWithData<[f64; 2], (u32, bool)>;
+fn starts(segments: &[Segment]) -> RTree<Start> {
     let starts: Vec<Start> = segments
         .iter()
         .enumerate()
         .flat_map(|(k, s)| std::iter::once((s.from, false)).chain(s.either_way.then_some((s.to, true))).map(move |(p, r)| Start::new([p.x, p.y], (k as u32, r))))
         .collect();
-    let mut tree = RTree::bulk_load(starts);
+    RTree::bulk_load(starts)
+}
+
+/// A randomised nearest-neighbour route from `start`: the next gene drawn
+/// from the `candidates` nearest unvisited starts, the nearest with
+/// probability ½, the next ¼, and so on (1: always the nearest).
+/// `tree`: the segments' `starts`, taken out as they are visited.
+fn construct(segments: &[Segment], mut tree: RTree<Start>, start: Point, candidates: usize, rng: &mut Rand) -> Order {
     let mut order = Vec::with_capacity(segments.len());
     let mut at = start;
     let mut options: Vec<(u32, bool)> = Vec::with_capacity(candidates);
@@ -346,11 +279,11 @@ mod tests {
     fn crossover_mutation_and_construction_keep_every_gene_once_in_an_allowed_direction() {
         let segments = grid(60);
         let mut rng = Rand::seed_from_u64(3);
-        let a = construct(&segments, Point::origin(), 1, &mut rng);
-        let b = construct(&segments, Point::new(30.0, 12.0), 6, &mut rng);
+        let a = construct(&segments, starts(&segments), Point::origin(), 1, &mut rng);
+        let b = construct(&segments, starts(&segments), Point::new(30.0, 12.0), 6, &mut rng);
         valid(&a, &segments);
         valid(&b, &segments);
-        let near = Ends::new(&segments);
+        let near = starts(&segments);
         for _ in 0..200 {
             let mut child = pmx(&a, &b, 0.5, &mut rng);
             valid(&child, &segments);

@@ -45,7 +45,7 @@ pub fn hatch(job: Job, machine: &MachineConfig) -> Result<(Job, HatchCount)> {
     let (areas, mut kept): (Vec<Geometry>, Vec<Geometry>) = geometries.into_iter().partition(|g| processes[g.process].fill && g.closed);
     let budget = machine.import.max_points / 2;
     for (p, process) in processes.iter().enumerate().filter(|(_, p)| p.fill) {
-        let layer = machine.layers.iter().find(|l| l.name == process.layer).ok_or_else(|| {
+        let layer = machine.layer(&process.layer).ok_or_else(|| {
             Error::Import(format!("{source}: the fill of layer '{}' takes its hatch from a [[layer]] of that name, and the config has none", process.layer))
         })?;
         let contours: Vec<&[Point]> = areas.iter().filter(|g| g.process == p).map(|g| g.points.as_slice()).collect();

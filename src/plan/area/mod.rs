@@ -69,7 +69,7 @@ pub fn segments(job: &Job, which: &[usize], machine: &MachineConfig) -> Vec<Segm
             if !process.fill || geometry.closed || geometry.points.len() < 2 {
                 return None;
             }
-            let either_way = machine.layers.iter().find(|l| l.name == process.layer).is_none_or(|l| l.bidirectional);
+            let either_way = machine.layer(&process.layer).is_none_or(|l| l.bidirectional);
             let (from, to) = (geometry.points[0], geometry.points[geometry.points.len() - 1]);
             let d = (to - from).normalize();
             Some(Segment { geometry: g, from, to, either_way, across: d.perp(&from.coords) })
@@ -197,28 +197,30 @@ pub fn marks(order: &Order, forward: &[Mark]) -> Vec<Mark> {
 /// what the machine marks at), entered and left at speed where its layer
 /// overscans (stage-only) or the scanner skywrites (on the fly).
 pub fn forward_marks(job: &Job, segments: &[Segment], machine: &MachineConfig, mode: Mode) -> Vec<Mark> {
-    let (cap, skywrite) = match (mode, machine.scanner.as_ref()) {
-        (Mode::StageOnly, _) | (_, None) => (machine.stage_limits().scaled(machine.motion.limit_margin).velocity, None),
-        (mode, Some(s)) => (s.mark_speed, Some(mode == Mode::OnTheFly)),
+    let (cap, skywrite) = match scanner_in(machine, mode) {
+        None => (machine.stage_limits().scaled(machine.motion.limit_margin).velocity, None),
+        Some(s) => (s.mark_speed, Some(mode == Mode::OnTheFly)),
     };
     segments
         .iter()
         .map(|s| {
             let process = &job.processes[job.geometries[s.geometry].process];
-            let overscan = skywrite.unwrap_or_else(|| machine.layers.iter().find(|l| l.name == process.layer).is_some_and(|l| l.overscan));
+            let overscan = skywrite.unwrap_or_else(|| machine.overscans(&process.layer));
             Mark::straight(s.from, s.to, process.speed.min(cap), overscan)
         })
         .collect()
 }
 
+/// The scanner that marks in `mode` (none stage-only).
+fn scanner_in(machine: &MachineConfig, mode: Mode) -> Option<&crate::config::ScannerConfig> {
+    machine.scanner.as_ref().filter(|_| mode != Mode::StageOnly)
+}
+
 /// What the objectives need of the machine in `mode`: the TCP's limits (the
 /// stage's, or the scanner's).
 pub fn objective_context(machine: &MachineConfig, mode: Mode) -> ObjectiveContext {
-    let axis = match (mode, machine.scanner_limits()) {
-        (Mode::StageOnly, _) | (_, None) => machine.stage_limits(),
-        (_, Some(scanner)) => scanner,
-    };
-    let bridges = mode == Mode::StageOnly || machine.scanner.is_none();
+    let scanner = machine.scanner_limits().filter(|_| scanner_in(machine, mode).is_some());
+    let (axis, bridges) = (scanner.unwrap_or_else(|| machine.stage_limits()), scanner.is_none());
     ObjectiveContext { motion: MotionModel { axis: axis.scaled(machine.motion.limit_margin), bridges }, heat_radius: machine.fill.heat_radius, cooling_time: machine.fill.cooling_time }
 }
 
@@ -249,7 +251,7 @@ pub enum FillOrder {
 pub fn plan_fills(job: &Job, fills: &[usize], ctx: &PlanContext, order: FillOrder) -> Result<(Sequence, SearchStop)> {
     let machine = ctx.machine;
     let objective = super::objective::parse(&machine.fill.objective).map_err(|e| Error::Config(format!("fill.objective: {e}")))?;
-    let scanner_free = ctx.mode == Mode::StageOnly || machine.scanner.is_none();
+    let scanner = scanner_in(machine, ctx.mode);
     let plan = |members: &[usize], start: Point| -> (Vec<PlannedPath>, SearchStop) {
         let segments = segments(job, members, machine);
         let (route, stop) = match order {
@@ -259,9 +261,8 @@ pub fn plan_fills(job: &Job, fills: &[usize], ctx: &PlanContext, order: FillOrde
                 (route, run.stopped_by)
             }
         };
-        (paths(job, &segments, &route, scanner_free), stop)
+        (paths(job, &segments, &route, scanner.is_none()), stop)
     };
-    let scanner = machine.scanner.as_ref().filter(|_| ctx.mode != Mode::StageOnly);
     let Some(scanner) = scanner else {
         let (paths, stop) = plan(fills, ctx.start);
         return Ok((Sequence { groups: vec![PathGroup { field_center: None, paths }] }, stop));
