@@ -13,7 +13,7 @@ use crate::config::MachineConfig;
 use crate::error::{Error, Result};
 use crate::mode::Mode;
 use crate::plan::area::ga::{evolve, GaSettings};
-use crate::plan::area::{grid, objective_context, Order, Segment};
+use crate::plan::area::{grid, objective_context, Segment};
 use crate::plan::objective::{self, Mark};
 use crate::plan::stop::TimeCap;
 
@@ -54,7 +54,7 @@ pub struct FillRun {
 
 /// The route through the points as the objectives see it: one straight
 /// mark per link.
-fn links(points: &[Segment], order: &Order, speed: f64) -> Vec<Mark> {
+fn links(points: &[Segment], order: &[(u32, bool)], speed: f64) -> Vec<Mark> {
     order.windows(2).map(|w| Mark::straight(points[w[0].0 as usize].from, points[w[1].0 as usize].from, speed, false)).collect()
 }
 
@@ -76,7 +76,7 @@ pub fn fill_bench(machine: &MachineConfig, job_path: &std::path::Path, spacing: 
     for spec in objectives {
         let objective = objective::parse(spec).map_err(Error::Config)?;
         // The length of a point route is its links' (there is no mark to leave out).
-        let cost = |order: &Order| {
+        let cost = |order: &[(u32, bool)]| {
             let route = links(&genes, order, speed);
             if objective.is_length() {
                 route.iter().map(|m| m.length).sum()
@@ -86,7 +86,7 @@ pub fn fill_bench(machine: &MachineConfig, job_path: &std::path::Path, spacing: 
         };
         let mut runs = Vec::new();
         for &seed in seeds {
-            let settings = GaSettings { population: machine.fill.population, stall: machine.fill.stall_generations, seed, ..GaSettings::default() };
+            let settings = GaSettings { population: machine.fill.population, stall: machine.fill.stall_generations, seed, local: objective.is_local(), ..GaSettings::default() };
             let started = std::time::Instant::now();
             let (order, run) = evolve(&genes, genes[0].from, &cost, Vec::new(), &settings, &TimeCap::none());
             let converged_s = started.elapsed().as_secs_f64();

@@ -176,6 +176,12 @@ pub trait Objective: Send + Sync {
     fn is_length(&self) -> bool {
         false
     }
+    /// Whether its cost is a sum of terms that each see only a mark and
+    /// those beside it, the same on the route read backwards: then a change
+    /// can be priced on the marks around it.
+    fn is_local(&self) -> bool {
+        true
+    }
 }
 
 /// The laser-off travel between consecutive marks (mm).
@@ -226,6 +232,10 @@ impl Objective for Heat {
     fn cost(&self, route: &[Mark], ctx: &ObjectiveContext) -> f64 {
         heat(route, ctx)
     }
+    /// Heat depends on when marks are made: on everything before them.
+    fn is_local(&self) -> bool {
+        false
+    }
 }
 
 impl Objective for Weighted {
@@ -238,6 +248,9 @@ impl Objective for Weighted {
     }
     fn is_length(&self) -> bool {
         self.0.iter().all(|(w, o)| *w == 0.0 || o.is_length())
+    }
+    fn is_local(&self) -> bool {
+        self.0.iter().all(|(w, o)| *w == 0.0 || o.is_local())
     }
 }
 

@@ -10,11 +10,22 @@
 //! * Crossover: partially matched (PMX) over a stretch of at most half a
 //!   chromosome; a whole generation of offspring replaces its parents (the
 //!   best route ever met is kept aside).
-//! * Mutation, on every offspring: a random gene is joined to its nearest
-//!   neighbour (by link distance, in its better direction): the stretch
-//!   between them reversed (a 2-opt move), else the neighbour moved.
+//! * Mutation, on every offspring: the seed's "nearest neighbours" mutation,
+//!   read as a local search: random genes are joined to one of their
+//!   nearest neighbours (by link distance, in its better direction), by a
+//!   2-opt move or by moving a chain of up to three genes, and the best of
+//!   these moves is kept where it lowers the objective. The constructions
+//!   get the same search, longer (our departure: the seed's mutation is
+//!   blind, and its Java prototype needed 10-30 s).
 //! * Stop: after `stall` generations without a better route, or when the
 //!   work budget (gene operations) is spent, or at a time cap if one is set.
+//!
+//! A move is priced on a few genes around each place it changes, not on the
+//! whole route, where the objective is local (`local`): its cost a sum of
+//! terms that each see only a few neighbouring genes, the same on a route
+//! read backwards. Then the cost of a route is the cost of two overlapping
+//! pieces less the cost of their overlap, so the pieces a move leaves alone
+//! cancel out.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng as Rand;
@@ -24,6 +35,9 @@ use rstar::RTree;
 use super::{Order, Segment};
 use crate::job::Point;
 use crate::plan::stop::{SearchStop, TimeCap};
+
+/// The objective over a route or a piece of one (lower is better).
+pub type Cost<'a> = dyn Fn(&[(u32, bool)]) -> f64 + Sync + 'a;
 
 #[derive(Debug, Clone)]
 pub struct GaSettings {
@@ -36,12 +50,20 @@ pub struct GaSettings {
     pub budget: u64,
     /// Candidates a randomised construction draws the next gene from.
     pub candidates: usize,
+    /// Nearest neighbours a mutation tries to join a gene to.
+    pub neighbours: usize,
+    /// Genes a mutation tries on each offspring, per gene of the route (the
+    /// initial population's routes are searched until no move helps).
+    pub mutation_tries: f64,
+    /// Whether the objective is local (see the module's notes): moves are
+    /// priced on the genes around them; else on the whole route.
+    pub local: bool,
     pub seed: u64,
 }
 
 impl Default for GaSettings {
     fn default() -> Self {
-        GaSettings { population: 25, max_crossover: 0.5, stall: 30, budget: 400_000_000, candidates: 6, seed: 1 }
+        GaSettings { population: 25, max_crossover: 0.5, stall: 30, budget: 40_000_000, candidates: 6, neighbours: 4, mutation_tries: 0.05, local: true, seed: 1 }
     }
 }
 
@@ -57,31 +79,34 @@ pub struct GaRun {
 
 /// The best route over `segments` the GA finds from `start` under `cost`
 /// (lower is better), with `seeded` routes in the initial population.
-pub fn evolve(segments: &[Segment], start: Point, cost: &(dyn Fn(&Order) -> f64 + Sync), seeded: Vec<Order>, settings: &GaSettings, cap: &TimeCap) -> (Order, GaRun) {
+pub fn evolve(segments: &[Segment], start: Point, cost: &Cost, seeded: Vec<Order>, settings: &GaSettings, cap: &TimeCap) -> (Order, GaRun) {
     let n = segments.len();
     if n == 0 {
         return (Vec::new(), GaRun::default());
     }
     let mut rng = Rand::seed_from_u64(settings.seed);
     let near = starts(segments);
+    let mut search = LocalSearch::new(segments, &near, cost, settings);
     let mut population: Vec<Order> = seeded.into_iter().filter(|o| o.len() == n).collect();
-    let mut spent: u64 = 0;
     let mut constructed = 0;
     while population.len() < settings.population.max(2) {
         // The first construction is the plain nearest neighbour.
         let candidates = if constructed == 0 { 1 } else { settings.candidates };
         population.push(construct(segments, near.clone(), start, candidates, &mut rng));
         constructed += 1;
-        spent += 20 * n as u64;
+        search.spent += 20 * n as u64;
     }
-    let mut costs: Vec<f64> = population.iter().map(cost).collect();
-    spent += (population.len() * n) as u64;
+    let tries = |share: f64| (share * n as f64).ceil() as usize;
+    for route in &mut population {
+        search.improve(route, Tries::Sweep, &mut rng, cap);
+    }
+    let mut costs: Vec<f64> = population.iter().map(|r| cost(r)).collect();
+    search.spent += (population.len() * n) as u64;
     let (mut best, mut best_cost) = best_of(&population, &costs);
     let mut run = GaRun { cost: best_cost, ..GaRun::default() };
-    let per_generation = (population.len() as u64) * (3 * n as u64 + 64);
     let mut stalled = 0;
     while stalled < settings.stall {
-        if spent + per_generation > settings.budget {
+        if search.spent >= settings.budget {
             run.stopped_by = SearchStop::Budget;
             break;
         }
@@ -95,11 +120,12 @@ pub fn evolve(segments: &[Segment], start: Point, cost: &(dyn Fn(&Order) -> f64 
         for _ in 0..population.len() {
             let (a, b) = (wheel.pick(&mut rng), wheel.pick(&mut rng));
             let mut child = pmx(&population[a], &population[b], settings.max_crossover, &mut rng);
-            mutate(&mut child, segments, &near, &mut rng);
+            search.spent += 3 * n as u64;
+            search.improve(&mut child, Tries::Random(tries(settings.mutation_tries)), &mut rng, cap);
             offspring.push(child);
         }
-        costs = offspring.iter().map(cost).collect();
-        spent += per_generation;
+        costs = offspring.iter().map(|r| cost(r)).collect();
+        search.spent += (population.len() * n) as u64;
         population = offspring;
         let (gen_best, gen_cost) = best_of(&population, &costs);
         if gen_cost < best_cost - 1e-12 * best_cost.abs() {
@@ -174,36 +200,308 @@ fn pmx(a: &Order, b: &Order, max_share: f64, rng: &mut Rand) -> Order {
     child
 }
 
-/// Nearest-neighbour mutation: a random gene is joined to the nearest
-/// neighbour of its end by reversing the stretch between them (a 2-opt move;
-/// the reversed genes are marked the other way), or, where a one-way gene
-/// lies in that stretch, the neighbour is moved to follow it.
-fn mutate(child: &mut Order, segments: &[Segment], near: &RTree<Start>, rng: &mut Rand) {
-    let n = child.len();
-    if n < 3 {
-        return;
+/// Genes on either side of a changed place whose cost terms a move is
+/// priced with: twice the reach of the widest local term (a hatch mark's
+/// time sees the marks beside it; a point route's link, the points two
+/// away).
+const CONTEXT: usize = 4;
+
+/// A change to a route.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Move {
+    /// The genes at `p..=q` reversed and turned round (a 2-opt move).
+    Reverse { p: usize, q: usize },
+    /// The `len` genes at `s` moved to follow the gene at `after` (turned
+    /// round when `flip`).
+    Shift { s: usize, len: usize, flip: bool, after: usize },
+}
+
+/// Which genes a local search tries.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Tries {
+    /// So many, at random (the mutation).
+    Random(usize),
+    /// Every gene until no move lowers the cost (the constructions).
+    Sweep,
+}
+
+/// The mutation's local search over one route at a time.
+struct LocalSearch<'a> {
+    segments: &'a [Segment],
+    near: &'a RTree<Start>,
+    cost: &'a Cost<'a>,
+    local: bool,
+    neighbours: usize,
+    budget: u64,
+    spent: u64,
+    /// Each gene's place in the route being searched.
+    at: Vec<u32>,
+    /// Whether every gene may be marked either way (points or a
+    /// bidirectional hatch): then no stretch needs checking.
+    all_turn: bool,
+    /// A changed piece of the route, being priced.
+    new: Vec<(u32, bool)>,
+}
+
+impl<'a> LocalSearch<'a> {
+    fn new(segments: &'a [Segment], near: &'a RTree<Start>, cost: &'a Cost<'a>, settings: &GaSettings) -> Self {
+        let all_turn = segments.iter().all(turns_round);
+        LocalSearch { segments, near, cost, local: settings.local, neighbours: settings.neighbours, budget: settings.budget, spent: 0, at: vec![0; segments.len()], all_turn, new: Vec::new() }
     }
-    let i = rng.random_range(0..n - 1);
-    let (g, reversed) = child[i];
-    let end = segments[g as usize].ends(reversed).1;
-    let Some((h, h_reversed)) = near.nearest_neighbor_iter([end.x, end.y]).map(|e| e.data).find(|&(s, _)| s != g) else { return };
-    let j = child.iter().position(|&(s, _)| s == h).expect("every gene is in the route");
-    // h to follow g as h_reversed says: reversing i+1..=j brings it there
-    // when it lies after g, turned round.
-    let turns_right = j > i && child[j].1 != h_reversed;
-    let stretch = i + 1..=j;
-    if turns_right && child[stretch.clone()].iter().all(|&(s, _)| segments[s as usize].either_way || segments[s as usize].from == segments[s as usize].to) {
-        child[stretch.clone()].reverse();
-        for gene in &mut child[stretch] {
-            if segments[gene.0 as usize].either_way {
-                gene.1 = !gene.1;
+
+    fn turnable(&self, genes: &[(u32, bool)]) -> bool {
+        self.all_turn || genes.iter().all(|&(s, _)| turns_round(&self.segments[s as usize]))
+    }
+
+    /// Genes (`tries`) each joined to the nearest neighbour
+    /// where that lowers the cost (the best move of those it tries).
+    fn improve(&mut self, route: &mut Order, tries: Tries, rng: &mut Rand, cap: &TimeCap) {
+        let n = route.len();
+        if n < 3 {
+            return;
+        }
+        for (k, &(g, _)) in route.iter().enumerate() {
+            self.at[g as usize] = k as u32;
+        }
+        // Priced on the whole route, a move costs n: a few random tries only.
+        let tries = if self.local { tries } else { Tries::Random(2) };
+        let mut current = if self.local { 0.0 } else { (self.cost)(route) };
+        let mut moves = Vec::with_capacity(8 * self.neighbours);
+        // A sweep tries every gene, and again every gene beside a change.
+        let (mut queue, mut queued): (std::collections::VecDeque<u32>, Vec<bool>) = match tries {
+            Tries::Sweep => (route.iter().map(|g| g.0).collect(), vec![true; n]),
+            Tries::Random(_) => Default::default(),
+        };
+        let most = match tries {
+            Tries::Sweep => 4 * n,
+            Tries::Random(count) => count,
+        };
+        for t in 0..most {
+            if self.spent >= self.budget || (t % 256 == 255 && cap.reached()) {
+                return;
+            }
+            let i = match tries {
+                Tries::Random(_) => rng.random_range(0..n),
+                Tries::Sweep => {
+                    let Some(g) = queue.pop_front() else { return };
+                    queued[g as usize] = false;
+                    self.at[g as usize] as usize
+                }
+            };
+            moves.clear();
+            self.moves_joining(route, i, &mut moves);
+            let mut best: Option<(f64, Move)> = None;
+            for &m in &moves {
+                let delta = self.delta(route, m, current);
+                if delta < best.map_or(0.0, |b| b.0) {
+                    best = Some((delta, m));
+                }
+            }
+            if let Some((delta, m)) = best {
+                if matches!(tries, Tries::Sweep) {
+                    let places: &[usize] = match m {
+                        Move::Reverse { p, q } => &[i, p.wrapping_sub(1), p, q, q + 1],
+                        Move::Shift { s, len, after, .. } => &[after, after + 1, s.wrapping_sub(1), s, s + len - 1, s + len],
+                    };
+                    for &k in places.iter().filter(|&&k| k < n) {
+                        let g = route[k].0;
+                        if !queued[g as usize] {
+                            queued[g as usize] = true;
+                            queue.push_back(g);
+                        }
+                    }
+                }
+                self.apply(route, m);
+                current += delta;
             }
         }
-        return;
     }
-    let gene = child.remove(j);
-    let to = if j < i { i } else { i + 1 };
-    child.insert(to, (gene.0, h_reversed));
+
+    /// The moves that make the gene at `i` go on to one of its nearest
+    /// neighbours: a 2-opt move where the neighbour lies after it, and the
+    /// neighbour moved there with up to two genes beside it.
+    fn moves_joining(&self, route: &Order, i: usize, out: &mut Vec<Move>) {
+        let n = route.len();
+        let (g, reversed) = route[i];
+        let end = self.segments[g as usize].ends(reversed).1;
+        for (h, h_reversed) in self.near.nearest_neighbor_iter([end.x, end.y]).map(|e| e.data).filter(|&(s, _)| s != g).take(self.neighbours) {
+            let j = self.at[h as usize] as usize;
+            let point = is_point(&self.segments[h as usize]);
+            let (as_is, turned) = (point || route[j].1 == h_reversed, point || route[j].1 != h_reversed);
+            if j > i && turned && self.turnable(&route[i + 1..=j]) && !(point && j == i + 1) {
+                out.push(Move::Reverse { p: i + 1, q: j });
+            }
+            for len in 1..=3 {
+                // h and the genes after it as they are ...
+                if as_is && j + len <= n && !(j..j + len).contains(&i) && j != i + 1 {
+                    out.push(Move::Shift { s: j, len, flip: false, after: i });
+                }
+                // ... or h and the genes before it turned round.
+                if turned && j + 1 >= len && !(point && len == 1) {
+                    let s = j + 1 - len;
+                    if !(s..=j).contains(&i) && self.turnable(&route[s..=j]) {
+                        out.push(Move::Shift { s, len, flip: true, after: i });
+                    }
+                }
+            }
+        }
+    }
+
+    /// How much `m` changes the cost of `route` (whose cost is `current`
+    /// where the objective is not local).
+    fn delta(&mut self, route: &Order, m: Move, current: f64) -> f64 {
+        let n = route.len();
+        if !self.local {
+            let mut changed = route.clone();
+            let mut at = std::mem::take(&mut self.at);
+            apply(&mut changed, &mut at, m, self.segments);
+            // `apply` moved the places; put them back.
+            for (k, &(g, _)) in route.iter().enumerate() {
+                at[g as usize] = k as u32;
+            }
+            self.at = at;
+            self.spent += 2 * n as u64;
+            return (self.cost)(&changed) - current;
+        }
+        let (c, segments) = (CONTEXT, self.segments);
+        let turn = |&x: &(u32, bool)| turned(segments, x);
+        match m {
+            Move::Reverse { p, q } if q + 1 - p >= 2 * c => {
+                // Two places apart: the stretch's own cost reads the same backwards.
+                let left = p.saturating_sub(c)..(p + c);
+                let right = (q + 1 - c)..(q + 1 + c).min(n);
+                self.new.clear();
+                let mut d = self.price_old(route, left.clone()) + self.price_old(route, right.clone());
+                self.new.extend_from_slice(&route[left.start..p]);
+                self.new.extend(route[q + 1 - c..=q].iter().rev().map(turn));
+                d = self.price_new() - d;
+                self.new.clear();
+                self.new.extend(route[p..p + c].iter().rev().map(turn));
+                self.new.extend_from_slice(&route[q + 1..right.end]);
+                d + self.price_new()
+            }
+            Move::Reverse { p, q } => {
+                let span = p.saturating_sub(c)..(q + 1 + c).min(n);
+                let old = self.price_old(route, span.clone());
+                self.new.clear();
+                self.new.extend_from_slice(&route[span.start..p]);
+                self.new.extend(route[p..=q].iter().rev().map(turn));
+                self.new.extend_from_slice(&route[q + 1..span.end]);
+                self.price_new() - old
+            }
+            Move::Shift { s, len, flip, after } => {
+                let chain = |out: &mut Vec<(u32, bool)>| {
+                    if flip {
+                        out.extend(route[s..s + len].iter().rev().map(turn));
+                    } else {
+                        out.extend_from_slice(&route[s..s + len]);
+                    }
+                };
+                // Where the chain leaves and where it goes in (before the gene after `after`).
+                let (out_lo, out_hi) = (s.saturating_sub(c), (s + len + c).min(n));
+                let (in_lo, in_hi) = ((after + 1).saturating_sub(c), (after + 1 + c).min(n));
+                let apart = if after < s { in_hi <= out_lo } else { out_hi <= in_lo };
+                if apart {
+                    let old = self.price_old(route, out_lo..out_hi) + self.price_old(route, in_lo..in_hi);
+                    let mut new = std::mem::take(&mut self.new);
+                    new.clear();
+                    new.extend_from_slice(&route[out_lo..s]);
+                    new.extend_from_slice(&route[s + len..out_hi]);
+                    self.new = new;
+                    let mut d = self.price_new() - old;
+                    let mut new = std::mem::take(&mut self.new);
+                    new.clear();
+                    new.extend_from_slice(&route[in_lo..=after]);
+                    chain(&mut new);
+                    new.extend_from_slice(&route[after + 1..in_hi]);
+                    self.new = new;
+                    d += self.price_new();
+                    d
+                } else {
+                    let (lo, hi) = (out_lo.min(in_lo), out_hi.max(in_hi));
+                    let old = self.price_old(route, lo..hi);
+                    let mut new = std::mem::take(&mut self.new);
+                    new.clear();
+                    if after < s {
+                        new.extend_from_slice(&route[lo..=after]);
+                        chain(&mut new);
+                        new.extend_from_slice(&route[after + 1..s]);
+                        new.extend_from_slice(&route[s + len..hi]);
+                    } else {
+                        new.extend_from_slice(&route[lo..s]);
+                        new.extend_from_slice(&route[s + len..=after]);
+                        chain(&mut new);
+                        new.extend_from_slice(&route[after + 1..hi]);
+                    }
+                    self.new = new;
+                    self.price_new() - old
+                }
+            }
+        }
+    }
+
+    fn price_old(&mut self, route: &Order, span: std::ops::Range<usize>) -> f64 {
+        self.spent += span.len() as u64;
+        (self.cost)(&route[span])
+    }
+
+    fn price_new(&mut self) -> f64 {
+        self.spent += self.new.len() as u64;
+        (self.cost)(&self.new)
+    }
+
+    fn apply(&mut self, route: &mut Order, m: Move) {
+        self.spent += apply(route, &mut self.at, m, self.segments) as u64;
+    }
+}
+
+/// Makes move `m` on `route`, keeping `at` (each gene's place) true; the
+/// genes it moved.
+fn apply(route: &mut Order, at: &mut [u32], m: Move, segments: &[Segment]) -> usize {
+    let turn = |gene: &mut (u32, bool)| *gene = turned(segments, *gene);
+    let span = match m {
+        Move::Reverse { p, q } => {
+            route[p..=q].reverse();
+            route[p..=q].iter_mut().for_each(turn);
+            p..q + 1
+        }
+        Move::Shift { s, len, flip, after } => {
+            let chain = if after < s {
+                route[after + 1..s + len].rotate_right(len);
+                after + 1..after + 1 + len
+            } else {
+                route[s..=after].rotate_left(len);
+                after + 1 - len..after + 1
+            };
+            if flip {
+                route[chain.clone()].reverse();
+                route[chain.clone()].iter_mut().for_each(turn);
+            }
+            if after < s {
+                after + 1..s + len
+            } else {
+                s..after + 1
+            }
+        }
+    };
+    for k in span.clone() {
+        at[route[k].0 as usize] = k as u32;
+    }
+    span.len()
+}
+
+/// `gene` marked the other way round (a point stays as it is).
+fn turned(segments: &[Segment], gene: (u32, bool)) -> (u32, bool) {
+    (gene.0, gene.1 != segments[gene.0 as usize].either_way)
+}
+
+/// A grid point: a gene with no length, the same either way.
+fn is_point(s: &Segment) -> bool {
+    s.from == s.to
+}
+
+fn turns_round(s: &Segment) -> bool {
+    s.either_way || is_point(s)
 }
 
 /// The segments' possible starts (a one-way segment's only), for
@@ -261,7 +559,7 @@ mod tests {
             .collect()
     }
 
-    fn valid(order: &Order, segments: &[Segment]) {
+    fn valid(order: &[(u32, bool)], segments: &[Segment]) {
         let mut seen = vec![false; segments.len()];
         for &(g, reversed) in order {
             assert!(!seen[g as usize], "gene {g} twice");
@@ -271,7 +569,7 @@ mod tests {
         assert!(seen.iter().all(|&s| s), "every gene once");
     }
 
-    fn air(order: &Order, segments: &[Segment]) -> f64 {
+    fn air(order: &[(u32, bool)], segments: &[Segment]) -> f64 {
         order.windows(2).map(|w| (segments[w[1].0 as usize].ends(w[1].1).0 - segments[w[0].0 as usize].ends(w[0].1).1).norm()).sum()
     }
 
@@ -284,18 +582,82 @@ mod tests {
         valid(&a, &segments);
         valid(&b, &segments);
         let near = starts(&segments);
+        let cost = |o: &[(u32, bool)]| air(o, &segments);
+        let mut search = LocalSearch::new(&segments, &near, &cost, &GaSettings::default());
         for _ in 0..200 {
             let mut child = pmx(&a, &b, 0.5, &mut rng);
             valid(&child, &segments);
-            mutate(&mut child, &segments, &near, &mut rng);
+            let before = cost(&child);
+            search.improve(&mut child, Tries::Random(20), &mut rng, &TimeCap::none());
             valid(&child, &segments);
+            assert!(cost(&child) <= before + 1e-9);
+        }
+    }
+
+    /// Every move the mutation tries, priced on the genes around it, against
+    /// the whole route's cost before and after it.
+    fn moves_priced_locally_cost_what_they_cost(segments: &[Segment], cost: &Cost, seed: u64) {
+        let mut rng = Rand::seed_from_u64(seed);
+        let near = starts(segments);
+        let mut search = LocalSearch::new(segments, &near, cost, &GaSettings::default());
+        let mut route = construct(segments, near.clone(), Point::origin(), 6, &mut rng);
+        for (k, &(g, _)) in route.iter().enumerate() {
+            search.at[g as usize] = k as u32;
+        }
+        let (mut tried, mut kinds) = (0, [0usize; 2]);
+        for _ in 0..300 {
+            let i = rng.random_range(0..route.len());
+            let mut moves = Vec::new();
+            search.moves_joining(&route, i, &mut moves);
+            for &m in &moves {
+                let mut changed = route.clone();
+                let mut at = search.at.clone();
+                apply(&mut changed, &mut at, m, segments);
+                valid(&changed, segments);
+                let (whole, local) = (cost(&changed) - cost(&route), search.delta(&route, m, 0.0));
+                assert!((whole - local).abs() <= 1e-9 * (1.0 + cost(&route)), "{m:?}: {whole} on the route, {local} around the move");
+                tried += 1;
+                kinds[matches!(m, Move::Shift { .. }) as usize] += 1;
+            }
+            // Walk on: the first move, if any.
+            if let Some(&m) = moves.first() {
+                search.apply(&mut route, m);
+            }
+        }
+        assert!(tried > 500 && kinds.iter().all(|&k| k > 50), "{tried} moves, {kinds:?}");
+    }
+
+    #[test]
+    fn a_move_priced_around_it_costs_what_it_costs_on_the_whole_route() {
+        use crate::config::Limits;
+        use crate::plan::objective::{parse, Mark, MotionModel, ObjectiveContext};
+        let ctx = ObjectiveContext { motion: MotionModel { axis: Limits { velocity: 300.0, acceleration: 2500.0, jerk: 1e5 }, bridges: true }, heat_radius: 1.0, cooling_time: 1.0 };
+        // Hatch segments, a few one way, marked at speed (overscan) and from rest.
+        let hatch = grid(120);
+        for at_speed in [true, false] {
+            let forward: Vec<Mark> = hatch.iter().map(|s| Mark::straight(s.from, s.to, 200.0, at_speed)).collect();
+            for spec in ["time", "turns", "length", "time+0.3*turns"] {
+                let objective = parse(spec).unwrap();
+                let cost = |o: &[(u32, bool)]| objective.cost(&super::super::marks(o, &forward), &ctx);
+                moves_priced_locally_cost_what_they_cost(&hatch, &cost, 7);
+            }
+        }
+        // Grid points, the route's links marked rest to rest, going on straight through a point.
+        let points: Vec<Segment> = (0..150).map(|k| Point::new((k % 15) as f64 * 2.0, (k / 15) as f64 * 2.0)).map(|p| Segment { geometry: 0, from: p, to: p, either_way: false, across: p.y }).collect();
+        for spec in ["time", "turns", "length"] {
+            let objective = parse(spec).unwrap();
+            let cost = |o: &[(u32, bool)]| {
+                let links: Vec<Mark> = o.windows(2).map(|w| Mark::straight(points[w[0].0 as usize].from, points[w[1].0 as usize].from, 200.0, false)).collect();
+                objective.cost(&links, &ctx)
+            };
+            moves_priced_locally_cost_what_they_cost(&points, &cost, 11);
         }
     }
 
     #[test]
     fn the_search_is_never_worse_than_what_it_is_given_and_the_same_for_the_same_seed() {
         let segments = grid(80);
-        let cost = |o: &Order| air(o, &segments);
+        let cost = |o: &[(u32, bool)]| air(o, &segments);
         // A poor route given: every other segment first.
         let given: Order = (0..80u32).step_by(2).chain((1..80u32).step_by(2)).map(|g| (g, false)).collect();
         let settings = GaSettings { stall: 10, ..GaSettings::default() };

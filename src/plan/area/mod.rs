@@ -179,7 +179,7 @@ pub fn paths(job: &Job, segments: &[Segment], order: &Order, bridges: bool) -> V
 }
 
 /// How the objectives see `segments` marked in `order`.
-pub fn marks(order: &Order, forward: &[Mark]) -> Vec<Mark> {
+pub fn marks(order: &[(u32, bool)], forward: &[Mark]) -> Vec<Mark> {
     order
         .iter()
         .map(|&(i, reversed)| {
@@ -229,8 +229,8 @@ pub fn objective_context(machine: &MachineConfig, mode: Mode) -> ObjectiveContex
 pub fn plan_fill(job: &Job, segments: &[Segment], machine: &MachineConfig, mode: Mode, start: Point, objective: &dyn Objective) -> (Order, GaRun) {
     let forward = forward_marks(job, segments, machine, mode);
     let ctx = objective_context(machine, mode);
-    let cost = |order: &Order| objective.cost(&marks(order, &forward), &ctx);
-    let settings = GaSettings { population: machine.fill.population, stall: machine.fill.stall_generations, seed: machine.galvo.seed, ..GaSettings::default() };
+    let cost = |order: &[(u32, bool)]| objective.cost(&marks(order, &forward), &ctx);
+    let settings = GaSettings { population: machine.fill.population, stall: machine.fill.stall_generations, seed: machine.galvo.seed, local: objective.is_local(), ..GaSettings::default() };
     let cap = TimeCap::after(machine.galvo.time_limit.map(std::time::Duration::from_secs_f64));
     ga::evolve(segments, start, &cost, vec![raster(segments)], &settings, &cap)
 }
