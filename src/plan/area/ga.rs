@@ -96,7 +96,6 @@ pub fn evolve(segments: &[Segment], start: Point, cost: &Cost, seeded: Vec<Order
         constructed += 1;
         search.spent += 20 * n as u64;
     }
-    let tries = |share: f64| (share * n as f64).ceil() as usize;
     for route in &mut population {
         search.improve(route, Tries::Sweep, &mut rng, cap);
     }
@@ -121,7 +120,7 @@ pub fn evolve(segments: &[Segment], start: Point, cost: &Cost, seeded: Vec<Order
             let (a, b) = (wheel.pick(&mut rng), wheel.pick(&mut rng));
             let mut child = pmx(&population[a], &population[b], settings.max_crossover, &mut rng);
             search.spent += 3 * n as u64;
-            search.improve(&mut child, Tries::Random(tries(settings.mutation_tries)), &mut rng, cap);
+            search.improve(&mut child, Tries::Random((settings.mutation_tries * n as f64).ceil() as usize), &mut rng, cap);
             offspring.push(child);
         }
         costs = offspring.iter().map(|r| cost(r)).collect();
@@ -401,41 +400,33 @@ impl<'a> LocalSearch<'a> {
                 let (out_lo, out_hi) = (s.saturating_sub(c), (s + len + c).min(n));
                 let (in_lo, in_hi) = ((after + 1).saturating_sub(c), (after + 1 + c).min(n));
                 let apart = if after < s { in_hi <= out_lo } else { out_hi <= in_lo };
+                let old;
+                self.new.clear();
                 if apart {
-                    let old = self.price_old(route, out_lo..out_hi) + self.price_old(route, in_lo..in_hi);
-                    let mut new = std::mem::take(&mut self.new);
-                    new.clear();
-                    new.extend_from_slice(&route[out_lo..s]);
-                    new.extend_from_slice(&route[s + len..out_hi]);
-                    self.new = new;
-                    let mut d = self.price_new() - old;
-                    let mut new = std::mem::take(&mut self.new);
-                    new.clear();
-                    new.extend_from_slice(&route[in_lo..=after]);
-                    chain(&mut new);
-                    new.extend_from_slice(&route[after + 1..in_hi]);
-                    self.new = new;
-                    d += self.price_new();
-                    d
-                } else {
-                    let (lo, hi) = (out_lo.min(in_lo), out_hi.max(in_hi));
-                    let old = self.price_old(route, lo..hi);
-                    let mut new = std::mem::take(&mut self.new);
-                    new.clear();
-                    if after < s {
-                        new.extend_from_slice(&route[lo..=after]);
-                        chain(&mut new);
-                        new.extend_from_slice(&route[after + 1..s]);
-                        new.extend_from_slice(&route[s + len..hi]);
-                    } else {
-                        new.extend_from_slice(&route[lo..s]);
-                        new.extend_from_slice(&route[s + len..=after]);
-                        chain(&mut new);
-                        new.extend_from_slice(&route[after + 1..hi]);
-                    }
-                    self.new = new;
-                    self.price_new() - old
+                    old = self.price_old(route, out_lo..out_hi) + self.price_old(route, in_lo..in_hi);
+                    self.new.extend_from_slice(&route[out_lo..s]);
+                    self.new.extend_from_slice(&route[s + len..out_hi]);
+                    let left = self.price_new();
+                    self.new.clear();
+                    self.new.extend_from_slice(&route[in_lo..=after]);
+                    chain(&mut self.new);
+                    self.new.extend_from_slice(&route[after + 1..in_hi]);
+                    return (left - old) + self.price_new();
                 }
+                let (lo, hi) = (out_lo.min(in_lo), out_hi.max(in_hi));
+                old = self.price_old(route, lo..hi);
+                if after < s {
+                    self.new.extend_from_slice(&route[lo..=after]);
+                    chain(&mut self.new);
+                    self.new.extend_from_slice(&route[after + 1..s]);
+                    self.new.extend_from_slice(&route[s + len..hi]);
+                } else {
+                    self.new.extend_from_slice(&route[lo..s]);
+                    self.new.extend_from_slice(&route[s + len..=after]);
+                    chain(&mut self.new);
+                    self.new.extend_from_slice(&route[after + 1..hi]);
+                }
+                self.price_new() - old
             }
         }
     }
