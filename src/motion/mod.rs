@@ -164,23 +164,42 @@ fn tcp_settings_against(machine: &MachineConfig, mode: Mode, stage_share: f64) -
 pub fn build(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode, start: Point) -> Result<Trajectory> {
     mode.check(machine)?;
     let first = sequence.paths().next().map(|p| p.start());
-    match mode {
+    let mut trajectory = match mode {
         Mode::StageOnly => stage_only(job, sequence, machine, start, first),
         Mode::StepAndScan => step_and_scan(job, sequence, machine, start),
         Mode::OnTheFly => on_the_fly(job, sequence, machine, start, &flow::plan),
-    }
+    }?;
+    // The pieces grew by doubling; the program is generated beside them.
+    trajectory.tcp.pieces.shrink_to_fit();
+    Ok(trajectory)
 }
 
 /// Marks every path of `sequence` with `b`; `before_group` runs before each
-/// group's first path (a field change). The marks' runs are planned ahead
-/// into `runs` unless it holds them from an earlier plan of this sequence.
+/// group's first path (a field change). The marks' runs are planned ahead a
+/// chunk at a time (`RUN_CHUNK_POINTS`), so that a job of a million hatch
+/// lines never holds all its runs twice (as runs and as pieces). With
+/// `keep`, they are kept for the next plan of this sequence (or taken from
+/// it, when it holds them from an earlier one).
 fn mark_all(
     b: &mut TcpBuilder,
     job: &Job,
     sequence: &Sequence,
     machine: &MachineConfig,
-    runs: &mut Option<Vec<Option<Run>>>,
+    keep: Option<&mut Option<Vec<Option<Run>>>>,
+    before_group: impl FnMut(&mut TcpBuilder, usize) -> Result<()>,
+) -> Result<()> {
+    mark_all_in_chunks(b, job, sequence, machine, keep, before_group, RUN_CHUNK_POINTS)
+}
+
+/// `mark_all`, planning runs of about `chunk_points` points at a time.
+fn mark_all_in_chunks(
+    b: &mut TcpBuilder,
+    job: &Job,
+    sequence: &Sequence,
+    machine: &MachineConfig,
+    keep: Option<&mut Option<Vec<Option<Run>>>>,
     mut before_group: impl FnMut(&mut TcpBuilder, usize) -> Result<()>,
+    chunk_points: usize,
 ) -> Result<()> {
     let cap = b.settings.mark_speed;
     let processes: Vec<_> = sequence
@@ -193,25 +212,71 @@ fn mark_all(
     let paths: Vec<&crate::plan::PlannedPath> = sequence.paths().collect();
     let fills: Vec<bool> = paths.iter().map(|p| job.processes[p.process].fill).collect();
     let chains = chains(sequence, &processes, &fills, b.settings.junctions);
-    if runs.is_none() {
-        let overscan = |k: usize| fills[k] && machine.overscans(&job.processes[paths[k].process].layer);
-        let requests: Vec<_> = chains.iter().map(|c| MarkRequest { points: &c.points, speed: processes[c.paths[0]].0, pierce: processes[c.paths[0]].2.time > 0.0, breaks: &c.breaks, overscan: overscan(c.paths[0]) }).collect();
-        *runs = Some(b.prepare(&requests)?);
-    }
-    let planned = runs.as_ref().expect("planned above");
-    let mut last_group = None;
-    for (chain, run) in chains.iter().zip(planned) {
-        if last_group != Some(chain.group) {
-            before_group(b, chain.group)?;
-            last_group = Some(chain.group);
+    let overscan = |k: usize| fills[k] && machine.overscans(&job.processes[paths[k].process].layer);
+    let requests: Vec<_> = chains.iter().map(|c| MarkRequest { points: &c.points, speed: processes[c.paths[0]].0, pierce: processes[c.paths[0]].2.time > 0.0, breaks: &c.breaks, overscan: overscan(c.paths[0]) }).collect();
+    match keep.map(|slot| (slot.take(), slot)) {
+        Some((Some(all), slot)) => {
+            place_runs(b, &chains, &paths, &processes, &requests, Some(&all), drop, &mut before_group, chunk_points)?;
+            *slot = Some(all);
         }
-        let marks: Vec<(usize, f64)> = chain.paths.iter().map(|&k| (paths[k].geometry, processes[k].1)).collect();
-        let pierce = processes[chain.paths[0]].2;
-        b.mark_run(&marks, chain.group, run.as_ref(), pierce.time, pierce.power)?;
-        let at = b.time;
-        b.fell.extend(chain.paths.iter().flat_map(|&k| paths[k].falls.iter().map(move |&g| (at, g))));
+        Some((None, slot)) => {
+            let mut kept = Vec::with_capacity(chains.len());
+            place_runs(b, &chains, &paths, &processes, &requests, None, |runs| kept.extend(runs), &mut before_group, chunk_points)?;
+            *slot = Some(kept);
+        }
+        None => place_runs(b, &chains, &paths, &processes, &requests, None, drop, &mut before_group, chunk_points)?,
     }
     b.stop(sequence.groups.len().saturating_sub(1))
+}
+
+/// Points of the runs `mark_all` plans ahead at a time (a hatch line has two).
+const RUN_CHUNK_POINTS: usize = 1 << 17;
+
+/// `mark_all`'s marking: each chunk of chains' runs (from `planned`, else
+/// planned here and handed to `done` once placed) placed in time by `b`.
+#[allow(clippy::too_many_arguments)]
+fn place_runs(
+    b: &mut TcpBuilder,
+    chains: &[Chain],
+    paths: &[&crate::plan::PlannedPath],
+    processes: &[(f64, f64, crate::config::Pierce)],
+    requests: &[MarkRequest],
+    planned: Option<&[Option<Run>]>,
+    mut done: impl FnMut(Vec<Option<Run>>),
+    before_group: &mut impl FnMut(&mut TcpBuilder, usize) -> Result<()>,
+    chunk_points: usize,
+) -> Result<()> {
+    let mut last_group = None;
+    let mut lo = 0;
+    while lo < chains.len() {
+        let mut hi = lo;
+        let mut points = 0;
+        while hi < chains.len() && (hi == lo || points + chains[hi].points.len() <= chunk_points) {
+            points += chains[hi].points.len();
+            hi += 1;
+        }
+        let fresh = match planned {
+            Some(_) => None,
+            None => Some(b.prepare(requests, lo..hi)?),
+        };
+        let runs = planned.map_or_else(|| fresh.as_deref().expect("planned above"), |all| &all[lo..hi]);
+        for (chain, run) in chains[lo..hi].iter().zip(runs) {
+            if last_group != Some(chain.group) {
+                before_group(b, chain.group)?;
+                last_group = Some(chain.group);
+            }
+            let marks: Vec<(usize, f64)> = chain.paths.iter().map(|&k| (paths[k].geometry, processes[k].1)).collect();
+            let pierce = processes[chain.paths[0]].2;
+            b.mark_run(&marks, chain.group, run.as_ref(), pierce.time, pierce.power)?;
+            let at = b.time;
+            b.fell.extend(chain.paths.iter().flat_map(|&k| paths[k].falls.iter().map(move |&g| (at, g))));
+        }
+        if let Some(fresh) = fresh {
+            done(fresh);
+        }
+        lo = hi;
+    }
+    Ok(())
 }
 
 /// Paths marked as one run: each after the first goes on from where the one
@@ -284,7 +349,7 @@ fn stage_only(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
             b.jump(PieceKind::Approach, 0, f, nalgebra::Vector2::zeros())?;
         }
         let job_start = b.time;
-        mark_all(&mut b, job, sequence, machine, &mut None, |_, _| Ok(()))?;
+        mark_all(&mut b, job, sequence, machine, None, |_, _| Ok(()))?;
         Ok((b, job_start))
     };
     // Lifts over pieces that may have tipped wait at a move's end where the
@@ -374,7 +439,7 @@ fn step_and_scan(job: &Job, sequence: &Sequence, machine: &MachineConfig, start:
     let mut stage_at = start;
     let mut job_start = 0.0;
     let mut first_group = true;
-    mark_all(&mut b, job, sequence, machine, &mut None, |b, g| {
+    mark_all(&mut b, job, sequence, machine, None, |b, g| {
         // The stage carries the scanner (holding still) to the field's centre.
         let kind = if first_group { PieceKind::Approach } else { PieceKind::Carried };
         b.stop(g)?;
@@ -423,7 +488,7 @@ fn on_the_fly(job: &Job, sequence: &Sequence, machine: &MachineConfig, start: Po
     loop {
         let mut b = TcpBuilder::new(settings, first, 0.0).with_cache(std::mem::take(&mut cache));
         let positions = at.clone();
-        mark_all(&mut b, job, sequence, machine, &mut runs, |b, g| {
+        mark_all(&mut b, job, sequence, machine, Some(&mut runs), |b, g| {
             if let (true, Some(at)) = (carried[g], positions.as_ref()) {
                 let prev = (0..g).rev().find(|&k| !sequence.groups[k].paths.is_empty()).expect("a field change has a field before");
                 b.stop(g)?;
@@ -533,7 +598,7 @@ fn flowing(
     // the flow for it (or where it falls behind). `None`: no flow for this job.
     let mut attempt = |slowed: &[Option<f64>], pads: (f64, f64)| -> Result<Option<(TcpPath, std::result::Result<flow::Flow, flow::NoFlow>)>> {
         let mut b = TcpBuilder::new(settings, first, 0.0).with_cache(std::mem::take(&mut cache));
-        let marked = mark_all(&mut b, job, sequence, machine, &mut runs, |b, g| {
+        let marked = mark_all(&mut b, job, sequence, machine, Some(&mut runs), |b, g| {
             if let Some(took) = slowed[g] {
                 let entry = sequence.groups[g].paths[0].start();
                 b.jump_slowed(g, entry, took)?;
@@ -1010,6 +1075,36 @@ mod tests {
         let paths = paths.iter().enumerate().map(|(k, p)| crate::plan::PlannedPath::new(k, p.clone(), 0, true)).collect();
         let seq = Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths }] };
         build(&j, &seq, machine, Mode::StageOnly, Point::origin()).unwrap()
+    }
+
+    #[test]
+    fn runs_planned_a_few_at_a_time_give_the_trajectory_planned_all_at_once() {
+        let mut plain = MachineConfig::load(None).unwrap();
+        plain.scanner = None;
+        // Dashes along lines and a pierced square: runs at speed, junctions,
+        // rests; every chunk edge falls between two of them.
+        let mut paths: Vec<Vec<Point>> = (0..9).map(|k| {
+            let (x, y) = (20.0 + 15.0 * (k % 3) as f64, 50.0 + 7.0 * (k / 3) as f64);
+            vec![Point::new(x, y), Point::new(x + 10.0, y)]
+        }).collect();
+        paths.push(vec![Point::new(80.0, 80.0), Point::new(90.0, 80.0), Point::new(90.0, 90.0), Point::new(80.0, 90.0), Point::new(80.0, 80.0)]);
+        for machine in [plain.clone(), piercing(plain, 0.05, 700.0)] {
+            let mut j = job();
+            j.geometries = paths.iter().enumerate().map(|(k, p)| Geometry { arcs: Vec::new(), profile: Vec::new(), points: p.clone(), closed: false, process: 0, source: format!("path {k}") }).collect();
+            let planned = paths.iter().enumerate().map(|(k, p)| crate::plan::PlannedPath::new(k, p.clone(), 0, true)).collect();
+            let seq = Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths: planned }] };
+            let marked = |chunk: usize| {
+                let mut b = TcpBuilder::new(tcp_settings(&machine, Mode::StageOnly), Point::origin(), 0.0);
+                b.hand_over = true;
+                mark_all_in_chunks(&mut b, &j, &seq, &machine, None, |_, _| Ok(()), chunk).unwrap();
+                b.path.pieces.iter().map(|p| (format!("{:?}", p.kind), p.start, p.duration, p.position(0.0), p.position(p.duration))).collect::<Vec<_>>()
+            };
+            let whole = marked(usize::MAX);
+            assert!(whole.len() > 2 * paths.len(), "{} pieces", whole.len());
+            for chunk in [1, 2, 5] {
+                assert_eq!(marked(chunk), whole, "runs of {chunk} points at a time");
+            }
+        }
     }
 
     fn speed_at(tr: &Trajectory, t: f64) -> f64 {

@@ -115,9 +115,13 @@ pub struct FreeMove {
     /// evaluated many times. At a galvo's jerk, steps 25 µs apart keep the
     /// positions within 10 nm of Ruckig's and the acceleration within 6 % of
     /// the limit (measured in the tests; the program takes positions only),
-    /// and the ends are Ruckig's exactly.
-    table: Vec<(Point, Vector2<f64>, Vector2<f64>)>,
+    /// and the ends are Ruckig's exactly. Shared: a million hatch lines'
+    /// turn-rounds are a few thousand moves, each cloned into many pieces.
+    table: std::sync::Arc<[TableState]>,
 }
+
+/// Position, velocity and acceleration at one step of a free move's table.
+type TableState = (Point, Vector2<f64>, Vector2<f64>);
 
 /// Time between the entries of a free move's table.
 const TABLE_STEP: f64 = 25e-6;
@@ -146,7 +150,7 @@ impl FreeMove {
     /// equal steps over `duration` (at least two; a stage-only curve).
     pub fn sampled(duration: f64, table: Vec<(Point, Vector2<f64>, Vector2<f64>)>) -> FreeMove {
         let (from, to) = (table[0].0, table[table.len() - 1].0);
-        FreeMove { from, to, duration, table }
+        FreeMove { from, to, duration, table: table.into() }
     }
 
     pub fn new(from: Point, v_from: Vector2<f64>, to: Point, v_to: Vector2<f64>, axis: Limits) -> Result<FreeMove> {

@@ -648,14 +648,15 @@ impl TcpBuilder {
     #[allow(clippy::too_many_arguments)]
     pub fn mark(&mut self, geometry: usize, group: usize, points: &[Point], speed: f64, power: f64, pierce: f64, pierce_power: f64) -> Result<()> {
         let request = MarkRequest { points, speed, pierce: pierce > 0.0, breaks: &[], overscan: false };
-        let run = self.prepare(std::slice::from_ref(&request))?.pop().flatten();
+        let run = self.prepare(std::slice::from_ref(&request), 0..1)?.pop().flatten();
         self.mark_run(&[(geometry, power)], group, run.as_ref(), pierce, pierce_power)
     }
 
-    /// Plans the runs of `marks` ahead, on all cores (a run does not depend
-    /// on where the TCP is), and puts the laser-off moves from each to the
+    /// Plans the runs of `marks[range]` ahead, on all cores (a run does not
+    /// depend on where the TCP is; the marks beside the range decide how its
+    /// ends are handed over), and puts the laser-off moves from each to the
     /// next into the cache: `mark_run` then only places them in time.
-    pub fn prepare(&self, marks: &[MarkRequest]) -> Result<Vec<Option<Run>>> {
+    pub fn prepare(&self, marks: &[MarkRequest], range: std::ops::Range<usize>) -> Result<Vec<Option<Run>>> {
         let settings = self.settings;
         let known = self.cache.borrow().corners.clone();
         // Stage-only: a mark without a pierce is entered and left at speed
@@ -677,7 +678,8 @@ impl TcpBuilder {
             let stop = v * v / (2.0 * axis.acceleration) + v * axis.acceleration / axis.jerk;
             !at_rest(there) || m.points.windows(2).map(|w| (w[1] - w[0]).norm()).sum::<f64>() >= stop
         };
-        let hand_overs: Vec<HandOver> = (0..marks.len())
+        let hand_overs: Vec<HandOver> = range
+            .clone()
             .map(|k| {
                 if !(self.hand_over && settings.junctions) {
                     return HandOver::default();
@@ -711,7 +713,7 @@ impl TcpBuilder {
                 HandOver { entry, exit }
             })
             .collect();
-        let indexed: Vec<(&MarkRequest, HandOver)> = marks.iter().zip(hand_overs).collect();
+        let indexed: Vec<(&MarkRequest, HandOver)> = marks[range.clone()].iter().zip(hand_overs).collect();
         let parts = crate::parallel::chunks(&indexed, 8, |part| {
             let mut corners = known.clone();
             let runs = part
@@ -720,7 +722,7 @@ impl TcpBuilder {
                 .collect::<Result<Vec<_>>>();
             (runs, corners)
         });
-        let mut runs = Vec::with_capacity(marks.len());
+        let mut runs = Vec::with_capacity(range.len());
         for (part, corners) in parts {
             runs.extend(part?);
             self.cache.borrow_mut().corners.extend(corners);
@@ -893,7 +895,7 @@ mod tests {
         }
         let mut ahead = TcpBuilder::new(s, Point::origin(), 0.0);
         let requests: Vec<_> = marks.iter().enumerate().map(|(k, m)| MarkRequest { points: m, speed: 900.0, pierce: pierce(k) > 0.0, breaks: &[], overscan: false }).collect();
-        let runs = ahead.prepare(&requests).unwrap();
+        let runs = ahead.prepare(&requests, 0..requests.len()).unwrap();
         for (k, run) in runs.iter().enumerate() {
             ahead.mark_run(&[(k, 300.0)], 0, run.as_ref(), pierce(k), 500.0).unwrap();
         }
@@ -904,7 +906,7 @@ mod tests {
             assert!((one_by_one.path.position(t) - ahead.path.position(t)).norm() < 1e-9, "t={t}");
         }
         let bad = MarkRequest { points: &marks[1], speed: f64::NAN, pierce: false, breaks: &[], overscan: false };
-        assert!(ahead.prepare(&[bad]).is_err(), "a NaN speed is refused");
+        assert!(ahead.prepare(&[bad], 0..1).is_err(), "a NaN speed is refused");
     }
 
     #[test]

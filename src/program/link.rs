@@ -175,15 +175,12 @@ impl LinkModel {
         let p = self.planner_blocks;
         // Each planner block's duration and whether it ends at rest; an
         // arc's chords share its time evenly.
-        let blocks: Vec<(f64, bool)> = lines
-            .iter()
-            .filter(|l| l.moves())
-            .flat_map(|l| {
-                let (s, e) = l.due.unwrap_or_default();
-                let n = l.blocks.max(1);
-                (0..n).map(move |k| ((e - s) / n as f64, l.rest && k + 1 == n))
-            })
-            .collect();
+        let mut blocks: Vec<(f64, bool)> = Vec::with_capacity(lines.iter().filter(|l| l.moves()).map(|l| l.blocks.max(1)).sum());
+        blocks.extend(lines.iter().filter(|l| l.moves()).flat_map(|l| {
+            let (s, e) = l.due.unwrap_or_default();
+            let n = l.blocks.max(1);
+            (0..n).map(move |k| ((e - s) / n as f64, l.rest && k + 1 == n))
+        }));
         let n = blocks.len();
         // The first block at or after each that ends at rest (the program's
         // last ends at rest).

@@ -253,6 +253,9 @@ impl Writer {
     }
 }
 
+/// Spans whose blocks `generate` plans at a time.
+const SPANS_AT_A_TIME: usize = 1 << 14;
+
 /// `v` with at most `decimals` decimals, trailing zeros trimmed (`-0` as `0`).
 pub fn format_number(v: f64, decimals: usize) -> String {
     let scale = 10f64.powi(decimals as i32);
@@ -683,29 +686,34 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
     };
     w.setup(laser_on);
     // Finding the blocks is most of the work and each span's are its own:
-    // spans are shared out over threads, then written in order.
+    // a chunk of spans is shared out over threads, then written in order
+    // (a chunk at a time: a million-line fill's blocks are not all held).
     let spans = spans(trajectory, machine);
-    let planned = crate::parallel::map(&spans, 8, |span| plan_blocks(trajectory, span, machine, min_block));
-    for (span, blocks) in spans.iter().zip(planned) {
-        if span.kind == LineKind::Pierce {
-            w.pierce(span.geometry.unwrap_or(0), span.power, span.start, span.end - span.start, machine.laser.mode);
-            continue;
-        }
-        let blocks = blocks.map_err(|e| {
-            let place = span.geometry.and_then(|g| job.geometries.get(g)).map_or("a laser-off move", |g| g.source.as_str());
-            Error::Program(format!("{place}: {e}"))
-        })?;
-        for block in blocks {
-            let line = ProgramLine { text: String::new(), kind: span.kind, geometry: span.geometry, plan_time: Some((block.start, block.end)), checks: block.checks };
-            match &block.arc {
-                Some(arc) => w.arc_block(&block.axes, span.power, block.end - block.start, arc, line)?,
-                None => w.block(&block.axes, span.power, block.end - block.start, line)?,
+    w.lines.reserve(spans.len() + 8);
+    for chunk in spans.chunks(SPANS_AT_A_TIME) {
+        let planned = crate::parallel::map(chunk, 8, |span| plan_blocks(trajectory, span, machine, min_block));
+        for (span, blocks) in chunk.iter().zip(planned) {
+            if span.kind == LineKind::Pierce {
+                w.pierce(span.geometry.unwrap_or(0), span.power, span.start, span.end - span.start, machine.laser.mode);
+                continue;
+            }
+            let blocks = blocks.map_err(|e| {
+                let place = span.geometry.and_then(|g| job.geometries.get(g)).map_or("a laser-off move", |g| g.source.as_str());
+                Error::Program(format!("{place}: {e}"))
+            })?;
+            for block in blocks {
+                let line = ProgramLine { text: String::new(), kind: span.kind, geometry: span.geometry, plan_time: Some((block.start, block.end)), checks: block.checks };
+                match &block.arc {
+                    Some(arc) => w.arc_block(&block.axes, span.power, block.end - block.start, arc, line)?,
+                    None => w.block(&block.axes, span.power, block.end - block.start, line)?,
+                }
             }
         }
     }
     for text in ["M5S0", "G94", "M2"] {
         w.lines.push(ProgramLine { text: text.into(), kind: LineKind::End, geometry: None, plan_time: None, checks: vec![] });
     }
+    w.lines.shrink_to_fit();
     Ok(Program {
         lines: w.lines,
         axis_letters: letters,
