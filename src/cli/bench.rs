@@ -416,8 +416,8 @@ fn fill_bench(config: PathBuf, job: PathBuf, spacing: f64, radius: f64, objectiv
         return Ok(ExitCode::SUCCESS);
     }
     println!(
-        "{}: {} grid points {} mm apart, {} mm inside; at {} mm/s; lower bounds {:.0} mm, {:.2} s (median / worst of seeds 1-{})",
-        r.job, r.points, r.spacing_mm, r.radius_mm, r.speed_mm_s, r.length_lower_bound_mm, r.time_lower_bound_s, seeds.len()
+        "{}: {} grid points {} mm apart, {} mm inside; at {} mm/s; lower bounds {:.0} mm, {} turns, {:.2} s (median / worst of seeds 1-{})",
+        r.job, r.points, r.spacing_mm, r.radius_mm, r.speed_mm_s, r.length_lower_bound_mm, r.turns_lower_bound, r.time_lower_bound_s, seeds.len()
     );
     let median_worst = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
@@ -427,11 +427,12 @@ fn fill_bench(config: PathBuf, job: PathBuf, spacing: f64, radius: f64, objectiv
         let figure = |f: &dyn Fn(&laserd::bench::fill::FillRun) -> f64| median_worst(o.runs.iter().map(f).collect());
         let (length, length_w) = figure(&|run| run.length_mm);
         let (turns, turns_w) = figure(&|run| run.turns as f64);
+        let (detour, detour_w) = figure(&|run| run.detour_mm);
         let (time, time_w) = figure(&|run| run.time_s);
         let (heat, heat_w) = figure(&|run| run.heat);
         let (conv, conv_w) = figure(&|run| run.converged_s);
         println!(
-            "  {:<16} length {length:.0} / {length_w:.0} mm  turns {turns:.0} / {turns_w:.0}  time {time:.2} / {time_w:.2} s  heat {heat:.1} / {heat_w:.1}  converged in {conv:.2} / {conv_w:.2} s",
+            "  {:<16} length {length:.0} / {length_w:.0} mm  turns {turns:.0} / {turns_w:.0} (Eq. 10 {detour:.0} / {detour_w:.0} mm)  time {time:.2} / {time_w:.2} s  heat {heat:.1} / {heat_w:.1}  converged in {conv:.2} / {conv_w:.2} s",
             o.objective
         );
     }

@@ -100,13 +100,19 @@ impl MotionModel {
     /// When each mark of `route` starts (the first at 0, after the move to
     /// it), and when the route ends.
     pub fn timeline(&self, route: &[Mark]) -> (Vec<f64>, f64) {
+        let mut starts = Vec::with_capacity(route.len());
+        let end = self.walk(route, |t| starts.push(t));
+        (starts, end)
+    }
+
+    /// When the route ends, `started` told when each mark starts (the
+    /// searches price routes millions of times: nothing is allocated).
+    fn walk(&self, route: &[Mark], mut started: impl FnMut(f64)) -> f64 {
         let n = route.len();
-        let bridged: Vec<bool> = route.windows(2).map(|w| self.bridged(&w[0], &w[1])).collect();
         let mut t = 0.0;
-        let mut starts = Vec::with_capacity(n);
+        let mut came = false;
         for (k, m) in route.iter().enumerate() {
-            let came = k > 0 && bridged[k - 1];
-            let goes = k + 1 < n && bridged[k];
+            let goes = k + 1 < n && self.bridged(m, &route[k + 1]);
             if k > 0 {
                 let a = &route[k - 1];
                 t += if came {
@@ -117,10 +123,11 @@ impl MotionModel {
                     self.move_time(a.to, v0, m.from, v1)
                 };
             }
-            starts.push(t);
+            started(t);
             t += self.mark_time(m, m.at_speed || came, m.at_speed || goes);
+            came = goes;
         }
-        (starts, t)
+        t
     }
 }
 
@@ -130,6 +137,16 @@ impl MotionModel {
 /// `vmax` where the peak would pass it. Speeds above `vmax` are taken as
 /// `vmax`.
 pub fn axis_time(d: f64, v0: f64, v1: f64, vmax: f64, a: f64) -> f64 {
+    if v0 == 0.0 && v1 == 0.0 {
+        // Rest to rest (the most common case, priced millions of times):
+        // the arithmetic below, either way round, without its search.
+        let peak = (a * d.abs()).sqrt();
+        if peak <= vmax {
+            return (peak + peak) / a;
+        }
+        let ramp = vmax * vmax / (2.0 * a);
+        return (vmax + vmax) / a + (d.abs() - ramp - ramp) / vmax;
+    }
     let (v0, v1) = (v0.clamp(-vmax, vmax), v1.clamp(-vmax, vmax));
     let mut best = f64::INFINITY;
     for s in [1.0, -1.0] {
@@ -276,29 +293,31 @@ pub fn parse(spec: &str) -> Result<Box<dyn Objective>, String> {
 
 /// The machine time of `route`: its marks and the moves between them.
 pub fn route_time(route: &[Mark], motion: &MotionModel) -> f64 {
-    motion.timeline(route).1
+    motion.walk(route, |_| {})
 }
 
 /// Seed 004's Eq. 10 over the tool's path through the route's mark ends
 /// (mm), and the number of turns: vertices where the path changes
 /// direction by more than a degree.
 pub fn turns(route: &[Mark]) -> (f64, usize) {
-    let mut points: Vec<Point> = Vec::with_capacity(2 * route.len());
-    for m in route {
-        for p in [m.from, m.to] {
-            if points.last().is_none_or(|q| (p - q).norm() > 1e-9) {
-                points.push(p);
-            }
-        }
-    }
     let (mut detour, mut count) = (0.0, 0);
     let straight = 1.0f64.to_radians().cos();
-    for w in points.windows(3) {
-        let (a, b) = (w[1] - w[0], w[2] - w[1]);
-        detour += a.norm() + b.norm() - (w[2] - w[0]).norm();
-        if a.dot(&b) < straight * a.norm() * b.norm() {
-            count += 1;
+    // The last two vertices of the path (repeats left out), and the length
+    // of the edge between them.
+    let (mut before, mut last, mut edge): (Option<Point>, Option<Point>, f64) = (None, None, 0.0);
+    for p in route.iter().flat_map(|m| [m.from, m.to]) {
+        if last.is_some_and(|q| (p - q).norm_squared() <= 1e-18) {
+            continue;
         }
+        let next = last.map_or(0.0, |j| (p - j).norm());
+        if let (Some(i), Some(j)) = (before, last) {
+            let (a, b) = (j - i, p - j);
+            detour += edge + next - (p - i).norm();
+            if a.dot(&b) < straight * edge * next {
+                count += 1;
+            }
+        }
+        (before, last, edge) = (last, Some(p), next);
     }
     (detour, count)
 }
@@ -308,23 +327,59 @@ pub fn turns(route: &[Mark]) -> (f64, usize) {
 pub fn heat(route: &[Mark], ctx: &ObjectiveContext) -> f64 {
     let (starts, _) = ctx.motion.timeline(route);
     let r = ctx.heat_radius.max(1e-9);
+    let middles: Vec<Point> = route.iter().map(|m| Point::from((m.from.coords + m.to.coords) * 0.5)).collect();
+    let r2 = r * r;
+    let share = |k: usize, j: usize| {
+        let since = starts[k] - starts[j];
+        if since < ctx.cooling_time && (middles[j] - middles[k]).norm_squared() <= r2 {
+            1.0 - since / ctx.cooling_time
+        } else {
+            0.0
+        }
+    };
+    // The marks made less than the cooling time before each (a window
+    // sliding along the route) ...
+    let mut first = 0;
+    let mut window = 0usize;
+    for k in 0..route.len() {
+        while starts[k] - starts[first] >= ctx.cooling_time {
+            first += 1;
+        }
+        window += k - first;
+    }
+    if window <= 16 * route.len() {
+        let mut first = 0;
+        let mut total = 0.0;
+        for k in 0..route.len() {
+            while starts[k] - starts[first] >= ctx.cooling_time {
+                first += 1;
+            }
+            total += (first..k).map(|j| share(k, j)).sum::<f64>();
+        }
+        return total;
+    }
+    // ... or, where many marks are made within it, the marks by cell of `r`,
+    // in the route's order within a cell (sorted, not hashed: a search
+    // prices whole routes many thousand times).
     let cell = |p: Point| ((p.x / r).floor() as i64, (p.y / r).floor() as i64);
-    let mut grid: std::collections::HashMap<(i64, i64), Vec<usize>> = std::collections::HashMap::new();
-    let middle = |m: &Mark| Point::from((m.from.coords + m.to.coords) * 0.5);
+    let mut by_cell: Vec<((i64, i64), u32)> = middles.iter().enumerate().map(|(k, &p)| (cell(p), k as u32)).collect();
+    by_cell.sort_unstable();
     let mut total = 0.0;
-    for (k, m) in route.iter().enumerate() {
-        let (p, (cx, cy)) = (middle(m), cell(middle(m)));
+    for (k, &p) in middles.iter().enumerate() {
+        let (cx, cy) = cell(p);
         for dx in -1..=1 {
             for dy in -1..=1 {
-                for &j in grid.get(&(cx + dx, cy + dy)).into_iter().flatten() {
-                    let since = starts[k] - starts[j];
-                    if since < ctx.cooling_time && (middle(&route[j]) - p).norm() <= r {
-                        total += 1.0 - since / ctx.cooling_time;
-                    }
+                let key = (cx + dx, cy + dy);
+                // The cell's marks made before this one; those less than the
+                // cooling time before it are the last of them.
+                let end = by_cell.partition_point(|e| *e < (key, k as u32));
+                let mut first = end;
+                while first > 0 && by_cell[first - 1].0 == key && starts[k] - starts[by_cell[first - 1].1 as usize] < ctx.cooling_time {
+                    first -= 1;
                 }
+                total += by_cell[first..end].iter().map(|&(_, j)| share(k, j as usize)).sum::<f64>();
             }
         }
-        grid.entry((cx, cy)).or_default().push(k);
     }
     total
 }
@@ -383,6 +438,43 @@ mod tests {
         assert!(parse("length").unwrap().is_length() && !o.is_length());
         for bad in ["speed", "time+x*turns", "-1*time", "0*time", "time+"] {
             assert!(parse(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn heat_sums_every_near_pair_made_within_the_cooling_time() {
+        // Short marks scattered over a few radii (a fixed xorshift sequence),
+        // against every pair of marks looked at; a short cooling time (a
+        // few marks back, the window) and a long one (all, the cells).
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut uniform = |lo: f64, hi: f64| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            lo + (hi - lo) * (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let route: Vec<Mark> = (0..300)
+            .map(|_| {
+                let from = Point::new(uniform(-4.0, 4.0), uniform(-4.0, 4.0));
+                Mark::straight(from, from + Vector2::new(uniform(-1.0, 1.0), uniform(-1.0, 1.0)), 400.0, false)
+            })
+            .collect();
+        let middle = |m: &Mark| Point::from((m.from.coords + m.to.coords) * 0.5);
+        for cooling_time in [0.2, 50.0] {
+            let ctx = ObjectiveContext { motion: model(), heat_radius: 1.5, cooling_time };
+            let (starts, _) = ctx.motion.timeline(&route);
+            let mut every_pair = 0.0;
+            for k in 0..route.len() {
+                for j in 0..k {
+                    let since = starts[k] - starts[j];
+                    if since < ctx.cooling_time && (middle(&route[j]) - middle(&route[k])).norm() <= ctx.heat_radius {
+                        every_pair += 1.0 - since / ctx.cooling_time;
+                    }
+                }
+            }
+            assert!(every_pair > 10.0, "the case has near pairs: {every_pair}");
+            let got = heat(&route, &ctx);
+            assert!((got - every_pair).abs() < 1e-9 * every_pair, "{got} {every_pair}");
         }
     }
 }

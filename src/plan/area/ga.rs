@@ -240,12 +240,31 @@ struct LocalSearch<'a> {
     all_turn: bool,
     /// A changed piece of the route, being priced.
     new: Vec<(u32, bool)>,
+    /// The nearest neighbours of each gene's end either way
+    /// (`neighbours` at [(2 gene + reversed) · neighbours ..]), looked up
+    /// when first needed: a route is searched many times over.
+    near_ends: Vec<(u32, bool)>,
+    near_known: Vec<bool>,
 }
 
 impl<'a> LocalSearch<'a> {
     fn new(segments: &'a [Segment], near: &'a RTree<Start>, cost: &'a Cost<'a>, settings: &GaSettings) -> Self {
         let all_turn = segments.iter().all(turns_round);
-        LocalSearch { segments, near, cost, local: settings.local, neighbours: settings.neighbours, budget: settings.budget, spent: 0, at: vec![0; segments.len()], all_turn, new: Vec::new() }
+        let ends = 2 * segments.len();
+        LocalSearch {
+            segments,
+            near,
+            cost,
+            local: settings.local,
+            neighbours: settings.neighbours,
+            budget: settings.budget,
+            spent: 0,
+            at: vec![0; segments.len()],
+            all_turn,
+            new: Vec::new(),
+            near_ends: vec![(u32::MAX, false); ends * settings.neighbours],
+            near_known: vec![false; ends],
+        }
     }
 
     fn turnable(&self, genes: &[(u32, bool)]) -> bool {
@@ -319,11 +338,23 @@ impl<'a> LocalSearch<'a> {
     /// The moves that make the gene at `i` go on to one of its nearest
     /// neighbours: a 2-opt move where the neighbour lies after it, and the
     /// neighbour moved there with up to two genes beside it.
-    fn moves_joining(&self, route: &Order, i: usize, out: &mut Vec<Move>) {
+    fn moves_joining(&mut self, route: &Order, i: usize, out: &mut Vec<Move>) {
         let n = route.len();
         let (g, reversed) = route[i];
-        let end = self.segments[g as usize].ends(reversed).1;
-        for (h, h_reversed) in self.near.nearest_neighbor_iter([end.x, end.y]).map(|e| e.data).filter(|&(s, _)| s != g).take(self.neighbours) {
+        let (slot, k) = (2 * g as usize + reversed as usize, self.neighbours);
+        if !self.near_known[slot] {
+            let end = self.segments[g as usize].ends(reversed).1;
+            let found = self.near.nearest_neighbor_iter([end.x, end.y]).map(|e| e.data).filter(|&(s, _)| s != g).take(k);
+            for (place, near) in self.near_ends[slot * k..(slot + 1) * k].iter_mut().zip(found) {
+                *place = near;
+            }
+            self.near_known[slot] = true;
+        }
+        for e in slot * k..(slot + 1) * k {
+            let (h, h_reversed) = self.near_ends[e];
+            if h == u32::MAX {
+                break;
+            }
             let j = self.at[h as usize] as usize;
             let point = is_point(&self.segments[h as usize]);
             let (as_is, turned) = (point || route[j].1 == h_reversed, point || route[j].1 != h_reversed);
@@ -629,7 +660,7 @@ mod tests {
             let forward: Vec<Mark> = hatch.iter().map(|s| Mark::straight(s.from, s.to, 200.0, at_speed)).collect();
             for spec in ["time", "turns", "length", "time+0.3*turns"] {
                 let objective = parse(spec).unwrap();
-                let cost = |o: &[(u32, bool)]| objective.cost(&super::super::marks(o, &forward), &ctx);
+                let cost = |o: &[(u32, bool)]| super::super::price(super::super::marks(o, &forward), objective.as_ref(), &ctx);
                 moves_priced_locally_cost_what_they_cost(&hatch, &cost, 7);
             }
         }

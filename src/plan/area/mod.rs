@@ -179,18 +179,36 @@ pub fn paths(job: &Job, segments: &[Segment], order: &Order, bridges: bool) -> V
 }
 
 /// How the objectives see `segments` marked in `order`.
-pub fn marks(order: &[(u32, bool)], forward: &[Mark]) -> Vec<Mark> {
-    order
-        .iter()
-        .map(|&(i, reversed)| {
-            let m = forward[i as usize];
-            if reversed {
-                Mark { from: m.to, to: m.from, dir_in: -m.dir_out, dir_out: -m.dir_in, ..m }
-            } else {
-                m
+pub fn marks<'a>(order: &'a [(u32, bool)], forward: &'a [Mark]) -> impl Iterator<Item = Mark> + 'a {
+    order.iter().map(|&(i, reversed)| {
+        let m = forward[i as usize];
+        if reversed {
+            Mark { from: m.to, to: m.from, dir_in: -m.dir_out, dir_out: -m.dir_in, ..m }
+        } else {
+            m
+        }
+    })
+}
+
+/// `objective` over the marks `route` yields, gathered in a buffer kept
+/// per thread: the GA prices pieces of routes millions of times.
+pub fn price(route: impl Iterator<Item = Mark>, objective: &dyn Objective, ctx: &ObjectiveContext) -> f64 {
+    thread_local! {
+        static BUFFER: std::cell::RefCell<Vec<Mark>> = const { std::cell::RefCell::new(Vec::new()) };
+    }
+    BUFFER.with(|buffer| match buffer.try_borrow_mut() {
+        Ok(mut marks) => {
+            marks.clear();
+            marks.extend(route);
+            let cost = objective.cost(&marks, ctx);
+            // A whole route of a large fill is priced now and then: not kept.
+            if marks.capacity() > 1 << 16 {
+                *marks = Vec::new();
             }
-        })
-        .collect()
+            cost
+        }
+        Err(_) => objective.cost(&route.collect::<Vec<_>>(), ctx),
+    })
 }
 
 /// Each segment as a mark the hatch's way: at its layer's speed (within
@@ -229,7 +247,7 @@ pub fn objective_context(machine: &MachineConfig, mode: Mode) -> ObjectiveContex
 pub fn plan_fill(job: &Job, segments: &[Segment], machine: &MachineConfig, mode: Mode, start: Point, objective: &dyn Objective) -> (Order, GaRun) {
     let forward = forward_marks(job, segments, machine, mode);
     let ctx = objective_context(machine, mode);
-    let cost = |order: &[(u32, bool)]| objective.cost(&marks(order, &forward), &ctx);
+    let cost = |order: &[(u32, bool)]| price(marks(order, &forward), objective, &ctx);
     let settings = GaSettings { population: machine.fill.population, stall: machine.fill.stall_generations, seed: machine.galvo.seed, local: objective.is_local(), ..GaSettings::default() };
     let cap = TimeCap::after(machine.galvo.time_limit.map(std::time::Duration::from_secs_f64));
     ga::evolve(segments, start, &cost, vec![raster(segments)], &settings, &cap)
