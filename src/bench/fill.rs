@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::MachineConfig;
 use crate::error::{Error, Result};
 use crate::mode::Mode;
-use crate::plan::area::ga::{evolve, GaSettings};
+use crate::plan::area::ga::{evolve, GaSettings, Timed};
 use crate::job::Point;
 use crate::plan::area::{grid, objective_context, price, Order, Segment};
 use crate::plan::objective::{self, Mark};
@@ -150,11 +150,18 @@ pub fn fill_bench(machine: &MachineConfig, job_path: &std::path::Path, spacing: 
                 price(links(&genes, order, speed), objective.as_ref(), &ctx)
             }
         };
+        // When each point is reached: its link's start (the last point, the route's end).
+        let starts = |order: &[(u32, bool)]| {
+            let (mut starts, end) = ctx.motion.timeline(&links(&genes, order, speed).collect::<Vec<_>>());
+            starts.push(end);
+            starts
+        };
+        let timed = objective.horizon(&ctx).map(|horizon| Timed { horizon, starts: &starts });
         let mut runs = Vec::new();
         for &seed in seeds {
             let settings = GaSettings { population: machine.fill.population, stall: machine.fill.stall_generations, seed, local: objective.is_local(), ..GaSettings::default() };
             let started = std::time::Instant::now();
-            let (order, run) = evolve(&genes, genes[0].from, &cost, rasters(&grid), &settings, &TimeCap::none());
+            let (order, run) = evolve(&genes, genes[0].from, &cost, timed.as_ref(), rasters(&grid), &settings, &TimeCap::none());
             let converged_s = started.elapsed().as_secs_f64();
             let route: Vec<Mark> = links(&genes, &order, speed).collect();
             runs.push(FillRun {

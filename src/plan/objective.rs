@@ -187,7 +187,7 @@ pub struct ObjectiveContext {
 pub trait Objective: Send + Sync {
     /// As the user wrote it (`time`, `time+0.2*turns`).
     fn name(&self) -> String;
-    /// The objective's value on `route`.
+    /// The objective's value on `route`: 0 or more (the searches stop at 0).
     fn cost(&self, route: &[Mark], ctx: &ObjectiveContext) -> f64;
     /// Whether it is the laser-off length alone (the searches' own measure).
     fn is_length(&self) -> bool {
@@ -198,6 +198,12 @@ pub trait Objective: Send + Sync {
     /// can be priced on the marks around it.
     fn is_local(&self) -> bool {
         true
+    }
+    /// Where it is not local: a time such that marks made further apart
+    /// add nothing to each other's terms (then a change is priced on the
+    /// marks made within it); `None`: only on the whole route.
+    fn horizon(&self, _: &ObjectiveContext) -> Option<f64> {
+        None
     }
 }
 
@@ -249,9 +255,13 @@ impl Objective for Heat {
     fn cost(&self, route: &[Mark], ctx: &ObjectiveContext) -> f64 {
         heat(route, ctx)
     }
-    /// Heat depends on when marks are made: on everything before them.
+    /// Heat depends on when marks are made: on everything before them ...
     fn is_local(&self) -> bool {
         false
+    }
+    /// ... but only on what was made less than the cooling time before.
+    fn horizon(&self, ctx: &ObjectiveContext) -> Option<f64> {
+        Some(ctx.cooling_time)
     }
 }
 
@@ -268,6 +278,10 @@ impl Objective for Weighted {
     }
     fn is_local(&self) -> bool {
         self.0.iter().all(|(w, o)| *w == 0.0 || o.is_local())
+    }
+    fn horizon(&self, ctx: &ObjectiveContext) -> Option<f64> {
+        let terms = self.0.iter().filter(|(w, _)| *w != 0.0);
+        terms.map(|(_, o)| if o.is_local() { Some(0.0) } else { o.horizon(ctx) }).try_fold(0.0f64, |h, t| t.map(|t| h.max(t)))
     }
 }
 
@@ -325,13 +339,21 @@ pub fn turns(route: &[Mark]) -> (f64, usize) {
 /// Pairs of marks whose middles lie within `heat_radius`, made less than
 /// `cooling_time` apart, each weighted 1 − (time between) / cooling time.
 pub fn heat(route: &[Mark], ctx: &ObjectiveContext) -> f64 {
-    let (starts, _) = ctx.motion.timeline(route);
+    // When each mark starts, and its middle.
+    let mut marks: Vec<(f64, Point)> = Vec::with_capacity(route.len());
+    let mut k = 0;
+    ctx.motion.walk(route, |t| {
+        let m = &route[k];
+        marks.push((t, Point::from((m.from.coords + m.to.coords) * 0.5)));
+        k += 1;
+    });
+    let starts = |k: usize| marks[k].0;
+    let middles = |k: usize| marks[k].1;
     let r = ctx.heat_radius.max(1e-9);
-    let middles: Vec<Point> = route.iter().map(|m| Point::from((m.from.coords + m.to.coords) * 0.5)).collect();
     let r2 = r * r;
     let share = |k: usize, j: usize| {
-        let since = starts[k] - starts[j];
-        if since < ctx.cooling_time && (middles[j] - middles[k]).norm_squared() <= r2 {
+        let since = starts(k) - starts(j);
+        if since < ctx.cooling_time && (middles(j) - middles(k)).norm_squared() <= r2 {
             1.0 - since / ctx.cooling_time
         } else {
             0.0
@@ -342,7 +364,7 @@ pub fn heat(route: &[Mark], ctx: &ObjectiveContext) -> f64 {
     let mut first = 0;
     let mut window = 0usize;
     for k in 0..route.len() {
-        while starts[k] - starts[first] >= ctx.cooling_time {
+        while starts(k) - starts(first) >= ctx.cooling_time {
             first += 1;
         }
         window += k - first;
@@ -351,7 +373,7 @@ pub fn heat(route: &[Mark], ctx: &ObjectiveContext) -> f64 {
         let mut first = 0;
         let mut total = 0.0;
         for k in 0..route.len() {
-            while starts[k] - starts[first] >= ctx.cooling_time {
+            while starts(k) - starts(first) >= ctx.cooling_time {
                 first += 1;
             }
             total += (first..k).map(|j| share(k, j)).sum::<f64>();
@@ -362,10 +384,10 @@ pub fn heat(route: &[Mark], ctx: &ObjectiveContext) -> f64 {
     // in the route's order within a cell (sorted, not hashed: a search
     // prices whole routes many thousand times).
     let cell = |p: Point| ((p.x / r).floor() as i64, (p.y / r).floor() as i64);
-    let mut by_cell: Vec<((i64, i64), u32)> = middles.iter().enumerate().map(|(k, &p)| (cell(p), k as u32)).collect();
+    let mut by_cell: Vec<((i64, i64), u32)> = marks.iter().enumerate().map(|(k, &(_, p))| (cell(p), k as u32)).collect();
     by_cell.sort_unstable();
     let mut total = 0.0;
-    for (k, &p) in middles.iter().enumerate() {
+    for (k, &(_, p)) in marks.iter().enumerate() {
         let (cx, cy) = cell(p);
         for dx in -1..=1 {
             for dy in -1..=1 {
@@ -374,7 +396,7 @@ pub fn heat(route: &[Mark], ctx: &ObjectiveContext) -> f64 {
                 // cooling time before it are the last of them.
                 let end = by_cell.partition_point(|e| *e < (key, k as u32));
                 let mut first = end;
-                while first > 0 && by_cell[first - 1].0 == key && starts[k] - starts[by_cell[first - 1].1 as usize] < ctx.cooling_time {
+                while first > 0 && by_cell[first - 1].0 == key && starts(k) - starts(by_cell[first - 1].1 as usize) < ctx.cooling_time {
                     first -= 1;
                 }
                 total += by_cell[first..end].iter().map(|&(_, j)| share(k, j as usize)).sum::<f64>();

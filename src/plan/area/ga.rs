@@ -18,7 +18,8 @@
 //!   get the same search, longer (our departure: the seed's mutation is
 //!   blind, and its Java prototype needed 10-30 s).
 //! * Stop: after `stall` generations without a better route, or when the
-//!   work budget (gene operations) is spent, or at a time cap if one is set.
+//!   work budget (gene operations) is spent, or at a time cap if one is set,
+//!   or at a route that costs nothing (no objective goes below 0).
 //!
 //! A move is priced on a few genes around each place it changes, not on the
 //! whole route, where the objective is local (`local`): its cost a sum of
@@ -38,6 +39,18 @@ use crate::plan::stop::{SearchStop, TimeCap};
 
 /// The objective over a route or a piece of one (lower is better).
 pub type Cost<'a> = dyn Fn(&[(u32, bool)]) -> f64 + Sync + 'a;
+
+/// When each gene of a route is made, in seconds from the route's start.
+pub type Starts<'a> = dyn Fn(&[(u32, bool)]) -> Vec<f64> + Sync + 'a;
+
+/// For an objective that is not local but whose terms see only marks made
+/// less than `horizon` seconds apart (heat): when each gene of a route is
+/// made (`starts`, one per gene). A move is then priced on the genes made
+/// within the horizon of the genes it changes.
+pub struct Timed<'a> {
+    pub horizon: f64,
+    pub starts: &'a Starts<'a>,
+}
 
 #[derive(Debug, Clone)]
 pub struct GaSettings {
@@ -79,7 +92,7 @@ pub struct GaRun {
 
 /// The best route over `segments` the GA finds from `start` under `cost`
 /// (lower is better), with `seeded` routes in the initial population.
-pub fn evolve(segments: &[Segment], start: Point, cost: &Cost, seeded: Vec<Order>, settings: &GaSettings, cap: &TimeCap) -> (Order, GaRun) {
+pub fn evolve(segments: &[Segment], start: Point, cost: &Cost, timed: Option<&Timed>, seeded: Vec<Order>, settings: &GaSettings, cap: &TimeCap) -> (Order, GaRun) {
     let n = segments.len();
     if n == 0 {
         return (Vec::new(), GaRun::default());
@@ -87,6 +100,7 @@ pub fn evolve(segments: &[Segment], start: Point, cost: &Cost, seeded: Vec<Order
     let mut rng = Rand::seed_from_u64(settings.seed);
     let near = starts(segments);
     let mut search = LocalSearch::new(segments, &near, cost, settings);
+    search.timed = timed;
     let mut population: Vec<Order> = seeded.into_iter().filter(|o| o.len() == n).collect();
     let mut constructed = 0;
     while population.len() < settings.population.max(2) {
@@ -96,15 +110,21 @@ pub fn evolve(segments: &[Segment], start: Point, cost: &Cost, seeded: Vec<Order
         constructed += 1;
         search.spent += 20 * n as u64;
     }
+    let mut costs: Vec<f64> = Vec::with_capacity(population.len());
     for route in &mut population {
-        search.improve(route, Tries::Sweep, &mut rng, cap);
+        // Past a route that costs nothing the rest stay as they were built.
+        if costs.iter().all(|&c| c > 0.0) {
+            search.improve(route, Tries::Sweep, &mut rng, cap);
+        }
+        costs.push(cost(route));
     }
-    let mut costs: Vec<f64> = population.iter().map(|r| cost(r)).collect();
     search.spent += (population.len() * n) as u64;
     let (mut best, mut best_cost) = best_of(&population, &costs);
     let mut run = GaRun { cost: best_cost, ..GaRun::default() };
     let mut stalled = 0;
-    while stalled < settings.stall {
+    // Every objective is a sum of terms of 0 or more: a route that costs
+    // nothing (heat's, with no mark near one made just before) is the best.
+    while stalled < settings.stall && best_cost > 0.0 {
         if search.spent >= settings.budget {
             run.stopped_by = SearchStop::Budget;
             break;
@@ -245,6 +265,10 @@ struct LocalSearch<'a> {
     /// when first needed: a route is searched many times over.
     near_ends: Vec<(u32, bool)>,
     near_known: Vec<bool>,
+    /// Where the objective is timed, and when each gene of the route being
+    /// searched is made.
+    timed: Option<&'a Timed<'a>>,
+    starts: Vec<f64>,
 }
 
 impl<'a> LocalSearch<'a> {
@@ -264,6 +288,8 @@ impl<'a> LocalSearch<'a> {
             new: Vec::new(),
             near_ends: vec![(u32::MAX, false); ends * settings.neighbours],
             near_known: vec![false; ends],
+            timed: None,
+            starts: Vec::new(),
         }
     }
 
@@ -282,7 +308,8 @@ impl<'a> LocalSearch<'a> {
             self.at[g as usize] = k as u32;
         }
         // Priced on the whole route, a move costs n: a few random tries only.
-        let tries = if self.local { tries } else { Tries::Random(2) };
+        let tries = if self.local || self.timed.is_some() { tries } else { Tries::Random(2) };
+        self.time_route(route);
         let mut current = if self.local { 0.0 } else { (self.cost)(route) };
         let mut moves = Vec::with_capacity(8 * self.neighbours);
         // A sweep tries every gene, and again every gene beside a change.
@@ -295,7 +322,8 @@ impl<'a> LocalSearch<'a> {
             Tries::Random(count) => count,
         };
         for t in 0..most {
-            if self.spent >= self.budget || (t % 256 == 255 && cap.reached()) {
+            // (A route that costs nothing cannot be bettered.)
+            if self.spent >= self.budget || (t % 256 == 255 && cap.reached()) || (!self.local && current <= 0.0) {
                 return;
             }
             let i = match tries {
@@ -330,6 +358,7 @@ impl<'a> LocalSearch<'a> {
                     }
                 }
                 self.apply(route, m);
+                self.time_route(route);
                 current += delta;
             }
         }
@@ -381,6 +410,9 @@ impl<'a> LocalSearch<'a> {
     /// where the objective is not local).
     fn delta(&mut self, route: &Order, m: Move, current: f64) -> f64 {
         let n = route.len();
+        if let Some(timed) = self.timed {
+            return self.delta_in_time(route, m, timed.horizon);
+        }
         if !self.local {
             let mut changed = route.clone();
             let mut at = std::mem::take(&mut self.at);
@@ -460,6 +492,66 @@ impl<'a> LocalSearch<'a> {
                 self.price_new() - old
             }
         }
+    }
+
+    /// When each gene of `route` is made, where the objective is timed.
+    fn time_route(&mut self, route: &Order) {
+        if let Some(timed) = self.timed {
+            self.starts = (timed.starts)(route);
+            debug_assert_eq!(self.starts.len(), route.len(), "one start per gene");
+            self.spent += route.len() as u64;
+        }
+    }
+
+    /// `delta` for a timed objective: priced on the genes from `horizon`
+    /// before the first gene `m` changes to `horizon` after the last (and
+    /// `CONTEXT` more either side, for the terms that see neighbours). Pairs
+    /// of marks further apart add nothing, before the move or after it: the
+    /// genes before the change keep their times, and those after it all
+    /// shift by the same amount.
+    fn delta_in_time(&mut self, route: &Order, m: Move, horizon: f64) -> f64 {
+        let n = route.len();
+        let (first, last) = match m {
+            Move::Reverse { p, q } => (p, q),
+            Move::Shift { s, len, after, .. } if after < s => (after + 1, s + len - 1),
+            Move::Shift { s, after, .. } => (s, after),
+        };
+        let starts = &self.starts;
+        let (before, after) = (first.saturating_sub(1), (last + 1).min(n - 1));
+        let mut lo = before;
+        while lo > 0 && starts[before] - starts[lo] < horizon {
+            lo -= 1;
+        }
+        let mut hi = after;
+        while hi + 1 < n && starts[hi] - starts[after] < horizon {
+            hi += 1;
+        }
+        let (lo, hi) = (lo.saturating_sub(CONTEXT), (hi + 1 + CONTEXT).min(n));
+        let old = self.price_old(route, lo..hi);
+        let turn = |&x: &(u32, bool)| turned(self.segments, x);
+        self.new.clear();
+        match m {
+            Move::Reverse { p, q } => {
+                self.new.extend_from_slice(&route[lo..p]);
+                self.new.extend(route[p..=q].iter().rev().map(turn));
+                self.new.extend_from_slice(&route[q + 1..hi]);
+            }
+            Move::Shift { s, len, flip, after } => {
+                let chain: Vec<(u32, bool)> = if flip { route[s..s + len].iter().rev().map(turn).collect() } else { route[s..s + len].to_vec() };
+                if after < s {
+                    self.new.extend_from_slice(&route[lo..=after]);
+                    self.new.extend_from_slice(&chain);
+                    self.new.extend_from_slice(&route[after + 1..s]);
+                    self.new.extend_from_slice(&route[s + len..hi]);
+                } else {
+                    self.new.extend_from_slice(&route[lo..s]);
+                    self.new.extend_from_slice(&route[s + len..=after]);
+                    self.new.extend_from_slice(&chain);
+                    self.new.extend_from_slice(&route[after + 1..hi]);
+                }
+            }
+        }
+        self.price_new() - old
     }
 
     fn price_old(&mut self, route: &Order, span: std::ops::Range<usize>) -> f64 {
@@ -618,14 +710,16 @@ mod tests {
 
     /// Every move the mutation tries, priced on the genes around it, against
     /// the whole route's cost before and after it.
-    fn moves_priced_locally_cost_what_they_cost(segments: &[Segment], cost: &Cost, seed: u64) {
+    fn moves_priced_locally_cost_what_they_cost(segments: &[Segment], cost: &Cost, timed: Option<&Timed>, seed: u64) {
         let mut rng = Rand::seed_from_u64(seed);
         let near = starts(segments);
         let mut search = LocalSearch::new(segments, &near, cost, &GaSettings::default());
+        search.timed = timed;
         let mut route = construct(segments, near.clone(), Point::origin(), 6, &mut rng);
         for (k, &(g, _)) in route.iter().enumerate() {
             search.at[g as usize] = k as u32;
         }
+        search.time_route(&route);
         let (mut tried, mut kinds) = (0, [0usize; 2]);
         for _ in 0..300 {
             let i = rng.random_range(0..route.len());
@@ -644,6 +738,7 @@ mod tests {
             // Walk on: the first move, if any.
             if let Some(&m) = moves.first() {
                 search.apply(&mut route, m);
+                search.time_route(&route);
             }
         }
         assert!(tried > 500 && kinds.iter().all(|&k| k > 50), "{tried} moves, {kinds:?}");
@@ -661,7 +756,20 @@ mod tests {
             for spec in ["time", "turns", "length", "time+0.3*turns"] {
                 let objective = parse(spec).unwrap();
                 let cost = |o: &[(u32, bool)]| super::super::price(super::super::marks(o, &forward), objective.as_ref(), &ctx);
-                moves_priced_locally_cost_what_they_cost(&hatch, &cost, 7);
+                moves_priced_locally_cost_what_they_cost(&hatch, &cost, None, 7);
+            }
+            // Heat, and heat with time, priced on the marks made within the
+            // cooling time (a few of the route's hundred, its neighbours near).
+            let ctx = ObjectiveContext { heat_radius: 4.0, cooling_time: 1.0, ..ctx };
+            let starts = |o: &[(u32, bool)]| ctx.motion.timeline(&super::super::marks(o, &forward).collect::<Vec<_>>()).0;
+            for spec in ["heat", "time+3*heat"] {
+                let objective = parse(spec).unwrap();
+                let cost = |o: &[(u32, bool)]| super::super::price(super::super::marks(o, &forward), objective.as_ref(), &ctx);
+                let whole = cost(&(0..hatch.len() as u32).map(|g| (g, false)).collect::<Vec<_>>());
+                let took = *starts(&(0..hatch.len() as u32).map(|g| (g, false)).collect::<Vec<_>>()).last().unwrap();
+                assert!(whole > 1.0 && took > 5.0, "near marks heat each other ({whole}), the route takes many cooling times ({took} s)");
+                let timed = Timed { horizon: objective.horizon(&ctx).unwrap(), starts: &starts };
+                moves_priced_locally_cost_what_they_cost(&hatch, &cost, Some(&timed), 5);
             }
         }
         // Grid points, the route's links marked rest to rest, going on straight through a point.
@@ -672,7 +780,7 @@ mod tests {
                 let links: Vec<Mark> = o.windows(2).map(|w| Mark::straight(points[w[0].0 as usize].from, points[w[1].0 as usize].from, 200.0, false)).collect();
                 objective.cost(&links, &ctx)
             };
-            moves_priced_locally_cost_what_they_cost(&points, &cost, 11);
+            moves_priced_locally_cost_what_they_cost(&points, &cost, None, 11);
         }
     }
 
@@ -683,11 +791,11 @@ mod tests {
         // A poor route given: every other segment first.
         let given: Order = (0..80u32).step_by(2).chain((1..80u32).step_by(2)).map(|g| (g, false)).collect();
         let settings = GaSettings { stall: 10, ..GaSettings::default() };
-        let (best, run) = evolve(&segments, Point::origin(), &cost, vec![given.clone()], &settings, &TimeCap::none());
+        let (best, run) = evolve(&segments, Point::origin(), &cost, None, vec![given.clone()], &settings, &TimeCap::none());
         valid(&best, &segments);
         assert!((cost(&best) - run.cost).abs() < 1e-9 && run.cost <= cost(&given));
         assert!(run.cost < 0.5 * cost(&given), "{} against {}", run.cost, cost(&given));
-        let (again, _) = evolve(&segments, Point::origin(), &cost, vec![given], &settings, &TimeCap::none());
+        let (again, _) = evolve(&segments, Point::origin(), &cost, None, vec![given], &settings, &TimeCap::none());
         assert_eq!(best, again);
     }
 }

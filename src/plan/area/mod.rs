@@ -250,7 +250,9 @@ pub fn plan_fill(job: &Job, segments: &[Segment], machine: &MachineConfig, mode:
     let cost = |order: &[(u32, bool)]| price(marks(order, &forward), objective, &ctx);
     let settings = GaSettings { population: machine.fill.population, stall: machine.fill.stall_generations, seed: machine.galvo.seed, local: objective.is_local(), ..GaSettings::default() };
     let cap = TimeCap::after(machine.galvo.time_limit.map(std::time::Duration::from_secs_f64));
-    ga::evolve(segments, start, &cost, vec![raster(segments)], &settings, &cap)
+    let starts = |order: &[(u32, bool)]| ctx.motion.timeline(&marks(order, &forward).collect::<Vec<_>>()).0;
+    let timed = objective.horizon(&ctx).map(|horizon| ga::Timed { horizon, starts: &starts });
+    ga::evolve(segments, start, &cost, timed.as_ref(), vec![raster(segments)], &settings, &cap)
 }
 
 /// How the hatch lines of fills are ordered.
