@@ -761,6 +761,11 @@ pub struct CuttingConfig {
     /// order with the fewest of them.
     #[serde(default)]
     pub sharp_angle_cost: f64,
+    /// What the search minimises: `length` (air moves plus pierce costs, the
+    /// default), `time` (each air move's machine time, rest to rest, the axes
+    /// at their limits), or a weighted sum of the two; `--objective` sets it.
+    #[serde(default = "default_route_objective")]
+    pub objective: String,
 }
 
 /// Which search improves the cutting planner's construction (`[cutting] search`).
@@ -812,6 +817,11 @@ pub struct GalvoConfig {
     /// Seed of the planners' random choices; `--seed` overrides it.
     #[serde(default = "default_galvo_seed")]
     pub seed: u64,
+    /// What the route minimises: `length` (idle stroke, the default), `time`
+    /// (the job's machine time: routes from several seeds, each judged by
+    /// its planned motion), or a weighted sum of the two; `--objective` sets it.
+    #[serde(default = "default_route_objective")]
+    pub objective: String,
 }
 
 /// What the planners minimise, and the fill planner's genetic search
@@ -841,6 +851,9 @@ pub struct FillConfig {
 fn default_objective() -> String {
     "time".into()
 }
+fn default_route_objective() -> String {
+    "length".into()
+}
 fn default_heat_radius() -> f64 {
     1.0
 }
@@ -868,6 +881,19 @@ impl Default for FillConfig {
 
 /// The terms an objective may weigh (`plan::objective` gives each its meaning).
 pub const OBJECTIVE_TERMS: [&str; 4] = ["length", "time", "turns", "heat"];
+
+/// The terms the cutting and galvo searches can weigh: the others price a
+/// route by its neighbouring marks' turns and heat, which a fill has.
+pub const ROUTE_OBJECTIVE_TERMS: [&str; 2] = ["length", "time"];
+
+/// A cutting or galvo objective's weighted terms: `length`, `time`, `time+0.5*length`.
+pub fn route_objective_terms(s: &str) -> std::result::Result<Vec<(f64, &'static str)>, String> {
+    let terms = objective_terms(s)?;
+    match terms.iter().find(|(_, t)| !ROUTE_OBJECTIVE_TERMS.contains(t)) {
+        Some((_, t)) => Err(format!("objective '{s}': '{t}' orders fills only (the cutting and galvo searches weigh length and time)")),
+        None => Ok(terms),
+    }
+}
 
 /// An objective's weighted terms: `time`, `time+0.2*turns`, `0.5*time+2*heat`.
 pub fn objective_terms(s: &str) -> std::result::Result<Vec<(f64, &'static str)>, String> {
@@ -909,6 +935,7 @@ impl Default for GalvoConfig {
             direction_weight_single_field: default_direction_weight_single_field(),
             time_limit: None,
             seed: default_galvo_seed(),
+            objective: default_route_objective(),
         }
     }
 }
@@ -934,6 +961,7 @@ impl Default for CuttingConfig {
             bridge_max: 0.0,
             precut_length: 0.0,
             sharp_angle_cost: 0.0,
+            objective: default_route_objective(),
         }
     }
 }
@@ -1417,6 +1445,8 @@ impl MachineConfig {
         let g = &self.galvo;
         DIRECTION_WEIGHT.check("galvo.direction_weight", g.direction_weight)?;
         DIRECTION_WEIGHT.check("galvo.direction_weight_single_field", g.direction_weight_single_field)?;
+        route_objective_terms(&c.objective).map_err(|e| format!("cutting.objective: {e}"))?;
+        route_objective_terms(&g.objective).map_err(|e| format!("galvo.objective: {e}"))?;
         let f = &self.fill;
         objective_terms(&f.objective).map_err(|e| format!("fill.objective: {e}"))?;
         in_range("fill.heat_radius", f.heat_radius, 0.001, 1000.0, "mm")?;

@@ -151,3 +151,29 @@ fn an_order_that_cuts_after_a_part_has_fallen_is_refused_unless_overridden() {
     assert_eq!(report["precedence_violations"], count);
     assert!(report["sim"]["job_time_s"].as_f64().unwrap() > 0.0 && recording.exists());
 }
+
+/// `[cutting] objective = "time"`: the search prices air moves by their
+/// machine time (axes at once), and the length route is judged beside it by
+/// its planned motion, so the plan is never slower than the length plan and
+/// keeps every rule; the report names the objective.
+#[test]
+fn the_time_objective_never_cuts_slower_than_the_length_objective() {
+    let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/cut-parts.dxf");
+    let mut machine = flatbed(30.0);
+    machine.cutting.time_limit = None;
+    let length = run::plan(&sample, &machine, PlannerKind::Auto, None).unwrap();
+    machine.cutting.objective = "time".into();
+    let time = run::plan(&sample, &machine, PlannerKind::Auto, None).unwrap();
+    assert_eq!((length.report.objective.as_str(), time.report.objective.as_str()), ("length", "time"));
+    assert_eq!(time.report.precedence_violations, Some(0));
+    assert!(time.report.trajectory_time_s <= length.report.trajectory_time_s, "{} s against {} s", time.report.trajectory_time_s, length.report.trajectory_time_s);
+    // Turns and heat order fills, not cuts.
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml")).unwrap();
+    assert!(text.matches("objective = \"length\"").count() == 1 && !text.contains("[galvo]"));
+    let cutting = text.replace("objective = \"length\"", "objective = \"time+heat\"");
+    let galvo = format!("{text}\n[galvo]\nobjective = \"turns\"\n");
+    for (bad, name) in [(cutting, "cutting.objective"), (galvo, "galvo.objective")] {
+        let err = MachineConfig::parse(&bad, "bad.toml").unwrap_err().to_string();
+        assert!(err.contains(name) && err.contains("fills only"), "{err}");
+    }
+}

@@ -185,3 +185,21 @@ fn dry_run_within_limits(name: &str, planned: &run::Planned, machine: &MachineCo
     assert!(dry.outcome.completed, "{name}: {:?}", dry.outcome);
     sim
 }
+
+/// `[galvo] objective = "time"`: routes from the next seeds are planned too
+/// and each judged by its planned motion, so the job is never slower than
+/// the length route, and on SC278C18 (on the fly, the stage falling behind
+/// at some field changes) faster; the report names the objective.
+#[test]
+fn the_time_objective_never_marks_slower_than_the_length_objective() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_CONFIG_PATH);
+    let mut machine = MachineConfig::load(Some(&path)).unwrap();
+    let job = data().join("SC278C18.svg");
+    let length = run::plan(&job, &machine, PlannerKind::Auto, None).unwrap();
+    machine.galvo.objective = "time".into();
+    let time = run::plan(&job, &machine, PlannerKind::Auto, None).unwrap();
+    assert_eq!((length.report.objective.as_str(), time.report.objective.as_str()), ("length", "time"));
+    let (t, l) = (time.report.trajectory_time_s, length.report.trajectory_time_s);
+    assert!(t < l, "{t} s against {l} s");
+    assert_ne!(time.report.idle_stroke_mm, length.report.idle_stroke_mm, "another route");
+}

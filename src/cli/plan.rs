@@ -46,9 +46,11 @@ pub struct JobArgs {
     /// (default: the config's [galvo] seed).
     #[arg(long)]
     seed: Option<u64>,
-    /// What the fill planner minimises: time, length, turns, heat, or a
-    /// weighted sum such as "time+0.2*turns" (default: the config's [fill]
-    /// objective, time).
+    /// What the planners minimise: time (machine time), length (laser-off
+    /// travel), turns, heat, or a weighted sum such as "time+0.2*turns"
+    /// (default: the config's [fill], [cutting] and [galvo] objective: time
+    /// for fills, length for cutting and galvo routes, which weigh length
+    /// and time only).
     #[arg(long)]
     objective: Option<String>,
     /// DXF: the unit the drawing was made in, whatever its header says
@@ -80,6 +82,12 @@ impl JobArgs {
         if let Some(objective) = &self.objective {
             laserd::config::objective_terms(objective).map_err(|e| Error::Config(format!("--objective: {e}")))?;
             machine.fill.objective = objective.clone();
+            // Turns and heat order fills only: the cutting and galvo routes
+            // keep their own then (the report's `objective` says each one's).
+            if laserd::config::route_objective_terms(objective).is_ok() {
+                machine.cutting.objective = objective.clone();
+                machine.galvo.objective = objective.clone();
+            }
         }
         import_flags(&mut machine, &self.job, self.units, self.place)?;
         let mut planned = run::plan(&self.job, &machine, self.planner, self.mode)?;

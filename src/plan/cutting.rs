@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use super::ecp::checker::{self, Violation};
 use super::ecp::model::{CuttingModel, Polyline};
-use super::ecp::{ils, solve};
+use super::ecp::{ils, solve, Metric};
 use super::fields::centre_within_travel;
 use super::stop::SearchStop;
 use super::{check_reach, PathGroup, PlanContext, PlanOutcome, PlannedPath, Planner, Sequence};
@@ -83,6 +83,17 @@ pub fn cutting_model(job: &Job, start: Point, settings: &CuttingConfig) -> Resul
     Ok(CuttingModel::new(topology(job, settings)?, start, settings.pierce_cost))
 }
 
+/// How the search prices an air move under `[cutting] objective`: its
+/// length, or its machine time on the axes that make it, or a mix.
+fn metric(ctx: &PlanContext) -> Result<Metric> {
+    let terms = crate::config::route_objective_terms(&ctx.machine.cutting.objective).map_err(|e| Error::Config(format!("cutting.objective: {e}")))?;
+    let weight = |name: &str| terms.iter().filter(|(_, t)| *t == name).map(|(w, _)| w).sum::<f64>();
+    Ok(match (weight("length"), weight("time")) {
+        (_, 0.0) => Metric::Euclidean,
+        (length, time) => Metric::Machine { length, time, motion: super::area::objective_context(ctx.machine, ctx.mode).motion },
+    })
+}
+
 pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     let started = Instant::now();
     check_reach(job, ctx.machine, ctx.mode)?;
@@ -97,6 +108,7 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
     let held = super::tabs::held(&super::tabs::place(job, ctx.machine)?);
     model.instance.inner_outer.retain(|&(_, outer)| !held.get(outer).copied().unwrap_or(false));
     model.charge_sharp_turns(settings.sharp_angle_cost, settings.corner_angle);
+    model.instance.metric = metric(ctx)?;
     let inst = &model.instance;
     // A time limit (none by default) is for the whole planning step, topology
     // included, with a little kept back for turning the route into paths.
