@@ -27,8 +27,10 @@ pub struct PlanReport {
     pub mark_length_mm: f64,
     pub idle_stroke_mm: f64,
     pub plan_time_s: f64,
-    /// What the fill planner minimised (`[fill] objective`, `--objective`):
-    /// `time`, `length`, `turns`, `heat` or a weighted sum.
+    /// What the planners minimised (`[fill]`, `[cutting]`, `[galvo]
+    /// objective`, `--objective`): `time`, `length`, `turns`, `heat` or a
+    /// weighted sum; each planner's (`fill: time, hha: length`) where they
+    /// differ, `none` for the raster.
     #[serde(default)]
     pub objective: String,
     /// `budget` when every search ran its budget of work (the plan is the
@@ -153,8 +155,13 @@ impl PlanReport {
             _ => String::new(),
         };
         s.push_str(&format!(
-            "{}: {} geometries{}, planner {}, mode {}\n",
-            self.job, self.geometries, fields, self.planner, self.mode
+            "{}: {} geometries{}, planner {}{}, mode {}\n",
+            self.job,
+            self.geometries,
+            fields,
+            self.planner,
+            if self.objective.is_empty() || self.objective == "none" { String::new() } else { format!(" (objective {})", self.objective) },
+            self.mode
         ));
         let precedence = self.precedence_violations.map_or("unknown".to_string(), |n| n.to_string());
         if self.pierces > 0 || self.cut_length_mm > 0.0 {
