@@ -895,6 +895,13 @@ pub fn route_objective_terms(s: &str) -> std::result::Result<Vec<(f64, &'static 
     }
 }
 
+/// A cutting or galvo objective's weights of length and of time.
+pub fn route_objective_weights(s: &str) -> std::result::Result<(f64, f64), String> {
+    let terms = route_objective_terms(s)?;
+    let weight = |term: &str| terms.iter().filter(|(_, t)| *t == term).map(|(w, _)| w).sum::<f64>();
+    Ok((weight("length"), weight("time")))
+}
+
 /// An objective's weighted terms: `time`, `time+0.2*turns`, `0.5*time+2*heat`.
 pub fn objective_terms(s: &str) -> std::result::Result<Vec<(f64, &'static str)>, String> {
     let known = "length, time, turns, heat, or a weighted sum such as time+0.2*turns";

@@ -290,11 +290,7 @@ impl RouteObjective {
             PlannerKind::Auto | PlannerKind::Raster => (marks, cuts.contains(&true)),
             PlannerKind::Nearest => (false, false),
         };
-        let weights = |name: &str, spec: &str| -> Result<(f64, f64)> {
-            let terms = crate::config::route_objective_terms(spec).map_err(|e| Error::Config(format!("{name}.objective: {e}")))?;
-            let weight = |term: &str| terms.iter().filter(|(_, t)| *t == term).map(|(w, _)| w).sum::<f64>();
-            Ok((weight("length"), weight("time")))
-        };
+        let weights = |name: &str, spec: &str| crate::config::route_objective_weights(spec).map_err(|e| Error::Config(format!("{name}.objective: {e}")));
         let galvo = if galvo { weights("galvo", &machine.galvo.objective)? } else { (1.0, 0.0) };
         let cutting = if cutting { weights("cutting", &machine.cutting.objective)? } else { (1.0, 0.0) };
         let (length, time) = if galvo.1 > 0.0 || cutting.1 == 0.0 { galvo } else { cutting };

@@ -164,11 +164,12 @@ pub fn fill_bench(machine: &MachineConfig, job_path: &std::path::Path, spacing: 
             let (order, run) = evolve(&genes, genes[0].from, &cost, timed.as_ref(), rasters(&grid), &settings, &TimeCap::none());
             let converged_s = started.elapsed().as_secs_f64();
             let route: Vec<Mark> = links(&genes, &order, speed).collect();
+            let (detour_mm, turns) = objective::turns(&route);
             runs.push(FillRun {
                 seed,
                 length_mm: route.iter().map(|m| m.length).sum(),
-                turns: objective::turns(&route).1,
-                detour_mm: objective::turns(&route).0,
+                turns,
+                detour_mm,
                 time_s: objective::route_time(&route, &ctx.motion),
                 heat: objective::heat(&route, &ctx),
                 generations: run.generations,

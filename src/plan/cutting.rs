@@ -86,9 +86,8 @@ pub fn cutting_model(job: &Job, start: Point, settings: &CuttingConfig) -> Resul
 /// How the search prices an air move under `[cutting] objective`: its
 /// length, or its machine time on the axes that make it, or a mix.
 fn metric(ctx: &PlanContext) -> Result<Metric> {
-    let terms = crate::config::route_objective_terms(&ctx.machine.cutting.objective).map_err(|e| Error::Config(format!("cutting.objective: {e}")))?;
-    let weight = |name: &str| terms.iter().filter(|(_, t)| *t == name).map(|(w, _)| w).sum::<f64>();
-    Ok(match (weight("length"), weight("time")) {
+    let weights = crate::config::route_objective_weights(&ctx.machine.cutting.objective).map_err(|e| Error::Config(format!("cutting.objective: {e}")))?;
+    Ok(match weights {
         (_, 0.0) => Metric::Euclidean,
         (length, time) => Metric::Machine { length, time, motion: super::area::objective_context(ctx.machine, ctx.mode).motion },
     })

@@ -159,6 +159,17 @@ pub fn evolve(segments: &[Segment], start: Point, cost: &Cost, timed: Option<&Ti
     (best, run)
 }
 
+/// The chain a shift `m` moves, as it goes in (turned round where `flip`), onto `out`.
+fn chain(out: &mut Vec<(u32, bool)>, route: &Order, m: Move, segments: &[Segment]) {
+    if let Move::Shift { s, len, flip, .. } = m {
+        if flip {
+            out.extend(route[s..s + len].iter().rev().map(|&x| turned(segments, x)));
+        } else {
+            out.extend_from_slice(&route[s..s + len]);
+        }
+    }
+}
+
 fn best_of(population: &[Order], costs: &[f64]) -> (Order, f64) {
     let k = (0..costs.len()).min_by(|&a, &b| costs[a].total_cmp(&costs[b])).expect("a population");
     (population[k].clone(), costs[k])
@@ -445,20 +456,10 @@ impl<'a> LocalSearch<'a> {
             Move::Reverse { p, q } => {
                 let span = p.saturating_sub(c)..(q + 1 + c).min(n);
                 let old = self.price_old(route, span.clone());
-                self.new.clear();
-                self.new.extend_from_slice(&route[span.start..p]);
-                self.new.extend(route[p..=q].iter().rev().map(turn));
-                self.new.extend_from_slice(&route[q + 1..span.end]);
+                self.changed_span(route, m, span);
                 self.price_new() - old
             }
-            Move::Shift { s, len, flip, after } => {
-                let chain = |out: &mut Vec<(u32, bool)>| {
-                    if flip {
-                        out.extend(route[s..s + len].iter().rev().map(turn));
-                    } else {
-                        out.extend_from_slice(&route[s..s + len]);
-                    }
-                };
+            Move::Shift { s, len, after, .. } => {
                 // Where the chain leaves and where it goes in (before the gene after `after`).
                 let (out_lo, out_hi) = (s.saturating_sub(c), (s + len + c).min(n));
                 let (in_lo, in_hi) = ((after + 1).saturating_sub(c), (after + 1 + c).min(n));
@@ -472,24 +473,43 @@ impl<'a> LocalSearch<'a> {
                     let left = self.price_new();
                     self.new.clear();
                     self.new.extend_from_slice(&route[in_lo..=after]);
-                    chain(&mut self.new);
+                    chain(&mut self.new, route, m, segments);
                     self.new.extend_from_slice(&route[after + 1..in_hi]);
                     return (left - old) + self.price_new();
                 }
-                let (lo, hi) = (out_lo.min(in_lo), out_hi.max(in_hi));
-                old = self.price_old(route, lo..hi);
-                if after < s {
-                    self.new.extend_from_slice(&route[lo..=after]);
-                    chain(&mut self.new);
-                    self.new.extend_from_slice(&route[after + 1..s]);
-                    self.new.extend_from_slice(&route[s + len..hi]);
-                } else {
-                    self.new.extend_from_slice(&route[lo..s]);
-                    self.new.extend_from_slice(&route[s + len..=after]);
-                    chain(&mut self.new);
-                    self.new.extend_from_slice(&route[after + 1..hi]);
-                }
+                let span = out_lo.min(in_lo)..out_hi.max(in_hi);
+                old = self.price_old(route, span.clone());
+                self.changed_span(route, m, span);
                 self.price_new() - old
+            }
+        }
+    }
+
+    /// `route[span]` as `m` leaves it, into `new` (`span` holds every gene
+    /// `m` moves, and the place it moves them to).
+    fn changed_span(&mut self, route: &Order, m: Move, span: std::ops::Range<usize>) {
+        let (lo, hi, segments) = (span.start, span.end, self.segments);
+        let turn = |&x: &(u32, bool)| turned(segments, x);
+        let new = &mut self.new;
+        new.clear();
+        match m {
+            Move::Reverse { p, q } => {
+                new.extend_from_slice(&route[lo..p]);
+                new.extend(route[p..=q].iter().rev().map(turn));
+                new.extend_from_slice(&route[q + 1..hi]);
+            }
+            Move::Shift { s, len, after, .. } => {
+                if after < s {
+                    new.extend_from_slice(&route[lo..=after]);
+                    chain(new, route, m, segments);
+                    new.extend_from_slice(&route[after + 1..s]);
+                    new.extend_from_slice(&route[s + len..hi]);
+                } else {
+                    new.extend_from_slice(&route[lo..s]);
+                    new.extend_from_slice(&route[s + len..=after]);
+                    chain(new, route, m, segments);
+                    new.extend_from_slice(&route[after + 1..hi]);
+                }
             }
         }
     }
@@ -526,31 +546,9 @@ impl<'a> LocalSearch<'a> {
         while hi + 1 < n && starts[hi] - starts[after] < horizon {
             hi += 1;
         }
-        let (lo, hi) = (lo.saturating_sub(CONTEXT), (hi + 1 + CONTEXT).min(n));
-        let old = self.price_old(route, lo..hi);
-        let turn = |&x: &(u32, bool)| turned(self.segments, x);
-        self.new.clear();
-        match m {
-            Move::Reverse { p, q } => {
-                self.new.extend_from_slice(&route[lo..p]);
-                self.new.extend(route[p..=q].iter().rev().map(turn));
-                self.new.extend_from_slice(&route[q + 1..hi]);
-            }
-            Move::Shift { s, len, flip, after } => {
-                let chain: Vec<(u32, bool)> = if flip { route[s..s + len].iter().rev().map(turn).collect() } else { route[s..s + len].to_vec() };
-                if after < s {
-                    self.new.extend_from_slice(&route[lo..=after]);
-                    self.new.extend_from_slice(&chain);
-                    self.new.extend_from_slice(&route[after + 1..s]);
-                    self.new.extend_from_slice(&route[s + len..hi]);
-                } else {
-                    self.new.extend_from_slice(&route[lo..s]);
-                    self.new.extend_from_slice(&route[s + len..=after]);
-                    self.new.extend_from_slice(&chain);
-                    self.new.extend_from_slice(&route[after + 1..hi]);
-                }
-            }
-        }
+        let span = lo.saturating_sub(CONTEXT)..(hi + 1 + CONTEXT).min(n);
+        let old = self.price_old(route, span.clone());
+        self.changed_span(route, m, span);
         self.price_new() - old
     }
 
