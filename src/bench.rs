@@ -4,6 +4,7 @@
 //! and once with send-response streaming as the baseline, in the same run.
 
 pub mod fill;
+pub mod thermal;
 pub mod vs_grbl;
 
 use schemars::JsonSchema;

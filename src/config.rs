@@ -268,6 +268,12 @@ pub struct MachineConfig {
     /// The cutting head's Z axis; none: the machine has X and Y only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub head: Option<HeadConfig>,
+    /// The sheet's material, for thermal planning (`--thermal`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub material: Option<MaterialConfig>,
+    /// The plate heat model and the thermal planner (`--thermal`).
+    #[serde(default)]
+    pub thermal: ThermalConfig,
     pub default_layer: String,
     #[serde(rename = "layer")]
     pub layers: Vec<LayerConfig>,
@@ -325,6 +331,126 @@ pub struct LaserConfig {
     pub on_delay: f64,
     #[serde(default)]
     pub off_delay: f64,
+    /// The source's optical output at `max_power`, W: the heat a cut puts
+    /// into the plate (`[material] absorptivity` of it). Needed by `--thermal`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub watts: Option<f64>,
+}
+
+/// A sheet material and its thickness (`[material]`, seed 000's thermal
+/// model): the constants of the plate heat model and the temperatures above
+/// which a feature loses its quality. SI units, temperatures in °C.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialConfig {
+    /// What it is, for the report ("mild steel S235").
+    #[serde(default)]
+    pub name: String,
+    /// Plate thickness, mm.
+    pub thickness: f64,
+    /// kg/m³.
+    pub density: f64,
+    /// J/(kg·K).
+    pub specific_heat: f64,
+    /// W/(m·K).
+    pub conductivity: f64,
+    /// Of the plate's faces, 0 to 1 (radiation).
+    pub emissivity: f64,
+    /// The share of the beam's power that stays in the plate as heat (the
+    /// rest leaves with the molten kerf and the gas, or is reflected).
+    pub absorptivity: f64,
+    /// A pierce starting where the plate is hotter than this, °C, loses its quality.
+    pub critical_pierce: f64,
+    /// A cut running where the plate is hotter than this, °C.
+    pub critical_cut: f64,
+    /// A sharp corner cut where the plate is hotter than this burns off, °C.
+    pub critical_corner: f64,
+}
+
+/// The plate heat model and the thermal planner (`[thermal]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ThermalConfig {
+    /// Plan cutting routes that keep the plate below the material's critical
+    /// temperatures, and report the heat (`--thermal` sets it).
+    #[serde(default)]
+    pub enabled: bool,
+    /// Side of the model's square cells, mm.
+    #[serde(default = "default_thermal_cell")]
+    pub cell: f64,
+    /// The air around the plate and the plate at the start, °C.
+    #[serde(default = "default_ambient")]
+    pub ambient: f64,
+    /// Convection from the plate's top and bottom faces, W/(m²·K).
+    #[serde(default = "default_convection_top")]
+    pub convection_top: f64,
+    #[serde(default = "default_convection_bottom")]
+    pub convection_bottom: f64,
+    /// How the machine handles a sharp corner (a turn sharper than
+    /// `[cutting] corner_angle`): seconds the beam dwells there at cutting power.
+    #[serde(default)]
+    pub corner_dwell: f64,
+    /// Seed 000's responsiveness (0 to 1): a violation adds to the penalty of
+    /// the decision k places before it this power k of its size.
+    #[serde(default = "default_responsiveness")]
+    pub responsiveness: f64,
+    /// A violation of its whole critical temperature adds this much to the
+    /// penalty of the decision just before it, mm of air move.
+    #[serde(default = "default_thermal_penalty")]
+    pub penalty: f64,
+    /// A violation raises the jumps into its path from every cut ending
+    /// within this distance too (mm; 0: only the jump the route made): a
+    /// neighbour of the heat is as hot a way in.
+    #[serde(default = "default_thermal_reach")]
+    pub reach: f64,
+    /// Constructions (each searched, then judged by the heat model) before
+    /// the planner gives up on a route without violations and waits instead.
+    #[serde(default = "default_thermal_iterations")]
+    pub iterations: u32,
+}
+
+impl Default for ThermalConfig {
+    fn default() -> Self {
+        ThermalConfig {
+            enabled: false,
+            cell: default_thermal_cell(),
+            ambient: default_ambient(),
+            convection_top: default_convection_top(),
+            convection_bottom: default_convection_bottom(),
+            corner_dwell: 0.0,
+            responsiveness: default_responsiveness(),
+            penalty: default_thermal_penalty(),
+            reach: default_thermal_reach(),
+            iterations: default_thermal_iterations(),
+        }
+    }
+}
+
+fn default_thermal_cell() -> f64 {
+    5.0
+}
+fn default_ambient() -> f64 {
+    20.0
+}
+// Still air over a hot horizontal plate: about 10-25 W/(m²·K) above, less
+// below (a bed of slats shields it).
+fn default_convection_top() -> f64 {
+    15.0
+}
+fn default_convection_bottom() -> f64 {
+    5.0
+}
+fn default_responsiveness() -> f64 {
+    0.7
+}
+fn default_thermal_penalty() -> f64 {
+    200.0
+}
+fn default_thermal_reach() -> f64 {
+    80.0
+}
+fn default_thermal_iterations() -> u32 {
+    40
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -1473,6 +1599,7 @@ impl MachineConfig {
             self.validate_plate(plate)?;
         }
         self.validate_head()?;
+        self.validate_thermal()?;
         if let Some(folder) = self.service.job_folders.iter().find(|f| !Path::new(f).is_absolute()) {
             return Err(format!("service.job_folders: {folder:?} is not an absolute path"));
         }
@@ -1616,6 +1743,36 @@ impl MachineConfig {
     pub fn cuts_parts(&self, layer: &str) -> bool {
         let l = self.layer(layer);
         self.pierce(layer).active() || l.is_some_and(|l| l.kerf > 0.0 || l.lead_in != LeadKind::None || l.lead_out != LeadKind::None)
+    }
+
+    fn validate_thermal(&self) -> std::result::Result<(), String> {
+        if let Some(w) = self.laser.watts {
+            in_range("laser.watts", w, 0.1, 1e6, "W")?;
+        }
+        let t = &self.thermal;
+        in_range("thermal.cell", t.cell, 0.5, 100.0, "mm")?;
+        in_range("thermal.ambient", t.ambient, -50.0, 100.0, "°C")?;
+        in_range("thermal.convection_top", t.convection_top, 0.0, 1e4, "W/(m²·K)")?;
+        in_range("thermal.convection_bottom", t.convection_bottom, 0.0, 1e4, "W/(m²·K)")?;
+        in_range("thermal.corner_dwell", t.corner_dwell, 0.0, 10.0, "s")?;
+        in_range("thermal.responsiveness", t.responsiveness, 0.01, 1.0, "")?;
+        in_range("thermal.penalty", t.penalty, 0.0, 1e6, "mm")?;
+        in_range("thermal.reach", t.reach, 0.0, 10_000.0, "mm")?;
+        in_range("thermal.iterations", t.iterations, 1, 10_000, "constructions")?;
+        if let Some(m) = &self.material {
+            in_range("material.thickness", m.thickness, 0.01, 500.0, "mm")?;
+            in_range("material.density", m.density, 10.0, 30_000.0, "kg/m³")?;
+            in_range("material.specific_heat", m.specific_heat, 10.0, 10_000.0, "J/(kg·K)")?;
+            in_range("material.conductivity", m.conductivity, 0.01, 2_000.0, "W/(m·K)")?;
+            in_range("material.emissivity", m.emissivity, 0.0, 1.0, "")?;
+            in_range("material.absorptivity", m.absorptivity, 0.0, 1.0, "")?;
+            // Above the air it cools to, or nothing could ever be cut after a wait.
+            let critical = |name: &str, v: f64| in_range(name, v, t.ambient + 1.0, 3_000.0, "°C (above thermal.ambient)");
+            critical("material.critical_pierce", m.critical_pierce)?;
+            critical("material.critical_cut", m.critical_cut)?;
+            critical("material.critical_corner", m.critical_corner)?;
+        }
+        Ok(())
     }
 
     fn validate_head(&self) -> std::result::Result<(), String> {
@@ -1887,6 +2044,14 @@ mod tests {
     fn with_value(path: &str, value: toml::Value) -> String {
         let mut doc: toml::Table = toml::from_str(&default_text()).unwrap();
         let parts: Vec<&str> = path.split('.').collect();
+        // Sections the default machine leaves out, complete and valid.
+        if parts[0] == "material" {
+            let steel = "thickness = 6.0\ndensity = 7832.0\nspecific_heat = 434.0\nconductivity = 63.9\nemissivity = 0.79\nabsorptivity = 0.3\ncritical_pierce = 70.0\ncritical_cut = 80.0\ncritical_corner = 60.0";
+            doc.insert("material".into(), toml::Value::Table(toml::from_str(steel).unwrap()));
+        }
+        if parts[0] == "thermal" {
+            doc.entry("thermal").or_insert(toml::Value::Table(toml::Table::new()));
+        }
         let table = match parts[..] {
             [section, _] => doc.get_mut(section).and_then(|s| s.as_table_mut()).unwrap(),
             ["layer", n, _] => doc["layer"].as_array_mut().unwrap()[n.parse::<usize>().unwrap()].as_table_mut().unwrap(),
@@ -1992,6 +2157,25 @@ mod tests {
             ("layer.1.hatch_spacing", F(0.0)),
             ("layer.1.hatch_spacing", F(11.0)),
             ("layer.1.hatch_angle", F(400.0)),
+            ("laser.watts", F(0.0)),
+            ("thermal.cell", F(0.1)),
+            ("thermal.ambient", F(500.0)),
+            ("thermal.convection_top", F(-1.0)),
+            ("thermal.convection_bottom", F(1e9)),
+            ("thermal.corner_dwell", F(100.0)),
+            ("thermal.responsiveness", F(0.0)),
+            ("thermal.penalty", F(f64::NAN)),
+            ("thermal.iterations", I(0)),
+            ("thermal.reach", F(-1.0)),
+            ("material.thickness", F(0.0)),
+            ("material.density", F(1e9)),
+            ("material.specific_heat", F(1.0)),
+            ("material.conductivity", F(1e5)),
+            ("material.emissivity", F(1.5)),
+            ("material.absorptivity", F(-0.1)),
+            ("material.critical_pierce", F(20.0)),
+            ("material.critical_cut", F(1e4)),
+            ("material.critical_corner", F(f64::NAN)),
         ];
         for (path, value) in cases {
             let shown = value.to_string();

@@ -3,7 +3,7 @@
 //! GRBL-style controller (or to the built-in simulator), recording every run.
 //!
 //! The modules follow the pipeline (see ARCHITECTURE.md): a shared base
-//! (error, parallel, job, config, mode), then import → topology → plan →
+//! (error, parallel, job, config, mode), then import → topology → (thermal) → plan →
 //! motion → program → stream, then what uses the whole pipeline (figures,
 //! record, report, plot, gen, run, bench, daemon). No module imports a later
 //! one; tests/layers.rs holds the order and checks it.
@@ -15,6 +15,7 @@ pub mod config;
 pub mod mode;
 pub mod import;
 pub mod topology;
+pub mod thermal;
 pub mod plan;
 pub mod motion;
 pub mod program;

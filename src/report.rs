@@ -138,6 +138,9 @@ pub struct PlanReport {
     /// Only in `dry-run`.
     pub sim: Option<SimFigures>,
     pub recording: Option<String>,
+    /// The plate's heat (`--thermal`, cutting jobs; seed 000); `null` without.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub thermal: Option<ThermalReport>,
     /// Where the machine config came from (`plan` and `dry-run`; absent in
     /// the service's reports, whose config is the service's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -191,6 +194,9 @@ impl PlanReport {
                 s.push_str(&format!("; plate: {edge:.1} mm of edge not cut, {skeleton} skeleton and {remnant} remnant cuts"));
             }
             s.push('\n');
+        }
+        if let Some(thermal) = &self.thermal {
+            s.push_str(&thermal.summary());
         }
         if let (Some(areas), Some(lines)) = (self.fill_areas, self.hatch_lines) {
             s.push_str(&format!("  filling {areas} areas with {lines} hatch lines"));
@@ -299,6 +305,113 @@ impl GcodeReport {
         if let Some(c) = &self.config {
             s.push_str(&format!("  machine config: {c}\n"));
         }
+        s
+    }
+}
+
+/// The plate heat model's verdict on the planned route against the plain
+/// one (the cutting search without it), times as the planner estimates them
+/// (air moves rest to rest at the axes' limits, cuts at their speed).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct ThermalReport {
+    pub material: String,
+    pub cell_mm: f64,
+    /// Operations (pierces, cuts, sharp corners) that start where the plate
+    /// is at or above their critical temperature, on the planned route.
+    pub thermal_violations: usize,
+    /// The largest excess over a critical temperature, °C (0: none).
+    pub max_overheat_c: f64,
+    /// The operation nearest to (or furthest over) its critical temperature.
+    pub hottest: Option<HottestOperation>,
+    /// Waits (laser off, head still) before paths that would still violate:
+    /// the last resort, s in all.
+    pub thermal_wait_s: f64,
+    /// The plain route's violations and overheat.
+    pub plain_violations: usize,
+    pub plain_max_overheat_c: f64,
+    /// Estimated machine time of the plain and the planned route (waits included), s.
+    pub plain_time_s: f64,
+    pub planned_time_s: f64,
+    /// Constructions searched under thermal penalties, and the pairs of cuts penalised.
+    pub iterations: u32,
+    pub penalties: usize,
+    /// Whole-job evaluations of the heat model, their mean time, and its speed.
+    pub evaluations: u32,
+    pub evaluation_s: f64,
+    pub cell_updates_per_s: f64,
+    /// Every operation of the planned route: the temperature it met.
+    pub operations: Vec<OperationHeat>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct HottestOperation {
+    pub feature: String,
+    pub time_s: f64,
+    pub x: f64,
+    pub y: f64,
+    pub celsius: f64,
+    pub critical_c: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct OperationHeat {
+    pub feature: String,
+    /// The path it belongs to, in cutting order.
+    pub path: usize,
+    pub time_s: f64,
+    pub celsius: f64,
+    pub critical_c: f64,
+}
+
+impl ThermalReport {
+    pub fn of(search: &crate::plan::thermal::ThermalSearch, machine: &crate::config::MachineConfig) -> ThermalReport {
+        let planned = &search.planned;
+        let checks = &search.planned_timeline.checks;
+        let limits = crate::thermal::model_of(machine).map(|m| m.1).ok();
+        let limit = |c: usize| limits.map_or(f64::NAN, |l| l.of(checks[c].feature));
+        ThermalReport {
+            material: machine.material.as_ref().map(|m| m.name.clone()).unwrap_or_default(),
+            cell_mm: machine.thermal.cell,
+            thermal_violations: planned.violations.len(),
+            max_overheat_c: planned.max_overheat,
+            hottest: planned.hottest.map(|h| HottestOperation { feature: checks[h.check].feature.name().into(), time_s: h.time, x: h.at.x, y: h.at.y, celsius: h.celsius, critical_c: h.critical }),
+            thermal_wait_s: planned.wait,
+            plain_violations: search.plain.violations.len(),
+            plain_max_overheat_c: search.plain.max_overheat,
+            plain_time_s: search.plain_time,
+            planned_time_s: search.planned_time,
+            iterations: search.iterations,
+            penalties: search.penalties,
+            evaluations: search.evaluations,
+            evaluation_s: search.evaluation_s / f64::from(search.evaluations.max(1)),
+            cell_updates_per_s: planned.cell_updates as f64 / (search.evaluation_s / f64::from(search.evaluations.max(1))).max(1e-9),
+            operations: (0..checks.len())
+                .map(|c| OperationHeat { feature: checks[c].feature.name().into(), path: checks[c].path, time_s: planned.times[c], celsius: planned.celsius[c], critical_c: limit(c) })
+                .collect(),
+        }
+    }
+
+    /// One line for a person at a terminal.
+    pub fn summary(&self) -> String {
+        let extra = 100.0 * (self.planned_time_s / self.plain_time_s.max(1e-9) - 1.0);
+        let mut s = format!(
+            "  heat ({}, {} mm cells): {} thermal violations (max overheat {:.1} °C), plain route {} ({:.1} °C); {:+.2} % machine time, {} constructions",
+            if self.material.is_empty() { "material" } else { &self.material },
+            self.cell_mm,
+            self.thermal_violations,
+            self.max_overheat_c,
+            self.plain_violations,
+            self.plain_max_overheat_c,
+            extra,
+            self.iterations
+        );
+        if self.thermal_wait_s > 0.0 {
+            s.push_str(&format!(", {:.1} s of cooling waits", self.thermal_wait_s));
+        }
+        if let Some(h) = &self.hottest {
+            s.push_str(&format!("; hottest: a {} at ({:.0}, {:.0}) mm, {:.0} s in, {:.0} °C of {:.0}", h.feature, h.x, h.y, h.time_s, h.celsius, h.critical_c));
+        }
+        s.push('\n');
         s
     }
 }

@@ -124,6 +124,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let outcome_bridges = outcome.bridges;
     let tipping_pieces = machine.support_grid().map(|_| outcome.may_tip);
     let precuts = outcome.precuts;
+    let thermal = outcome.thermal.as_ref().map(|t| crate::report::ThermalReport::of(t, &planning_machine));
     let sequence = outcome.sequence;
     let cut_paths = || sequence.paths().filter(|p| machine.pierce(&job.processes[p.process].layer).active());
     let broken_rules: Option<Vec<String>> = outcome.broken_rules.map(|rules| rules.iter().map(|r| describe(&job, r)).collect());
@@ -178,6 +179,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         motion_time_s,
         sim: None,
         recording: None,
+        thermal,
         config: None,
     };
     Ok(Planned { job, sequence, trajectory, program, report, broken_rules, drawn })

@@ -23,6 +23,8 @@ const LAYERS: &[&str] = &[
     // The pipeline.
     "import",
     "topology",
+    // The plate heat model the cutting planner checks its routes with.
+    "thermal",
     "plan",
     "motion",
     "program",

@@ -70,6 +70,29 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Seed 000's thermal planning on generated sheets (by default its proof
+    /// of concept's scale, about 650 elements on 2000 x 1500 mm, the
+    /// config's material): the plain route's thermal violations against the
+    /// thermal route's, extra machine time, constructions, planning time,
+    /// and the heat model's speed; median and worst over the seeds.
+    Thermal {
+        /// Machine config with [material] and laser.watts.
+        #[arg(long, default_value = "config/flatbed-cutter.toml")]
+        config: PathBuf,
+        /// Elements (lines and arcs) each sheet should have.
+        #[arg(long, default_value_t = 650)]
+        elements: usize,
+        /// Sheet width and height, mm.
+        #[arg(long, default_value_t = 2000.0)]
+        width: f64,
+        #[arg(long, default_value_t = 1500.0)]
+        height: f64,
+        /// Seeds 1 to this.
+        #[arg(long, default_value_t = 5)]
+        seeds: u64,
+        #[arg(long)]
+        json: bool,
+    },
     /// The plate: a generated sheet with parts on its edge, planned without and
     /// with the plate, and with skeleton and remnant cuts in the route and after
     /// the parts (cut length, pierces, machine time, precedence)
@@ -202,6 +225,10 @@ fn check_flags(command: &BenchCommand) -> Result<()> {
             in_range("--elements", *elements, 1, 100_000, "elements").and(in_range("--skeleton-piece", *skeleton_piece, 10.0, 100_000.0, "mm"))
         }
         BenchCommand::Galvo { seeds, time_limit: t, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds").and(check_time_limit(*t)),
+        BenchCommand::Thermal { elements, width, height, seeds, .. } => in_range("--elements", *elements, 1, 100_000, "elements")
+            .and(in_range("--width", *width, 10.0, 100_000.0, "mm"))
+            .and(in_range("--height", *height, 10.0, 100_000.0, "mm"))
+            .and(in_range("--seeds", *seeds, 1, 1000, "seeds")),
         BenchCommand::Fill { seeds, spacing, radius, .. } => in_range("--seeds", *seeds, 1, 1000, "seeds")
             .and(in_range("--spacing", *spacing, 0.01, 100.0, "mm"))
             .and(in_range("--radius", *radius, 0.0, 100.0, "mm")),
@@ -218,6 +245,7 @@ pub fn run(command: BenchCommand) -> Result<ExitCode> {
     match command {
         BenchCommand::Ecp { tsp, tour, seed, time_limit, search, json } => ecp_bench(tsp, tour, seed, time_limit, search, json),
         BenchCommand::Sheet { config, elements, seed, time_limit, svg, json } => sheet_bench(config, elements, seed, time_limit, svg, json),
+        BenchCommand::Thermal { config, elements, width, height, seeds, json } => thermal_bench(config, elements, width, height, seeds, json),
         BenchCommand::Plate { config, elements, seed, skeleton_piece, svg, json } => plate_bench(config, elements, seed, skeleton_piece, svg, json),
         BenchCommand::Serve { job, config, clients, hz, json } => serve_bench(job, config, clients, hz, json),
         BenchCommand::Motion { jobs, config, mode, vs_grbl: true, json, .. } => vs_grbl_bench(jobs, config, mode, json),
@@ -262,6 +290,30 @@ fn sheet_bench(config: Option<PathBuf>, elements: usize, seed: u64, time_limit: 
         println!("  ecp air / nearest {:.3}, / IB + dir-opt {:.3}", r.air_vs_nearest, r.air_vs_construction);
     }
     Ok(if r.ecp.precedence_violations == 0 { ExitCode::SUCCESS } else { ExitCode::from(exit::STOPPED) })
+}
+
+fn thermal_bench(config: PathBuf, elements: usize, width: f64, height: f64, seeds: u64, json: bool) -> Result<ExitCode> {
+    let machine = machine_config(Some(&config), json)?.machine;
+    let r = laserd::bench::thermal::thermal_bench(&machine, elements, width, height, seeds)?;
+    if json {
+        print_json(&r)?;
+    } else {
+        println!(
+            "thermal: {} x {} mm of {}, {} mm cells, critical pierce/cut/corner {:?} °C",
+            r.width_mm, r.height_mm, r.material, r.cell_mm, r.critical_c
+        );
+        for o in &r.runs {
+            println!(
+                "  seed {}: {} geometries; plain peaks pierce/cut/corner {:.0?} °C; violations plain {} (max {:.1} °C) -> thermal {} (max {:.1} °C, waits {:.1} s); machine time {:.1} -> {:.1} s ({:+.2} %); {} constructions, {:.1} s after the plain search's {:.1} s; evaluation {:.3} s ({} cells, {} steps, {:.0} M cell updates/s)",
+                o.seed, o.geometries, o.plain_peak_c, o.plain_violations, o.plain_max_overheat_c, o.thermal_violations, o.max_overheat_c, o.thermal_wait_s, o.plain_time_s, o.thermal_time_s, o.extra_time_percent, o.iterations, o.thermal_plan_s, o.plain_plan_s, o.evaluation_s, o.cells, o.steps, o.cell_updates_per_s / 1e6
+            );
+        }
+        println!(
+            "  median / worst: plain violations {} / {}, thermal {} / {}, extra time {:+.2} / {:+.2} %, thermal planning {:.1} / {:.1} s, evaluation {:.3} / {:.3} s",
+            r.plain_violations[0], r.plain_violations[1], r.thermal_violations[0], r.thermal_violations[1], r.extra_time_percent[0], r.extra_time_percent[1], r.thermal_plan_s[0], r.thermal_plan_s[1], r.evaluation_s[0], r.evaluation_s[1]
+        );
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 fn plate_bench(config: Option<PathBuf>, elements: usize, seed: u64, skeleton_piece: f64, svg: Option<PathBuf>, json: bool) -> Result<ExitCode> {

@@ -53,6 +53,12 @@ pub struct JobArgs {
     /// and time only).
     #[arg(long)]
     objective: Option<String>,
+    /// Plan the cutting route so that no pierce, cut or sharp corner starts
+    /// where the plate is hotter than its critical temperature (seed 000's
+    /// plate heat model; needs [material] and laser.watts), and report the
+    /// heat (`[thermal] enabled`).
+    #[arg(long)]
+    thermal: bool,
     /// DXF: the unit the drawing was made in, whatever its header says
     /// (default: the config's [import] units, else the header's $INSUNITS).
     #[arg(long)]
@@ -88,6 +94,10 @@ impl JobArgs {
                 machine.cutting.objective = objective.clone();
                 machine.galvo.objective = objective.clone();
             }
+        }
+        if self.thermal {
+            laserd::thermal::model_of(&machine)?;
+            machine.thermal.enabled = true;
         }
         import_flags(&mut machine, &self.job, self.units, self.place)?;
         let mut planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
@@ -200,6 +210,7 @@ fn dry_run_as_it_is(args: DryRunArgs) -> Result<ExitCode> {
         (job.time_limit.is_some(), "--time-limit"),
         (job.seed.is_some(), "--seed"),
         (job.objective.is_some(), "--objective"),
+        (job.thermal, "--thermal"),
         (job.allow_precedence_violations, "--allow-precedence-violations"),
         (job.units.is_some(), "--units"),
         (job.place.is_some(), "--place"),

@@ -245,6 +245,7 @@ impl Gen {
             pierce_cost: params.pierce_cost,
             edge_starts: Vec::new(),
             turns: crate::plan::ecp::Turns::default(),
+            penalties: Default::default(),
         };
         Sheet { instance, arc_centres: self.arc_centres }
     }

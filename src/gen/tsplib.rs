@@ -218,6 +218,7 @@ pub fn bench_instance(tsp: &Tsp, tour: &[usize], seed: u64) -> BenchInstance {
         pierce_cost: 0.0,
         edge_starts: Vec::new(),
         turns: crate::plan::ecp::Turns::default(),
+        penalties: Default::default(),
     };
     let optimal_route: Vec<Cut> = tour.iter().map(|&element| Cut { element, reversed: false }).collect();
     let optimum = instance.cost(&optimal_route);

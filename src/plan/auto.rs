@@ -54,7 +54,7 @@ pub fn plan_filling(job: &Job, ctx: &PlanContext, fill_order: FillOrder) -> Resu
         FillOrder::Planned => "fill",
     };
     if rest.is_empty() {
-        return Ok(PlanOutcome { sequence: filled, planner: name.into(), broken_rules: Some(Vec::new()), search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() });
+        return Ok(PlanOutcome { sequence: filled, planner: name.into(), broken_rules: Some(Vec::new()), search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default(), thermal: None });
     }
     let start = filled.paths().last().map_or(ctx.start, |p| p.end());
     let plate = ctx.plate.and_then(|p| p.select(&rest));
@@ -73,7 +73,7 @@ fn plan_layers(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
     let (cutting, marking): (Vec<usize>, Vec<usize>) = (0..job.geometries.len()).partition(|&g| cuts[g]);
     if cutting.is_empty() {
         let (sequence, search_stopped_by) = galvo::plan_galvo(job, ctx, false)?;
-        return Ok(PlanOutcome { sequence, planner: "hha".into(), broken_rules: Some(Vec::new()), search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() });
+        return Ok(PlanOutcome { sequence, planner: "hha".into(), broken_rules: Some(Vec::new()), search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default(), thermal: None });
     }
     if marking.is_empty() {
         return Ok(cutting::plan_cutting(job, ctx)?.outcome());
@@ -97,7 +97,7 @@ fn plan_layers(job: &Job, ctx: &PlanContext) -> Result<PlanOutcome> {
         broken
     });
     let search_stopped_by = marking_stopped_by.and(cut.search_stopped_by);
-    Ok(PlanOutcome { sequence, planner: "hha+ecp".into(), broken_rules, search_stopped_by, edge_length_saved_mm: cut.edge_length_saved_mm, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() })
+    Ok(PlanOutcome { sequence, planner: "hha+ecp".into(), broken_rules, search_stopped_by, edge_length_saved_mm: cut.edge_length_saved_mm, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default(), thermal: cut.thermal })
 }
 
 /// The geometries `which` of `job` as a job of their own (the processes

@@ -39,6 +39,8 @@ pub struct CuttingPlan {
     pub search_stopped_by: SearchStop,
     /// The length of the parts' outlines on the plate's edge, not cut.
     pub edge_length_saved_mm: f64,
+    /// What the thermal planner did (`[thermal] enabled`).
+    pub thermal: Option<super::thermal::ThermalSearch>,
 }
 
 impl CuttingPlan {
@@ -54,6 +56,7 @@ impl CuttingPlan {
             bridges: Default::default(),
             may_tip: 0,
             precuts: Default::default(),
+            thermal: self.thermal,
         }
     }
 }
@@ -129,6 +132,17 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
         let found = solve(inst, settings.search, &options);
         (found.route, found.stopped_by)
     };
+    // Seed 000: a route that keeps the plate below its critical temperatures.
+    let (route, thermal, search_stopped_by) = if ctx.machine.thermal.enabled && !route.is_empty() {
+        let heat = super::thermal::HeatModel::new(job, ctx.machine, super::area::objective_context(ctx.machine, ctx.mode).motion)?;
+        let cap = super::stop::TimeCap::after(time_limit.map(|l| l.saturating_sub(started.elapsed())));
+        let options = ils::SearchOptions { kicks: Some(thermal_kicks(inst.elements.len())), time_limit: cap.remaining(), threads, max_stall: 0, ..ils::SearchOptions::new() };
+        let (route, found) = super::thermal::plan(job, ctx.machine, &model, ctx.start, route, &heat, &options, &cap);
+        let stopped = search_stopped_by.and(found.stopped_by);
+        (route, Some(found), stopped)
+    } else {
+        (route, None, search_stopped_by)
+    };
     let broken_rules = match ctx.plate {
         // The plate's regions are contours beyond the job's geometries:
         // named after them (see `describe`).
@@ -155,7 +169,13 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
         Some(s) => fields_along(job, paths, s.usable_half_field, (ctx.machine.stage.travel_x, ctx.machine.stage.travel_y))?,
     };
     let edge_length_saved_mm = model.edge_length_saved();
-    Ok(CuttingPlan { sequence: Sequence { groups }, broken_rules, search_stopped_by, edge_length_saved_mm })
+    Ok(CuttingPlan { sequence: Sequence { groups }, broken_rules, search_stopped_by, edge_length_saved_mm, thermal })
+}
+
+/// Kicks of each search under thermal penalties (from the route before):
+/// a fortieth of the plain search's, so that dozens fit where one did.
+fn thermal_kicks(elements: usize) -> u64 {
+    (ils::default_kicks(elements) / 40).max(2_000)
 }
 
 /// A rule with its contours renumbered by `f`.

@@ -16,6 +16,7 @@ pub mod precut;
 pub mod split;
 pub mod stop;
 pub mod tabs;
+pub mod thermal;
 pub mod tipping;
 
 use std::str::FromStr;
@@ -206,6 +207,8 @@ pub struct PlanOutcome {
     pub may_tip: usize,
     /// Pre-cuts made instead of pierces.
     pub precuts: precut::PrecutCount,
+    /// What the thermal planner did (`--thermal`, cutting jobs).
+    pub thermal: Option<thermal::ThermalSearch>,
 }
 
 /// Plans `job` with the planner `kind` stands for, and judges its order: the
@@ -251,7 +254,7 @@ fn plan_ordered(kind: PlannerKind, job: &Job, ctx: &PlanContext) -> Result<PlanO
                 _ => (planner.plan(job, ctx)?, stop::SearchStop::Budget),
             };
             let broken_rules = cutting::sequence_violations(job, &sequence, ctx);
-            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default() })
+            Ok(PlanOutcome { sequence, planner: planner.name().into(), broken_rules, search_stopped_by, edge_length_saved_mm: 0.0, leads: Default::default(), tabs: 0, bridges: Default::default(), may_tip: 0, precuts: Default::default(), thermal: None })
         }
     }
 }

@@ -134,6 +134,7 @@ mod tests {
             pierce_cost: 0.0,
             edge_starts: Vec::new(),
             turns: crate::plan::ecp::Turns::default(),
+            penalties: Default::default(),
         }
     }
 

@@ -557,6 +557,9 @@ pub struct SearchOptions {
     /// Threads the searches run on.
     pub threads: usize,
     pub seed: u64,
+    /// A feasible route every search starts from instead of a construction
+    /// (the thermal planner's last route, searched again under new penalties).
+    pub initial: Option<std::sync::Arc<Vec<Cut>>>,
 }
 
 /// Independent searches by default.
@@ -565,7 +568,7 @@ pub const SEARCHES: usize = 2;
 impl SearchOptions {
     /// The default budget, no time limit, one thread.
     pub fn new() -> SearchOptions {
-        SearchOptions { kicks: None, time_limit: None, max_stall: 0, restart_after: None, relaxed_share: 0.3, neighbours: 10, searches: SEARCHES, threads: 1, seed: 1 }
+        SearchOptions { kicks: None, time_limit: None, max_stall: 0, restart_after: None, relaxed_share: 0.3, neighbours: 10, searches: SEARCHES, threads: 1, seed: 1, initial: None }
     }
 }
 
@@ -613,6 +616,11 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
     let contour_order = contour_order_construction(inst);
     if inst.cost(&contour_order) < inst.cost(&insertion) {
         insertion = contour_order;
+    }
+    let mut first = first;
+    if let Some(given) = &options.initial {
+        insertion = given.to_vec();
+        first = Start::Insertion;
     }
     let mut s = Descent::new(inst, insertion.clone(), Neighbours::new(inst, options.neighbours));
     let mut best: Option<SearchResult> = None;

@@ -91,6 +91,65 @@ pub struct Instance {
     pub edge_starts: Vec<[bool; 2]>,
     /// What going on through a sharp turn costs (none by default).
     pub turns: Turns,
+    /// What going from one cut straight to another costs besides (seed
+    /// 000's thermal penalties; none by default).
+    pub penalties: Penalties,
+}
+
+/// Costs of going from one cut to another, in the unit of the air moves,
+/// few and learnt (seed 000: the thermal planner raises those of the
+/// decisions that led to a thermal violation). Symmetric as the metrics
+/// are: going from `a` to `b` costs what going from `b` reversed to `a`
+/// reversed does (the same two cuts side by side in a reversed run).
+#[derive(Debug, Clone, Default)]
+pub struct Penalties {
+    /// Per cut (element·2 + reversed): the cuts after it that cost, and what.
+    by_from: Vec<Vec<(u32, f64)>>,
+    count: usize,
+}
+
+impl Penalties {
+    fn id(cut: Cut) -> usize {
+        2 * cut.element + usize::from(cut.reversed)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// How many pairs of cuts carry a penalty.
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    pub fn get(&self, from: Cut, to: Cut) -> f64 {
+        let to = Self::id(to) as u32;
+        self.by_from.get(Self::id(from)).and_then(|list| list.iter().find(|(t, _)| *t == to)).map_or(0.0, |(_, v)| *v)
+    }
+
+    /// Adds `amount` to going from `from` to `to`, and from `to` reversed
+    /// to `from` reversed.
+    pub fn add(&mut self, from: Cut, to: Cut, amount: f64) {
+        let flip = |c: Cut| Cut { reversed: !c.reversed, ..c };
+        self.add_one(from, to, amount);
+        if flip(to) != from {
+            self.add_one(flip(to), flip(from), amount);
+        }
+    }
+
+    fn add_one(&mut self, from: Cut, to: Cut, amount: f64) {
+        let (f, t) = (Self::id(from), Self::id(to) as u32);
+        if self.by_from.len() <= f {
+            self.by_from.resize(f + 1, Vec::new());
+        }
+        match self.by_from[f].iter_mut().find(|(x, _)| *x == t) {
+            Some((_, v)) => *v += amount,
+            None => {
+                self.by_from[f].push((t, amount));
+                self.count += 1;
+            }
+        }
+    }
 }
 
 /// Sharp-angle macros in the cutting model (seed 000): going on from one cut
@@ -145,10 +204,15 @@ impl Instance {
         let here = from.map_or(self.depot, |c| self.ends(c).1);
         let (start, _) = self.ends(to);
         let air = self.distance(here, start);
-        match from {
-            Some(from) if air <= 0.0 => self.turn(from, to),
-            _ => air + self.pierce_at(to),
-        }
+        let penalty = match from {
+            Some(from) if !self.penalties.is_empty() => self.penalties.get(from, to),
+            _ => 0.0,
+        };
+        penalty
+            + match from {
+                Some(from) if air <= 0.0 => self.turn(from, to),
+                _ => air + self.pierce_at(to),
+            }
     }
 
     /// What going on from `from` straight into `to` costs: a sharp-angle
@@ -249,7 +313,7 @@ pub(crate) fn random_instance(n: usize, seed: u64, sizes: std::ops::RangeInclusi
             inner_outer.push((i, o));
         }
     }
-    Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost, edge_starts: Vec::new(), turns: Turns::default() }
+    Instance { elements, contours, inner_outer, depot: Point::new(0.0, 0.0), metric: Metric::Euclidean, pierce_cost, edge_starts: Vec::new(), turns: Turns::default(), penalties: Penalties::default() }
 }
 
 /// Random instances of 12 elements (contours of 2 to 4, pierce cost 3) that
@@ -283,6 +347,7 @@ mod tests {
             pierce_cost: 2.0,
             edge_starts: Vec::new(),
             turns: Turns::default(),
+            penalties: Penalties::default(),
         };
         let forward = [Cut { element: 0, reversed: false }, Cut { element: 1, reversed: false }];
         // One pierce at the start, the second cut goes on where the first ended,
@@ -331,6 +396,7 @@ mod tests {
             pierce_cost: 5.0,
             edge_starts: Vec::new(),
             turns: Turns::default(),
+            penalties: Penalties::default(),
         };
         let rest = nalgebra::Vector2::zeros();
         let t = |q: Point| motion.move_time(a, rest, q, rest);

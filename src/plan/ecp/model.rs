@@ -53,6 +53,7 @@ impl CuttingModel {
             pierce_cost,
             edge_starts: Vec::new(),
             turns: super::Turns::default(),
+            penalties: Default::default(),
         };
         let n = topology.elements.len();
         CuttingModel {
@@ -131,7 +132,7 @@ impl CuttingModel {
             .collect();
         let elements = element_of.iter().map(|&e| Element { a: topology.elements[e].start(), b: topology.elements[e].end() }).collect();
         let edge_starts = element_of.iter().map(|&e| [plate.on_edge(topology.elements[e].start()), plate.on_edge(topology.elements[e].end())]).collect();
-        let instance = Instance { elements, contours, inner_outer, depot, metric: Metric::Euclidean, pierce_cost, edge_starts, turns: super::Turns::default() };
+        let instance = Instance { elements, contours, inner_outer, depot, metric: Metric::Euclidean, pierce_cost, edge_starts, turns: super::Turns::default(), penalties: Default::default() };
         Ok(CuttingModel { topology, instance, element_of, marked_for, edge_saved })
     }
 
@@ -167,10 +168,16 @@ impl CuttingModel {
     /// polyline. A common cut is marked for either of its geometries, so it
     /// joins the polyline of whichever of its two contours it continues.
     pub fn polylines(&self, route: &[Cut]) -> Vec<Polyline> {
+        self.polylines_from(route).0
+    }
+
+    /// [`Self::polylines`], and where in `route` each starts.
+    pub fn polylines_from(&self, route: &[Cut]) -> (Vec<Polyline>, Vec<usize>) {
         let mut out: Vec<Polyline> = Vec::new();
+        let mut starts = Vec::new();
         // The geometries the current polyline can still be marked for.
         let mut candidates: Vec<usize> = Vec::new();
-        for &cut in route {
+        for (k, &cut) in route.iter().enumerate() {
             let e = self.element_of[cut.element];
             let mut points = self.topology.elements[e].points.clone();
             if cut.reversed {
@@ -190,11 +197,12 @@ impl CuttingModel {
                     // there) or on the plate's edge.
                     let pierce = here != points.first().copied() && !self.instance.starts_on_edge(cut);
                     out.push(Polyline { geometry: own[0], points, pierce });
+                    starts.push(k);
                     candidates = own.clone();
                 }
             }
         }
-        out
+        (out, starts)
     }
 
     /// The route as topology elements, for the plate's checker.

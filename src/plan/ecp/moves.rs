@@ -135,7 +135,8 @@ pub(super) fn delta(inst: &Instance, tour: &Tour, mv: &Move) -> f64 {
     let (a, b) = (without(mv.to as isize - 1), without(mv.to as isize));
     // Both metrics are symmetric, and so is the pierce rule: a reversed run
     // costs inside what it cost before; except on a plate, where a cut
-    // starting on its edge needs no pierce, so the run's inside is summed.
+    // starting on its edge needs no pierce, so the run's inside is summed
+    // (penalties are symmetric too).
     let (head, tail) = if mv.reverse { (flip(last), flip(first)) } else { (first, last) };
     let insertion = link(inst, a, Some(head)) + link(inst, Some(tail), b) - link(inst, a, b);
     let inside = if mv.reverse && !inst.edge_starts.is_empty() {
