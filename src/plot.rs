@@ -231,6 +231,93 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
     svg
 }
 
+/// `--plot` with `--thermal`: the plate's temperatures when the operation
+/// nearest its critical temperature starts (cells coloured from the coolest
+/// to the hottest, a scale beside), the job's geometries over them, and that
+/// operation ringed.
+pub fn heat_map(job: &Job, grid: &crate::thermal::Grid, snapshot: &crate::thermal::Snapshot, hottest: Option<&crate::report::HottestOperation>) -> String {
+    let (w, h) = (grid.nx as f64 * grid.cell, grid.ny as f64 * grid.cell);
+    let (lo, hi) = snapshot.celsius.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &t| (a.min(f64::from(t)), b.max(f64::from(t))));
+    let hi = hi.max(lo + 1.0);
+    let scale_w = 0.06 * w;
+    let (x0, y0) = (grid.origin.x, grid.origin.y);
+    let mut s = String::new();
+    let margin = 0.04 * w.max(h);
+    let _ = writeln!(
+        s,
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" viewBox=\"{} {} {} {}\" width=\"{}mm\" height=\"{}mm\">",
+        x0 - margin,
+        -(y0 + h) - margin,
+        w + scale_w * 2.5 + 2.0 * margin,
+        h + 2.0 * margin,
+        w + scale_w * 2.5 + 2.0 * margin,
+        h + 2.0 * margin
+    );
+    let font = 0.018 * w.max(h);
+    let _ = writeln!(s, "<title>plate temperature at {:.1} s</title>", snapshot.time);
+    // Colours: 16 steps from blue (coolest) through yellow to red (hottest).
+    const STEPS: usize = 16;
+    let colour = |k: usize| {
+        let f = k as f64 / (STEPS - 1) as f64;
+        let (r, g, b) = if f < 0.5 { (2.0 * f, 2.0 * f, 1.0 - 2.0 * f) } else { (1.0, 2.0 - 2.0 * f, 0.0) };
+        format!("#{:02x}{:02x}{:02x}", (255.0 * r) as u8, (255.0 * g) as u8, (255.0 * b) as u8)
+    };
+    let step_of = |t: f32| (((f64::from(t) - lo) / (hi - lo)) * (STEPS - 1) as f64).round().clamp(0.0, (STEPS - 1) as f64) as usize;
+    // One rectangle per run of cells of one colour along a row.
+    for iy in 0..grid.ny {
+        let row = &snapshot.celsius[iy * grid.nx..(iy + 1) * grid.nx];
+        let mut ix = 0;
+        while ix < grid.nx {
+            let k = step_of(row[ix]);
+            let mut end = ix + 1;
+            while end < grid.nx && step_of(row[end]) == k {
+                end += 1;
+            }
+            let _ = writeln!(
+                s,
+                "<rect x=\"{:.3}\" y=\"{:.3}\" width=\"{:.3}\" height=\"{:.3}\" fill=\"{}\"/>",
+                x0 + ix as f64 * grid.cell,
+                -(y0 + (iy + 1) as f64 * grid.cell),
+                (end - ix) as f64 * grid.cell,
+                grid.cell,
+                colour(k)
+            );
+            ix = end;
+        }
+    }
+    let stroke = 0.0015 * w.max(h);
+    for g in &job.geometries {
+        let points: Vec<String> = g.points.iter().map(|p| format!("{:.3},{:.3}", p.x, -p.y)).collect();
+        let _ = writeln!(s, "<polyline points=\"{}\" fill=\"none\" stroke=\"#000000\" stroke-width=\"{stroke:.3}\"/>", points.join(" "));
+    }
+    if let Some(hot) = hottest {
+        let _ = writeln!(s, "<circle cx=\"{:.3}\" cy=\"{:.3}\" r=\"{:.3}\" fill=\"none\" stroke=\"#ffffff\" stroke-width=\"{:.3}\"/>", hot.x, -hot.y, 4.0 * grid.cell, 3.0 * stroke);
+        let _ = writeln!(
+            s,
+            "<text x=\"{:.3}\" y=\"{:.3}\" font-size=\"{font:.2}\">the {} nearest its critical temperature: {:.0} °C of {:.0} °C at {:.1} s</text>",
+            x0,
+            -(y0 + h) - 0.3 * margin,
+            hot.feature,
+            hot.celsius,
+            hot.critical_c,
+            hot.time_s
+        );
+    }
+    // The scale: every colour with its temperature.
+    let sx = x0 + w + 0.5 * scale_w;
+    let band = h / STEPS as f64;
+    for k in 0..STEPS {
+        let y = -(y0 + (k + 1) as f64 * band);
+        let _ = writeln!(s, "<rect x=\"{sx:.3}\" y=\"{y:.3}\" width=\"{:.3}\" height=\"{band:.3}\" fill=\"{}\"/>", scale_w * 0.5, colour(k));
+        if k % 3 == 0 || k == STEPS - 1 {
+            let t = lo + (hi - lo) * k as f64 / (STEPS - 1) as f64;
+            let _ = writeln!(s, "<text x=\"{:.3}\" y=\"{:.3}\" font-size=\"{font:.2}\">{t:.0} °C</text>", sx + scale_w * 0.6, y + band * 0.7);
+        }
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

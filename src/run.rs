@@ -24,7 +24,7 @@ use crate::topology::kerf;
 use crate::topology::plate::{lay_out, PlateLayout};
 use crate::plan::{plan_job, PlanContext, PlanOutcome, PlannerKind, Sequence};
 use crate::program::{self, Program};
-use crate::record::{Recorder, Recording, TOPIC_JOB, TOPIC_PLAN_LINES, TOPIC_REPORT, TOPIC_SETUP};
+use crate::record::{Recorder, Recording, TOPIC_JOB, TOPIC_PLAN_LINES, TOPIC_PLATE_HEAT, TOPIC_REPORT, TOPIC_SETUP};
 use crate::report::PlanReport;
 use crate::stream::{self, SenderOptions, StreamOutcome};
 
@@ -45,6 +45,11 @@ pub struct Planned {
     pub broken_rules: Option<Vec<String>>,
     /// The job as drawn, where kerf offsets made `job` differ from it.
     pub drawn: Option<Job>,
+    /// `--thermal`: the plate's grid and its temperatures at the hottest
+    /// moment (the heat map).
+    pub heat: Option<(crate::thermal::Grid, crate::thermal::Snapshot)>,
+    /// ... and over the job, for the recording.
+    pub plates: Vec<crate::thermal::Snapshot>,
 }
 
 pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: Option<Mode>) -> Result<Planned> {
@@ -125,6 +130,8 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let tipping_pieces = machine.support_grid().map(|_| outcome.may_tip);
     let precuts = outcome.precuts;
     let thermal = outcome.thermal.as_ref().map(|t| crate::report::ThermalReport::of(t, &planning_machine));
+    let heat = outcome.thermal.as_ref().and_then(|t| t.hottest_plate.clone().map(|s| (t.planned.grid, s)));
+    let plates = outcome.thermal.as_ref().map(|t| t.plates.clone()).unwrap_or_default();
     let sequence = outcome.sequence;
     let cut_paths = || sequence.paths().filter(|p| machine.pierce(&job.processes[p.process].layer).active());
     let broken_rules: Option<Vec<String>> = outcome.broken_rules.map(|rules| rules.iter().map(|r| describe(&job, r)).collect());
@@ -182,7 +189,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
         thermal,
         config: None,
     };
-    Ok(Planned { job, sequence, trajectory, program, report, broken_rules, drawn })
+    Ok(Planned { job, sequence, trajectory, program, report, broken_rules, drawn, heat, plates })
 }
 
 /// Per process of `job`: its layer's kerf, and whether its contours cut parts out.
@@ -598,6 +605,11 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
     let planned_lines = PlannedLine::from_program(&planned.program);
     for p in &planned_lines {
         recorder.write(TOPIC_PLAN_LINES, 0.0, p);
+    }
+    if let Some((grid, _)) = &planned.heat {
+        for plate in &planned.plates {
+            recorder.write(TOPIC_PLATE_HEAT, plate.time, &crate::record::GridMessage::of_plate(grid, plate));
+        }
     }
 
     let streamed = stream_into_simulator(&planned.program, sim, machine.serial.baud, &planned_options(machine, &planned.program), Some(&recorder));

@@ -264,7 +264,8 @@ pub struct PlanArgs {
     #[arg(short = 'o', long = "output")]
     output: Option<PathBuf>,
     /// Draw the plan as SVG: geometries, scan fields, TCP path (marking and
-    /// jumps), stage path, and the scanner's field use over time.
+    /// jumps), stage path, and the scanner's field use over time; with
+    /// --thermal also OUT.heat.svg, the plate's heat at its hottest moment.
     #[arg(long)]
     plot: Option<PathBuf>,
     #[arg(long)]
@@ -282,6 +283,11 @@ pub fn plan(args: PlanArgs) -> Result<ExitCode> {
     }
     if let Some(out) = &plot {
         write_file(out, laserd::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, &machine, planned.drawn.as_ref()))?;
+        // With --thermal, the plate's heat at its hottest moment beside it.
+        if let Some((grid, snapshot)) = &planned.heat {
+            let hottest = planned.report.thermal.as_ref().and_then(|t| t.hottest.as_ref());
+            write_file(&heat_map_path(out), laserd::plot::heat_map(&planned.job, grid, snapshot, hottest))?;
+        }
     }
     if json {
         print_json(&planned.report)?;
@@ -293,4 +299,9 @@ pub fn plan(args: PlanArgs) -> Result<ExitCode> {
     }
     refused?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// Where `--plot OUT.svg` puts the heat map: OUT.heat.svg.
+fn heat_map_path(plot: &Path) -> PathBuf {
+    plot.with_extension("heat.svg")
 }

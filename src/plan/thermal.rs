@@ -7,9 +7,11 @@
 //! decays by the responsiveness ρ per path back:
 //! φ'ᵢⱼ = φᵢⱼ + penalty · (T − T_crit)/T_crit · ρ^(k_violation − k_j).
 //! The search runs again under the penalties (the air moves' cost plus φ),
-//! and so on until a route has no violation or the constructions run out;
-//! then the route with the fewest is kept and waits (the laser off, the
-//! head still) cool the plate before each path that would still violate.
+//! and so on until a route has no violation or the constructions run out.
+//! Routes are ranked by the cooling waits (the laser off, the head still)
+//! they would need before the paths that violate, then by machine time;
+//! the waits themselves are not yet written into the program, so a route
+//! that still needs them is reported with its violations.
 
 use std::time::Instant;
 
@@ -21,7 +23,7 @@ use super::stop::TimeCap;
 use crate::config::{MachineConfig, ThermalConfig};
 use crate::error::Result;
 use crate::job::{bounds_of, Job, Point};
-use crate::thermal::{self, assess, AssessOptions, Assessment, Corners, Critical, Grid, PathHeat, Physics, Timeline};
+use crate::thermal::{self, assess, AssessOptions, Assessment, Corners, Critical, Grid, PathHeat, Physics, Snapshot, Timeline};
 
 /// The heat model of a cutting job: plate, material, laser, and how the
 /// route's times are estimated (air moves rest to rest at the axes' limits,
@@ -90,6 +92,11 @@ pub struct ThermalSearch {
     /// The kept route, assessed with its waits, and its timeline (the checks' features and places).
     pub planned: Assessment,
     pub planned_timeline: Timeline,
+    /// The plate when the operation nearest its critical temperature starts
+    /// (for the heat map).
+    pub hottest_plate: Option<Snapshot>,
+    /// The plate every so often over the kept route (for the recording).
+    pub plates: Vec<Snapshot>,
     pub planned_time: f64,
     /// Constructions searched under penalties (0: the plain route had no violation).
     pub iterations: u32,
@@ -145,17 +152,33 @@ pub fn plan(job: &Job, machine: &MachineConfig, model: &CuttingModel, start: Poi
         // From the last route: the penalties change it where it heated.
         let initial = Some(std::sync::Arc::new(current.0.clone()));
         let search = SearchOptions { seed: options.seed.wrapping_add(1000 * iterations as u64), initial, ..options.clone() };
+        let searched = Instant::now();
         let found = ils::search(&inst, &search);
+        let search_s = searched.elapsed().as_secs_f64();
         let (assessment, timeline, at) = evaluate(&found.route, true);
-        tracing::debug!("thermal construction {iterations}: {} violations, {:.1} s of waits, {:.1} s", assessment.waited.len(), assessment.wait, assessment.end);
+        tracing::debug!("thermal construction {iterations}: {} violations, {:.1} s of waits, {:.1} s; searched in {search_s:.3} s ({} kicks)", assessment.waited.len(), assessment.wait, assessment.end, found.iterations);
         current = (found.route, assessment, timeline, at);
         if rank(&current.1) < rank(&best.1) {
             best = current.clone();
         }
     }
-    let (planned, planned_timeline) = (best.1.clone(), best.2.clone());
+    // Cooling waits are not written into the program yet: the kept route
+    // is reported as it runs, without them.
+    let (planned, planned_timeline) = if best.1.waited.is_empty() { (best.1.clone(), best.2.clone()) } else {
+        let (a, t, _) = evaluate(&best.0, false);
+        (a, t)
+    };
     let planned_time = planned.end;
+    let hottest_plate = planned.hottest.and_then(|h| {
+        let path = planned_timeline.checks[h.check].path;
+        heat.assess(&planned_timeline, &AssessOptions { snapshot_path: Some(path), ..Default::default() }).snapshots.pop()
+    });
+    // About sixty pictures of the plate over the job, for the recording.
+    let every = (planned_timeline.end / 60.0).max(5.0);
+    let plates = heat.assess(&planned_timeline, &AssessOptions { snapshot_every: Some(every), ..Default::default() }).snapshots;
     let search = ThermalSearch {
+        hottest_plate,
+        plates,
         plain,
         plain_timeline,
         plain_time,
@@ -207,3 +230,4 @@ fn learn(inst: &mut Instance, route: &[Cut], assessment: &Assessment, timeline: 
         }
     }
 }
+

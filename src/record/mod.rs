@@ -45,6 +45,8 @@ pub const TOPIC_LINK: &str = "/link";
 pub const TOPIC_STATUS: &str = "/status";
 pub const TOPIC_AXES: &str = "/sim/axes";
 pub const TOPIC_REPORT: &str = "/run/report";
+/// `--thermal`: the plate's temperatures over the planned job (Foxglove's Grid).
+pub const TOPIC_PLATE_HEAT: &str = "/thermal/plate";
 
 const FLUSH_INTERVAL: Duration = Duration::from_secs(1);
 
@@ -61,6 +63,84 @@ pub struct StatusMessage {
     pub t: f64,
     #[serde(flatten)]
     pub status: StatusReport,
+}
+
+/// The plate's temperatures at one time as Foxglove's `foxglove.Grid` (JSON
+/// encoding): one float32 field `celsius` per cell, rows from the plate's
+/// lower-left corner, in the machine's frame and millimetres.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+#[schemars(rename = "foxglove.Grid")]
+pub struct GridMessage {
+    pub timestamp: GridTime,
+    pub frame_id: String,
+    pub pose: GridPose,
+    pub column_count: u32,
+    pub cell_size: GridVector2,
+    pub row_stride: u32,
+    pub cell_stride: u32,
+    pub fields: Vec<GridField>,
+    /// The cells' bytes (little-endian float32), base64.
+    pub data: String,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct GridTime {
+    pub sec: u32,
+    pub nsec: u32,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct GridVector2 {
+    pub x: f64,
+    pub y: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct GridVector3 {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct GridQuaternion {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+    pub w: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct GridPose {
+    pub position: GridVector3,
+    pub orientation: GridQuaternion,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct GridField {
+    pub name: String,
+    pub offset: u32,
+    /// Foxglove's NumericType: 7 is FLOAT32.
+    #[serde(rename = "type")]
+    pub kind: u32,
+}
+
+impl GridMessage {
+    pub fn of_plate(grid: &crate::thermal::Grid, plate: &crate::thermal::Snapshot) -> GridMessage {
+        use base64::Engine;
+        let bytes: Vec<u8> = plate.celsius.iter().flat_map(|t| t.to_le_bytes()).collect();
+        GridMessage {
+            timestamp: GridTime { sec: plate.time.max(0.0).floor() as u32, nsec: (plate.time.max(0.0).fract() * 1e9) as u32 },
+            frame_id: "machine".into(),
+            pose: GridPose { position: GridVector3 { x: grid.origin.x, y: grid.origin.y, z: 0.0 }, orientation: GridQuaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 } },
+            column_count: grid.nx as u32,
+            cell_size: GridVector2 { x: grid.cell, y: grid.cell },
+            row_stride: 4 * grid.nx as u32,
+            cell_stride: 4,
+            fields: vec![GridField { name: "celsius".into(), offset: 0, kind: 7 }],
+            data: base64::engine::general_purpose::STANDARD.encode(bytes),
+        }
+    }
 }
 
 /// One executed knot, with named fields for plotting.

@@ -11,7 +11,7 @@ pub mod timeline;
 mod tests;
 
 pub use field::{Field, FieldOptions, Grid, Physics, KELVIN};
-pub use timeline::{assess, AssessOptions, Assessment, Check, Corners, Critical, Feature, PathHeat, Source, Timeline};
+pub use timeline::{assess, AssessOptions, Assessment, Check, Corners, Critical, Feature, PathHeat, Snapshot, Source, Timeline};
 
 use crate::config::MachineConfig;
 use crate::error::{Error, Result};

@@ -103,7 +103,8 @@ pub struct Instance {
 /// reversed does (the same two cuts side by side in a reversed run).
 #[derive(Debug, Clone, Default)]
 pub struct Penalties {
-    /// Per cut (element·2 + reversed): the cuts after it that cost, and what.
+    /// Per cut (element·2 + reversed): the cuts after it that cost, and
+    /// what, sorted by cut (looked up by bisection: the search asks often).
     by_from: Vec<Vec<(u32, f64)>>,
     count: usize,
 }
@@ -124,7 +125,10 @@ impl Penalties {
 
     pub fn get(&self, from: Cut, to: Cut) -> f64 {
         let to = Self::id(to) as u32;
-        self.by_from.get(Self::id(from)).and_then(|list| list.iter().find(|(t, _)| *t == to)).map_or(0.0, |(_, v)| *v)
+        match self.by_from.get(Self::id(from)) {
+            Some(list) if !list.is_empty() => list.binary_search_by_key(&to, |e| e.0).map_or(0.0, |k| list[k].1),
+            _ => 0.0,
+        }
     }
 
     /// Adds `amount` to going from `from` to `to`, and from `to` reversed
@@ -142,10 +146,11 @@ impl Penalties {
         if self.by_from.len() <= f {
             self.by_from.resize(f + 1, Vec::new());
         }
-        match self.by_from[f].iter_mut().find(|(x, _)| *x == t) {
-            Some((_, v)) => *v += amount,
-            None => {
-                self.by_from[f].push((t, amount));
+        let list = &mut self.by_from[f];
+        match list.binary_search_by_key(&t, |e| e.0) {
+            Ok(k) => list[k].1 += amount,
+            Err(k) => {
+                list.insert(k, (t, amount));
                 self.count += 1;
             }
         }
