@@ -189,10 +189,9 @@ fn halving_the_cells_changes_the_peak_beside_a_cut_by_under_one_percent() {
             for s in &timeline.sources {
                 let (a, b) = (t0.max(s.start), t1.min(s.start + s.duration));
                 if b > a {
-                    let at = |t: f64| if s.duration > 0.0 { s.from + (s.to - s.from) * ((t - s.start) / s.duration) } else { s.from };
-                    field.deposit_along(at(a), at(b), s.watts * (b - a));
+                    field.deposit_along(s.at(a), s.at(b), s.watts * (b - a));
                     if s.kerf {
-                        field.cut_kerf(at(a), at(b));
+                        field.cut_kerf(s.at(a), s.at(b));
                     }
                 }
             }

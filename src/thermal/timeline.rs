@@ -78,6 +78,17 @@ pub struct Source {
     pub kerf: bool,
 }
 
+impl Source {
+    /// Where the spot is at time `t` (within the source's span).
+    pub fn at(&self, t: f64) -> Point {
+        if self.duration > 0.0 {
+            self.from + (self.to - self.from) * ((t - self.start) / self.duration)
+        } else {
+            self.from
+        }
+    }
+}
+
 /// One operation to check: its feature, its path, and the places it runs over.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Check {
@@ -254,9 +265,8 @@ pub fn assess(grid: Grid, physics: &Physics, critical: Critical, timeline: &Time
                 let end = src.start + src.duration;
                 let (a, b) = (t0.max(src.start), t1.min(end));
                 if b > a || (src.duration == 0.0 && src.start >= t0 && src.start < t1) {
-                    let along = |t: f64| if src.duration > 0.0 { src.from + (src.to - src.from) * ((t - src.start) / src.duration) } else { src.from };
                     let joules = src.watts * (b - a).max(0.0);
-                    let (p, q) = (along(a), along(b));
+                    let (p, q) = (src.at(a), src.at(b));
                     if joules > 0.0 {
                         if p == q { field.deposit(p, joules) } else { field.deposit_along(p, q, joules) }
                     }
