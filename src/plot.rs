@@ -117,7 +117,7 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
         run.clear();
     };
     for piece in &trajectory.tcp.pieces {
-        if piece.duration <= 0.0 || matches!(piece.kind, PieceKind::Pierce { .. }) {
+        if piece.duration <= 0.0 || matches!(piece.kind, PieceKind::Pierce { .. } | PieceKind::Cool { .. }) {
             continue;
         }
         let mark = piece.is_marking();

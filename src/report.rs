@@ -323,9 +323,11 @@ pub struct ThermalReport {
     pub max_overheat_c: f64,
     /// The operation nearest to (or furthest over) its critical temperature.
     pub hottest: Option<HottestOperation>,
-    /// Waits (laser off, head still) before paths that would still violate:
-    /// the last resort, s in all.
+    /// Cooling waits in the program (laser off, head still before paths
+    /// that would violate otherwise): the last resort, s in all, and the
+    /// operations they are for.
     pub thermal_wait_s: f64,
+    pub cooled_operations: usize,
     /// The plain route's violations and overheat.
     pub plain_violations: usize,
     pub plain_max_overheat_c: f64,
@@ -376,6 +378,7 @@ impl ThermalReport {
             max_overheat_c: planned.max_overheat,
             hottest: planned.hottest.map(|h| HottestOperation { feature: checks[h.check].feature.name().into(), time_s: h.time, x: h.at.x, y: h.at.y, celsius: h.celsius, critical_c: h.critical }),
             thermal_wait_s: planned.wait,
+            cooled_operations: planned.waited.len(),
             plain_violations: search.plain.violations.len(),
             plain_max_overheat_c: search.plain.max_overheat,
             plain_time_s: search.plain_time,
@@ -406,7 +409,7 @@ impl ThermalReport {
             self.iterations
         );
         if self.thermal_wait_s > 0.0 {
-            s.push_str(&format!(", {:.1} s of cooling waits", self.thermal_wait_s));
+            s.push_str(&format!(", {:.1} s of cooling waits before {} operations", self.thermal_wait_s, self.cooled_operations));
         }
         if let Some(h) = &self.hottest {
             s.push_str(&format!("; hottest: a {} at ({:.0}, {:.0}) mm, {:.0} s in, {:.0} °C of {:.0}", h.feature, h.x, h.y, h.time_s, h.celsius, h.critical_c));

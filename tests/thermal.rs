@@ -10,7 +10,9 @@ use std::process::Command;
 
 use laserd::config::MachineConfig;
 use laserd::plan::PlannerKind;
+use laserd::program::LineKind;
 use laserd::run;
+use laserd_sim::controller::Faults;
 
 fn flatbed() -> MachineConfig {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml");
@@ -104,4 +106,65 @@ fn thermal_on_the_command_line_reports_the_heat_or_names_what_is_missing() {
     machine.laser.watts = None;
     let err = laserd::thermal::model_of(&machine).unwrap_err().to_string();
     assert!(err.contains("laser.watts"), "{err}");
+}
+
+/// Rest intervals without the laser (same position, time passing, power 0)
+/// as (start, end, where); back-to-back ones at one place are one.
+fn dark_rests(knots: &[laserd_sim::controller::Knot]) -> Vec<(f64, f64, laserd::job::Point)> {
+    let mut rests: Vec<(f64, f64, laserd::job::Point)> = Vec::new();
+    for w in knots.windows(2).filter(|w| w[0].pos == w[1].pos && w[1].t > w[0].t && w[1].power == 0.0) {
+        let at = laserd::program::tcp_of(&w[0].pos);
+        match rests.last_mut() {
+            Some(last) if last.1 == w[0].t && (last.2 - at).norm() < 1e-9 => last.1 = w[1].t,
+            _ => rests.push((w[0].t, w[1].t, at)),
+        }
+    }
+    rests
+}
+
+#[test]
+fn where_no_order_keeps_the_plate_cool_the_program_waits_dark_before_the_hot_paths() {
+    let dir = tempfile::tempdir().unwrap();
+    // One cluster of nine squares: whatever the order, the last ones are cut
+    // beside hot ones.
+    let mut paths = String::new();
+    for i in 0..3 {
+        for j in 0..3 {
+            let (x, y) = (100.0 + 36.0 * i as f64, 100.0 + 36.0 * j as f64);
+            paths.push_str(&format!("<path d=\"M{x} {y} h30 v30 h-30 z\" fill=\"none\" stroke=\"#000000\"/>\n"));
+        }
+    }
+    let job = dir.path().join("cluster.svg");
+    std::fs::write(&job, format!("<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"400mm\" height=\"400mm\" viewBox=\"0 0 400 400\">\n{paths}</svg>\n")).unwrap();
+    let mut machine = flatbed();
+    machine.thermal.enabled = true;
+    machine.thermal.iterations = 1;
+    let material = machine.material.as_mut().unwrap();
+    (material.critical_pierce, material.critical_cut, material.critical_corner) = (60.0, 70.0, 60.0);
+    let planned = run::plan(&job, &machine, PlannerKind::Ecp, None).unwrap();
+    let thermal = planned.report.thermal.clone().unwrap();
+    assert!(thermal.plain_violations > 0 && thermal.cooled_operations > 0 && thermal.thermal_wait_s > 1.0, "{thermal:?}");
+    // With the waits, no operation meets its critical temperature.
+    assert_eq!(thermal.thermal_violations, 0, "{thermal:?}");
+    assert!(thermal.operations.iter().all(|o| o.celsius < o.critical_c));
+    // Each path's wait in 50 ms steps (as Grbl counts a dwell), rounded up.
+    let waits: Vec<(laserd::job::Point, f64)> = planned.sequence.paths().filter(|p| p.cooling_wait > 0.0).map(|p| (p.start(), p.cooling_wait)).collect();
+    let total: f64 = waits.iter().map(|w| w.1).sum();
+    assert!(waits.iter().all(|w| ((w.1 / 0.05) - (w.1 / 0.05).round()).abs() < 1e-6), "{waits:?}");
+    assert!(total >= thermal.thermal_wait_s - 1e-9 && total <= thermal.thermal_wait_s + 0.05 * waits.len() as f64, "{total} vs {}", thermal.thermal_wait_s);
+    // In the program: dwells of the cooling kind adding up to the waits, the trajectory holding them.
+    let dwelt: f64 = planned.program.lines.iter().filter(|l| l.kind == LineKind::Cool && l.text.starts_with("G4P")).map(|l| l.text[3..].parse::<f64>().unwrap()).sum();
+    assert!((dwelt - total).abs() < 1e-6, "{dwelt} vs {total}");
+    assert!(planned.report.lower_bound_s >= total && planned.report.trajectory_time_s >= planned.report.lower_bound_s);
+    // On the simulator: the machine stands at each hot path's start with the
+    // laser off for its wait, within every limit, and the job's time holds them.
+    let dry = run::dry_run(&planned, &machine, &dir.path().join("cool.mcap"), Faults::default()).unwrap();
+    assert!(dry.outcome.completed, "{:?}", dry.outcome.stop_reason);
+    let sim = dry.report.sim.as_ref().unwrap();
+    assert_eq!((sim.limit_violations, sim.laser_state_errors), (0, 0), "{sim:?}");
+    assert!((sim.job_time_s - sim.planner_starved_s - planned.report.trajectory_time_s).abs() < 1e-3, "{sim:?}");
+    let rests = dark_rests(&dry.log.knots);
+    for (at, wait) in &waits {
+        assert!(rests.iter().any(|r| (r.2 - at).norm() < 1e-3 && r.1 - r.0 >= wait - 1e-6), "no dark rest of {wait} s at {at:?}: {rests:?}");
+    }
 }

@@ -304,13 +304,13 @@ fn thermal_bench(config: PathBuf, elements: usize, width: f64, height: f64, seed
         );
         for o in &r.runs {
             println!(
-                "  seed {}: {} geometries; plain peaks pierce/cut/corner {:.0?} °C; violations plain {} (max {:.1} °C) -> thermal {} (max {:.1} °C, waits {:.1} s); machine time {:.1} -> {:.1} s ({:+.2} %); {} constructions, {:.1} s after the plain search's {:.1} s; evaluation {:.3} s ({} cells, {} steps, {:.0} M cell updates/s)",
-                o.seed, o.geometries, o.plain_peak_c, o.plain_violations, o.plain_max_overheat_c, o.thermal_violations, o.max_overheat_c, o.thermal_wait_s, o.plain_time_s, o.thermal_time_s, o.extra_time_percent, o.iterations, o.thermal_plan_s, o.plain_plan_s, o.evaluation_s, o.cells, o.steps, o.cell_updates_per_s / 1e6
+                "  seed {}: {} geometries; plain peaks pierce/cut/corner {:.0?} °C; violations plain {} (max {:.1} °C) -> thermal {} (max {:.1} °C; cooling waits {:.1} s before {} operations); machine time {:.1} -> {:.1} s ({:+.2} %); {} constructions; planning {:.1} s ({:.1} s after its plain search; the plain search alone {:.1} s); evaluation {:.3} s ({} cells, {} steps, {:.0} M cell updates/s)",
+                o.seed, o.geometries, o.plain_peak_c, o.plain_violations, o.plain_max_overheat_c, o.thermal_violations, o.max_overheat_c, o.thermal_wait_s, o.cooled_operations, o.plain_time_s, o.thermal_time_s, o.extra_time_percent, o.iterations, o.whole_plan_s, o.thermal_plan_s, o.plain_plan_s, o.evaluation_s, o.cells, o.steps, o.cell_updates_per_s / 1e6
             );
         }
         println!(
-            "  median / worst: plain violations {} / {}, thermal {} / {}, extra time {:+.2} / {:+.2} %, thermal planning {:.1} / {:.1} s, evaluation {:.3} / {:.3} s",
-            r.plain_violations[0], r.plain_violations[1], r.thermal_violations[0], r.thermal_violations[1], r.extra_time_percent[0], r.extra_time_percent[1], r.thermal_plan_s[0], r.thermal_plan_s[1], r.evaluation_s[0], r.evaluation_s[1]
+            "  median / worst: plain violations {} / {}, thermal {} / {}, cooling waits {:.1} / {:.1} s, extra time {:+.2} / {:+.2} %, planning {:.1} / {:.1} s, evaluation {:.3} / {:.3} s",
+            r.plain_violations[0], r.plain_violations[1], r.thermal_violations[0], r.thermal_violations[1], r.thermal_wait_s[0], r.thermal_wait_s[1], r.extra_time_percent[0], r.extra_time_percent[1], r.whole_plan_s[0], r.whole_plan_s[1], r.evaluation_s[0], r.evaluation_s[1]
         );
     }
     Ok(ExitCode::SUCCESS)

@@ -213,7 +213,9 @@ fn mark_all_in_chunks(
     let fills: Vec<bool> = paths.iter().map(|p| job.processes[p.process].fill).collect();
     let chains = chains(sequence, &processes, &fills, b.settings.junctions);
     let overscan = |k: usize| fills[k] && machine.overscans(&job.processes[paths[k].process].layer);
-    let requests: Vec<_> = chains.iter().map(|c| MarkRequest { points: &c.points, speed: processes[c.paths[0]].0, pierce: processes[c.paths[0]].2.time > 0.0, breaks: &c.breaks, overscan: overscan(c.paths[0]) }).collect();
+    // A pierce or a cooling wait stands still at the run's start: from rest.
+    let from_rest = |k: usize| processes[k].2.time > 0.0 || paths[k].cooling_wait > 0.0;
+    let requests: Vec<_> = chains.iter().map(|c| MarkRequest { points: &c.points, speed: processes[c.paths[0]].0, pierce: from_rest(c.paths[0]), breaks: &c.breaks, overscan: overscan(c.paths[0]) }).collect();
     match keep.map(|slot| (slot.take(), slot)) {
         Some((Some(all), slot)) => {
             place_runs(b, &chains, &paths, &processes, &requests, Some(&all), drop, &mut before_group, chunk_points)?;
@@ -267,7 +269,7 @@ fn place_runs(
             }
             let marks: Vec<(usize, f64)> = chain.paths.iter().map(|&k| (paths[k].geometry, processes[k].1)).collect();
             let pierce = processes[chain.paths[0]].2;
-            b.mark_run(&marks, chain.group, run.as_ref(), pierce.time, pierce.power)?;
+            b.mark_run(&marks, chain.group, run.as_ref(), paths[chain.paths[0]].cooling_wait, pierce.time, pierce.power)?;
             let at = b.time;
             b.fell.extend(chain.paths.iter().flat_map(|&k| paths[k].falls.iter().map(move |&g| (at, g))));
         }
@@ -307,6 +309,7 @@ fn chains(sequence: &Sequence, processes: &[(f64, f64, crate::config::Pierce)], 
                     && chain.group == g
                     && (before.geometry == path.geometry || (fills[k - 1] && fills[k]))
                     && processes[k].2.time == 0.0
+                    && path.cooling_wait == 0.0
                     && processes[k].0 == processes[chain.paths[0]].0
                     && before.end() == path.start()
                     && a.dot(&b) > 0.0
@@ -611,8 +614,8 @@ fn flowing(
         }
         cache = b.take_cache();
         let tcp = b.path;
-        if !stage::pierce_times(&tcp).is_empty() {
-            // A pierce dwells (`G4`), which stops the stage: the flow does
+        if !stage::dwell_times(&tcp).is_empty() {
+            // A pierce or cooling wait dwells (`G4`), which stops the stage: the flow does
             // not plan such stops, the bursts do.
             return Ok(None);
         }
@@ -796,6 +799,7 @@ pub fn lower_bound(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode
         if path.pierce {
             t_proc += machine.pierce(&job.processes[path.process].layer).time;
         }
+        t_proc += path.cooling_wait;
         if let Some(l) = last {
             t_proc += rest_to_rest_time((path.start() - l).norm(), combined)?;
         }

@@ -204,7 +204,7 @@ fn group_spans(tcp: &TcpPath, groups: usize) -> Vec<Option<(usize, usize)>> {
         if p.kind == PieceKind::Approach {
             continue;
         }
-        let own = matches!(p.kind, PieceKind::Mark { .. } | PieceKind::Pierce { .. });
+        let own = matches!(p.kind, PieceKind::Mark { .. } | PieceKind::Pierce { .. } | PieceKind::Cool { .. });
         let span = &mut spans[p.group];
         match span {
             None if own => *span = Some((k, k)),
@@ -292,7 +292,7 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
     let mut stage = start;
     // Time range of each group's own pieces.
     let span_time = |g: usize| spans[g].map(|(a, b)| (tcp.pieces[a].start, tcp.pieces[b].end_time()));
-    let pierces = pierce_times(tcp);
+    let pierces = dwell_times(tcp);
     let mut prev_group: Option<usize> = None;
     let mut failed = Vec::new();
     for (g, &target) in at.iter().enumerate() {
@@ -347,10 +347,10 @@ pub fn split(tcp: &TcpPath, at: &[Point], s: &SplitSettings) -> Result<std::resu
     Ok(Ok(StagePath::Moves { start, axes }))
 }
 
-/// The time spans of `tcp`'s pierces. The program dwells there (`G4`), which
-/// stops every axis: the stage must stand still through them.
-pub(super) fn pierce_times(tcp: &TcpPath) -> Vec<(f64, f64)> {
-    tcp.pieces.iter().filter(|p| matches!(p.kind, PieceKind::Pierce { .. })).map(|p| (p.start, p.end_time())).collect()
+/// The time spans of `tcp`'s pierces and cooling waits. The program dwells
+/// there (`G4`), which stops every axis: the stage must stand still through them.
+pub(super) fn dwell_times(tcp: &TcpPath) -> Vec<(f64, f64)> {
+    tcp.pieces.iter().filter(|p| matches!(p.kind, PieceKind::Pierce { .. } | PieceKind::Cool { .. })).map(|p| (p.start, p.end_time())).collect()
 }
 
 /// The start of a burst on axis `i` from `from` to `to` along `leg` within

@@ -32,6 +32,9 @@ pub enum PieceKind {
     Jump,
     /// Laser on at `power`, standing still at a geometry's entry.
     Pierce { geometry: usize, power: f64 },
+    /// Laser off, standing still at a geometry's entry until the plate has
+    /// cooled there (the thermal planner's last resort).
+    Cool { geometry: usize },
     /// The stage carries the TCP while the scanner holds (a field change of
     /// step-and-scan, or on-the-fly where the stage cannot move in time).
     Carried,
@@ -100,7 +103,7 @@ impl Piece {
 
     pub fn geometry(&self) -> Option<usize> {
         match self.kind {
-            PieceKind::Mark { geometry, .. } | PieceKind::Pierce { geometry, .. } => Some(geometry),
+            PieceKind::Mark { geometry, .. } | PieceKind::Pierce { geometry, .. } | PieceKind::Cool { geometry } => Some(geometry),
             _ => None,
         }
     }
@@ -649,7 +652,7 @@ impl TcpBuilder {
     pub fn mark(&mut self, geometry: usize, group: usize, points: &[Point], speed: f64, power: f64, pierce: f64, pierce_power: f64) -> Result<()> {
         let request = MarkRequest { points, speed, pierce: pierce > 0.0, breaks: &[], overscan: false };
         let run = self.prepare(std::slice::from_ref(&request), 0..1)?.pop().flatten();
-        self.mark_run(&[(geometry, power)], group, run.as_ref(), pierce, pierce_power)
+        self.mark_run(&[(geometry, power)], group, run.as_ref(), 0.0, pierce, pierce_power)
     }
 
     /// Plans the runs of `marks[range]` ahead, on all cores (a run does not
@@ -745,14 +748,19 @@ impl TcpBuilder {
     }
 
     /// Marks a run planned by `prepare` (nothing for none), jumping to its
-    /// start first, with a pierce of `pierce` seconds at `pierce_power` when
-    /// `pierce` > 0 (the run must have been planned with its pierce).
+    /// start first, standing there `cool` seconds with the laser off when
+    /// `cool` > 0, with a pierce of `pierce` seconds at `pierce_power` when
+    /// `pierce` > 0 (the run must have been planned from rest for either).
     /// `marks`: the geometry and power of each mark the run goes through
     /// (one, or one per piece of a raster line, as the run's breaks).
-    pub fn mark_run(&mut self, marks: &[(usize, f64)], group: usize, run: Option<&Run>, pierce: f64, pierce_power: f64) -> Result<()> {
+    #[allow(clippy::too_many_arguments)]
+    pub fn mark_run(&mut self, marks: &[(usize, f64)], group: usize, run: Option<&Run>, cool: f64, pierce: f64, pierce_power: f64) -> Result<()> {
         let Some(run) = run else { return Ok(()) };
         let entry = run.entry;
         self.jump(PieceKind::Jump, group, entry, run.entry_velocity())?;
+        if cool > 0.0 {
+            self.still(PieceKind::Cool { geometry: marks[0].0 }, group, cool);
+        }
         if pierce > 0.0 {
             self.still(PieceKind::Pierce { geometry: marks[0].0, power: pierce_power }, group, pierce);
         }
@@ -897,7 +905,7 @@ mod tests {
         let requests: Vec<_> = marks.iter().enumerate().map(|(k, m)| MarkRequest { points: m, speed: 900.0, pierce: pierce(k) > 0.0, breaks: &[], overscan: false }).collect();
         let runs = ahead.prepare(&requests, 0..requests.len()).unwrap();
         for (k, run) in runs.iter().enumerate() {
-            ahead.mark_run(&[(k, 300.0)], 0, run.as_ref(), pierce(k), 500.0).unwrap();
+            ahead.mark_run(&[(k, 300.0)], 0, run.as_ref(), 0.0, pierce(k), 500.0).unwrap();
         }
         assert_eq!(one_by_one.path.pieces.len(), ahead.path.pieces.len());
         assert!((one_by_one.time - ahead.time).abs() < 1e-12, "{} vs {}", one_by_one.time, ahead.time);

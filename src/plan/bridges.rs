@@ -54,7 +54,9 @@ pub fn add_bridges(job: &Job, mut sequence: Sequence, machine: &MachineConfig, w
     for i in 1..paths.len() {
         let (prev, next) = (&paths[i - 1], &paths[i]);
         let layer = &job.processes[next.process].layer;
-        if !next.pierce || prev.process != next.process || !machine.pierce(layer).active() {
+        // A cooling wait stays where the heat model put it: before an air
+        // move's pierce.
+        if !next.pierce || next.cooling_wait > 0.0 || prev.process != next.process || !machine.pierce(layer).active() {
             continue;
         }
         let (from, to) = (prev.end(), next.start());

@@ -163,6 +163,12 @@ pub fn plan_cutting(job: &Job, ctx: &PlanContext) -> Result<CuttingPlan> {
             paths.push(PlannedPath::new(line.geometry, line.points.clone(), process, line.pierce));
         }
     }
+    // The heat model's timeline has a path per pass, as here (scrap after).
+    if let Some(t) = &thermal {
+        for (path, &wait) in paths.iter_mut().zip(&t.planned.waits) {
+            path.cooling_wait = super::thermal::dwell_steps(wait);
+        }
+    }
     let scanner = ctx.machine.scanner.as_ref().filter(|_| ctx.mode != Mode::StageOnly);
     let groups = match scanner {
         None => vec![PathGroup { field_center: None, paths }],

@@ -47,12 +47,15 @@ pub struct PlannedPath {
     /// Pieces (job geometries) this path cuts free that may tip: the head
     /// lifts over them from here on (`tipping`).
     pub falls: Vec<usize>,
+    /// Seconds to stand at its start, the laser off, before it begins: a
+    /// cooling wait of the thermal planner (0: none).
+    pub cooling_wait: f64,
 }
 
 impl PlannedPath {
     /// A path of `points` with no lead-in or lead-out.
     pub fn new(geometry: usize, points: Vec<Point>, process: usize, pierce: bool) -> PlannedPath {
-        PlannedPath { geometry, points, process, pierce, lead_in: 0, lead_out: 0, bridge: false, falls: Vec::new() }
+        PlannedPath { geometry, points, process, pierce, lead_in: 0, lead_out: 0, bridge: false, falls: Vec::new(), cooling_wait: 0.0 }
     }
 
     pub fn start(&self) -> Point {

@@ -136,7 +136,7 @@ fn split_at_tabs(path: PlannedPath, tabs: &[Tab], on_cut: f64) -> (Vec<PlannedPa
             let points = piece_along(&path.points, &along, w[0], w[1]);
             let lead_in = if j == 0 { path.lead_in } else { 0 };
             let lead_out = if j == last { path.lead_out } else { 0 };
-            PlannedPath { points, pierce: if j == 0 { path.pierce } else { true }, lead_in, lead_out, bridge: j == 0 && path.bridge, ..path.clone() }
+            PlannedPath { points, pierce: if j == 0 { path.pierce } else { true }, lead_in, lead_out, bridge: j == 0 && path.bridge, cooling_wait: if j == 0 { path.cooling_wait } else { 0.0 }, ..path.clone() }
         })
         .collect();
     (pieces, cut)

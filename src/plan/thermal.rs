@@ -8,10 +8,11 @@
 //! φ'ᵢⱼ = φᵢⱼ + penalty · (T − T_crit)/T_crit · ρ^(k_violation − k_j).
 //! The search runs again under the penalties (the air moves' cost plus φ),
 //! and so on until a route has no violation or the constructions run out.
-//! Routes are ranked by the cooling waits (the laser off, the head still)
-//! they would need before the paths that violate, then by machine time;
-//! the waits themselves are not yet written into the program, so a route
-//! that still needs them is reported with its violations.
+//! Routes are ranked by whether they need cooling waits (the laser off,
+//! the head still at a path's start until every operation of the path is
+//! below its critical temperature), then by machine time, waits included.
+//! The kept route's waits are the last resort: each becomes a dwell before
+//! its path in the program (`PlannedPath::cooling_wait`).
 
 use std::time::Instant;
 
@@ -89,7 +90,9 @@ pub struct ThermalSearch {
     pub plain_timeline: Timeline,
     /// Its estimated machine time (air moves, pierces, cuts), s.
     pub plain_time: f64,
-    /// The kept route, assessed with its waits, and its timeline (the checks' features and places).
+    /// The kept route, assessed with its cooling waits (`waits`, per path
+    /// of the timeline: a path per pass), and its timeline (the checks'
+    /// features and places).
     pub planned: Assessment,
     pub planned_timeline: Timeline,
     /// The plate when the operation nearest its critical temperature starts
@@ -162,20 +165,16 @@ pub fn plan(job: &Job, machine: &MachineConfig, model: &CuttingModel, start: Poi
             best = current.clone();
         }
     }
-    // Cooling waits are not written into the program yet: the kept route
-    // is reported as it runs, without them.
-    let (planned, planned_timeline) = if best.1.waited.is_empty() { (best.1.clone(), best.2.clone()) } else {
-        let (a, t, _) = evaluate(&best.0, false);
-        (a, t)
-    };
+    let (_, planned, planned_timeline, _) = best.clone();
     let planned_time = planned.end;
+    let waits = !planned.waited.is_empty();
     let hottest_plate = planned.hottest.and_then(|h| {
         let path = planned_timeline.checks[h.check].path;
-        heat.assess(&planned_timeline, &AssessOptions { snapshot_path: Some(path), ..Default::default() }).snapshots.pop()
+        heat.assess(&planned_timeline, &AssessOptions { waits, snapshot_path: Some(path), ..Default::default() }).snapshots.pop()
     });
     // About sixty pictures of the plate over the job, for the recording.
-    let every = (planned_timeline.end / 60.0).max(5.0);
-    let plates = heat.assess(&planned_timeline, &AssessOptions { snapshot_every: Some(every), ..Default::default() }).snapshots;
+    let every = (planned.end / 60.0).max(5.0);
+    let plates = heat.assess(&planned_timeline, &AssessOptions { waits, snapshot_every: Some(every), ..Default::default() }).snapshots;
     let search = ThermalSearch {
         hottest_plate,
         plates,
@@ -231,3 +230,13 @@ fn learn(inst: &mut Instance, route: &[Cut], assessment: &Assessment, timeline: 
     }
 }
 
+
+/// A cooling wait as the controller counts it: Grbl 1.1 dwells in 50 ms
+/// steps, rounding up; so does this (a longer wait only cools more).
+pub fn dwell_steps(wait: f64) -> f64 {
+    if wait <= 0.0 {
+        0.0
+    } else {
+        (wait / 0.05 - 1e-9).ceil() * 0.05
+    }
+}

@@ -33,6 +33,9 @@
 //! (that line needs nothing before it). Grbl 1.1h counts a dwell in 50 ms
 //! steps, rounding up, so pierce times in steps of 0.05 s are exact there.
 //!
+//! A cooling wait (a `Cool` segment: the thermal planner's last resort) is
+//! `S0` where the laser may still be lit, then `G4` lines of a minute at most.
+//!
 //! Blocks are chosen per segment: each block is as long as possible while the
 //! straight, constant-velocity block stays within `program.tolerance` of the
 //! trajectory at every instant, and at least as long as the rounding of
@@ -62,6 +65,8 @@ pub enum LineKind {
     StageMove,
     /// The lines of a pierce: laser on standing still, the dwell, laser mode back.
     Pierce,
+    /// A cooling wait before a path (thermal planning): the laser off, a dwell.
+    Cool,
     End,
 }
 
@@ -179,6 +184,25 @@ impl Writer {
         self.last_power = Some(power);
     }
 
+    /// A cooling wait of `time` seconds from `start`: the laser off (`S0`,
+    /// unless the line before left it at 0: M3 would keep it lit), then
+    /// dwells of at most a minute each (Grbl 1.1 counts one in 50 ms steps
+    /// in 16 bits: at most 3276 s).
+    fn cool(&mut self, geometry: usize, start: f64, time: f64) {
+        let line = |text: String, plan_time| ProgramLine { text, kind: LineKind::Cool, geometry: Some(geometry), plan_time, checks: vec![] };
+        if self.last_power != Some(0.0) {
+            self.lines.push(line("S0".into(), None));
+            self.last_power = Some(0.0);
+        }
+        // Whole minutes, then the rest (so each stays in 50 ms steps).
+        let mut a = start;
+        while a < start + time - 1e-9 {
+            let b = (a + MAX_DWELL_LINE).min(start + time);
+            self.lines.push(line(format!("G4P{}", format_number(b - a, 4)), Some((a, b))));
+            a = b;
+        }
+    }
+
     /// Appends the motion block ending at `values`, taking `duration` seconds with
     /// the laser at `power`; `line` carries everything but the text.
     fn block(&mut self, values: &[f64], power: f64, duration: f64, line: ProgramLine) -> Result<()> {
@@ -253,6 +277,9 @@ impl Writer {
     }
 }
 
+/// Longest dwell written on one line, s.
+const MAX_DWELL_LINE: f64 = 60.0;
+
 /// Spans whose blocks `generate` plans at a time.
 const SPANS_AT_A_TIME: usize = 1 << 14;
 
@@ -317,6 +344,7 @@ fn line_kind(kind: PieceKind) -> LineKind {
         PieceKind::Mark { .. } => LineKind::Mark,
         PieceKind::Jump => LineKind::Jump,
         PieceKind::Pierce { .. } => LineKind::Pierce,
+        PieceKind::Cool { .. } => LineKind::Cool,
         PieceKind::Carried => LineKind::StageMove,
     }
 }
@@ -330,7 +358,7 @@ fn spans(trajectory: &Trajectory, machine: &MachineConfig) -> Vec<Span> {
     for (k, p) in trajectory.tcp.pieces.iter().enumerate() {
         let kind = line_kind(p.kind);
         if let Some(last) = out.last_mut() {
-            let same = last.kind == kind && kind != LineKind::Pierce && last.geometry == p.geometry() && last.power == p.power() && p.start <= last.end + 1e-12;
+            let same = last.kind == kind && !matches!(kind, LineKind::Pierce | LineKind::Cool) && last.geometry == p.geometry() && last.power == p.power() && p.start <= last.end + 1e-12;
             if same {
                 last.end = last.end.max(p.end_time());
                 last.last = k;
@@ -578,9 +606,9 @@ fn first_rest_point(times: &[f64], limits: crate::config::Limits, planner_blocks
     (2..times.len().min(planner_blocks + 1)).find(|&k| gentle(k - 1) && gentle(k)).unwrap_or(0)
 }
 
-/// The blocks of one span (none for a pierce, which is a dwell).
+/// The blocks of one span (none for a pierce or a cooling wait, which dwell).
 fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, min_block: f64) -> std::result::Result<Vec<PlannedBlock>, String> {
-    if span.kind == LineKind::Pierce {
+    if matches!(span.kind, LineKind::Pierce | LineKind::Cool) {
         return Ok(Vec::new());
     }
     let tolerance = if span.kind == LineKind::Mark { machine.program.tolerance } else { machine.program.jump_tolerance };
@@ -697,6 +725,10 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
                 w.pierce(span.geometry.unwrap_or(0), span.power, span.start, span.end - span.start, machine.laser.mode);
                 continue;
             }
+            if span.kind == LineKind::Cool {
+                w.cool(span.geometry.unwrap_or(0), span.start, span.end - span.start);
+                continue;
+            }
             let blocks = blocks.map_err(|e| {
                 let place = span.geometry.and_then(|g| job.geometries.get(g)).map_or("a laser-off move", |g| g.source.as_str());
                 Error::Program(format!("{place}: {e}"))
@@ -779,7 +811,7 @@ mod tests {
             let text = &line.text;
             // The executed knots after the block's start (time, values).
             let mut knots = vec![(b, end.clone())];
-            if line.kind == LineKind::Pierce {
+            if matches!(line.kind, LineKind::Pierce | LineKind::Cool) {
                 // The dwell: P seconds, nothing moves.
                 assert!(text.starts_with("G4P"), "{text}");
                 assert!((word(text, 'P').unwrap() - (b - a)).abs() < 1e-4);
@@ -926,6 +958,41 @@ mod tests {
             }
             let worst = replay_against(&prog, &tr);
             assert!(worst <= machine.program.tolerance + 1e-4, "{mode:?} {laser:?}: worst deviation {worst}");
+        }
+    }
+
+    #[test]
+    fn a_cooling_wait_is_the_laser_off_then_dwells_of_a_minute_at_most_before_its_path() {
+        // Two lines end to end, at a right angle: the second starts where the
+        // first ended, so no jump's S0 comes before its wait.
+        let mut job = circle_job();
+        let line = |points: Vec<Point>, source: &str| Geometry { arcs: Vec::new(), profile: Vec::new(), points, closed: false, process: 0, source: source.into() };
+        let (a, b, c) = (Point::new(100.0, 100.0), Point::new(150.0, 100.0), Point::new(150.0, 150.0));
+        job.geometries = vec![line(vec![a, b], "first"), line(vec![b, c], "second")];
+        let wait = 61.35;
+        let cooled = crate::plan::PlannedPath { cooling_wait: wait, ..crate::plan::PlannedPath::new(1, vec![b, c], 0, false) };
+        let seq = crate::plan::Sequence { groups: vec![crate::plan::PathGroup { field_center: None, paths: vec![crate::plan::PlannedPath::new(0, vec![a, b], 0, false), cooled] }] };
+        for laser in [LaserMode::M3, LaserMode::M4] {
+            let mut machine = MachineConfig::load(None).unwrap();
+            machine.scanner = None;
+            machine.laser.mode = laser;
+            let tr = build(&job, &seq, &machine, Mode::StageOnly, Point::origin()).unwrap();
+            let prog = generate(&job, &tr, &machine).unwrap();
+            let cool: Vec<&ProgramLine> = prog.lines.iter().filter(|l| l.kind == LineKind::Cool).collect();
+            let texts: Vec<&str> = cool.iter().map(|l| l.text.as_str()).collect();
+            assert_eq!(texts, ["S0", "G4P60", "G4P1.35"], "{laser:?}");
+            assert!(cool.iter().all(|l| l.geometry == Some(1)));
+            let (first, last) = (cool[1].plan_time.unwrap(), cool[2].plan_time.unwrap());
+            assert!((last.1 - first.0 - wait).abs() < 1e-9);
+            // Between the first line's last cut and the second's first, with its power.
+            let at = prog.lines.iter().position(|l| l.kind == LineKind::Cool).unwrap();
+            assert_eq!((prog.lines[at - 1].kind, prog.lines[at - 1].geometry), (LineKind::Mark, Some(0)));
+            assert_eq!((prog.lines[at + 3].kind, prog.lines[at + 3].geometry), (LineKind::Mark, Some(1)));
+            assert!(prog.lines[at + 3].text.contains("S250"), "{}", prog.lines[at + 3].text);
+            // The trajectory stands there the whole wait, and the blocks follow it.
+            assert!(tr.tcp.pieces.iter().any(|p| p.kind == PieceKind::Cool { geometry: 1 } && (p.duration - wait).abs() < 1e-12 && (p.start_point() - b).norm() < 1e-9));
+            let worst = replay_against(&prog, &tr);
+            assert!(worst <= machine.program.tolerance + 1e-4, "{laser:?}: worst deviation {worst}");
         }
     }
 }
