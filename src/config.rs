@@ -407,6 +407,10 @@ pub struct ThermalConfig {
     /// the planner gives up on a route without violations and waits instead.
     #[serde(default = "default_thermal_iterations")]
     pub iterations: u32,
+    /// Constructions in a row that find no better route (fewer or shorter
+    /// waits) end the search before `iterations`.
+    #[serde(default = "default_thermal_stall")]
+    pub stall: u32,
 }
 
 impl Default for ThermalConfig {
@@ -422,6 +426,7 @@ impl Default for ThermalConfig {
             penalty: default_thermal_penalty(),
             reach: default_thermal_reach(),
             iterations: default_thermal_iterations(),
+            stall: default_thermal_stall(),
         }
     }
 }
@@ -451,6 +456,9 @@ fn default_thermal_reach() -> f64 {
 }
 fn default_thermal_iterations() -> u32 {
     40
+}
+fn default_thermal_stall() -> u32 {
+    10
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -1759,6 +1767,7 @@ impl MachineConfig {
         in_range("thermal.penalty", t.penalty, 0.0, 1e6, "mm")?;
         in_range("thermal.reach", t.reach, 0.0, 10_000.0, "mm")?;
         in_range("thermal.iterations", t.iterations, 1, 10_000, "constructions")?;
+        in_range("thermal.stall", t.stall, 1, 10_000, "constructions")?;
         if let Some(m) = &self.material {
             in_range("material.thickness", m.thickness, 0.01, 500.0, "mm")?;
             in_range("material.density", m.density, 10.0, 30_000.0, "kg/m³")?;
@@ -2166,6 +2175,7 @@ mod tests {
             ("thermal.responsiveness", F(0.0)),
             ("thermal.penalty", F(f64::NAN)),
             ("thermal.iterations", I(0)),
+            ("thermal.stall", I(0)),
             ("thermal.reach", F(-1.0)),
             ("material.thickness", F(0.0)),
             ("material.density", F(1e9)),

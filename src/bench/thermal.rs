@@ -111,10 +111,11 @@ pub fn thermal_bench(machine: &MachineConfig, elements: usize, width: f64, heigh
         let thermal_plan_s = (whole_plan_s - plain_plan_s).max(0.0);
         let t = planned.thermal.ok_or_else(|| Error::Plan("bench thermal: the cutting planner ran without the heat model".into()))?;
         drop(plain);
-        for (name, a, tl) in [("plain", &t.plain, &t.plain_timeline), ("planned", &t.planned, &t.planned_timeline)] {
-            for &c in &a.violations {
+        let violations = |a: &crate::thermal::Assessment| a.violations.iter().map(|&c| (c, a.celsius[c])).collect::<Vec<_>>();
+        for (name, checks, a, tl) in [("plain", violations(&t.plain), &t.plain, &t.plain_timeline), ("planned, before its waits", t.planned.waited.clone(), &t.planned, &t.planned_timeline)] {
+            for (c, celsius) in checks {
                 let ch = &tl.checks[c];
-                tracing::debug!("{name}: {} of path {} at {:.0} s: {:.1} °C at ({:.0}, {:.0})", ch.feature.name(), ch.path, a.times[c], a.celsius[c], ch.places[0].x, ch.places[0].y);
+                tracing::debug!("{name}: {} of path {} at {:.0} s: {celsius:.1} °C at ({:.0}, {:.0}), waits {:.1} s", ch.feature.name(), ch.path, a.times[c], ch.places[0].x, ch.places[0].y, a.waits[ch.path]);
             }
         }
         let evaluation_s = t.evaluation_s / f64::from(t.evaluations.max(1));

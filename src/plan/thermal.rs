@@ -7,7 +7,9 @@
 //! decays by the responsiveness ρ per path back:
 //! φ'ᵢⱼ = φᵢⱼ + penalty · (T − T_crit)/T_crit · ρ^(k_violation − k_j).
 //! The search runs again under the penalties (the air moves' cost plus φ),
-//! and so on until a route has no violation or the constructions run out.
+//! and so on until a route has no violation, `stall` constructions in a row
+//! find no better one, or the constructions run out; every search of a
+//! construction is assessed, and the next goes on from the best of them.
 //! Routes are ranked by whether they need cooling waits (the laser off,
 //! the head still at a path's start until every operation of the path is
 //! below its critical temperature), then by machine time, waits included.
@@ -129,40 +131,62 @@ pub fn plan(job: &Job, machine: &MachineConfig, model: &CuttingModel, start: Poi
     let settings = &machine.thermal;
     let mut evaluation_s = 0.0;
     let mut evaluations = 0;
-    let mut evaluate = |route: &[Cut], waits: bool| {
+    let mut count = |seconds: f64| {
+        evaluation_s += seconds;
+        evaluations += 1;
+    };
+    let evaluate = |route: &[Cut], waits: bool| {
         let (lines, at) = paths_of(model, job, route);
         let timeline = heat.timeline(job, machine, start, &lines);
         let began = Instant::now();
         let assessment = heat.assess(&timeline, &AssessOptions { waits, ..Default::default() });
-        evaluation_s += began.elapsed().as_secs_f64();
-        evaluations += 1;
-        (assessment, timeline, at)
+        (assessment, timeline, at, began.elapsed().as_secs_f64())
     };
     // Every route is assessed with the waits it would need: the plain
     // route's violations are those it would have without them.
-    let (plain, plain_timeline, _) = evaluate(&route, false);
+    let (plain, plain_timeline, _, seconds) = evaluate(&route, false);
+    count(seconds);
     let plain_time = plain_timeline.end;
     let mut inst: Instance = model.instance.clone();
-    let (a, t, at) = if plain.violations.is_empty() { (plain.clone(), plain_timeline.clone(), Vec::new()) } else { evaluate(&route, true) };
+    let (a, t, at) = if plain.violations.is_empty() {
+        (plain.clone(), plain_timeline.clone(), Vec::new())
+    } else {
+        let (a, t, at, seconds) = evaluate(&route, true);
+        count(seconds);
+        (a, t, at)
+    };
     let mut current = (route, a, t, at);
     // The best so far: without waits if any is, then the least machine time.
     let rank = |a: &Assessment| (!a.waited.is_empty(), a.end);
     let mut best = current.clone();
     let mut iterations = 0;
-    while !best.1.waited.is_empty() && iterations < settings.iterations && !cap.reached() {
+    let mut since_better = 0;
+    while !best.1.waited.is_empty() && iterations < settings.iterations && since_better < settings.stall && !cap.reached() {
         learn(&mut inst, &current.0, &current.1, &current.2, &current.3, heat.critical, settings);
         iterations += 1;
         // From the last route: the penalties change it where it heated.
         let initial = Some(std::sync::Arc::new(current.0.clone()));
         let search = SearchOptions { seed: options.seed.wrapping_add(1000 * iterations as u64), initial, ..options.clone() };
         let searched = Instant::now();
-        let found = ils::search(&inst, &search);
+        // Every search's route is assessed (on the cores the searches ran
+        // on): the one the heat favours need not be the cheapest under the
+        // penalties. The next construction goes on from the best of them.
+        let found = ils::searches(&inst, &search, cap);
         let search_s = searched.elapsed().as_secs_f64();
-        let (assessment, timeline, at) = evaluate(&found.route, true);
-        tracing::debug!("thermal construction {iterations}: {} violations, {:.1} s of waits, {:.1} s; searched in {search_s:.3} s ({} kicks)", assessment.waited.len(), assessment.wait, assessment.end, found.iterations);
-        current = (found.route, assessment, timeline, at);
+        let assessed = crate::parallel::tasks(found.len(), options.threads, |k| evaluate(&found[k].route, true));
+        let mut next: Option<(Vec<Cut>, Assessment, Timeline, Vec<usize>)> = None;
+        for (run, (assessment, timeline, at, seconds)) in found.into_iter().zip(assessed) {
+            count(seconds);
+            tracing::debug!("thermal construction {iterations}: {} violations, {:.1} s of waits, {:.1} s; searched in {search_s:.3} s ({} kicks)", assessment.waited.len(), assessment.wait, assessment.end, run.iterations);
+            if next.as_ref().is_none_or(|n| rank(&assessment) < rank(&n.1)) {
+                next = Some((run.route, assessment, timeline, at));
+            }
+        }
+        current = next.expect("at least one search ran");
+        since_better += 1;
         if rank(&current.1) < rank(&best.1) {
             best = current.clone();
+            since_better = 0;
         }
     }
     let (_, planned, planned_timeline, _) = best.clone();

@@ -319,14 +319,16 @@ impl Field {
         let amb = self.physics.ambient;
         let amb4 = amb.powi(4);
         let (r, beta, gamma) = (self.r, self.beta, self.gamma);
+        let x_of = |txi: usize| (txi * TILE).min(self.grid.nx);
         for tyi in 0..ty {
-            for txi in 0..tx {
+            let (y0, y1) = (tyi * TILE, ((tyi + 1) * TILE).min(self.grid.ny));
+            let mut txi = 0;
+            while txi < tx {
                 let tile = tyi * tx + txi;
-                let (x0, x1) = (txi * TILE, ((txi + 1) * TILE).min(self.grid.nx));
-                let (y0, y1) = (tyi * TILE, ((tyi + 1) * TILE).min(self.grid.ny));
                 if !step_tile[tile] {
                     // Cold: its cells keep their values in the next field too.
                     if self.stepped[tile] {
+                        let (x0, x1) = (x_of(txi), x_of(txi + 1));
                         for iy in y0..y1 {
                             let row = (iy + 1) * w + 1;
                             self.next[row + x0..row + x1].copy_from_slice(&self.t[row + x0..row + x1]);
@@ -334,9 +336,15 @@ impl Field {
                     }
                     self.stepped[tile] = false;
                     self.warm[tile] = false;
+                    txi += 1;
                     continue;
                 }
-                let mut warm = false;
+                // A run of tiles to step, a row of cells across all of them at
+                // a time (long rows vectorise better than a tile's).
+                let end = (txi..tx).find(|&j| !step_tile[tyi * tx + j]).unwrap_or(tx);
+                let (x0, x1) = (x_of(txi), x_of(end));
+                let first = tile;
+                self.warm[first..first + end - txi].fill(false);
                 for iy in y0..y1 {
                     let (a, b) = ((iy + 1) * w + 1 + x0, (iy + 1) * w + 1 + x1);
                     let (t, e, n) = (&self.t, &self.east, &self.north);
@@ -353,11 +361,14 @@ impl Field {
                     } else {
                         row(out, &rows, &links, &k);
                     }
-                    warm = warm || out.iter().any(|&v| (v - amb).abs() > self.cold_below);
+                    for (j, cells) in out.chunks(TILE).enumerate() {
+                        let warm = &mut self.warm[first + j];
+                        *warm = *warm || cells.iter().any(|&v| (v - amb).abs() > self.cold_below);
+                    }
                 }
                 self.cell_updates += ((x1 - x0) * (y1 - y0)) as u64;
-                self.stepped[tile] = true;
-                self.warm[tile] = warm;
+                self.stepped[first..first + end - txi].fill(true);
+                txi = end;
             }
         }
         std::mem::swap(&mut self.t, &mut self.next);

@@ -727,12 +727,17 @@ fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, max_kicks: u64
 /// of all, ties to the first search.
 pub fn search(inst: &Instance, options: &SearchOptions) -> SearchResult {
     let cap = TimeCap::after(options.time_limit);
-    let runs = crate::parallel::tasks(options.searches.max(1), options.threads, |k| {
+    best_of(searches(inst, options, &cap), &cap)
+}
+
+/// Every one of `search`'s independent searches' results, in their order
+/// (for a caller that judges routes by more than their cost).
+pub fn searches(inst: &Instance, options: &SearchOptions, cap: &TimeCap) -> Vec<SearchResult> {
+    crate::parallel::tasks(options.searches.max(1), options.threads, |k| {
         let options = SearchOptions { seed: options.seed.wrapping_add(k as u64), ..options.clone() };
         let start = if k % 2 == 0 { Start::Relaxed } else { Start::Insertion };
-        search_from(inst, start, &options, &cap)
-    });
-    best_of(runs, &cap)
+        search_from(inst, start, &options, cap)
+    })
 }
 
 /// The cheapest of independent searches' results (ties to the first), with
