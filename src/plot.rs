@@ -5,7 +5,7 @@
 //! offset paths, the drawn contours thin dashed over them), the scan fields
 //! (usable squares, blue), the TCP path (marking solid black, laser-off jumps
 //! dashed red), lead-ins (orange), lead-outs (purple), bridges (teal), pierces (red dots),
-//! tabs (blue rings) and the stage path (green, a dot per stage position). Bottom:
+//! tabs (blue rings), cooling waits (cyan rings, the seconds beside them) and the stage path (green, a dot per stage position). Bottom:
 //! the scanner's field use over time (largest |scanner axis| / half the
 //! usable field; 1 is the field's edge). Machine y points up; the picture is
 //! drawn that way.
@@ -158,6 +158,17 @@ pub fn plot(job: &Job, sequence: &Sequence, trajectory: &Trajectory, machine: &M
         if p.pierce && machine.pierce(&job.processes[p.process].layer).active() {
             let (x, y) = at(p.points[0]);
             let _ = writeln!(svg, r#"<circle class="pierce" cx="{x:.3}" cy="{y:.3}" r="{:.3}" fill="red"/>"#, 1.5 * stroke);
+        }
+        if p.cooling_wait > 0.0 {
+            // The machine stands here, the laser off, before the path (`--thermal`).
+            let (x, y) = at(p.points[0]);
+            let (r, size) = (4.0 * stroke, 8.0 * stroke);
+            let _ = writeln!(
+                svg,
+                r##"<g class="cooling-wait"><title>cooling wait {w:.1} s</title><circle cx="{x:.3}" cy="{y:.3}" r="{r:.3}" fill="none" stroke="#0bc" stroke-width="{stroke:.3}"/><text x="{tx:.3}" y="{y:.3}" font-size="{size:.3}" fill="#0bc">{w:.0} s</text></g>"##,
+                w = p.cooling_wait,
+                tx = x + 1.5 * r
+            );
         }
     }
     for tab in crate::plan::tabs::place(job, machine).unwrap_or_default().iter().flatten() {
