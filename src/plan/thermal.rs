@@ -189,7 +189,7 @@ pub fn plan(job: &Job, machine: &MachineConfig, model: &CuttingModel, start: Poi
             since_better = 0;
         }
     }
-    let (_, planned, planned_timeline, _) = best.clone();
+    let (route, planned, planned_timeline, _) = best;
     let planned_time = planned.end;
     let waits = !planned.waited.is_empty();
     let hottest_plate = planned.hottest.and_then(|h| {
@@ -214,7 +214,7 @@ pub fn plan(job: &Job, machine: &MachineConfig, model: &CuttingModel, start: Poi
         evaluations,
         stopped_by: cap.stop(),
     };
-    (best.0, search)
+    (route, search)
 }
 
 /// Seed 000's update: every violation raises the penalty of the jump into
@@ -253,7 +253,6 @@ fn learn(inst: &mut Instance, route: &[Cut], assessment: &Assessment, timeline: 
         }
     }
 }
-
 
 /// A cooling wait as the controller counts it: Grbl 1.1 dwells in 50 ms
 /// steps, rounding up; so does this (a longer wait only cools more).
