@@ -277,16 +277,34 @@ pub struct PlateRun {
     pub remnant_cuts: Option<usize>,
 }
 
+/// Writes the sheet `params` and `seed` generate as SVG, to `svg_out` or
+/// else to a temporary file named after `bench` (the caller removes that),
+/// so that it goes through the importer as any job would.
+fn write_sheet(params: &crate::gen::sheet::SheetParams, seed: u64, bench: &str, svg_out: Option<&std::path::Path>) -> Result<std::path::PathBuf> {
+    use crate::gen::sheet;
+    let path = match svg_out {
+        Some(p) => p.to_path_buf(),
+        None => std::env::temp_dir().join(format!("laserd-{bench}-{}-{}-{seed}.svg", std::process::id(), params.target_elements)),
+    };
+    std::fs::write(&path, sheet::to_svg(&sheet::generate_sheet(params, seed), params)).map_err(|e| Error::Io(format!("{}: cannot write: {e}", path.display())))?;
+    Ok(path)
+}
+
+/// The median and the worst (largest) of `values` (NaN for none).
+fn median_worst(values: impl Iterator<Item = f64>) -> [f64; 2] {
+    let mut v: Vec<f64> = values.collect();
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return [f64::NAN; 2];
+    }
+    [v[v.len() / 2], v[v.len() - 1]]
+}
+
 pub fn plate_bench(machine: &MachineConfig, elements: usize, seed: u64, skeleton_piece: f64, svg_out: Option<&std::path::Path>) -> Result<PlateBench> {
     use crate::config::{ClampConfig, PlateConfig, RemnantSetting, ScrapCuts};
     use crate::gen::sheet;
     let params = sheet::SheetParams { margin: 0.0, ..sheet::SheetParams::with_target(elements) };
-    let generated = sheet::generate_sheet(&params, seed);
-    let path = match svg_out {
-        Some(p) => p.to_path_buf(),
-        None => std::env::temp_dir().join(format!("laserd-plate-{}-{elements}-{seed}.svg", std::process::id())),
-    };
-    std::fs::write(&path, sheet::to_svg(&generated, &params)).map_err(|e| Error::Io(format!("{}: cannot write: {e}", path.display())))?;
+    let path = write_sheet(&params, seed, "plate", svg_out)?;
     // Round parts on the edge come in a few µm beyond it (an SVG arc read as
     // Bézier curves bulges out by 2.7e-4 of its radius): the sheet is put
     // 5 mm into a travel 10 mm larger, its parts' straight sides on the plate's edge.
@@ -382,14 +400,8 @@ pub fn sheet_bench(machine: &MachineConfig, elements: usize, seed: u64, time_lim
         return Err(Error::Config("bench sheet: --elements must be at least 1".into()));
     }
     let params = sheet::SheetParams::with_target(elements);
-    let generated = sheet::generate_sheet(&params, seed);
-    let svg = sheet::to_svg(&generated, &params);
     // The sheet goes through the importer as any job would.
-    let path = match svg_out {
-        Some(p) => p.to_path_buf(),
-        None => std::env::temp_dir().join(format!("laserd-sheet-{}-{elements}-{seed}.svg", std::process::id())),
-    };
-    std::fs::write(&path, svg).map_err(|e| Error::Io(format!("{}: cannot write: {e}", path.display())))?;
+    let path = write_sheet(&params, seed, "sheet", svg_out)?;
     let mut machine = flatbed_for(machine, params.width, params.height);
     machine.cutting.time_limit = time_limit_s;
     let job = crate::import::import_job(&path, &machine)?;
@@ -503,9 +515,8 @@ pub fn galvo_bench(machine: &MachineConfig, dir: &std::path::Path, kind: crate::
         v[key].as_f64().ok_or_else(|| Error::Config(format!("{}: {case}.{key} is missing or not a number", reference_path.display())))
     };
     let ratios = |ours: &[f64], theirs: f64| {
-        let mut r: Vec<f64> = ours.iter().map(|x| x / theirs).collect();
-        r.sort_by(f64::total_cmp);
-        (r[r.len() / 2], r[r.len() - 1])
+        let [median, worst] = median_worst(ours.iter().map(|x| x / theirs));
+        (median, worst)
     };
     let mut cases = Vec::new();
     for (case, figures) in &reference {

@@ -14,6 +14,7 @@ use crate::error::{Error, Result};
 use crate::gen::sheet;
 use crate::plan::cutting::plan_cutting;
 use crate::plan::PlanContext;
+use super::median_worst;
 use crate::thermal::{Assessment, Feature, Timeline};
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
@@ -73,24 +74,12 @@ fn peak(a: &Assessment, timeline: &Timeline, feature: Feature) -> f64 {
     timeline.checks.iter().zip(&a.celsius).filter(|(c, _)| c.feature == feature).map(|(_, &t)| t).fold(f64::NAN, f64::max)
 }
 
-/// Median and worst (largest) of `values`.
-fn median_worst(values: impl Iterator<Item = f64>) -> [f64; 2] {
-    let mut v: Vec<f64> = values.collect();
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() {
-        return [f64::NAN; 2];
-    }
-    [v[v.len() / 2], v[v.len() - 1]]
-}
-
 pub fn thermal_bench(machine: &MachineConfig, elements: usize, width: f64, height: f64, seeds: u64) -> Result<ThermalBench> {
     crate::thermal::model_of(machine)?;
     let mut runs = Vec::new();
     for seed in 1..=seeds {
         let params = sheet::SheetParams { width, height, ..sheet::SheetParams::with_target(elements) };
-        let generated = sheet::generate_sheet(&params, seed);
-        let path = std::env::temp_dir().join(format!("laserd-thermal-{}-{elements}-{seed}.svg", std::process::id()));
-        std::fs::write(&path, sheet::to_svg(&generated, &params)).map_err(|e| Error::Io(format!("{}: cannot write: {e}", path.display())))?;
+        let path = super::write_sheet(&params, seed, "thermal", None)?;
         let m = super::flatbed_for(machine, width, height);
         let job = crate::import::import_job(&path, &m);
         let _ = std::fs::remove_file(&path);

@@ -95,6 +95,18 @@ impl Grid {
         (at(p.x - self.origin.x, self.nx), at(p.y - self.origin.y, self.ny))
     }
 
+    /// The cells whose centres are round `p`, for bilinear weights: the
+    /// lower-left one, the upper-right one (the same column or row on a
+    /// plate one cell wide), and where `p` lies between them (0 to 1 each
+    /// way; clamped to the edge cells' centres).
+    pub fn around(&self, p: Point) -> ((usize, usize), (usize, usize), (f64, f64)) {
+        let f = |v: f64, o: f64, n: usize| ((v - o) / self.cell - 0.5).clamp(0.0, (n - 1) as f64);
+        let (fx, fy) = (f(p.x, self.origin.x, self.nx), f(p.y, self.origin.y, self.ny));
+        let (ix, iy) = ((fx.floor() as usize).min(self.nx.saturating_sub(2)), (fy.floor() as usize).min(self.ny.saturating_sub(2)));
+        let (ux, uy) = ((fx - ix as f64).clamp(0.0, 1.0), (fy - iy as f64).clamp(0.0, 1.0));
+        ((ix, iy), ((ix + 1).min(self.nx - 1), (iy + 1).min(self.ny - 1)), (ux, uy))
+    }
+
     pub fn centre(&self, ix: usize, iy: usize) -> Point {
         self.origin + nalgebra::Vector2::new((ix as f64 + 0.5) * self.cell, (iy as f64 + 0.5) * self.cell)
     }
@@ -235,13 +247,9 @@ impl Field {
     /// the four nearest cell centres (bilinear), so that a cut's heat goes
     /// to both sides of its kerf.
     pub fn deposit(&mut self, p: Point, joules: f64) {
-        let g = self.grid;
-        let fx = ((p.x - g.origin.x) / g.cell - 0.5).clamp(0.0, (g.nx - 1) as f64);
-        let fy = ((p.y - g.origin.y) / g.cell - 0.5).clamp(0.0, (g.ny - 1) as f64);
-        let (ix, iy) = (fx.floor() as usize, fy.floor() as usize);
-        let (ux, uy) = (fx - ix as f64, fy - iy as f64);
-        for (x, y, w) in [(ix, iy, (1.0 - ux) * (1.0 - uy)), (ix + 1, iy, ux * (1.0 - uy)), (ix, iy + 1, (1.0 - ux) * uy), (ix + 1, iy + 1, ux * uy)] {
-            if w > 0.0 && x < g.nx && y < g.ny {
+        let ((ix, iy), (jx, jy), (ux, uy)) = self.grid.around(p);
+        for (x, y, w) in [(ix, iy, (1.0 - ux) * (1.0 - uy)), (jx, iy, ux * (1.0 - uy)), (ix, jy, (1.0 - ux) * uy), (jx, jy, ux * uy)] {
+            if w > 0.0 {
                 self.deposit_in(x, y, joules * w);
             }
         }
@@ -378,14 +386,10 @@ impl Field {
     /// The temperature at `p`, °C: between the four nearest cell centres
     /// (bilinear), or the nearest cell's at the plate's edges.
     pub fn celsius_at(&self, p: Point) -> f64 {
-        let g = &self.grid;
-        let fx = ((p.x - g.origin.x) / g.cell - 0.5).clamp(0.0, (g.nx - 1) as f64);
-        let fy = ((p.y - g.origin.y) / g.cell - 0.5).clamp(0.0, (g.ny - 1) as f64);
-        let (ix, iy) = ((fx.floor() as usize).min(g.nx.saturating_sub(2)), (fy.floor() as usize).min(g.ny.saturating_sub(2)));
-        let (ux, uy) = ((fx - ix as f64).clamp(0.0, 1.0), (fy - iy as f64).clamp(0.0, 1.0));
-        let at = |x: usize, y: usize| self.t[self.index(x.min(g.nx - 1), y.min(g.ny - 1))];
-        let bottom = at(ix, iy) * (1.0 - ux) + at(ix + 1, iy) * ux;
-        let top = at(ix, iy + 1) * (1.0 - ux) + at(ix + 1, iy + 1) * ux;
+        let ((ix, iy), (jx, jy), (ux, uy)) = self.grid.around(p);
+        let at = |x: usize, y: usize| self.t[self.index(x, y)];
+        let bottom = at(ix, iy) * (1.0 - ux) + at(jx, iy) * ux;
+        let top = at(ix, jy) * (1.0 - ux) + at(jx, jy) * ux;
         bottom * (1.0 - uy) + top * uy - KELVIN
     }
 

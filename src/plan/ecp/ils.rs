@@ -611,17 +611,16 @@ pub struct SearchResult {
 pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: &TimeCap) -> SearchResult {
     let began = Instant::now();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
-    // The first start: the cheaper of seed 001's two constructions.
-    let mut insertion = insertion_in_order(inst, (options.seed > 1).then_some(options.seed));
-    let contour_order = contour_order_construction(inst);
-    if inst.cost(&contour_order) < inst.cost(&insertion) {
-        insertion = contour_order;
-    }
-    let mut first = first;
-    if let Some(given) = &options.initial {
-        insertion = given.to_vec();
-        first = Start::Insertion;
-    }
+    // The first start: the route given, else the cheaper of seed 001's two
+    // constructions.
+    let (mut insertion, first) = match &options.initial {
+        Some(given) => (given.to_vec(), Start::Insertion),
+        None => {
+            let insertion = insertion_in_order(inst, (options.seed > 1).then_some(options.seed));
+            let contour_order = contour_order_construction(inst);
+            (if inst.cost(&contour_order) < inst.cost(&insertion) { contour_order } else { insertion }, first)
+        }
+    };
     let mut s = Descent::new(inst, insertion.clone(), Neighbours::new(inst, options.neighbours));
     let mut best: Option<SearchResult> = None;
     let mut time_to_best = Duration::ZERO;
