@@ -6,9 +6,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use axum::body::Bytes;
-use axum::extract::{Path as UrlPath, Query, Request, State};
+use axum::extract::{Path as UrlPath, Query, State};
 use axum::http::{header, HeaderMap, StatusCode};
-use axum::middleware::Next;
 use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
@@ -63,6 +62,9 @@ pub fn router(daemon: Arc<Daemon>) -> Router {
         .route("/home", post(|s| machine_call(s, Command::Home)))
         .route("/unlock", post(|s| machine_call(s, Command::Unlock)))
         .route("/jog", post(jog))
+        .route("/frame", post(frame))
+        .route("/override", post(override_call))
+        .route("/jobs/{id}/plot", get(plot))
         .route("/events", get(events))
         .fallback(|| async { ApiError(Error::NotFound("no such call (docs/api.md lists them)".into())) })
         // Uploads up to the largest job file; the same JSON errors everywhere.
@@ -167,12 +169,29 @@ async fn file_of(d: &Daemon, id: &str, which: &str) -> ApiResult<Response> {
     let path = {
         let store = d.store();
         store.get(id).ok_or_else(|| Error::NotFound(format!("no job {id}")))?;
-        if which == "program" { store.program_path(id) } else { store.recording_path(id) }
+        match which {
+            "program" => store.program_path(id),
+            "plot" => store.plot_path(id),
+            _ => store.recording_path(id),
+        }
     };
     let bytes = tokio::fs::read(&path).await.map_err(|_| Error::NotFound(format!("job {id} has no {which} yet")))?;
-    let kind = if which == "program" { "text/plain; charset=utf-8" } else { "application/octet-stream" };
-    let name = format!("attachment; filename=\"{id}.{}\"", if which == "program" { "nc" } else { "mcap" });
-    Ok(([(header::CONTENT_TYPE, kind.to_string()), (header::CONTENT_DISPOSITION, name)], bytes).into_response())
+    let (kind, extension, disposition) = match which {
+        "program" => ("text/plain; charset=utf-8", "nc", "attachment"),
+        // Shown in the page, never run: the picture is only drawn there.
+        "plot" => ("image/svg+xml", "svg", "inline"),
+        _ => ("application/octet-stream", "mcap", "attachment"),
+    };
+    let name = format!("{disposition}; filename=\"{id}.{extension}\"");
+    let mut response = ([(header::CONTENT_TYPE, kind.to_string()), (header::CONTENT_DISPOSITION, name)], bytes).into_response();
+    if which == "plot" {
+        response.headers_mut().insert(header::CONTENT_SECURITY_POLICY, header::HeaderValue::from_static("default-src 'none'; style-src 'unsafe-inline'"));
+    }
+    Ok(response)
+}
+
+async fn plot(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> ApiResult<Response> {
+    file_of(&d, &id, "plot").await
 }
 
 async fn program(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>) -> ApiResult<Response> {
@@ -204,6 +223,62 @@ pub struct StartBody {
 async fn start(State(d): State<Arc<Daemon>>, body: Bytes) -> ApiResult<Json<serde_json::Value>> {
     let StartBody { id } = if body.is_empty() { StartBody::default() } else { serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"id\": \"...\"}} or nothing: {e}")))? };
     ask(&d, |reply| Command::Start { id, reply }).await
+}
+
+/// `POST /frame`: the job's (or the next queued job's) bounds traced with the laser off.
+async fn frame(State(d): State<Arc<Daemon>>, body: Bytes) -> ApiResult<Json<serde_json::Value>> {
+    let StartBody { id } = if body.is_empty() { StartBody::default() } else { serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"id\": \"...\"}} or nothing: {e}")))? };
+    ask(&d, |reply| Command::Frame { id, reply }).await
+}
+
+/// The JSON body of `POST /override`: each field a step (`"+10"`, `"-10"`,
+/// `"+1"`, `"-1"`) or `"100"` (back to the programmed value); rapids
+/// `"100"`, `"50"` or `"25"`. Public for the fuzz targets.
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct OverrideBody {
+    pub feed: Option<String>,
+    pub rapid: Option<String>,
+    pub power: Option<String>,
+}
+
+impl OverrideBody {
+    /// The realtime bytes that make the change.
+    pub fn bytes(&self) -> Result<Vec<u8>> {
+        use laserd_sim::wire::realtime::*;
+        let mut bytes = Vec::new();
+        let step = |what: &str, given: &str, [reset, plus10, minus10, plus1, minus1]: [u8; 5]| match given {
+            "100" => Ok(reset),
+            "+10" => Ok(plus10),
+            "-10" => Ok(minus10),
+            "+1" => Ok(plus1),
+            "-1" => Ok(minus1),
+            other => Err(Error::Config(format!("override {what} {other:?}: give \"+10\", \"-10\", \"+1\", \"-1\" or \"100\""))),
+        };
+        if let Some(feed) = &self.feed {
+            bytes.push(step("feed", feed, [FEED_OVR_RESET, FEED_OVR_COARSE_PLUS, FEED_OVR_COARSE_MINUS, FEED_OVR_FINE_PLUS, FEED_OVR_FINE_MINUS])?);
+        }
+        if let Some(power) = &self.power {
+            bytes.push(step("power", power, [SPINDLE_OVR_RESET, SPINDLE_OVR_COARSE_PLUS, SPINDLE_OVR_COARSE_MINUS, SPINDLE_OVR_FINE_PLUS, SPINDLE_OVR_FINE_MINUS])?);
+        }
+        if let Some(rapid) = &self.rapid {
+            bytes.push(match rapid.as_str() {
+                "100" => RAPID_OVR_RESET,
+                "50" => RAPID_OVR_MEDIUM,
+                "25" => RAPID_OVR_LOW,
+                other => return Err(Error::Config(format!("override rapid {other:?}: give \"100\", \"50\" or \"25\""))),
+            });
+        }
+        if bytes.is_empty() {
+            return Err(Error::Config("override: give feed, rapid or power".into()));
+        }
+        Ok(bytes)
+    }
+}
+
+async fn override_call(State(d): State<Arc<Daemon>>, Json(body): Json<OverrideBody>) -> ApiResult<Json<serde_json::Value>> {
+    let bytes = body.bytes()?;
+    ask(&d, |reply| Command::Override { bytes, reply }).await
 }
 
 /// The JSON body of `POST /jobs/{id}/resume`. Public for the fuzz targets.
@@ -306,25 +381,12 @@ pub async fn serve_unix(listener: tokio::net::UnixListener, daemon: Arc<Daemon>)
     axum::serve(listener, router(daemon)).await.map_err(|e| Error::Io(format!("API on the Unix socket: {e}")))
 }
 
-/// TCP: every request must carry `Authorization: Bearer <token>`.
+/// TCP: every request carries the bearer token, or comes from a logged-in
+/// page (`web.rs`); the pages themselves are served here too.
 pub async fn serve_tcp(listener: tokio::net::TcpListener, daemon: Arc<Daemon>, token: String) -> Result<()> {
-    let token = Arc::new(token);
-    let app = router(daemon).layer(axum::middleware::from_fn(move |request: Request, next: Next| {
-        let token = token.clone();
-        async move {
-            let given = request.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()).and_then(|v| v.strip_prefix("Bearer ")).unwrap_or("");
-            if !same(given.as_bytes(), token.as_bytes()) {
-                return (StatusCode::UNAUTHORIZED, [(header::WWW_AUTHENTICATE, "Bearer")], Json(serde_json::json!({ "error": "a bearer token is required" }))).into_response();
-            }
-            next.run(request).await
-        }
-    }));
+    let gate = super::web::Gate::new(token);
+    let app = super::web::routes(gate.clone()).merge(router(daemon)).layer(axum::middleware::from_fn_with_state(gate, super::web::check));
     axum::serve(listener, app).await.map_err(|e| Error::Io(format!("API on TCP: {e}")))
-}
-
-/// Compares without stopping at the first difference (no timing hint).
-fn same(a: &[u8], b: &[u8]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
 #[cfg(test)]

@@ -56,6 +56,11 @@ pub struct PlanResult {
     /// Cuts after their part has fallen out, in the planned order.
     #[serde(default)]
     pub precedence_violations: Option<u64>,
+    /// Where the marks lie (work mm: x min, y min, x max, y max).
+    #[serde(default)]
+    pub bounds: Option<[f64; 4]>,
+    #[serde(default)]
+    pub figures: Option<super::queue::JobFigures>,
     /// Set when the job cannot run: why.
     pub error: Option<String>,
 }
@@ -65,10 +70,11 @@ pub struct PlanResult {
 /// `[service] plan_timeout`); a longer one runs without an ETA.
 const GCODE_TIME_LINES: usize = 50_000;
 
-/// A G-code job's time as Grbl's planner runs it on this machine, simulated
-/// in virtual time: its ETA. None past `GCODE_TIME_LINES`, or where the
-/// simulated run stops.
-fn gcode_time(source: &Path, lines: usize, machine: &MachineConfig) -> Option<f64> {
+/// A G-code job as Grbl's planner runs it on this machine, simulated in
+/// virtual time: its time (the ETA), each line's end (`times`, next to
+/// `program`) and where the laser is on. None past `GCODE_TIME_LINES`, or
+/// where the simulated run stops.
+fn gcode_run(source: &Path, program_path: &Path, lines: usize, machine: &MachineConfig) -> Option<(f64, Option<[f64; 4]>)> {
     if lines > GCODE_TIME_LINES {
         return None;
     }
@@ -76,7 +82,44 @@ fn gcode_time(source: &Path, lines: usize, machine: &MachineConfig) -> Option<f6
     grbl.simulator.motion = laserd_sim::controller::MotionModel::Grbl;
     let program = crate::run::gcode::read_gcode(source, &grbl).ok()?;
     let (outcome, log) = crate::run::gcode::simulate(&program, Vec::new(), &grbl, None).ok()?;
-    outcome.stop_reason.is_none().then(|| crate::figures::sim_figures(&log).job_time_s)
+    if outcome.stop_reason.is_some() {
+        return None;
+    }
+    let figures = crate::figures::sim_figures(&log);
+    // Times by line only where the simulated lines are the file's lines.
+    if program.lines.len() == lines {
+        let start = log.knots.first().map_or(0.0, |k| k.t);
+        let mut ends = vec![(None, None); lines];
+        for k in &log.knots {
+            if let Some(end) = (k.line as usize).checked_sub(1).and_then(|i| ends.get_mut(i)) {
+                let at = |i: usize| k.pos.get(i).copied().unwrap_or(0.0);
+                *end = (Some(k.t - start), Some([at(0) + at(2), at(1) + at(3)]));
+            }
+        }
+        let _ = super::eta::LineTimes::from_ends(ends).write(&program_path.with_file_name(TIMES_FILE));
+    }
+    // The TCP where the laser is on: stage plus scanner.
+    let lit = log.knots.windows(2).filter(|w| w[1].power > 0.0).flat_map(|w| [&w[0], &w[1]]).map(|k| {
+        let at = |i: usize| k.pos.get(i).copied().unwrap_or(0.0);
+        crate::job::Point::new(at(0) + at(2), at(1) + at(3))
+    });
+    let bounds = bounds_of(lit);
+    Some((figures.job_time_s, bounds))
+}
+
+/// The file of each line's planned end, next to the program (`Store::times_path`).
+const TIMES_FILE: &str = "times.bin";
+/// The plan's picture, next to the program (`Store::plot_path`).
+const PLOT_FILE: &str = "plot.svg";
+
+/// The box round some points, if there are any.
+fn bounds_of(points: impl Iterator<Item = crate::job::Point>) -> Option<[f64; 4]> {
+    points.fold(None, |b: Option<[f64; 4]>, p| {
+        Some(match b {
+            None => [p.x, p.y, p.x, p.y],
+            Some([x0, y0, x1, y1]) => [x0.min(p.x), y0.min(p.y), x1.max(p.x), y1.max(p.y)],
+        })
+    })
 }
 
 /// The child's side (`laserd plan-job`): plans or checks `source`, writes the
@@ -105,7 +148,8 @@ fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineCon
             let text = String::from_utf8_lossy(&bytes);
             let lines = check_gcode(name, &text, machine)?;
             super::queue::write_atomic(program, text.as_bytes())?;
-            Ok(PlanResult { lines, planned_time_s: gcode_time(source, lines, machine), ..Default::default() })
+            let run = gcode_run(source, program, lines, machine);
+            Ok(PlanResult { lines, planned_time_s: run.map(|r| r.0), bounds: run.and_then(|r| r.1), ..Default::default() })
         }
         JobKind::Svg | JobKind::Dxf | JobKind::Json => {
             let named = |e: Error| Error::Plan(e.to_string().replace(&source.display().to_string(), name));
@@ -116,11 +160,27 @@ fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineCon
                 return Ok(PlanResult { precedence_violations, error: Some(why), ..Default::default() });
             }
             super::queue::write_atomic(program, planned.program.to_gcode().as_bytes())?;
+            // What the operator's screen shows: the picture, each line's
+            // planned end (the ETA), the figures, where the marks lie (framing).
+            super::eta::LineTimes::of_program(&planned.program).write(&program.with_file_name(TIMES_FILE))?;
+            let picture = crate::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, machine, planned.drawn.as_ref());
+            super::queue::write_atomic(&program.with_file_name(PLOT_FILE), picture.as_bytes())?;
+            let report = &planned.report;
+            let figures = super::queue::JobFigures {
+                geometries: report.geometries,
+                scan_fields: report.scan_fields,
+                mark_length_mm: report.mark_length_mm,
+                pierces: report.pierces,
+                planner: report.planner.clone(),
+                mode: report.mode.clone(),
+            };
             Ok(PlanResult {
                 lines: planned.program.lines.len(),
-                planned_time_s: Some(planned.report.trajectory_time_s),
+                planned_time_s: Some(report.trajectory_time_s),
                 start: Some(planned.program.start.clone()),
                 precedence_violations,
+                bounds: bounds_of(planned.sequence.paths().flat_map(|p| p.points.iter().copied())),
+                figures: Some(figures),
                 error: None,
             })
         }

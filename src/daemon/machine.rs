@@ -37,6 +37,10 @@ pub enum Command {
     Jog { block: String, reply: Reply },
     Home(Reply),
     Unlock(Reply),
+    /// Trace the job's bounds (or the next queued job's) with the laser off.
+    Frame { id: Option<String>, reply: Reply },
+    /// Realtime override bytes for the running job.
+    Override { bytes: Vec<u8>, reply: Reply },
     /// The service is stopping: a safe stop, then acknowledge.
     Shutdown(oneshot::Sender<()>),
 }
@@ -44,7 +48,7 @@ pub enum Command {
 impl Command {
     fn refuse(self, why: &str) {
         let reply = match self {
-            Command::Start { reply, .. } | Command::ResumeJob { reply, .. } | Command::Pause(reply) | Command::Resume(reply) | Command::Abort(reply) | Command::Jog { reply, .. } | Command::Home(reply) | Command::Unlock(reply) => reply,
+            Command::Start { reply, .. } | Command::ResumeJob { reply, .. } | Command::Pause(reply) | Command::Resume(reply) | Command::Abort(reply) | Command::Jog { reply, .. } | Command::Home(reply) | Command::Unlock(reply) | Command::Frame { reply, .. } | Command::Override { reply, .. } => reply,
             Command::Shutdown(done) => {
                 let _ = done.send(());
                 return;
@@ -58,7 +62,16 @@ pub fn disconnected(why: &str) -> MachineStatus {
     MachineStatus { connected: false, state: "Disconnected".into(), message: Some(why.to_string()), ..Default::default() }
 }
 
-fn machine_status(report: &StatusReport) -> MachineStatus {
+/// The machine as a status report shows it; what the report leaves out
+/// (the offset and overrides are sent now and then) is kept from `before`.
+fn machine_status(report: &StatusReport, before: &MachineStatus) -> MachineStatus {
+    let work_offset = report.wco.clone().or_else(|| before.work_offset.clone());
+    let axis = |p: &[f64], i: usize| p.get(i).copied().unwrap_or(0.0);
+    let tcp = match (&report.wpos, &work_offset) {
+        (Some(w), _) if report.mpos.is_empty() => Some([axis(w, 0) + axis(w, 2), axis(w, 1) + axis(w, 3)]),
+        (_, Some(o)) if report.mpos.len() >= 2 => Some([axis(&report.mpos, 0) + axis(&report.mpos, 2) - axis(o, 0) - axis(o, 2), axis(&report.mpos, 1) + axis(&report.mpos, 3) - axis(o, 1) - axis(o, 3)]),
+        _ => None,
+    };
     MachineStatus {
         connected: true,
         state: report.state.as_field(),
@@ -66,6 +79,9 @@ fn machine_status(report: &StatusReport) -> MachineStatus {
         laser: report.spindle.unwrap_or(0.0),
         feed: report.feed.unwrap_or(0.0),
         message: None,
+        tcp,
+        work_offset,
+        overrides: report.overrides.or(before.overrides),
     }
 }
 
@@ -74,12 +90,54 @@ fn machine_status(report: &StatusReport) -> MachineStatus {
 #[derive(Default)]
 struct Running {
     job: Option<String>,
-    lines_total: usize,
-    planned_time_s: Option<f64>,
     last_sent: usize,
+    /// The sender's lower bound on the lines executed, the job's clock and its plan.
+    executed: Option<crate::stream::ExecutedLine>,
+    started: Option<std::time::Instant>,
+    eta: Option<super::eta::Eta>,
     /// Bytes sent for the job (lines with their newline, realtime bytes).
     bytes: usize,
     recorder: Option<crate::record::Recorder>,
+}
+
+impl Running {
+    /// Where the running job is now, from its executed line and its plan.
+    fn progress(&mut self, tcp: Option<[f64; 2]>) -> Option<ProgressNow> {
+        let (started, eta) = (self.started?, self.eta.as_mut()?);
+        let executed = self.executed.as_ref().and_then(|e| e.get());
+        let elapsed = started.elapsed().as_secs_f64();
+        Some(ProgressNow { executed, elapsed, estimate: eta.estimate(elapsed, executed.unwrap_or(0), self.last_sent, tcp) })
+    }
+}
+
+/// A running job's progress at one status report.
+#[derive(Debug, Clone, Copy)]
+struct ProgressNow {
+    executed: Option<usize>,
+    elapsed: f64,
+    estimate: super::eta::Estimate,
+}
+
+impl Progress {
+    /// A job just started, from line `line` on.
+    fn start(id: String, line: usize, lines_total: usize, planned_time_s: Option<f64>) -> Progress {
+        let percent = if lines_total > 0 { 100.0 * line as f64 / lines_total as f64 } else { 0.0 };
+        let eta_s = planned_time_s.map(|p| p * (1.0 - percent / 100.0));
+        Progress { id, state: JobState::Running, line, lines_total, executed_line: Some(line), percent, time_percent: percent, elapsed_s: 0.0, eta_s }
+    }
+
+    /// Takes what a status report says; whether anything shown changed.
+    fn update(&mut self, now: ProgressNow) -> bool {
+        let before = self.clone();
+        self.executed_line = now.executed;
+        if let Some(line) = now.executed {
+            self.percent = if self.lines_total > 0 { (100.0 * line as f64 / self.lines_total as f64).min(100.0) } else { 0.0 };
+        }
+        self.time_percent = now.estimate.time_percent;
+        self.elapsed_s = now.elapsed;
+        self.eta_s = now.estimate.eta_s;
+        *self != before
+    }
 }
 
 /// The machine loop: runs until the service stops.
@@ -152,7 +210,7 @@ async fn open(daemon: &Arc<Daemon>, port: &str, running: Arc<Mutex<Running>>) ->
     }
     let status = connection.status().await?;
     daemon.status.send_modify(|s| {
-        s.machine = machine_status(&status);
+        s.machine = machine_status(&status, &s.machine);
         s.machine.message = refusal.clone();
     });
     Ok((connection, refusal))
@@ -195,26 +253,31 @@ fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &Link
     match event {
         LinkEvent::Sent { line, .. } if *line > 0 => {
             running.last_sent = *line;
-            if let Some(id) = running.job.clone() {
-                let (line, total, planned) = (*line, running.lines_total, running.planned_time_s);
+            if running.job.is_some() {
+                let line = *line;
                 daemon.status.send_modify(|s| {
-                    let state = s.job.as_ref().map_or(JobState::Running, |p| p.state);
-                    s.job = Some(Progress::at(id, state, line, total, planned));
+                    if let Some(p) = &mut s.job {
+                        p.line = line;
+                    }
                 });
             }
         }
         LinkEvent::Received { text } if text.starts_with('<') => {
             if let Ok(report) = StatusReport::parse(text) {
-                let mut status = machine_status(&report);
                 daemon.status.send_if_modified(|s| {
+                    let mut status = machine_status(&report, &s.machine);
+                    let estimate = running.job.is_some().then(|| running.progress(status.tcp)).flatten();
                     // Shown once the link is open and in sync (`open` says so);
                     // a refusal found then stays shown.
                     if !s.machine.connected {
                         return false;
                     }
                     status.message = s.machine.message.clone();
-                    let changed = s.machine != status;
+                    let mut changed = s.machine != status;
                     s.machine = status;
+                    if let (Some(p), Some(now)) = (&mut s.job, estimate) {
+                        changed |= p.update(now);
+                    }
                     changed
                 });
             }
@@ -285,6 +348,10 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                     Command::Unlock(reply) => {
                         let _ = reply.send(connection.unlock().await.map(|_| "alarm cleared".to_string()));
                     }
+                    Command::Frame { id, reply } => {
+                        let framed = frame(daemon, connection, &refusal, id.as_deref()).await;
+                        let _ = reply.send(framed);
+                    }
                     Command::Shutdown(done) => {
                         let _ = done.send(());
                         return Ok(());
@@ -294,6 +361,47 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
             }
         }
     }
+}
+
+/// Traces the rectangle round job `id`'s marks (or the next queued job's)
+/// with jogs: the laser off, at the controller's own rates, in the bed
+/// coordinates the job runs in. Refused unless the machine is Idle, the
+/// settings agree with the config, and the rectangle lies inside the travel.
+async fn frame(daemon: &Daemon, connection: &mut Link, refusal: &Option<String>, id: Option<&str>) -> Result<String> {
+    if let Some(why) = refusal {
+        return Err(Error::Conflict(why.clone()));
+    }
+    let job = {
+        let store = daemon.store();
+        let id = match id {
+            Some(id) => id.to_string(),
+            None => store.order().iter().find(|id| store.get(id).is_some_and(|j| j.state == JobState::Queued)).cloned().ok_or_else(|| Error::Conflict("no job is queued to frame".into()))?,
+        };
+        store.get(&id).cloned().ok_or_else(|| Error::NotFound(format!("no job {id}")))?
+    };
+    let [x0, y0, x1, y1] = job.bounds.ok_or_else(|| Error::Conflict(format!("job {}: where its marks lie is not known (still planning, or G-code that could not be simulated): nothing to frame", job.id)))?;
+    let [w, h] = stage_travel(daemon);
+    const SLACK: f64 = 1e-3;
+    if x0 < -SLACK || y0 < -SLACK || x1 > w + SLACK || y1 > h + SLACK {
+        return Err(Error::Conflict(format!(
+            "job {}: its marks span X {x0:.3} to {x1:.3} and Y {y0:.3} to {y1:.3} mm, outside the stage travel (X 0 to {w}, Y 0 to {h} mm): not framed",
+            job.id
+        )));
+    }
+    let state = connection.status().await?.state;
+    if state != MachineState::Idle {
+        return Err(Error::Conflict(format!("the machine is {}: framing starts only from Idle", state.as_field())));
+    }
+    connection.use_program_frame([w, h]).await.map_err(|e| Error::Conflict(format!("cannot set the work coordinates (G54) jobs run in: {e}")))?;
+    let machine = &daemon.machine;
+    // Any scanner axes at their centre: the stage alone traces the box.
+    let rest: String = machine.axis_letters().iter().skip(2).map(|l| format!("{l}0")).collect();
+    let feed = crate::program::format_number(machine.stage.max_velocity * 60.0, 1);
+    let number = |v: f64| crate::program::format_number(v, 3);
+    for (x, y) in [(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)] {
+        connection.jog(&format!("G90G21X{}Y{}{rest}F{feed}", number(x), number(y))).await?;
+    }
+    Ok(format!("framing job {}: X {x0:.3} to {x1:.3}, Y {y0:.3} to {y1:.3} mm, laser off (abort stops it)", job.id))
 }
 
 /// Checks that a job may start (settings in line with the config, machine
@@ -400,10 +508,12 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     recording.recorder().write(crate::record::TOPIC_SETUP, 0.0, &crate::run::run_setup(&daemon.machine, &sim));
     {
         let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
+        let times = super::eta::LineTimes::read(&daemon.store().times_path(&job.id), job.lines_total);
         *r = Running {
             job: Some(job.id.clone()),
-            lines_total: job.lines_total,
-            planned_time_s: job.planned_time_s,
+            executed: Some(connection.executed_line()),
+            started: Some(std::time::Instant::now()),
+            eta: Some(super::eta::Eta::new(times, job.lines_total, job.planned_time_s)),
             recorder: Some(recording.recorder().with_reported_motion()),
             ..Default::default()
         };
@@ -411,7 +521,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
     // Shown from the start, also while the machine moves to the job's start.
     daemon.status.send_modify(|s| {
         let line = resume_from.map_or(0, |from| from - 1);
-        s.job = Some(Progress::at(job.id.clone(), JobState::Running, line, job.lines_total, job.planned_time_s));
+        s.job = Some(Progress::start(job.id.clone(), line, job.lines_total, job.planned_time_s));
     });
     // Read as the controller takes lines: constant memory for any size.
     let shown = program.display().to_string();
@@ -504,6 +614,12 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
                         let _ = control.send(Control::Abort);
                         stopping = true;
                     }
+                    Some(Command::Override { bytes, reply }) => {
+                        for byte in &bytes {
+                            let _ = control.send(Control::Override(*byte));
+                        }
+                        let _ = reply.send(Ok(format!("job {}: {} override step(s) sent", job.id, bytes.len())));
+                    }
                     Some(other) => other.refuse("a job is running"),
                 },
             }
@@ -520,11 +636,12 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
             nothing
         })
     };
-    let (last_sent, executed_estimate, bytes) = {
+    let (last_sent, executed_estimate, bytes, executed_time) = {
         let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
         r.recorder = None;
         r.job = None;
-        (r.last_sent, executed_line.get(), r.bytes)
+        r.eta = None;
+        (r.last_sent, executed_line.get(), r.bytes, r.started.take().map(|s| s.elapsed().as_secs_f64()))
     };
     let recording_cut = recording.finish().err().map(|e| format!("the recording is cut short: {e}"));
     if let Some(why) = &recording_cut {
@@ -551,6 +668,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
         // A resumed stream counts only its own lines: a completed job all.
         (j.last_acked_line, j.last_executed_line) = (acked, executed_final);
         j.bytes_sent = bytes;
+        j.executed_time_s = executed_time;
         if let Ok(o) = &outcome {
             j.stream_time_s = o.stream_time_s;
             j.link_utilization = (o.stream_time_s > 0.0).then(|| crate::stream::link_utilization(bytes, daemon.machine.serial.baud, o.stream_time_s));

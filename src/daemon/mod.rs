@@ -8,9 +8,11 @@ pub mod api;
 pub mod bench;
 pub mod client;
 pub mod ctl;
+pub mod eta;
 pub mod intake;
 pub mod machine;
 pub mod queue;
+pub mod web;
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -62,6 +64,16 @@ pub struct MachineStatus {
     pub feed: f64,
     /// Why the machine cannot run jobs, when it cannot.
     pub message: Option<String>,
+    /// The tool centre point in work coordinates (mm): stage plus scanner,
+    /// less the work offset; `None` until the controller gave its offset.
+    #[serde(default)]
+    pub tcp: Option<[f64; 2]>,
+    /// The work coordinate offset last reported (`WCO:`, machine − work).
+    #[serde(default)]
+    pub work_offset: Option<Vec<f64>>,
+    /// Feed, rapid and laser power overrides (%), as last reported (`Ov:`).
+    #[serde(default)]
+    pub overrides: Option<[u32; 3]>,
 }
 
 /// The running job's progress.
@@ -72,18 +84,20 @@ pub struct Progress {
     /// The last line the controller accepted, and the program's length.
     pub line: usize,
     pub lines_total: usize,
+    /// A lower bound on the last line executed (`None`: unknown).
+    #[serde(default)]
+    pub executed_line: Option<usize>,
+    /// Lines executed, of all (%).
     pub percent: f64,
-    /// Seconds left, from the planned machine time.
+    /// Planned machine time executed, of all (%).
+    #[serde(default)]
+    pub time_percent: f64,
+    /// Seconds since the job started.
+    #[serde(default)]
+    pub elapsed_s: f64,
+    /// Seconds left: the planned time of the lines not yet executed, scaled
+    /// by the machine's pace against the plan so far (`eta.rs`).
     pub eta_s: Option<f64>,
-}
-
-impl Progress {
-    /// At `line` of `lines_total`; the time left prorated from the planned time.
-    pub fn at(id: String, state: JobState, line: usize, lines_total: usize, planned_time_s: Option<f64>) -> Progress {
-        let percent = if lines_total > 0 { 100.0 * line as f64 / lines_total as f64 } else { 0.0 };
-        let eta_s = planned_time_s.map(|p| p * (1.0 - percent / 100.0));
-        Progress { id, state, line, lines_total, percent, eta_s }
-    }
 }
 
 /// `GET /status`.
@@ -240,6 +254,8 @@ fn plan_job(daemon: &Daemon, id: &str) {
                     j.lines_total = plan.lines;
                     j.planned_time_s = plan.planned_time_s;
                     j.start = plan.start.clone();
+                    j.bounds = plan.bounds;
+                    j.figures = plan.figures.clone();
                 }
                 // Planned, but refused (an order with precedence violations).
                 Some(why) => {

@@ -102,6 +102,28 @@ pub struct JobRecord {
     /// 2.1 % above it, so up to about 1.02 on one).
     #[serde(default)]
     pub link_utilization: Option<f64>,
+    /// Where the planned marks lie (work mm: x min, y min, x max, y max),
+    /// lead-ins included: what framing traces. `None` for G-code.
+    #[serde(default)]
+    pub bounds: Option<[f64; 4]>,
+    /// The plan's figures (geometries, scan fields, marked length, pierces).
+    #[serde(default)]
+    pub figures: Option<JobFigures>,
+    /// From its start to its end (s): against `planned_time_s` in the history.
+    #[serde(default)]
+    pub executed_time_s: Option<f64>,
+}
+
+/// What the planner says of a job, for the operator's screen.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct JobFigures {
+    pub geometries: usize,
+    /// Scan fields visited; `None` on a stage-only plan.
+    pub scan_fields: Option<usize>,
+    pub mark_length_mm: f64,
+    pub pierces: usize,
+    pub planner: String,
+    pub mode: String,
 }
 
 /// The jobs and the queue's order, with their folder.
@@ -243,6 +265,16 @@ impl Store {
         self.job_dir(id).join("recording.mcap")
     }
 
+    /// The plan's picture (`plan --plot`).
+    pub fn plot_path(&self, id: &str) -> PathBuf {
+        self.job_dir(id).join("plot.svg")
+    }
+
+    /// Each program line's planned end time (`intake::LineTimes`): the ETA.
+    pub fn times_path(&self, id: &str) -> PathBuf {
+        self.job_dir(id).join("times.bin")
+    }
+
     pub fn progress_path(&self, id: &str) -> PathBuf {
         self.job_dir(id).join(PROGRESS_FILE)
     }
@@ -299,6 +331,9 @@ impl Store {
             bytes_sent: 0,
             stream_time_s: 0.0,
             link_utilization: None,
+            bounds: None,
+            figures: None,
+            executed_time_s: None,
         };
         write_atomic(&dir.join(format!("source.{}", extension_of(name))), source)?;
         self.jobs.insert(id.clone(), record.clone());
