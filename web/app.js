@@ -110,10 +110,14 @@ function showStatus(s) {
   enableButtons();
 }
 
+let lastRun = null;  // the last job seen running: shown as it ended
+
 function showProgress(job) {
+  if (!job && lastRun) job = ended(lastRun);
   $('running-none').hidden = !!job;
   $('running-job').hidden = !job;
   if (!job) return;
+  if (job.state === 'running' || job.state === 'paused') lastRun = job;
   const record = jobs.find((j) => j.id === job.id);
   $('running-name').textContent = `${record ? record.name : job.id} (${job.id}), ${job.state}`;
   const byTime = job.time_percent !== null && job.time_percent !== undefined ? job.time_percent : job.percent;
@@ -125,6 +129,19 @@ function showProgress(job) {
   $('eta').textContent = duration(job.eta_s);
   $('ends-at').textContent = job.eta_s !== null && job.eta_s !== undefined ? new Date(Date.now() + job.eta_s * 1000).toLocaleTimeString() : '–';
   $('executed-line').textContent = job.executed_line ?? 'unknown';
+}
+
+/** A job's progress as it ended, from its record. */
+function ended(last) {
+  const j = jobs.find((x) => x.id === last.id);
+  if (!j || !['completed', 'aborted', 'failed', 'interrupted'].includes(j.state)) return last;
+  const lines = j.last_executed_line ?? last.executed_line ?? 0;
+  return {
+    id: j.id, state: j.state, line: j.last_acked_line, lines_total: j.lines_total, executed_line: lines,
+    percent: j.lines_total ? (100 * lines) / j.lines_total : 0,
+    time_percent: j.state === 'completed' ? 100 : last.time_percent,
+    elapsed_s: j.executed_time_s, eta_s: j.state === 'completed' ? 0 : null,
+  };
 }
 
 function enableButtons() {
@@ -266,7 +283,7 @@ function moveTool(tcp) {
   const box = ($('overlay').getAttribute('viewBox') || '0 0 100 100').split(/\s+/).map(Number);
   tool.setAttribute('cx', ox + s * tcp[0]);
   tool.setAttribute('cy', oy - s * tcp[1]);
-  tool.setAttribute('r', Math.max(box[2], box[3]) / 150);
+  tool.setAttribute('r', Math.max(box[2], box[3]) / 90);
 }
 
 // ---- uploads ----

@@ -28,6 +28,9 @@ pub enum BenchCommand {
         clients: usize,
         #[arg(long, default_value_t = 10.0)]
         hz: f64,
+        /// Operator's screens (the web UI) open during the third run.
+        #[arg(long, default_value_t = 10)]
+        pages: usize,
         #[arg(long)]
         json: bool,
     },
@@ -218,7 +221,7 @@ pub enum BenchCommand {
 /// for a setting), before anything runs.
 fn check_flags(command: &BenchCommand) -> Result<()> {
     match command {
-        BenchCommand::Serve { clients, hz, .. } => in_range("--clients", *clients, 1, 10_000, "clients").and(in_range("--hz", *hz, 0.1, 1000.0, "Hz")),
+        BenchCommand::Serve { clients, hz, pages, .. } => in_range("--clients", *clients, 1, 10_000, "clients").and(in_range("--hz", *hz, 0.1, 1000.0, "Hz")).and(in_range("--pages", *pages, 1, 1000, "pages")),
         BenchCommand::Ecp { time_limit: t, .. } => check_time_limit(*t),
         BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(check_time_limit(*t)),
         BenchCommand::Plate { elements, skeleton_piece, .. } => {
@@ -247,7 +250,7 @@ pub fn run(command: BenchCommand) -> Result<ExitCode> {
         BenchCommand::Sheet { config, elements, seed, time_limit, svg, json } => sheet_bench(config, elements, seed, time_limit, svg, json),
         BenchCommand::Thermal { config, elements, width, height, seeds, json } => thermal_bench(config, elements, width, height, seeds, json),
         BenchCommand::Plate { config, elements, seed, skeleton_piece, svg, json } => plate_bench(config, elements, seed, skeleton_piece, svg, json),
-        BenchCommand::Serve { job, config, clients, hz, json } => serve_bench(job, config, clients, hz, json),
+        BenchCommand::Serve { job, config, clients, hz, pages, json } => serve_bench(job, config, clients, hz, pages, json),
         BenchCommand::Motion { jobs, config, mode, vs_grbl: true, json, .. } => vs_grbl_bench(jobs, config, mode, json),
         BenchCommand::Motion { jobs, config, mode, repeats, json, .. } => motion_bench(jobs, config, mode, repeats, json),
         BenchCommand::Import { jobs, config, repeats, json } => import_bench(jobs, config, repeats, json),
@@ -341,9 +344,9 @@ fn plate_bench(config: Option<PathBuf>, elements: usize, seed: u64, skeleton_pie
     Ok(if broken { ExitCode::from(exit::STOPPED) } else { ExitCode::SUCCESS })
 }
 
-fn serve_bench(job: PathBuf, config: Option<PathBuf>, clients: usize, hz: f64, json: bool) -> Result<ExitCode> {
+fn serve_bench(job: PathBuf, config: Option<PathBuf>, clients: usize, hz: f64, pages: usize, json: bool) -> Result<ExitCode> {
     let found = machine_config(config.as_deref(), json)?;
-    let r = laserd::daemon::bench::serve_bench(&found.machine, &found.text, &job, clients, hz)?;
+    let r = laserd::daemon::bench::serve_bench(&found.machine, &found.text, &job, clients, hz, pages)?;
     if json {
         print_json(&r)?;
     } else {
@@ -365,6 +368,7 @@ fn serve_bench(job: PathBuf, config: Option<PathBuf>, clients: usize, hz: f64, j
             );
         }
         println!("  utilization with {} clients at {} Hz / quiet: {:.4}", r.clients, r.client_hz, r.utilization_ratio_polling);
+        println!("  utilization with {} operator's screens open / quiet: {:.4}", r.pages, r.utilization_ratio_pages);
         println!("  utilization while planning (done in {:.1} s) / quiet: {:.4}", r.planning_s, r.utilization_ratio_planning);
     }
     Ok(ExitCode::SUCCESS)

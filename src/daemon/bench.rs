@@ -3,7 +3,10 @@
 //! streams one job three times, all through the API:
 //! 1. quiet;
 //! 2. with many clients polling the status;
-//! 3. while the service plans big jobs (a 1000-geometry galvo job and a
+//! 3. with operator's screens open on TCP (each logged in, loading the page,
+//!    following the live events and fetching the jobs and the picture as the
+//!    page does);
+//! 4. while the service plans big jobs (a 1000-geometry galvo job and a
 //!    3000-element sheet) on its planning thread.
 //!
 //! Per run: the link utilization, the interval jitter a client polling the
@@ -45,7 +48,7 @@ pub struct ServeRun {
     pub api_poll_jitter_p50_ms: f64,
     pub api_poll_jitter_p99_ms: f64,
     pub api_poll_jitter_max_ms: f64,
-    /// API status requests answered during the run (the polling clients').
+    /// API requests answered during the run (the polling clients', or the screens').
     pub api_requests: usize,
 }
 
@@ -57,6 +60,10 @@ pub struct ServeBench {
     pub runs: Vec<ServeRun>,
     /// Link utilization with the polling clients / quiet.
     pub utilization_ratio_polling: f64,
+    /// Operator's screens open in the third run.
+    pub pages: usize,
+    /// Link utilization with the screens open / quiet.
+    pub utilization_ratio_pages: f64,
     /// Link utilization while planning / quiet.
     pub utilization_ratio_planning: f64,
     /// Seconds the two big jobs took to plan while the job streamed.
@@ -136,7 +143,69 @@ fn controller_polls(recording: &Path) -> Result<(usize, Vec<f64>, usize)> {
     Ok((times.len(), jitter(&times, percentile(&gaps, 0.5)), starved))
 }
 
-pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clients: usize, client_hz: f64) -> Result<ServeBench> {
+/// One operator's screen on the TCP side, as `web/app.js` uses it: logs
+/// in, loads the page, lists the jobs and fetches the chosen one's picture,
+/// then follows the live events, listing the jobs again at each job event,
+/// until `stop`. Returns the requests it made.
+async fn screen(addr: String, token: String, stop: Arc<AtomicBool>) -> Result<usize> {
+    let cookie = login_cookie(&addr, &token).await?;
+    let page = client::Endpoint::Tcp { addr: addr.clone(), headers: vec![("Cookie".into(), cookie)] };
+    let mut requests = 0;
+    for path in ["/", "/ui/app.js", "/ui/app.css"] {
+        page.request(Method::GET, path, None).await?;
+        requests += 1;
+    }
+    let jobs = page.request(Method::GET, "/jobs", None).await?.json()?;
+    if let Some(id) = jobs.as_array().and_then(|j| j.first()).and_then(|j| j["id"].as_str()) {
+        page.request(Method::GET, &format!("/jobs/{id}/plot"), None).await?;
+        requests += 1;
+    }
+    let job_events = Arc::new(AtomicUsize::new(0));
+    let follow = {
+        let (page, stop, job_events) = (page.clone(), stop.clone(), job_events.clone());
+        tokio::spawn(async move {
+            page.follow_events(|kind, _| {
+                if kind == "job" {
+                    job_events.fetch_add(1, Ordering::Relaxed);
+                }
+                !stop.load(Ordering::Relaxed)
+            })
+            .await
+        })
+    };
+    let mut seen = 0;
+    while !stop.load(Ordering::Relaxed) {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let now = job_events.load(Ordering::Relaxed);
+        if now != seen {
+            seen = now;
+            page.request(Method::GET, "/jobs", None).await?;
+            requests += 1;
+        }
+    }
+    follow.abort();
+    Ok(requests)
+}
+
+/// Logs in with the form as a browser does; the session cookie.
+async fn login_cookie(addr: &str, token: &str) -> Result<String> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = tokio::net::TcpStream::connect(addr).await.map_err(|e| Error::Io(format!("{addr}: {e}")))?;
+    let body = format!("token={token}");
+    let request = format!("POST /login HTTP/1.1\r\nHost: {addr}\r\nOrigin: http://{addr}\r\nContent-Type: application/x-www-form-urlencoded\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}", body.len());
+    stream.write_all(request.as_bytes()).await.map_err(|e| Error::Io(e.to_string()))?;
+    let mut answer = Vec::new();
+    stream.read_to_end(&mut answer).await.map_err(|e| Error::Io(e.to_string()))?;
+    let answer = String::from_utf8_lossy(&answer);
+    answer
+        .lines()
+        .find_map(|l| l.strip_prefix("set-cookie: ").or_else(|| l.strip_prefix("Set-Cookie: ")))
+        .and_then(|c| c.split(';').next())
+        .map(str::to_string)
+        .ok_or_else(|| Error::Io(format!("bench serve: the login gave no cookie: {}", answer.lines().next().unwrap_or(""))))
+}
+
+pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clients: usize, client_hz: f64, pages: usize) -> Result<ServeBench> {
     if !(client_hz.is_finite() && client_hz > 0.0 && client_hz <= 1000.0) {
         return Err(Error::Config(format!("bench serve: --hz must be in (0, 1000], got {client_hz}")));
     }
@@ -145,6 +214,12 @@ pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clien
     let dir = std::env::temp_dir().join(format!("laserd-bench-serve-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|e| Error::Io(format!("{}: {e}", dir.display())))?;
     let tty = dir.join("tty");
+    // The operator's screens log in on TCP, on a free port of loopback.
+    let addr = std::net::TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).map_err(|e| Error::Io(format!("bench serve: no free port: {e}")))?.to_string();
+    let token = format!("bench-{:032x}", rand::random::<u128>());
+    let token_file = dir.join("token");
+    std::fs::write(&token_file, &token).map_err(|e| Error::Io(e.to_string()))?;
+    let tcp_lines = format!("tcp = {addr:?}\ntoken_file = {:?}", token_file.display().to_string());
     // The machine's config with the simulator's device, and a table large
     // enough for the 3000-element sheet that is planned in run 3.
     let params = crate::gen::sheet::SheetParams::with_target(3000);
@@ -157,12 +232,18 @@ pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clien
                 format!("travel_x = {}", params.width.max(machine.stage.travel_x))
             } else if l.starts_with("travel_y = ") {
                 format!("travel_y = {}", params.height.max(machine.stage.travel_y))
+            } else if l.starts_with("tcp = ") || l.starts_with("token_file = ") {
+                // The screens' TCP side is the bench's own, below.
+                String::new()
+            } else if l.trim() == "[service]" {
+                format!("[service]\n{tcp_lines}")
             } else {
                 l.to_string()
             }
         })
         .collect::<Vec<_>>()
         .join("\n");
+    let text = if text.lines().any(|l| l.trim() == "[service]") { text } else { format!("{text}\n[service]\n{tcp_lines}\n") };
     let config = dir.join("laserd.toml");
     std::fs::write(&config, text).map_err(|e| Error::Io(e.to_string()))?;
     MachineConfig::load(Some(&config))?;
@@ -196,7 +277,7 @@ pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clien
         }
         let mut runs = Vec::new();
         let mut planning_s = 0.0;
-        for name in ["quiet", "polling", "planning"] {
+        for name in ["quiet", "polling", "pages", "planning"] {
             let id = submit(&socket, &job).await?;
             wait_job(&socket, &id, &["queued"], Duration::from_secs(300)).await?;
             let stop = Arc::new(AtomicBool::new(false));
@@ -215,6 +296,19 @@ pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clien
                             if client::request(&socket, Method::GET, "/status", None).await.is_ok() {
                                 answered.fetch_add(1, Ordering::Relaxed);
                             }
+                        }
+                    }));
+                }
+            }
+            if name == "pages" {
+                for _ in 0..pages {
+                    let (addr, token, stop, answered) = (addr.clone(), token.clone(), stop.clone(), answered.clone());
+                    pollers.push(tokio::spawn(async move {
+                        match screen(addr, token, stop).await {
+                            Ok(n) => {
+                                answered.fetch_add(n, Ordering::Relaxed);
+                            }
+                            Err(e) => tracing::warn!("bench serve: a screen stopped: {e}"),
                         }
                     }));
                 }
@@ -282,7 +376,9 @@ pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clien
         clients,
         client_hz,
         utilization_ratio_polling: runs[1].link_utilization / quiet,
-        utilization_ratio_planning: runs[2].link_utilization / quiet,
+        pages,
+        utilization_ratio_pages: runs[2].link_utilization / quiet,
+        utilization_ratio_planning: runs[3].link_utilization / quiet,
         runs,
         planning_s,
     })
