@@ -1341,6 +1341,10 @@ pub struct LayerConfig {
     /// a scanner's skywriting). Off: hatch lines start and end as other marks.
     #[serde(default = "default_true")]
     pub overscan: bool,
+    /// Air assist (coolant flood, M8) on before this layer's first pierce
+    /// or mark, off (M9) at the program's end and on every stop.
+    #[serde(default)]
+    pub air: bool,
 }
 
 fn hatch_spacing() -> f64 {
