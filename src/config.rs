@@ -503,6 +503,14 @@ pub struct ServiceConfig {
     /// Memory a job's planning may take (MB); beyond it the job fails alone.
     #[serde(default = "default_plan_memory_mb")]
     pub plan_memory_mb: f64,
+    /// The feed of a jog given without one (`laserd ctl jog X10`), mm/min.
+    #[serde(default = "default_jog_feed")]
+    pub jog_feed: f64,
+}
+
+/// A laser head's jog: brisk, yet slow enough to stop by eye (50 mm/s).
+fn default_jog_feed() -> f64 {
+    3000.0
 }
 
 fn default_plan_timeout() -> f64 {
@@ -531,6 +539,7 @@ impl Default for ServiceConfig {
             job_folders: Vec::new(),
             plan_timeout: default_plan_timeout(),
             plan_memory_mb: default_plan_memory_mb(),
+            jog_feed: default_jog_feed(),
         }
     }
 }
@@ -1332,6 +1341,10 @@ pub struct LayerConfig {
     /// a scanner's skywriting). Off: hatch lines start and end as other marks.
     #[serde(default = "default_true")]
     pub overscan: bool,
+    /// Air assist (coolant flood, M8) on before this layer's first pierce
+    /// or mark, off (M9) at the program's end and on every stop.
+    #[serde(default)]
+    pub air: bool,
 }
 
 fn hatch_spacing() -> f64 {
@@ -1603,6 +1616,7 @@ impl MachineConfig {
         in_range("service.keep_jobs", self.service.keep_jobs, 0, 1_000_000, "jobs")?;
         in_range("service.plan_timeout", self.service.plan_timeout, 1.0, 86_400.0, "s")?;
         in_range("service.plan_memory_mb", self.service.plan_memory_mb, 256.0, 1_048_576.0, "MB")?;
+        in_range("service.jog_feed", self.service.jog_feed, 1.0, 60_000.0, "mm/min")?;
         if let Some(plate) = &self.plate {
             self.validate_plate(plate)?;
         }
@@ -2145,6 +2159,8 @@ mod tests {
             ("service.keep_jobs", I(1 << 40)),
             ("service.plan_timeout", F(1e30)),
             ("service.plan_memory_mb", F(1.0)),
+            ("service.jog_feed", F(0.0)),
+            ("service.jog_feed", F(1e6)),
             ("import.max_file_mb", F(1e9)),
             ("layer.0.speed", F(1e300)),
             ("layer.0.power", F(1e300)),
@@ -2229,6 +2245,8 @@ mod tests {
             ("motion.line_tolerance", F(0.0)),
             ("service.keep_jobs", I(0)),
             ("service.plan_timeout", F(1.0)),
+            ("service.jog_feed", F(1.0)),
+            ("service.jog_feed", F(60_000.0)),
             ("import.max_file_mb", F(4096.0)),
         ] {
             let shown = value.to_string();

@@ -116,6 +116,33 @@ pub fn program_lines(link: &[(f64, LinkEvent)]) -> Vec<usize> {
     link.iter().filter_map(|(_, e)| if let LinkEvent::Sent { line, .. } = e { Some(*line) } else { None }).collect()
 }
 
+/// Whether air assist (coolant: M8 flood, M7 mist) is on when the run ends:
+/// the last coolant word sent was M7 or M8, and no M9, program end (M2/M30:
+/// Grbl stops coolant there) or reset (the banner: Grbl's reset stops it)
+/// came after it. From the link alone, so a recording gives the same.
+pub fn air_left_on(link: &[(f64, LinkEvent)]) -> bool {
+    let mut on = false;
+    for (_, e) in link {
+        match e {
+            LinkEvent::Sent { text, .. } => {
+                let mut clean = laserd_sim::gcode::LineBuilder::default();
+                text.bytes().for_each(|b| clean.push(b));
+                let Some(line) = clean.finish().filter(|l| !l.starts_with('$')) else { continue };
+                for w in laserd_sim::gcode::split_words(&line).unwrap_or_default() {
+                    match (w.letter, w.value) {
+                        ('M', m) if m == 7.0 || m == 8.0 => on = true,
+                        ('M', m) if m == 9.0 || m == 2.0 || m == 30.0 => on = false,
+                        _ => {}
+                    }
+                }
+            }
+            LinkEvent::Received { text } if matches!(Response::parse(text), Response::Banner(_)) => on = false,
+            _ => {}
+        }
+    }
+    on
+}
+
 /// Received-line numbers (the controller's count, as knots carry it) of the
 /// lines that are a dwell (`G4`).
 pub fn dwell_lines(link: &[(f64, LinkEvent)]) -> std::collections::HashSet<u64> {
@@ -286,6 +313,9 @@ pub fn sim_figures(log: &RunLog) -> SimFigures {
     }
     if laser_state_errors > 0 {
         limit_breaches.push(format!("laser state: {laser_state_errors} block(s) with the laser on while jumping or off while marking"));
+    }
+    if air_left_on(&log.link) {
+        limit_breaches.push("air assist left on at the end: M7/M8 sent and no M9, program end (M2/M30) or reset after it".into());
     }
     // A violation of no kind above (a position jump in zero time, a malformed knot).
     if limits.violations > 0 && limit_breaches.is_empty() {

@@ -7,7 +7,7 @@ use std::str::FromStr;
 use crate::config::MachineConfig;
 use crate::error::{Error, Result};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Mode {
     OnTheFly,
     StepAndScan,

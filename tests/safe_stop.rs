@@ -6,11 +6,11 @@
 //! configured rate, during the stop included.
 
 use laserd::program::{LineKind, Program, ProgramLine};
-use laserd::figures::RunLog;
+use laserd::figures::{air_left_on, sim_figures, RunLog};
 use laserd::run::stream_into_simulator;
 use laserd::stream::{LinkEvent, SenderOptions, StreamOutcome};
 use laserd_sim::controller::{AxisConfig, Faults, MotionModel, SimConfig};
-use laserd_sim::wire::{realtime, MachineState};
+use laserd_sim::wire::{realtime, MachineState, StatusReport};
 
 /// Top speed and deceleration of the slow machine: a stop from full speed
 /// takes 10 s, far beyond the 3 s a safe stop used to wait.
@@ -94,4 +94,40 @@ fn status_requests_keep_to_the_status_rate_also_in_a_safe_stop() {
     assert!(asked.iter().filter(|t| **t > hold).count() >= 5, "polled during the stop: {asked:?}");
     let fastest = asked.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
     assert!(fastest >= 0.2 - 1e-6, "two status requests {fastest} s apart (at most 5 Hz)");
+}
+
+/// Issue 24: air assist (M8) on while the job runs is off after every stop:
+/// the safe stop's reset ends it (Grbl's reset stops coolant), as the
+/// figures read from the link; a run that leaves it on breaks a limit.
+#[test]
+fn a_safe_stop_leaves_air_assist_off_and_air_left_on_breaks_a_limit() {
+    let line = |text: &str| ProgramLine { text: text.into(), kind: LineKind::Setup, geometry: None, plan_time: None, checks: vec![] };
+    let mut with_air = program();
+    with_air.lines.insert(1, line("M8"));
+    let mut options = SenderOptions::new(128, 5.0);
+    options.hold_limit = options.hold_limit_for(SPEED / DECELERATION);
+    let sim = slow_grbl(Faults { error_on_line: Some(22), ..Faults::default() });
+    let (out, log) = stream_into_simulator(&with_air, sim, 115200, &options, None).unwrap();
+    assert!(out.stop_reason.is_some(), "{out:?}");
+    // The controller had it on: A:F in a report before the reset.
+    let reset = sent_at(&log, realtime::SOFT_RESET)[0];
+    let on_before = log.link.iter().any(|(t, e)| match e {
+        LinkEvent::Received { text } if *t < reset => StatusReport::parse(text).ok().is_some_and(|r| r.accessories.is_some_and(|a| a.contains('F'))),
+        _ => false,
+    });
+    assert!(on_before, "air on while it ran");
+    assert!(!air_left_on(&log.link));
+    assert!(!sim_figures(&log).limit_breaches.iter().any(|b| b.contains("air")), "{:?}", sim_figures(&log).limit_breaches);
+
+    // Run to its end with no M9, program end or reset: left on, a breach.
+    with_air.lines.truncate(4);
+    let (out, log) = stream_into_simulator(&with_air, slow_grbl(Faults::default()), 115200, &options, None).unwrap();
+    assert!(out.completed, "{out:?}");
+    assert!(air_left_on(&log.link));
+    let breaches = sim_figures(&log).limit_breaches;
+    assert!(breaches.iter().any(|b| b.starts_with("air assist left on at the end")), "{breaches:?}");
+    // M9 at the end: off, no breach.
+    with_air.lines.push(line("M9"));
+    let (_, log) = stream_into_simulator(&with_air, slow_grbl(Faults::default()), 115200, &options, None).unwrap();
+    assert!(!air_left_on(&log.link) && !sim_figures(&log).limit_breaches.iter().any(|b| b.contains("air")));
 }

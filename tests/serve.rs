@@ -479,3 +479,61 @@ fn a_service_recording_replays_the_motion_the_controller_reported() {
     assert!((figures.job_time_s - streamed).abs() < 0.5 + 0.1 * streamed, "job time {} s, streamed {streamed} s", figures.job_time_s);
     assert!(service.terminate().success());
 }
+
+/// Issue 24: `laserd ctl` answers people in sentences, labelled lines and a
+/// table (planned times as `4 min 3 s`), scripts with `--json` (the API's
+/// objects as they are); `ctl jog X10` is a relative jog at `[service]
+/// jog_feed`, while a full block goes as it is.
+#[test]
+fn ctl_answers_in_sentences_and_tables_or_json_and_jogs_axis_words_at_the_jog_feed() {
+    let _turn = take_turn();
+    let dir = tempfile::tempdir().unwrap();
+    let tty = dir.path().join("ttyCTL");
+    let _sim = SimProcess::start(&tty, &["--pty"]);
+    let config = config_with_service(dir.path(), &tty, "jog_feed = 600");
+    let service = Service::start(&config, &dir.path().join("state"), &dir.path().join("api.sock"));
+    let api = Api::new(&service.socket);
+    api.wait_status(Duration::from_secs(10), "the controller link", |s| machine_state(s) == "Idle");
+    let socket = service.socket.to_str().unwrap().to_string();
+    let ctl = |args: &[&str]| -> String {
+        let out = Command::new(env!("CARGO_BIN_EXE_laserd")).args(["ctl", "--socket", &socket]).args(args).output().unwrap();
+        assert!(out.status.success(), "ctl {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8(out.stdout).unwrap()
+    };
+
+    let status = ctl(&["status"]);
+    assert!(status.contains("Machine:   Idle (connected)") && status.contains("Job:       none running") && status.contains("Queue:     0 jobs waiting"), "{status}");
+    assert!(serde_json::from_str::<Value>(&status).is_err(), "text, not JSON: {status}");
+    let raw: Value = serde_json::from_str(&ctl(&["status", "--json"])).unwrap();
+    assert_eq!(raw["machine"]["state"], "Idle", "{raw}");
+
+    let file = sample("one-field.svg");
+    let said = ctl(&["submit", file.to_str().unwrap()]);
+    let id = said.strip_prefix("Submitted one-field.svg as job ").and_then(|r| r.split_whitespace().next()).unwrap_or_else(|| panic!("{said}")).to_string();
+    assert!(id.starts_with('j') && said.contains(&format!("`laserd ctl job {id}`")), "{said}");
+    let planned = api.wait_job(&id, "queued", Duration::from_secs(60))["planned_time_s"].as_f64().unwrap();
+    let table = ctl(&["jobs"]);
+    let header = table.lines().next().unwrap();
+    assert!(header.starts_with("ID") && header.contains("PLANNED TIME"), "{table}");
+    let row = table.lines().find(|l| l.starts_with(&id)).unwrap_or_else(|| panic!("{table}"));
+    let human = laserd::daemon::ctl::human_duration(planned);
+    assert!(row.contains("one-field.svg") && row.contains("queued") && row.contains(&human), "{human}:\n{table}");
+    assert_eq!(row.find("queued"), header.find("STATE"), "aligned:\n{table}");
+    let jobs: Value = serde_json::from_str(&ctl(&["--json", "jobs"])).unwrap();
+    assert_eq!(jobs[0]["id"], id.as_str(), "{jobs}");
+    assert_eq!(jobs[0]["planned_time_s"].as_f64(), Some(planned));
+    let record = ctl(&["job", &id]);
+    assert!(record.contains(&format!("Planned time:   {human}")), "{record}");
+
+    // Axis words: G91 and the jog feed added; 10 mm at 600 mm/min take a second.
+    let x0 = position(&api.status())[0];
+    let asked = Instant::now();
+    assert_eq!(ctl(&["jog", "X10"]).trim(), "Jogging: G91 X10 F600.");
+    api.wait_status(Duration::from_secs(10), "Idle 10 mm on", |s| machine_state(s) == "Idle" && (position(s)[0] - x0 - 10.0).abs() < 1e-3);
+    assert!(asked.elapsed() >= Duration::from_millis(990), "at 600 mm/min: {:?}", asked.elapsed());
+    // A full block as it is.
+    let done: Value = serde_json::from_str(&ctl(&["jog", "G91 X-10 F6000", "--json"])).unwrap();
+    assert_eq!(done["done"], "jogging: G91 X-10 F6000", "{done}");
+    api.wait_status(Duration::from_secs(10), "Idle back", |s| machine_state(s) == "Idle" && (position(s)[0] - x0).abs() < 1e-3);
+    assert!(service.terminate().success());
+}

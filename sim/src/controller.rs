@@ -208,6 +208,8 @@ enum Step {
     Dwell(f64, u64),
     /// A spindle sync has set the laser power at rest (S before override).
     Laser { power: f64, line: u64 },
+    /// A coolant sync: the outputs switch once motion has stopped (flood, mist).
+    Coolant { flood: bool, mist: bool },
     /// Queue a block once the planner has room.
     Queue(Block),
     /// M0: enter feed hold.
@@ -333,6 +335,9 @@ pub struct Controller {
     /// Where the machine's zero is since a hardware reset (it restarts
     /// counting where it stood).
     power_up_shift: Vec<f64>,
+    /// The coolant outputs (flood, mist): M7/M8/M9 switch them only once
+    /// motion has stopped (Grbl's coolant sync), `A:` reports them.
+    coolant_out: [bool; 2],
 }
 
 const EPS_POS: f64 = 1e-9;
@@ -394,6 +399,7 @@ impl Controller {
             report_busy_until: f64::NEG_INFINITY,
             ramp: None,
             power_up_shift: vec![0.0; n],
+            coolant_out: [false; 2],
         };
         for (n, v) in c.cfg.settings.clone() {
             let _ = c.write_setting(n, v);
@@ -486,6 +492,13 @@ impl Controller {
             Some(e) => e.power,
             None => self.rest_power(),
         }
+    }
+
+    /// Coolant actually on (flood M8 or mist M7: a laser's air assist), as
+    /// the status report's `A:` shows it: a reset, M9 or M2 turns it off, a
+    /// feed hold does not, a door or sleep does for as long as they last.
+    pub fn coolant_on(&self) -> bool {
+        self.accessories().is_some_and(|a| a.contains(['F', 'M']))
     }
 
     /// A segment of motion is running.

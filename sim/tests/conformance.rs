@@ -316,6 +316,17 @@ fn states_and_status_fields() {
         (xy, &[Q, Q, L("M3S1"), L("M8")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:SF>"]),
         (xy, &[Q, Q, L("M4S1"), L("M8")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:CF>"]),
         (xy, &[Q, Q, L("M4S1"), L("M8"), Q], &[L("M9"), L("M5"), Q], &["ok", "ok", "<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        // Flood (a laser's air assist) through a feed hold: on (Grbl stops
+        // coolant for a door or sleep, not a hold); a soft reset stops it
+        // (its mc_reset stops spindle and coolant), the report after the
+        // WCO one has Ov: without A:, and $G says M9.
+        (xy, &[Q, Q, L("M8"), L("G1X100F600"), HOLD, Wait(1.0)], &[Q], &["<Hold:0|MPos:*|FS:0,0|Ov:100,100,100|A:F>"]),
+        (xy, &[L("M8"), RESET, Q], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,0|Ov:100,100,100>"]),
+        // M8 after a move waits for it to end (Grbl's coolant sync): no A:
+        // while it runs, A:F in the report right after.
+        (xy, &[Q, Q, L("G1X10F600"), L("M8")], &[Q], &["<Run|MPos:*|FS:600,0>"]),
+        (xy, &[Q, Q, L("G1X1F600"), L("M8"), Wait(1.0)], &[Q], &["<Idle|MPos:1.000,0.000,0.000|FS:0,0|Ov:100,100,100|A:F>"]),
+        (xy, &[L("M8"), RESET], &[L("$G")], &["[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]", "ok"]),
         // FS: the laser standing still in laser mode: M3 burns at S in G1 (in
         // G0 it stays dark, rows above), M4 is dark (no motion, no power).
         (xy, &[Q, Q, L("G1F100"), L("M3S500")], &[Q], &["<Idle|MPos:0.000,0.000,0.000|FS:0,500|Ov:100,100,100|A:S>"]),

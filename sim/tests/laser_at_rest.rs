@@ -300,3 +300,45 @@ fn after_a_pierce_two_slow_first_blocks_are_no_rest_point_when_a_stop_between_th
     let report = checker.finish();
     assert_eq!(report.violations, 0, "{report:?}");
 }
+
+/// Air assist (flood coolant, M8) as Grbl 1.1h keeps it: on through a feed
+/// hold (only a door or sleep stops coolant), off after a soft reset (its
+/// reset stops spindle and coolant), mid-motion too, and off at M9 and at
+/// the program's end (M2). The status report's `A:` says the same.
+#[test]
+fn air_assist_stays_on_in_a_hold_and_goes_off_at_a_reset_m9_or_the_program_end() {
+    let flood = |r: &laserd_sim::wire::StatusReport| r.accessories.as_deref().is_some_and(|a| a.contains('F'));
+    let mut s = Sim::new(cfg());
+    s.send("M8\nG1 X50 F600\n");
+    s.run_until(0.5);
+    assert!(s.ctl.coolant_on() && s.ctl.state() == MachineState::Run);
+    s.realtime(realtime::FEED_HOLD);
+    s.run_until(2.0);
+    assert_eq!(s.ctl.state(), MachineState::Hold(0));
+    assert_eq!(s.ctl.laser_power(), 0.0);
+    assert!(s.ctl.coolant_on(), "a hold keeps the air on");
+    let reports: Vec<_> = (0..3).map(|_| s.status()).collect();
+    assert!(reports.iter().any(|r| r.overrides.is_some() && flood(r)), "{reports:?}");
+    s.realtime(realtime::SOFT_RESET);
+    assert!(!s.ctl.coolant_on(), "the reset turns it off");
+    let reports: Vec<_> = (0..3).map(|_| s.status()).collect();
+    assert!(reports.iter().any(|r| r.overrides.is_some()) && !reports.iter().any(flood), "{reports:?}");
+
+    // A reset while it moves: off too (and the alarm for the lost position).
+    let mut s = Sim::new(cfg());
+    s.send("M8\nG1 X50 F600\n");
+    s.run_until(0.5);
+    s.realtime(realtime::SOFT_RESET);
+    assert_eq!(s.ctl.state(), MachineState::Alarm);
+    assert!(!s.ctl.coolant_on());
+
+    // M9, and the program's end.
+    for end in ["M9", "M2"] {
+        let mut s = Sim::new(cfg());
+        s.send(&format!("M8\nG1 X1 F600\n{end}\n"));
+        s.run_until(0.05);
+        assert!(s.ctl.coolant_on(), "{end}: on while it moves");
+        s.run_until(1.0);
+        assert!(!s.ctl.coolant_on(), "{end}: off after it");
+    }
+}

@@ -21,26 +21,33 @@ pub enum BenchCommand {
         /// The job streamed (default: samples/marking-300.svg).
         #[arg(long, default_value = "samples/marking-300.svg")]
         job: PathBuf,
+        /// Machine config (default: $LASERD_CONFIG, else /etc/laserd/laserd.toml,
+        /// else ~/.config/laserd/laserd.toml, else the built-in default machine).
         #[arg(long)]
         config: Option<PathBuf>,
         /// Clients polling the status during the second run, and how often each polls (Hz).
         #[arg(long, default_value_t = 100)]
         clients: usize,
+        /// How often each client polls the status (Hz, 0.1 to 1000).
         #[arg(long, default_value_t = 10.0)]
         hz: f64,
         /// Operator's screens (the web UI) open during the third run.
         #[arg(long, default_value_t = 10)]
         pages: usize,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },
     /// The cutting planner's search on a TSPLIB instance made
     /// precedence-constrained, against the instance's known optimum.
     Ecp {
+        /// The TSPLIB instance (.tsp).
         #[arg(long)]
         tsp: PathBuf,
+        /// Its optimal tour (.opt.tour), the yardstick.
         #[arg(long)]
         tour: PathBuf,
+        /// Seed of the generator or search (the same seed, the same result).
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// A wall-clock cap in seconds (default: none, the search's budget of work ends it).
@@ -49,6 +56,7 @@ pub enum BenchCommand {
         /// `ils` (iterated local search, the default) or `tabu` (seed 001's).
         #[arg(long, default_value = "ils")]
         search: SearchKind,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },
@@ -62,6 +70,7 @@ pub enum BenchCommand {
         /// Elements (lines and arcs) the sheet should have (it gets up to 5 % more).
         #[arg(long, default_value_t = 3000)]
         elements: usize,
+        /// Seed of the generator or search (the same seed, the same result).
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// A wall-clock cap in seconds (default: none, the search's budget of work ends it).
@@ -70,6 +79,7 @@ pub enum BenchCommand {
         /// Also write the sheet here as SVG (to plan or dry-run it as a job).
         #[arg(long)]
         svg: Option<PathBuf>,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },
@@ -85,14 +95,16 @@ pub enum BenchCommand {
         /// Elements (lines and arcs) each sheet should have.
         #[arg(long, default_value_t = 650)]
         elements: usize,
-        /// Sheet width and height, mm.
+        /// Sheet width, mm (10 to 100000).
         #[arg(long, default_value_t = 2000.0)]
         width: f64,
+        /// Sheet height, mm (10 to 100000).
         #[arg(long, default_value_t = 1500.0)]
         height: f64,
         /// Seeds 1 to this.
         #[arg(long, default_value_t = 5)]
         seeds: u64,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },
@@ -103,8 +115,10 @@ pub enum BenchCommand {
         /// Machine config; the bench cuts on it as a flatbed whose travel covers the sheet.
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Elements (lines and arcs) the sheet should have (1 to 100000).
         #[arg(long, default_value_t = 3000)]
         elements: usize,
+        /// Seed of the generator or search (the same seed, the same result).
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// The largest side of a skeleton piece, mm.
@@ -113,6 +127,7 @@ pub enum BenchCommand {
         /// Also write the sheet here as SVG (to plan or dry-run it on a plate).
         #[arg(long)]
         svg: Option<PathBuf>,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },
@@ -139,6 +154,7 @@ pub enum BenchCommand {
         /// Seeds 1 to this.
         #[arg(long, default_value_t = 5)]
         seeds: u64,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },
@@ -151,6 +167,7 @@ pub enum BenchCommand {
         /// Folder with the cases' SVGs and reference.json.
         #[arg(long, default_value = "tests/data/galvo")]
         dir: PathBuf,
+        /// The galvo planner to run.
         #[arg(long, default_value = "hha")]
         planner: PlannerKind,
         /// Planner seeds 1 to this.
@@ -159,6 +176,7 @@ pub enum BenchCommand {
         /// A wall-clock cap per run (default: the config's [galvo] time_limit, none unless set).
         #[arg(long)]
         time_limit: Option<f64>,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },
@@ -167,8 +185,11 @@ pub enum BenchCommand {
     Motion {
         /// Job files (SVG).
         jobs: Vec<PathBuf>,
+        /// Machine config (default: $LASERD_CONFIG, else /etc/laserd/laserd.toml,
+        /// else ~/.config/laserd/laserd.toml, else the built-in default machine).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// How stage and scanner share the work (default: on-the-fly with a scanner, else stage-only).
         #[arg(long)]
         mode: Option<Mode>,
         /// Runs per job; the median counts.
@@ -180,6 +201,7 @@ pub enum BenchCommand {
         /// their ratio.
         #[arg(long)]
         vs_grbl: bool,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },
@@ -188,19 +210,25 @@ pub enum BenchCommand {
     Import {
         /// Job files (SVG or DXF).
         jobs: Vec<PathBuf>,
+        /// Machine config (default: $LASERD_CONFIG, else /etc/laserd/laserd.toml,
+        /// else ~/.config/laserd/laserd.toml, else the built-in default machine).
         #[arg(long)]
         config: Option<PathBuf>,
         /// Runs per job; the median counts.
         #[arg(long, default_value_t = 3)]
         repeats: usize,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },
     /// How well the sender uses the serial link: character counting against
     /// send-response streaming, on a synthetic program of short 4-axis blocks.
     Link {
+        /// Machine config (default: $LASERD_CONFIG, else /etc/laserd/laserd.toml,
+        /// else ~/.config/laserd/laserd.toml, else the built-in default machine).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Blocks in the synthetic program (1 to 1000000).
         #[arg(long, default_value_t = 20_000)]
         blocks: usize,
         /// Duration of each block in milliseconds.
@@ -212,6 +240,7 @@ pub enum BenchCommand {
         /// Link speed (default: 115200, the classic GRBL serial link).
         #[arg(long, default_value_t = 115_200)]
         baud: u32,
+        /// Print the report as JSON (for scripts) instead of a summary for people.
         #[arg(long)]
         json: bool,
     },

@@ -16,11 +16,12 @@ pub enum GenCommand {
         /// rnd (scattered rectangles), o (rings of squares), isw (the
         /// letters I, S, W of squares) or mixed (rectangles, circles,
         /// ellipses, polylines, polygons, paths).
-        #[arg(long)]
+        #[arg(long, ignore_case = true)]
         family: laserd::gen::galvo::Family,
         /// Number of geometries (1 to 5000).
         #[arg(long)]
         n: usize,
+        /// Seed of the random layout (the same seed, the same drawing).
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Output file (default: standard output).

@@ -16,6 +16,8 @@ use super::common::{check_time_limit, exit, print_json, write_file};
 /// What `plan` and `dry-run` share: the job and how to plan it.
 #[derive(clap::Args)]
 pub struct JobArgs {
+    /// The job: a drawing (SVG, DXF), laserd's JSON job file, or G-code
+    /// (nc, gcode, ngc, gc, g, tap; planned anew unless dry-run --keep-order).
     job: PathBuf,
     /// Machine config (default: $LASERD_CONFIG, else /etc/laserd/laserd.toml,
     /// else ~/.config/laserd/laserd.toml, else the built-in default machine).
@@ -175,6 +177,7 @@ pub struct DryRunArgs {
     /// are null.
     #[arg(long)]
     keep_order: bool,
+    /// Print the report as JSON (for scripts) instead of a summary for people.
     #[arg(long)]
     json: bool,
 }
@@ -261,6 +264,7 @@ fn dry_run_end(
 pub struct PlanArgs {
     #[command(flatten)]
     job: JobArgs,
+    /// Write the G-code program to this file.
     #[arg(short = 'o', long = "output")]
     output: Option<PathBuf>,
     /// Draw the plan as SVG: geometries, scan fields, TCP path (marking and
@@ -268,6 +272,7 @@ pub struct PlanArgs {
     /// --thermal also OUT.heat.svg, the plate's heat at its hottest moment.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// Print the report as JSON (for scripts) instead of a summary for people.
     #[arg(long)]
     json: bool,
 }

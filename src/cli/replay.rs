@@ -13,6 +13,7 @@ use super::common::{exit, print_json};
 
 #[derive(clap::Args)]
 pub struct ReplayArgs {
+    /// An MCAP recording of laserd (dry-run, send, the service, `sim --record`).
     recording: PathBuf,
     /// Re-stream the recorded program into a fresh simulator and compare.
     #[arg(long)]
@@ -21,6 +22,7 @@ pub struct ReplayArgs {
     /// axes and baud rate are used either way).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Print the figures as JSON only (for scripts).
     #[arg(long)]
     json: bool,
 }

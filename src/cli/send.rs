@@ -13,17 +13,23 @@ use super::common::{check_baud, exit, machine_config, print_json};
 
 #[derive(clap::Args)]
 pub struct SendArgs {
+    /// The G-code file, streamed as it is (in bounded memory, whatever its size).
     file: PathBuf,
+    /// The controller's serial port, e.g. /dev/ttyUSB0 (or a `laserd sim` pty).
     #[arg(long)]
     port: String,
+    /// Baud rate, 300 to 12000000 (default: the config's [serial] baud).
     #[arg(long)]
     baud: Option<u32>,
+    /// Machine config (default: $LASERD_CONFIG, else /etc/laserd/laserd.toml,
+    /// else ~/.config/laserd/laserd.toml, else the built-in default machine).
     #[arg(long)]
     config: Option<PathBuf>,
     /// Validate only, in the controller's check mode ($C): nothing moves,
     /// every rejected line is reported.
     #[arg(long)]
     check: bool,
+    /// Print the report as JSON (for scripts) instead of a line for people.
     #[arg(long)]
     json: bool,
 }

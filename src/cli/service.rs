@@ -59,11 +59,15 @@ pub struct CtlArgs {
     /// The service's socket (default: /run/laserd/laserd.sock).
     #[arg(long, default_value = "/run/laserd/laserd.sock")]
     socket: PathBuf,
+    /// Print the service's JSON answers as they are (for scripts), instead
+    /// of sentences and tables.
+    #[arg(long, global = true)]
+    json: bool,
     #[command(subcommand)]
     which: CtlCommand,
 }
 
 pub fn ctl(args: CtlArgs) -> Result<ExitCode> {
-    laserd::daemon::ctl::run(&args.socket, args.which)?;
+    laserd::daemon::ctl::run(&args.socket, args.which, args.json)?;
     Ok(ExitCode::SUCCESS)
 }

@@ -19,6 +19,8 @@ use super::common::{check_baud, machine_config};
 
 #[derive(clap::Args)]
 pub struct SimArgs {
+    /// Machine config: the simulated controller's axes, limits and flavour
+    /// (default: as for plan).
     #[arg(long)]
     config: Option<PathBuf>,
     /// Serve on a pseudo-terminal (the default, and the only transport in this version).
@@ -27,6 +29,8 @@ pub struct SimArgs {
     /// Stable symlink to the pseudo-terminal device.
     #[arg(long)]
     link: Option<PathBuf>,
+    /// The serial rate the simulator paces its bytes at, 300 to 12000000
+    /// (default: the config's [serial] baud).
     #[arg(long)]
     baud: Option<u32>,
     /// Run in real time (always so on a pseudo-terminal).

@@ -305,7 +305,8 @@ async fn resume_job(State(d): State<Arc<Daemon>>, UrlPath(id): UrlPath<String>, 
 /// The JSON body of `POST /jog`. Public for the fuzz targets.
 #[derive(Deserialize)]
 pub struct JogBody {
-    /// A jog block, e.g. `G91 X10 F600` (sent as `$J=G91 X10 F600`).
+    /// A jog block, e.g. `G91 X10 F600` (sent as `$J=G91 X10 F600`), or
+    /// axis words alone (`X10`: G91 and `[service] jog_feed` are added).
     pub block: String,
 }
 
@@ -314,6 +315,8 @@ async fn jog(State(d): State<Arc<Daemon>>, Json(body): Json<JogBody>) -> ApiResu
     if block.is_empty() || block.len() > 70 || !block.chars().all(|c| c.is_ascii_alphanumeric() || " .-".contains(c)) {
         return Err(Error::Config(format!("jog block {block:?}: letters, numbers, '.', '-' and spaces only, at most 70")).into());
     }
+    // Axis words alone are a relative jog at the configured feed.
+    let block = crate::stream::jog_block(&block, d.machine.service.jog_feed);
     ask(&d, |reply| Command::Jog { block, reply }).await
 }
 

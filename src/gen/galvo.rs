@@ -42,7 +42,7 @@ const USABLE: f64 = BASE_MM - 2.0 * MARGIN;
 const MAX_SIDE: f64 = 15.0;
 
 /// A pattern family of the paper's test cases.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, clap::ValueEnum)]
 pub enum Family {
     Rnd,
     O,

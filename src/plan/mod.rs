@@ -147,9 +147,11 @@ pub trait Planner {
 }
 
 /// The planners of the command line's `--planner`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum PlannerKind {
+    /// Layers that pierce by ecp, marking layers by hha, marks first, fills before all.
     Auto,
+    /// Nearest neighbour over scan fields (the baseline).
     Nearest,
     /// The cutting planner: End-point Cutting Problem with precedence.
     Ecp,

@@ -676,6 +676,16 @@ fn plan_blocks(trajectory: &Trajectory, span: &Span, machine: &MachineConfig, mi
         .collect())
 }
 
+/// Where air assist goes on: the start of the first span of a geometry whose
+/// layer has `air = true`, and whether that span is a pierce.
+fn first_air_span(job: &Job, spans: &[Span], machine: &MachineConfig) -> Option<(f64, bool)> {
+    let air = |g: usize| job.geometries.get(g).and_then(|g| job.processes.get(g.process)).and_then(|p| machine.layer(&p.layer)).is_some_and(|l| l.air);
+    if !job.geometries.iter().enumerate().any(|(g, _)| air(g)) {
+        return None;
+    }
+    spans.iter().find(|s| s.geometry.is_some_and(air) && matches!(s.kind, LineKind::Pierce | LineKind::Mark)).map(|s| (s.start, s.kind == LineKind::Pierce))
+}
+
 /// The G-code program of a trajectory.
 pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> Result<Program> {
     let letters = machine.axis_letters();
@@ -713,14 +723,28 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
         LaserMode::M4 => "M4S0",
     };
     w.setup(laser_on);
+    // Air assist (coolant flood) for layers with `air = true`: on before the
+    // first pierce of such a layer, where the machine stands anyway (M8
+    // syncs Grbl's planner); a mark entered at speed gets it from the start
+    // instead, so that nothing stops where the plan does not. Off at the end.
+    let spans = spans(trajectory, machine);
+    let air_at = first_air_span(job, &spans, machine);
+    let mut air = false;
+    if air_at.is_some_and(|(_, pierce)| !pierce) {
+        w.setup("M8");
+        air = true;
+    }
     // Finding the blocks is most of the work and each span's are its own:
     // a chunk of spans is shared out over threads, then written in order
     // (a chunk at a time: a million-line fill's blocks are not all held).
-    let spans = spans(trajectory, machine);
     w.lines.reserve(spans.len() + 8);
     for chunk in spans.chunks(SPANS_AT_A_TIME) {
         let planned = crate::parallel::map(chunk, 8, |span| plan_blocks(trajectory, span, machine, min_block));
         for (span, blocks) in chunk.iter().zip(planned) {
+            if !air && air_at.is_some_and(|(at, _)| at == span.start) && span.kind == LineKind::Pierce {
+                w.lines.push(ProgramLine { text: "M8".into(), kind: LineKind::Pierce, geometry: span.geometry, plan_time: None, checks: vec![] });
+                air = true;
+            }
             if span.kind == LineKind::Pierce {
                 w.pierce(span.geometry.unwrap_or(0), span.power, span.start, span.end - span.start, machine.laser.mode);
                 continue;
@@ -742,8 +766,9 @@ pub fn generate(job: &Job, trajectory: &Trajectory, machine: &MachineConfig) -> 
             }
         }
     }
-    for text in ["M5S0", "G94", "M2"] {
-        w.lines.push(ProgramLine { text: text.into(), kind: LineKind::End, geometry: None, plan_time: None, checks: vec![] });
+    let end: &[&str] = if air { &["M5S0", "M9", "G94", "M2"] } else { &["M5S0", "G94", "M2"] };
+    for text in end {
+        w.lines.push(ProgramLine { text: (*text).into(), kind: LineKind::End, geometry: None, plan_time: None, checks: vec![] });
     }
     w.lines.shrink_to_fit();
     Ok(Program {
@@ -959,6 +984,45 @@ mod tests {
             let worst = replay_against(&prog, &tr);
             assert!(worst <= machine.program.tolerance + 1e-4, "{mode:?} {laser:?}: worst deviation {worst}");
         }
+    }
+
+    /// Issue 24: air assist (M8) goes on before the first pierce of a layer
+    /// with `air = true` (from the start when its first mark has no pierce),
+    /// stays on, and goes off (M9) at the end; without it no coolant word.
+    #[test]
+    fn air_assist_goes_on_before_its_layers_first_pierce_and_off_at_the_end() {
+        let mut job = circle_job();
+        let mut second = job.geometries[0].clone();
+        second.points.iter_mut().for_each(|p| p.x += 25.0);
+        second.process = 1;
+        job.geometries.push(second);
+        job.processes.push(Process { layer: "cut".into(), speed: 200.0, power: 900.0, passes: 1, fill: false });
+        let program = |machine: &MachineConfig| {
+            let ctx = PlanContext { machine, mode: Mode::StepAndScan, start: Point::origin(), plate: None };
+            let seq = NearestNeighbour.plan(&job, &ctx).unwrap();
+            let tr = build(&job, &seq, machine, Mode::StepAndScan, Point::origin()).unwrap();
+            generate(&job, &tr, machine).unwrap()
+        };
+        let coolant = |p: &Program| p.lines.iter().filter(|l| ["M7", "M8", "M9"].iter().any(|m| l.text.contains(m))).count();
+        let mut machine = MachineConfig::load(None).unwrap();
+        machine.laser.pierce_time = 0.25;
+        assert_eq!(coolant(&program(&machine)), 0, "no air unless a layer asks");
+        machine.layers.iter_mut().find(|l| l.name == "cut").unwrap().air = true;
+        let prog = program(&machine);
+        let texts: Vec<&str> = prog.lines.iter().map(|l| l.text.as_str()).collect();
+        assert_eq!(coolant(&prog), 2, "{texts:?}");
+        let on = texts.iter().position(|t| *t == "M8").unwrap();
+        assert!(texts[on + 1].starts_with("G1M3"), "right before the pierce: {:?}", &texts[on - 1..on + 2]);
+        assert_eq!(prog.lines[on].geometry, Some(1), "the cut's pierce");
+        assert!(!prog.lines[..on].iter().any(|l| l.geometry == Some(1)), "nothing of the cut before it");
+        assert_eq!(&texts[texts.len() - 4..], &["M5S0", "M9", "G94", "M2"]);
+        // A layer whose first mark has no pierce: on from the start.
+        machine.laser.pierce_time = 0.0;
+        let prog = program(&machine);
+        let texts: Vec<&str> = prog.lines.iter().map(|l| l.text.as_str()).collect();
+        let on = texts.iter().position(|t| *t == "M8").unwrap();
+        assert!(prog.lines[..=on].iter().all(|l| l.kind == LineKind::Setup), "{texts:?}");
+        assert_eq!(texts[texts.len() - 3], "M9");
     }
 
     #[test]

@@ -21,7 +21,7 @@ pub fn link_utilization(bytes: usize, baud: u32, seconds: f64) -> f64 {
 }
 
 pub use file_lines::FileLines;
-pub use sender::{clean_line, quote, stream, Connection, Control, ExecutedLine, LineError, LinkEvent, SenderOptions, StreamOutcome, BUILD_INFO};
+pub use sender::{clean_line, jog_block, quote, stream, Connection, Control, ExecutedLine, LineError, LinkEvent, SenderOptions, StreamOutcome, BUILD_INFO};
 
 #[cfg(test)]
 mod tests {

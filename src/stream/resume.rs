@@ -1,6 +1,7 @@
 //! Resuming a program from a line after an interruption. The modal state the
 //! program had built up before that line (units, distance mode, feed mode, work
-//! coordinate system, G92 offset, laser mode and power, feed rate, and where
+//! coordinate system, G92 offset, laser mode and power, air assist (coolant),
+//! feed rate, and where
 //! the tool was) is re-established, and the tool moves to where that line
 //! starts with the laser off, before the line itself is sent.
 //!
@@ -25,6 +26,9 @@ pub struct ModalState {
     /// M3 or M4 with the laser enabled, `None` after M5.
     pub laser: Option<u8>,
     pub power: f64,
+    /// Coolant: flood (M8, laserd's air assist) and mist (M7); M9 ends both.
+    pub flood: bool,
+    pub mist: bool,
     pub feed: Option<f64>,
     /// Tool position per axis in program coordinates, where known.
     pub position: Vec<Option<f64>>,
@@ -44,6 +48,8 @@ impl ModalState {
             coordinate_system: 54,
             laser: None,
             power: 0.0,
+            flood: false,
+            mist: false,
             feed: None,
             position: vec![None; axis_letters.len()],
             offset: vec![Some(0.0); axis_letters.len()],
@@ -100,11 +106,15 @@ impl ModalState {
                 ('G', g) if (54.0..=59.0).contains(&g) && g.fract() == 0.0 => self.coordinate_system = g as u8,
                 ('M', m) if m == 3.0 || m == 4.0 => self.laser = Some(m as u8),
                 ('M', 5.0) => self.laser = None,
+                ('M', 7.0) => self.mist = true,
+                ('M', 8.0) => self.flood = true,
+                ('M', 9.0) => (self.flood, self.mist) = (false, false),
                 ('M', m) if m == 2.0 || m == 30.0 => {
                     self.incremental = false;
                     self.inverse_time = false;
                     self.coordinate_system = 54;
                     self.laser = None;
+                    (self.flood, self.mist) = (false, false);
                 }
                 ('S', s) => self.power = s,
                 ('F', f) => self.feed = Some(f),
@@ -145,6 +155,13 @@ impl ModalState {
         }
         if g92.len() > 3 {
             lines.push(g92);
+        }
+        // Air assist on again where the job goes on, before the laser.
+        if self.mist {
+            lines.push("M7".into());
+        }
+        if self.flood {
+            lines.push("M8".into());
         }
         if let Some(m) = self.laser {
             lines.push(format!("M{m}S{}", format_number(self.power, 3)));
@@ -195,5 +212,25 @@ mod tests {
         s.apply("M2");
         assert_eq!(s.laser, None);
         assert!(!s.incremental);
+    }
+
+    #[test]
+    fn air_assist_on_where_the_job_stopped_is_turned_on_again_before_the_laser() {
+        let mut s = ModalState::new(&['X', 'Y']);
+        for l in ["G21 G90 G93", "M4 S0", "M8", "G1 X10 Y5 S300 F6000"] {
+            s.apply(l);
+        }
+        assert!(s.flood && !s.mist);
+        let pre = s.preamble();
+        let air = pre.iter().position(|l| l == "M8").unwrap_or_else(|| panic!("{pre:?}"));
+        let laser = pre.iter().position(|l| l == "M4S300").unwrap();
+        let moved = pre.iter().position(|l| l.starts_with("G0")).unwrap();
+        assert!(moved < air && air < laser, "{pre:?}");
+        // M9, or the program's end, leaves it off.
+        s.apply("M9");
+        assert!(!s.preamble().contains(&"M8".to_string()));
+        s.apply("M8");
+        s.apply("M2");
+        assert!(!s.flood);
     }
 }

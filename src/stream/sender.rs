@@ -38,7 +38,7 @@ mod streaming;
 mod tests;
 
 pub use book::ExecutedLine;
-pub use connection::Connection;
+pub use connection::{jog_block, Connection};
 pub use streaming::stream;
 
 #[derive(Debug, Clone)]

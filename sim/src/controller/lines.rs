@@ -251,6 +251,15 @@ impl Controller {
                         Some(_) => break,
                     }
                 }
+                Step::Coolant { flood, mist } => {
+                    // As the laser: Grbl syncs the planner before it switches coolant.
+                    if self.exec.is_some() || !self.planner.is_empty() {
+                        break;
+                    }
+                    self.coolant_out = [*flood, *mist];
+                    // Grbl reports a coolant change at once (Ov: and A:).
+                    self.ov_countdown = 0;
+                }
                 Step::Laser { power, line } => {
                     // Checked live: Grbl syncs the planner before it sets the laser.
                     if self.exec.is_some() || !self.planner.is_empty() {

@@ -417,6 +417,7 @@ impl Controller {
         let mut steps = Vec::new();
         let m = &self.modal;
         let accessories_change = new_spindle != m.spindle || new_flood != m.flood || new_mist != m.mist;
+        let spindle_change = new_spindle != m.spindle;
         // Grbl's spindle syncs in laser mode (gcode.c, steps 4 and 7): any
         // M3/M4/M5 change, and under M3, in a line without motion, an S change
         // or a switch between G0 and a feed motion mode. Each waits for motion
@@ -450,6 +451,9 @@ impl Controller {
         }
         if laser_sync && !self.check_mode {
             steps.push(Step::Laser { power: rest_power, line });
+        }
+        if (new_flood, new_mist) != (m.flood, m.mist) && !self.check_mode {
+            steps.push(Step::Coolant { flood: new_flood, mist: new_mist });
         }
         if let Some(p) = dwell {
             steps.push(Step::Sync);
@@ -511,7 +515,7 @@ impl Controller {
             Some(0) if !self.check_mode => steps.extend([Step::Sync, Step::Pause, Step::AwaitResume]),
             Some(2 | 30) => {
                 // The program's end switches the spindle off: the laser too.
-                steps.extend([Step::Sync, Step::Laser { power: 0.0, line }, Step::ProgramEnd]);
+                steps.extend([Step::Sync, Step::Laser { power: 0.0, line }, Step::Coolant { flood: false, mist: false }, Step::ProgramEnd]);
                 let m = &mut self.modal;
                 m.motion = Motion::Linear;
                 m.plane = 17;
@@ -527,8 +531,9 @@ impl Controller {
         if self.wco() != wco_before {
             self.wco_countdown = 0;
         }
-        if accessories_change {
-            // Grbl reports a spindle or coolant change at once (Ov: and A:).
+        if spindle_change {
+            // Grbl reports a spindle change at once (Ov: and A:); a coolant
+            // change once it is made (`Step::Coolant`).
             self.ov_countdown = 0;
         }
         Ok(steps)

@@ -81,6 +81,8 @@ impl Controller {
                 } else {
                     self.modal.mist = !self.modal.mist;
                 }
+                // The output switches at once, no sync.
+                self.coolant_out = [self.modal.flood, self.modal.mist];
                 self.ov_countdown = 0;
             }
             _ => {}

@@ -71,6 +71,7 @@ impl Controller {
         self.carry = None;
         self.pending = None;
         self.modal = Modal::default();
+        self.coolant_out = [false; 2];
         self.proto.reset();
         self.g92 = vec![0.0; self.pos.len()];
         self.gc_pos = self.pos.clone();

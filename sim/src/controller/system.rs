@@ -184,10 +184,10 @@ impl Controller {
             Spindle::Ccw => a.push('C'),
             Spindle::Off => {}
         }
-        if self.modal.flood {
+        if self.coolant_out[0] {
             a.push('F');
         }
-        if self.modal.mist {
+        if self.coolant_out[1] {
             a.push('M');
         }
         (!a.is_empty()).then_some(a)

@@ -297,7 +297,7 @@ where
         self.options.expect_start = start;
     }
 
-    /// Jogs (`$J=` + a block such as `G91 X10 F600`).
+    /// Jogs (`$J=` + a block such as `G91 X10 F600`; see `jog_block`).
     pub async fn jog(&mut self, block: &str) -> Result<()> {
         self.expect_ok(&format!("$J={block}")).await
     }
@@ -314,4 +314,26 @@ where
         self.fresh_status = None;
         self.link.send_realtime(realtime::JOG_CANCEL).await
     }
+}
+
+/// A jog as the operator gives it made a full `$J=` block: without G90 or
+/// G91 it is relative (G91: an operator's "X10" means 10 mm from here, not
+/// to X10 in whatever mode the last program left), without F it runs at
+/// `default_feed` (mm/min), since Grbl refuses a jog without a feed. A
+/// block naming both is sent as it is.
+pub fn jog_block(block: &str, default_feed: f64) -> String {
+    let mut clean = laserd_sim::gcode::LineBuilder::default();
+    block.bytes().for_each(|b| clean.push(b));
+    let words = clean.finish().and_then(|l| laserd_sim::gcode::split_words(&l).ok()).unwrap_or_default();
+    let distance = words.iter().any(|w| w.letter == 'G' && (w.value == 90.0 || w.value == 91.0));
+    let feed = words.iter().any(|w| w.letter == 'F');
+    let mut full = String::new();
+    if !distance {
+        full.push_str("G91 ");
+    }
+    full.push_str(block.trim());
+    if !feed {
+        full.push_str(&format!(" F{}", crate::program::format_number(default_feed, 1)));
+    }
+    full
 }

@@ -488,3 +488,17 @@ async fn an_over_long_line_is_quoted_by_its_first_80_characters() {
     assert!(reason.len() < 600, "{} bytes: {reason}", reason.len());
     drop(controller);
 }
+
+#[test]
+fn a_jog_of_axis_words_is_relative_at_the_default_feed_and_a_full_block_is_kept() {
+    assert_eq!(jog_block("X10", 3000.0), "G91 X10 F3000");
+    assert_eq!(jog_block(" x-2.5 y4 ", 1200.5), "G91 x-2.5 y4 F1200.5");
+    // A block naming its distance mode and feed goes as it is.
+    assert_eq!(jog_block("G91 X10 F600", 3000.0), "G91 X10 F600");
+    assert_eq!(jog_block("G90X5Y5F900", 3000.0), "G90X5Y5F900");
+    // Each missing part is added alone.
+    assert_eq!(jog_block("X10 F600", 3000.0), "G91 X10 F600");
+    assert_eq!(jog_block("G90 X5", 3000.0), "G90 X5 F3000");
+    // G21 is no distance mode.
+    assert_eq!(jog_block("G21 X1", 500.0), "G91 G21 X1 F500");
+}
