@@ -81,6 +81,24 @@ pub enum CtlCommand {
         /// jog feed.
         block: String,
     },
+    /// Trace the rectangle round a job's marks with the laser off, at the
+    /// jog feed, to check where it lies on the material.
+    Frame {
+        /// A queued job's id (default: the next in the queue).
+        id: Option<String>,
+    },
+    /// Change the running job's feed, rapid or laser power override.
+    Override {
+        /// Feed: +10, -10, +1, -1 (percent) or 100 (as programmed).
+        #[arg(long, allow_hyphen_values = true)]
+        feed: Option<String>,
+        /// Rapids: 100, 50 or 25 (percent).
+        #[arg(long)]
+        rapid: Option<String>,
+        /// Laser power: +10, -10, +1, -1 (percent) or 100 (as programmed).
+        #[arg(long, allow_hyphen_values = true)]
+        power: Option<String>,
+    },
     /// Run the homing cycle.
     Home,
     /// Clear an alarm ($X).
@@ -159,6 +177,10 @@ async fn run_async(socket: &Path, command: CtlCommand, json_out: bool) -> Result
         CtlCommand::Resume => (call(socket, Method::POST, "/resume", None).await?, Shown::Done),
         CtlCommand::Abort => (call(socket, Method::POST, "/abort", None).await?, Shown::Done),
         CtlCommand::Jog { block } => (call(socket, Method::POST, "/jog", json(serde_json::json!({ "block": block }))).await?, Shown::Done),
+        CtlCommand::Frame { id } => (call(socket, Method::POST, "/frame", id.map(|id| serde_json::json!({ "id": id })).and_then(json)).await?, Shown::Done),
+        CtlCommand::Override { feed, rapid, power } => {
+            (call(socket, Method::POST, "/override", json(serde_json::json!({ "feed": feed, "rapid": rapid, "power": power }))).await?, Shown::Done)
+        }
         CtlCommand::Home => (call(socket, Method::POST, "/home", None).await?, Shown::Done),
         CtlCommand::Unlock => (call(socket, Method::POST, "/unlock", None).await?, Shown::Done),
         CtlCommand::Recording { id, output } => {

@@ -364,7 +364,7 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
 }
 
 /// Traces the rectangle round job `id`'s marks (or the next queued job's)
-/// with jogs: the laser off, at the controller's own rates, in the bed
+/// with jogs: the laser off, at `[service] jog_feed`, in the bed
 /// coordinates the job runs in. Refused unless the machine is Idle, the
 /// settings agree with the config, and the rectangle lies inside the travel.
 async fn frame(daemon: &Daemon, connection: &mut Link, refusal: &Option<String>, id: Option<&str>) -> Result<String> {
@@ -396,7 +396,8 @@ async fn frame(daemon: &Daemon, connection: &mut Link, refusal: &Option<String>,
     let machine = &daemon.machine;
     // Any scanner axes at their centre: the stage alone traces the box.
     let rest: String = machine.axis_letters().iter().skip(2).map(|l| format!("{l}0")).collect();
-    let feed = crate::program::format_number(machine.stage.max_velocity * 60.0, 1);
+    // At the operator's jog feed: slow enough to watch the head go round.
+    let feed = crate::program::format_number(machine.service.jog_feed.min(machine.stage.max_velocity * 60.0), 1);
     let number = |v: f64| crate::program::format_number(v, 3);
     for (x, y) in [(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)] {
         connection.jog(&format!("G90G21X{}Y{}{rest}F{feed}", number(x), number(y))).await?;
