@@ -175,6 +175,9 @@ pub struct DryRunArgs {
     /// are null.
     #[arg(long)]
     keep_order: bool,
+    /// Draw the plan as SVG, as plan --plot does.
+    #[arg(long)]
+    plot: Option<PathBuf>,
     #[arg(long)]
     json: bool,
 }
@@ -183,8 +186,11 @@ pub fn dry_run(args: DryRunArgs) -> Result<ExitCode> {
     if args.keep_order {
         return dry_run_as_it_is(args);
     }
-    let DryRunArgs { job, record, motion, json, .. } = args;
+    let DryRunArgs { job, record, motion, plot, json, .. } = args;
     let (mut machine, planned) = job.plan()?;
+    if let Some(out) = &plot {
+        write_plot(out, &planned, &machine)?;
+    }
     machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
     planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations")?;
     let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
@@ -214,6 +220,7 @@ fn dry_run_as_it_is(args: DryRunArgs) -> Result<ExitCode> {
         (job.allow_precedence_violations, "--allow-precedence-violations"),
         (job.units.is_some(), "--units"),
         (job.place.is_some(), "--place"),
+        (args.plot.is_some(), "--plot"),
     ];
     if let Some((_, flag)) = planning.iter().find(|(given, _)| *given) {
         return Err(Error::Config(format!("{flag}: {} is streamed as it is (--keep-order), not planned", path.display())));
@@ -282,12 +289,7 @@ pub fn plan(args: PlanArgs) -> Result<ExitCode> {
         write_file(out, planned.program.to_gcode())?;
     }
     if let Some(out) = &plot {
-        write_file(out, laserd::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, &machine, planned.drawn.as_ref()))?;
-        // With --thermal, the plate's heat at its hottest moment beside it.
-        if let Some((grid, snapshot)) = &planned.heat {
-            let hottest = planned.report.thermal.as_ref().and_then(|t| t.hottest.as_ref());
-            write_file(&heat_map_path(out), laserd::plot::heat_map(&planned.job, grid, snapshot, hottest))?;
-        }
+        write_plot(out, &planned, &machine)?;
     }
     if json {
         print_json(&planned.report)?;
@@ -299,6 +301,18 @@ pub fn plan(args: PlanArgs) -> Result<ExitCode> {
     }
     refused?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// `--plot OUT.svg`: the plan's picture; with --thermal, the plate's heat
+/// at its hottest moment beside it.
+fn write_plot(out: &Path, planned: &run::Planned, machine: &MachineConfig) -> Result<()> {
+    let caption = laserd::plot::Caption::of(&planned.report);
+    write_file(out, laserd::plot::plot_captioned(&planned.job, &planned.sequence, &planned.trajectory, machine, planned.drawn.as_ref(), &caption))?;
+    if let Some((grid, snapshot)) = &planned.heat {
+        let hottest = planned.report.thermal.as_ref().and_then(|t| t.hottest.as_ref());
+        write_file(&heat_map_path(out), laserd::plot::heat_map(&planned.job, grid, snapshot, hottest))?;
+    }
+    Ok(())
 }
 
 /// Where `--plot OUT.svg` puts the heat map: OUT.heat.svg.
