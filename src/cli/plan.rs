@@ -11,7 +11,7 @@ use laserd::plan::PlannerKind;
 use laserd::run::{self, gcode};
 use laserd_sim::controller::{Faults, MotionModel};
 
-use super::common::{check_time_limit, exit, print_json, write_file};
+use super::common::{check_time_limit, exit, print_json, write_file, StageProgress};
 
 /// What `plan` and `dry-run` share: the job and how to plan it.
 #[derive(clap::Args)]
@@ -73,7 +73,7 @@ pub struct JobArgs {
 }
 
 impl JobArgs {
-    fn plan(&self) -> Result<(MachineConfig, run::Planned)> {
+    fn plan(&self, progress: &dyn run::Progress) -> Result<(MachineConfig, run::Planned)> {
         check_time_limit(self.time_limit).map_err(Error::Config)?;
         // The report says where the config came from (no line on stderr: an
         // error later stays the one line of the error contract).
@@ -100,7 +100,7 @@ impl JobArgs {
             machine.thermal.enabled = true;
         }
         import_flags(&mut machine, &self.job, self.units, self.place)?;
-        let mut planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
+        let mut planned = run::plan_showing(&self.job, &machine, self.planner, self.mode, progress)?;
         planned.report.config = Some(source);
         Ok((machine, planned))
     }
@@ -187,14 +187,17 @@ pub fn dry_run(args: DryRunArgs) -> Result<ExitCode> {
         return dry_run_as_it_is(args);
     }
     let DryRunArgs { job, record, motion, plot, json, .. } = args;
-    let (mut machine, planned) = job.plan()?;
+    let progress = StageProgress::on_terminal(json);
+    let shown: &dyn run::Progress = progress.as_ref().map_or(&run::Quiet, |p| p);
+    let (mut machine, planned) = job.plan(shown)?;
     if let Some(out) = &plot {
         write_plot(out, &planned, &machine)?;
     }
     machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
     planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations")?;
     let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
-    let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
+    let dry = run::dry_run_showing(&planned, &machine, &recording, Faults::default(), shown)?;
+    drop(progress);
     dry_run_end(json, &dry.report, dry.report.summary(), dry.report.sim.as_ref(), &machine, &dry.outcome)
 }
 
@@ -281,7 +284,9 @@ pub struct PlanArgs {
 
 pub fn plan(args: PlanArgs) -> Result<ExitCode> {
     let PlanArgs { job, output, plot, json } = args;
-    let (machine, planned) = job.plan()?;
+    let progress = StageProgress::on_terminal(json);
+    let (machine, planned) = job.plan(progress.as_ref().map_or(&run::Quiet, |p| p))?;
+    drop(progress);
     // A refused order is reported (and drawn) but not written as a program.
     let refused = planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations");
     let output = output.filter(|_| refused.is_ok());
