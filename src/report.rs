@@ -460,7 +460,7 @@ mod tests {
         assert_eq!(duration(4769.0), "1 h 19 min 29 s");
         assert_eq!(duration(243.4), "4 min 3 s");
         assert_eq!(duration(29.43), "29.4 s");
-        assert_eq!(duration(3.14159), "3.14 s");
+        assert_eq!(duration(3.456), "3.46 s");
         assert_eq!(duration(0.0123), "0.0123 s");
         assert_eq!(duration(0.0), "0 s");
         assert_eq!(duration(-90.0), "-1 min 30 s");

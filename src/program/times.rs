@@ -86,9 +86,9 @@ impl Modal {
         let mut feed = None;
         for w in &words {
             match (w.letter, w.value) {
-                ('G', g) if g == 93.0 => self.inverse_time = true,
-                ('G', g) if g == 94.0 => self.inverse_time = false,
-                ('G', g) if g == 4.0 => dwell = true,
+                ('G', 93.0) => self.inverse_time = true,
+                ('G', 94.0) => self.inverse_time = false,
+                ('G', 4.0) => dwell = true,
                 ('G', g) if (0.0..=3.0).contains(&g) && g.fract() == 0.0 => self.motion = g as u8,
                 ('X', v) => (target[0], moved) = (v, true),
                 ('Y', v) => (target[1], moved) = (v, true),
