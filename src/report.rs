@@ -8,6 +8,34 @@ use crate::config::ConfigSource;
 use crate::figures::SimFigures;
 use crate::plan::stop::SearchStop;
 
+/// A duration as people read it: `1 h 19 min 29 s`, `4 min 3 s`, `29.4 s`
+/// (below a minute with three significant digits, down to `0.0123 s`). The
+/// JSON reports keep seconds; this is for the text ones.
+pub fn duration(seconds: f64) -> String {
+    if !seconds.is_finite() {
+        return format!("{seconds} s");
+    }
+    if seconds == 0.0 {
+        return "0 s".into();
+    }
+    if seconds < 0.0 {
+        return format!("-{}", duration(-seconds));
+    }
+    // Below a minute as the decimals that keep three significant digits; a
+    // value that rounds to 60 s is a minute.
+    let decimals = if seconds >= 10.0 { 1 } else if seconds >= 1.0 { 2 } else if seconds >= 0.1 { 3 } else { 4 };
+    if format!("{seconds:.decimals$}").parse::<f64>().unwrap_or(seconds) < 60.0 {
+        return format!("{seconds:.decimals$} s");
+    }
+    let whole = seconds.round() as u64;
+    let (h, min, s) = (whole / 3600, whole / 60 % 60, whole % 60);
+    if h > 0 {
+        format!("{h} h {min} min {s} s")
+    } else {
+        format!("{min} min {s} s")
+    }
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct PlanReport {
     pub job: String,
@@ -206,15 +234,19 @@ impl PlanReport {
             s.push('\n');
         }
         s.push_str(&format!(
-            "  marking {:.1} mm, idle stroke {:.1} mm, planned in {:.3} s (search stopped by {}), precedence_violations {precedence}\n",
+            "  marking {:.1} mm, idle stroke {:.1} mm, planned in {} (search stopped by {}), precedence_violations {precedence}\n",
             self.mark_length_mm,
             self.idle_stroke_mm,
-            self.plan_time_s,
+            duration(self.plan_time_s),
             self.search_stopped_by.as_str()
         ));
         s.push_str(&format!(
-            "  trajectory {:.3} s (lower bound {:.3} s), program {} lines / {} bytes, computed in {:.3} s\n",
-            self.trajectory_time_s, self.lower_bound_s, self.program_lines, self.program_bytes, self.motion_time_s
+            "  machine time {} (lower bound {}), program {} lines / {} bytes, computed in {}\n",
+            duration(self.trajectory_time_s),
+            duration(self.lower_bound_s),
+            self.program_lines,
+            self.program_bytes,
+            duration(self.motion_time_s)
         ));
         s.push_str(&format!(
             "  {:.0} blocks per second of machine time; the link carries {:.0} lines/s (115200 baud: {:.0})\n",
@@ -237,15 +269,15 @@ impl PlanReport {
 }
 
 /// The lines of a summary on the simulated run: its times and link, and how
-/// it kept the machine's limits.
-fn sim_summary(sim: &SimFigures) -> String {
+/// it kept the machine's limits (also `replay`'s).
+pub fn sim_summary(sim: &SimFigures) -> String {
     let mut s = format!(
-        "  simulated: job time {:.3} s, {} lines / {} bytes sent, link {:.0} % used, planner starved {:.3} s\n",
-        sim.job_time_s,
+        "  simulated: job time {}, {} lines / {} bytes sent, link {:.0} % used, planner starved {}\n",
+        duration(sim.job_time_s),
         sim.lines_sent,
         sim.bytes_sent,
         sim.link_utilization * 100.0,
-        sim.planner_starved_s
+        duration(sim.planner_starved_s)
     );
     let field = sim.peak_field_use.map(|f| format!(", field use {:.2}", f)).unwrap_or_default();
     let deviation = sim.max_tcp_deviation_mm.map_or("max TCP deviation not measured (no plan)".to_string(), |d| format!("max TCP deviation {d:.4} mm"));
@@ -409,12 +441,32 @@ impl ThermalReport {
             self.iterations
         );
         if self.thermal_wait_s > 0.0 {
-            s.push_str(&format!(", {:.1} s of cooling waits before {} operations", self.thermal_wait_s, self.cooled_operations));
+            s.push_str(&format!(", {} of cooling waits before {} operations", duration(self.thermal_wait_s), self.cooled_operations));
         }
         if let Some(h) = &self.hottest {
-            s.push_str(&format!("; hottest: a {} at ({:.0}, {:.0}) mm, {:.0} s in, {:.0} °C of {:.0}", h.feature, h.x, h.y, h.time_s, h.celsius, h.critical_c));
+            s.push_str(&format!("; hottest: a {} at ({:.0}, {:.0}) mm, {} in, {:.0} °C of {:.0}", h.feature, h.x, h.y, duration(h.time_s), h.celsius, h.critical_c));
         }
         s.push('\n');
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations_read_as_hours_minutes_and_seconds() {
+        assert_eq!(duration(4769.0), "1 h 19 min 29 s");
+        assert_eq!(duration(243.4), "4 min 3 s");
+        assert_eq!(duration(29.43), "29.4 s");
+        assert_eq!(duration(3.456), "3.46 s");
+        assert_eq!(duration(0.0123), "0.0123 s");
+        assert_eq!(duration(0.0), "0 s");
+        assert_eq!(duration(-90.0), "-1 min 30 s");
+        // What rounds up to a minute or an hour is said so.
+        assert_eq!(duration(59.97), "1 min 0 s");
+        assert_eq!(duration(3599.6), "1 h 0 min 0 s");
+        assert_eq!(duration(7322.0), "2 h 2 min 2 s");
     }
 }

@@ -34,6 +34,23 @@ pub fn job_start() -> Point {
     Point::origin()
 }
 
+/// Where a long `plan` or `dry_run` is, for the command line to show on a
+/// terminal (the library prints nothing): each stage as it starts, and the
+/// share of it done where that is known.
+pub trait Progress {
+    /// A stage starts: import, plate layout, planning, motion, program, simulation.
+    fn stage(&self, name: &str);
+    /// Of the stage under way, this share (0 to 1) is done.
+    fn done(&self, _share: f64) {}
+}
+
+/// No progress shown.
+pub struct Quiet;
+
+impl Progress for Quiet {
+    fn stage(&self, _: &str) {}
+}
+
 pub struct Planned {
     pub job: Job,
     pub sequence: Sequence,
@@ -53,8 +70,14 @@ pub struct Planned {
 }
 
 pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: Option<Mode>) -> Result<Planned> {
+    plan_showing(job_path, machine, kind, mode, &Quiet)
+}
+
+/// `plan`, telling `progress` of its stages.
+pub fn plan_showing(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: Option<Mode>, progress: &dyn Progress) -> Result<Planned> {
     let mode = mode.unwrap_or_else(|| Mode::default_for(machine));
     mode.check(machine)?;
+    progress.stage("import");
     let job = import_job(job_path, machine)?;
     let fills = job.processes.iter().any(|p| p.fill);
     let (mut job, hatched) = crate::plan::area::hatch::hatch(job, machine)?;
@@ -91,6 +114,7 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
                     job_path.display()
                 )));
             }
+            progress.stage("plate layout");
             let (job, layout) = lay_out_plate(job, machine, &plate)?;
             (job, Some(layout))
         }
@@ -104,12 +128,15 @@ pub fn plan(job_path: &Path, machine: &MachineConfig, kind: PlannerKind, mode: O
     let shares = 1 + variants.len();
     let planning_machine = share_time_limits(planning_machine, shares);
     let ctx = PlanContext { machine: &planning_machine, mode, start: job_start(), plate: plate.as_ref() };
-    let base = plan_with_motion(kind, &job, &ctx, machine)?;
+    // Cutting layers' topology is built in planning.
+    let planning = if cuts_through(&job, machine).contains(&true) { "topology and planning" } else { "planning" };
+    let route = |k: usize| if shares > 1 { format!("{planning} (route {k} of {shares})") } else { planning.to_string() };
+    let base = plan_with_motion(kind, &job, &ctx, machine, &Named { progress, planning: route(1) })?;
     let mut plan_time_s = started.elapsed().as_secs_f64() - base.motion_time_s;
     let mut best = (judge.value(&base), base);
-    for variant in variants.into_iter().map(|v| share_time_limits(v, shares)) {
+    for (k, variant) in variants.into_iter().map(|v| share_time_limits(v, shares)).enumerate() {
         let started = WallInstant::now();
-        match plan_with_motion(kind, &job, &PlanContext { machine: &variant, ..ctx }, machine) {
+        match plan_with_motion(kind, &job, &PlanContext { machine: &variant, ..ctx }, machine, &Named { progress, planning: route(k + 2) }) {
             Ok(c) if c.broken() <= best.1.broken() => {
                 let value = judge.value(&c);
                 if value < best.0 {
@@ -239,17 +266,28 @@ impl Candidate {
     }
 }
 
+/// Progress with the name the planning stage goes by.
+struct Named<'a> {
+    progress: &'a dyn Progress,
+    planning: String,
+}
+
 /// `job` planned by `kind` (again in tighter fields where the stage falls
 /// behind on the fly), its motion and program; `motion_time_s` is the
 /// computing time of the motion kept.
-fn plan_with_motion(kind: PlannerKind, job: &Job, ctx: &PlanContext, machine: &MachineConfig) -> Result<Candidate> {
+fn plan_with_motion(kind: PlannerKind, job: &Job, ctx: &PlanContext, machine: &MachineConfig, named: &Named) -> Result<Candidate> {
+    let progress = named.progress;
+    progress.stage(&named.planning);
     let mut outcome = plan_job(kind, job, ctx)?;
     let started = WallInstant::now();
-    let (mut trajectory, mut program, mut link_slowdown) = motion_for_link(job, &outcome.sequence, machine, ctx.mode)?;
+    let (mut trajectory, mut program, mut link_slowdown) = motion_for_link(job, &outcome.sequence, machine, ctx.mode, progress)?;
     let mut motion_time_s = started.elapsed().as_secs_f64();
+    if ctx.mode == Mode::OnTheFly && trajectory.stage_flow.is_some_and(|flow| flow < 1.0) {
+        progress.stage(&format!("{} in tighter fields", named.planning));
+    }
     if let Some(tighter) = tighter_fields(kind, job, ctx, machine, &outcome, &trajectory)? {
         let started = WallInstant::now();
-        let planned = motion_for_link(job, &tighter.sequence, machine, ctx.mode)?;
+        let planned = motion_for_link(job, &tighter.sequence, machine, ctx.mode, progress)?;
         if planned.0.job_time() < trajectory.job_time() {
             (trajectory, program, link_slowdown) = planned;
             outcome = tighter;
@@ -427,8 +465,10 @@ impl Planned {
 /// speeds. In M3 (constant power) slowed marks get as much less power, so
 /// that each millimetre gets the energy it was meant to (M4 scales it by
 /// itself).
-fn motion_for_link(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode) -> Result<(Trajectory, Program, f64)> {
+fn motion_for_link(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode: Mode, progress: &dyn Progress) -> Result<(Trajectory, Program, f64)> {
+    progress.stage("motion");
     let trajectory = motion::build(job, sequence, machine, mode, job_start())?;
+    progress.stage("program");
     let program = program::generate(job, &trajectory, machine)?;
     let link = program::link::LinkModel::of(machine);
     let needed = link.slowdown(&program, || program::link::rests(&program, &trajectory))?;
@@ -456,6 +496,7 @@ fn motion_for_link(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode
         (_, Some(s)) => s.mark_speed,
     };
     let (job, sequence) = marks_slowed(job, sequence, &factors, cap, machine.laser.mode);
+    progress.stage("motion (marks slowed for the link)");
     let trajectory = motion::build(&job, &sequence, machine, mode, job_start())?;
     let program = program::generate(&job, &trajectory, machine)?;
     let mut needed = link.slowdown(&program, || program::link::rests(&program, &trajectory))?;
@@ -469,6 +510,7 @@ fn motion_for_link(job: &Job, sequence: &Sequence, machine: &MachineConfig, mode
     // margin, and a check of the program that will run.
     for _ in 0..4 {
         k *= needed * 1.02;
+        progress.stage(&format!("motion ({k:.2} times slower for the link)"));
         let slow_machine = machine.slowed(k);
         let mut slow_job = job.clone();
         for p in &mut slow_job.processes {
@@ -594,6 +636,12 @@ pub struct DryRun {
 
 /// Streams the planned program into a fresh simulator in virtual time.
 pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, faults: Faults) -> Result<DryRun> {
+    dry_run_showing(planned, machine, recording, faults, &Quiet)
+}
+
+/// `dry_run`, telling `progress` how far the simulation is.
+pub fn dry_run_showing(planned: &Planned, machine: &MachineConfig, recording: &Path, faults: Faults, progress: &dyn Progress) -> Result<DryRun> {
+    progress.stage("simulation");
     let sim = sim_config(machine, faults);
     let setup = RunSetup { small_pieces: small_pieces(&planned.job, machine), ..run_setup(machine, &sim) };
     let rec = Recording::create(recording)?;
@@ -612,7 +660,7 @@ pub fn dry_run(planned: &Planned, machine: &MachineConfig, recording: &Path, fau
         }
     }
 
-    let streamed = stream_into_simulator(&planned.program, sim, machine.serial.baud, &planned_options(machine, &planned.program), Some(&recorder));
+    let streamed = stream_showing(&planned.program, sim, machine.serial.baud, &planned_options(machine, &planned.program), Some(&recorder), progress);
     let (outcome, log, recorder, rec) = closed_on_error(streamed, recorder, rec)?;
     let log = RunLog { setup: Some(setup), planned: planned_lines, ..log };
     let mut report = summary;
@@ -665,6 +713,11 @@ pub fn stream_into_simulator(
     options: &SenderOptions,
     recorder: Option<&Recorder>,
 ) -> Result<(StreamOutcome, RunLog)> {
+    stream_showing(program, sim, baud, options, recorder, &Quiet)
+}
+
+/// `stream_into_simulator`, telling `progress` the share of lines sent.
+fn stream_showing(program: &Program, sim: SimConfig, baud: u32, options: &SenderOptions, recorder: Option<&Recorder>, progress: &dyn Progress) -> Result<(StreamOutcome, RunLog)> {
     let log = RefCell::new(RunLog::default());
     let lines = program.lines.iter().map(|l| Ok(l.text.clone()));
     let options = &SenderOptions { step_mm: Some(sim.step_mm()), ..options.clone() };
@@ -689,6 +742,9 @@ pub fn stream_into_simulator(
             let r = stream::stream(sender_io, lines, options, &describe, |t, ev| {
                 if let Some(r) = recorder {
                     r.link_event(t, &ev);
+                }
+                if let stream::LinkEvent::Sent { line, .. } = &ev {
+                    progress.done(*line as f64 / program.lines.len().max(1) as f64);
                 }
                 log.borrow_mut().link.push((t, ev));
             })

@@ -262,3 +262,36 @@ fn after_a_pierce_arcs_do_not_keep_the_controller_waiting() {
     assert!(a.planner_starved_s <= s.planner_starved_s + 1e-4, "starved: arcs {} s, straight {} s", a.planner_starved_s, s.planner_starved_s);
     assert!(a.job_time_s <= s.job_time_s + 1e-4, "arcs {} s, straight {} s", a.job_time_s, s.job_time_s);
 }
+
+/// `send`'s ETA goes by a laserd program's planned time read back from its
+/// words: G93 blocks, arcs at their feed, dwells; line by line it is the
+/// time the program was planned for (to the rounding of its words), on a
+/// stage-only job with arcs and pierces and on a galvo job.
+#[test]
+fn a_programs_planned_time_is_read_back_from_its_words_line_by_line() {
+    let cutter = MachineConfig::load(Some(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml"))).unwrap();
+    let galvo = MachineConfig::load(None).unwrap();
+    for (machine, mode) in [(&cutter, Mode::StageOnly), (&galvo, Mode::OnTheFly)] {
+        let planning_machine = mode.planning_machine(machine);
+        let job = circles();
+        let ctx = PlanContext { machine: &planning_machine, mode, start: Point::origin(), plate: None };
+        let sequence = NearestNeighbour.plan(&job, &ctx).unwrap();
+        let trajectory = build(&job, &sequence, machine, mode, Point::origin()).unwrap();
+        let program = program::generate(&job, &trajectory, machine).unwrap();
+        let arcs = program.lines.iter().filter(|l| (l.text.starts_with("G2") || l.text.starts_with("G3")) && !l.text.starts_with("G21")).count();
+        assert_eq!(arcs > 0, mode == Mode::StageOnly, "{mode:?}: {arcs} arcs");
+        assert!(mode != Mode::StageOnly || program.lines.iter().any(|l| l.text.starts_with("G4P")), "the cutter's pierces dwell");
+        let text = program.to_gcode();
+        let times = program::times::PlannedTimes::read(text.lines().map(Ok::<_, laserd::error::Error>)).unwrap();
+        // Every 64th line (where the times are kept exactly) against the plan.
+        let mut planned = 0.0;
+        for (k, line) in program.lines.iter().enumerate() {
+            planned += line.plan_time.map_or(0.0, |(a, b)| b - a);
+            if (k + 1) % 64 == 0 || k + 1 == program.lines.len() {
+                let read = times.through(k + 1);
+                assert!((read - planned).abs() <= 1e-4 * planned.max(1.0), "{mode:?} line {}: {read} s read, {planned} s planned", k + 1);
+            }
+        }
+        assert!((times.total_s - trajectory.duration()).abs() <= 1e-3 * trajectory.duration(), "{mode:?}: {} s read, {} s planned", times.total_s, trajectory.duration());
+    }
+}

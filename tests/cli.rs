@@ -22,6 +22,44 @@ fn laserd_with_env(args: &[&str], dir: &Path, env: &[(&str, &Path)]) -> Output {
     command.output().expect("laserd runs")
 }
 
+/// Runs laserd in `dir` as `laserd` does, its standard error on a
+/// pseudo-terminal as a person at one sees it: the output, and the text the
+/// terminal got with its escape sequences and redraws left out.
+fn laserd_on_a_terminal(args: &[&str], dir: &Path) -> (Output, String) {
+    use std::io::Read;
+    let size = nix::pty::Winsize { ws_row: 40, ws_col: 200, ws_xpixel: 0, ws_ypixel: 0 };
+    let pty = nix::pty::openpty(Some(&size), None).unwrap();
+    let mut command = Command::new(env!("CARGO_BIN_EXE_laserd"));
+    command.args(args).current_dir(dir).env_remove("LASERD_CONFIG").env("XDG_CONFIG_HOME", dir.join("no-user-config"));
+    command.stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::from(pty.slave));
+    let child = command.spawn().unwrap();
+    // The terminal ends when the child's end closes: ours too.
+    drop(command);
+    let mut master = std::fs::File::from(pty.master);
+    let reader = std::thread::spawn(move || {
+        let mut seen = Vec::new();
+        let _ = master.read_to_end(&mut seen);
+        seen
+    });
+    let output = child.wait_with_output().unwrap();
+    let seen = String::from_utf8_lossy(&reader.join().unwrap()).into_owned();
+    let mut text = String::new();
+    let mut chars = seen.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '\x1b' => {
+                // CSI: ESC [ parameters, then a letter.
+                if chars.next_if_eq(&'[').is_some() {
+                    while chars.next().is_some_and(|c| !c.is_ascii_alphabetic()) {}
+                }
+            }
+            '\r' => text.push('\n'),
+            c => text.push(c),
+        }
+    }
+    (output, text)
+}
+
 /// Issue 17, point 2: an installed binary finds its machine config without
 /// the build checkout: `--config`, then `$LASERD_CONFIG`, then
 /// /etc/laserd/laserd.toml, then the user's config folder ($XDG_CONFIG_HOME,
@@ -315,6 +353,30 @@ print(json.dumps(counts))
     }
 }
 
+/// Issue 24: a long `plan` or `dry-run` shows its stages on a terminal
+/// (the name of the one under way, the simulation as a bar), and nothing
+/// when standard error is no terminal; the reports give machine time as
+/// people read it.
+#[test]
+fn plan_and_dry_run_show_their_stages_on_a_terminal_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let cutter = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/flatbed-cutter.toml");
+    let job = sample("nested-sheet.svg");
+    let args = ["--config", cutter.to_str().unwrap(), &job];
+    let (out, terminal) = laserd_on_a_terminal(&[&["dry-run"][..], &args].concat(), dir.path());
+    assert!(out.status.success(), "{terminal}");
+    assert!(terminal.contains("topology and planning") && terminal.contains("simulation [") && terminal.contains('%'), "{terminal}");
+    // Piped: the same report, nothing on standard error.
+    let quiet = laserd(&[&["plan"][..], &args].concat(), dir.path());
+    assert!(quiet.status.success() && quiet.stderr.is_empty(), "{}", String::from_utf8_lossy(&quiet.stderr));
+    let report = json(&laserd(&[&["plan", "--json"][..], &args].concat(), dir.path()));
+    let time = report["trajectory_time_s"].as_f64().unwrap();
+    assert!(time > 60.0, "a job over a minute: {time} s");
+    let text = String::from_utf8_lossy(&quiet.stdout);
+    assert!(text.contains(&format!("machine time {} (", laserd::report::duration(time))), "{text}");
+    assert!(laserd::report::duration(time).contains(" min "), "{text}");
+}
+
 /// `laserd send` streams a G-code file to `laserd sim --pty`, and stops at a
 /// line the controller rejects, naming the file and line.
 #[test]
@@ -356,6 +418,29 @@ fn send_streams_a_file_to_the_simulator_and_names_a_rejected_line() {
     assert_eq!(report["errors"][0]["line"], 4);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.nc:4 `G1Z1F600`") && err.contains("error:20"), "{err}");
+}
+
+/// Issue 24: `send` on a terminal shows a laserd program's progress and ETA
+/// by its planned time (not by its rate of lines, which misjudged a 29 s
+/// job as 2 h), and the report's time as people read it.
+#[test]
+fn send_shows_the_time_left_of_a_laserd_programs_planned_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("ttyETA");
+    let _sim = SimProcess::start(&link, &["--baud", "1000000"]);
+    let nc = dir.path().join("one.nc");
+    assert!(laserd(&["plan", &sample("one-field.svg"), "-o", nc.to_str().unwrap()], dir.path()).status.success());
+    let text = std::fs::read_to_string(&nc).unwrap();
+    let planned = laserd::program::times::PlannedTimes::read(text.lines().map(Ok::<_, laserd::error::Error>)).unwrap();
+    let (out, terminal) = laserd_on_a_terminal(&["send", nc.to_str().unwrap(), "--port", link.to_str().unwrap(), "--baud", "1000000"], dir.path());
+    assert!(out.status.success(), "{terminal}");
+    let total = laserd::report::duration(planned.total_s);
+    let lefts: Vec<&str> = terminal.lines().filter_map(|l| l.split(", ").nth(1)).filter_map(|l| l.trim_end().strip_suffix(&format!(" left of {total} planned"))).collect();
+    assert!(!lefts.is_empty(), "the bar says what is left of {total}: {terminal}");
+    let seconds: Vec<f64> = lefts.iter().map(|l| l.trim_end_matches(" s").parse().unwrap()).collect();
+    assert!(seconds.iter().all(|&s| s <= planned.total_s + 1e-9) && seconds.windows(2).all(|w| w[1] <= w[0] + 1e-9), "{seconds:?} of {}", planned.total_s);
+    let report = String::from_utf8_lossy(&out.stdout);
+    assert!(report.contains(" bytes in ") && report.contains(" s, completed"), "{report}");
 }
 
 /// A fast stream of lines that do not move (setup lines, comments, what CAM

@@ -149,3 +149,31 @@ fn a_simulator_killed_mid_run_leaves_a_readable_recording() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(String::from_utf8_lossy(&out.stderr).contains("ends early"));
 }
+
+/// What `plan` and `dry-run` show on a terminal: the library tells its
+/// stages in the pipeline's order, and the simulation's share done rising to
+/// the whole (it prints nothing itself).
+#[test]
+fn a_plan_and_dry_run_tell_their_stages_in_order() {
+    struct Heard(std::cell::RefCell<Vec<(String, Option<f64>)>>);
+    impl run::Progress for Heard {
+        fn stage(&self, name: &str) {
+            self.0.borrow_mut().push((name.to_string(), None));
+        }
+        fn done(&self, share: f64) {
+            self.0.borrow_mut().push((String::new(), Some(share)));
+        }
+    }
+    let machine = MachineConfig::load(None).unwrap();
+    let heard = Heard(Default::default());
+    let planned = run::plan_showing(&sample("one-field.svg"), &machine, PlannerKind::Auto, None, &heard).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    run::dry_run_showing(&planned, &machine, &dir.path().join("r.mcap"), Faults::default(), &heard).unwrap();
+    let heard = heard.0.into_inner();
+    let stages: Vec<&str> = heard.iter().filter(|(_, s)| s.is_none()).map(|(n, _)| n.as_str()).collect();
+    let first = |name: &str| stages.iter().position(|s| s.starts_with(name)).unwrap_or_else(|| panic!("no {name} in {stages:?}"));
+    assert!(first("import") < first("planning") && first("planning") < first("motion") && first("motion") < first("program") && first("program") < first("simulation"), "{stages:?}");
+    assert_eq!(stages.last(), Some(&"simulation"));
+    let shares: Vec<f64> = heard.iter().filter_map(|(_, s)| *s).collect();
+    assert!(shares.windows(2).all(|w| w[1] >= w[0]) && shares.last() == Some(&1.0), "{} shares, last {:?}", shares.len(), shares.last());
+}

@@ -159,7 +159,8 @@ fn where_no_order_keeps_the_plate_cool_the_program_waits_dark_before_the_hot_pat
     // The plan's picture rings each place the machine waits, with its seconds.
     let picture = laserd::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, &machine, None);
     assert_eq!(picture.matches(r#"class="cooling-wait""#).count(), waits.len());
-    assert!(waits.iter().all(|w| picture.contains(&format!("<title>cooling wait {:.1} s</title>", w.1))));
+    assert!(waits.iter().all(|w| picture.contains(&format!("<title>cooling wait {}</title>", laserd::report::duration(w.1)))));
+    assert!(picture.contains("cooling waits ("), "the legend names them");
     // On the simulator: the machine stands at each hot path's start with the
     // laser off for its wait, within every limit, and the job's time holds them.
     let dry = run::dry_run(&planned, &machine, &dir.path().join("cool.mcap"), Faults::default()).unwrap();

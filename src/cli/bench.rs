@@ -8,6 +8,7 @@ use laserd::error::{Error, Result};
 use laserd::mode::Mode;
 use laserd::config::SearchKind;
 use laserd::plan::PlannerKind;
+use laserd::report::duration;
 use laserd_sim::controller::MotionModel;
 
 use super::common::{check_baud, check_time_limit, exit, machine_config, print_json};
@@ -295,9 +296,9 @@ fn ecp_bench(tsp: PathBuf, tour: PathBuf, seed: u64, time_limit: Option<f64>, se
         print_json(&report)?;
     } else {
         println!(
-            "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {:.2} s, search stopped by {}, {} iterations ({}, {} searches on {} threads), feasible: {}",
+            "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {}, search stopped by {}, {} iterations ({}, {} searches on {} threads), feasible: {}",
             report.instance, report.elements, report.contours, report.precedences, report.inner_outer, report.common_cuts,
-            report.optimum, report.construction, report.best, report.gap * 100.0, report.time_to_best_s, report.search_stopped_by.as_str(), report.iterations, report.search, report.searches, report.threads, report.feasible
+            report.optimum, report.construction, report.best, report.gap * 100.0, duration(report.time_to_best_s), report.search_stopped_by.as_str(), report.iterations, report.search, report.searches, report.threads, report.feasible
         );
     }
     Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(exit::STOPPED) })
@@ -315,8 +316,8 @@ fn sheet_bench(config: Option<PathBuf>, elements: usize, seed: u64, time_limit: 
         );
         for (name, o) in [("nearest", &r.nearest), ("IB + dir-opt", &r.construction), ("COB + dir-opt", &r.contour_order), ("ecp", &r.ecp)] {
             println!(
-                "  {name:<13} air {:>10.1} mm, {:>5} pierces, {:>4} precedence violations, planned in {:.2} s",
-                o.air_mm, o.pierces, o.precedence_violations, o.plan_time_s
+                "  {name:<13} air {:>10.1} mm, {:>5} pierces, {:>4} precedence violations, planned in {}",
+                o.air_mm, o.pierces, o.precedence_violations, duration(o.plan_time_s)
             );
         }
         println!("  ecp air / nearest {:.3}, / IB + dir-opt {:.3}", r.air_vs_nearest, r.air_vs_construction);
@@ -336,13 +337,13 @@ fn thermal_bench(config: PathBuf, elements: usize, width: f64, height: f64, seed
         );
         for o in &r.runs {
             println!(
-                "  seed {}: {} geometries; plain peaks pierce/cut/corner {:.0?} °C; violations plain {} (max {:.1} °C) -> thermal {} (max {:.1} °C; cooling waits {:.1} s before {} operations); machine time {:.1} -> {:.1} s ({:+.2} %); {} constructions; planning {:.1} s ({:.1} s after its plain search; the plain search alone {:.1} s); evaluation {:.3} s ({} cells, {} steps, {:.0} M cell updates/s)",
-                o.seed, o.geometries, o.plain_peak_c, o.plain_violations, o.plain_max_overheat_c, o.thermal_violations, o.max_overheat_c, o.thermal_wait_s, o.cooled_operations, o.plain_time_s, o.thermal_time_s, o.extra_time_percent, o.iterations, o.whole_plan_s, o.thermal_plan_s, o.plain_plan_s, o.evaluation_s, o.cells, o.steps, o.cell_updates_per_s / 1e6
+                "  seed {}: {} geometries; plain peaks pierce/cut/corner {:.0?} °C; violations plain {} (max {:.1} °C) -> thermal {} (max {:.1} °C; cooling waits {} before {} operations); machine time {} -> {} ({:+.2} %); {} constructions; planning {} ({} after its plain search; the plain search alone {}); evaluation {} ({} cells, {} steps, {:.0} M cell updates/s)",
+                o.seed, o.geometries, o.plain_peak_c, o.plain_violations, o.plain_max_overheat_c, o.thermal_violations, o.max_overheat_c, duration(o.thermal_wait_s), o.cooled_operations, duration(o.plain_time_s), duration(o.thermal_time_s), o.extra_time_percent, o.iterations, duration(o.whole_plan_s), duration(o.thermal_plan_s), duration(o.plain_plan_s), duration(o.evaluation_s), o.cells, o.steps, o.cell_updates_per_s / 1e6
             );
         }
         println!(
-            "  median / worst: plain violations {} / {}, thermal {} / {}, cooling waits {:.1} / {:.1} s, extra time {:+.2} / {:+.2} %, planning {:.1} / {:.1} s, evaluation {:.3} / {:.3} s",
-            r.plain_violations[0], r.plain_violations[1], r.thermal_violations[0], r.thermal_violations[1], r.thermal_wait_s[0], r.thermal_wait_s[1], r.extra_time_percent[0], r.extra_time_percent[1], r.whole_plan_s[0], r.whole_plan_s[1], r.evaluation_s[0], r.evaluation_s[1]
+            "  median / worst: plain violations {} / {}, thermal {} / {}, cooling waits {} / {}, extra time {:+.2} / {:+.2} %, planning {} / {}, evaluation {} / {}",
+            r.plain_violations[0], r.plain_violations[1], r.thermal_violations[0], r.thermal_violations[1], duration(r.thermal_wait_s[0]), duration(r.thermal_wait_s[1]), r.extra_time_percent[0], r.extra_time_percent[1], duration(r.whole_plan_s[0]), duration(r.whole_plan_s[1]), duration(r.evaluation_s[0]), duration(r.evaluation_s[1])
         );
     }
     Ok(ExitCode::SUCCESS)
@@ -358,8 +359,8 @@ fn plate_bench(config: Option<PathBuf>, elements: usize, seed: u64, skeleton_pie
         for (name, o) in [("free", &r.free), ("on plate", &r.on_plate), ("scrap in route", &r.scrap_in_route), ("scrap after", &r.scrap_after)] {
             let violations = o.precedence_violations.map_or("unknown".to_string(), |v| v.to_string());
             println!(
-                "  {name:<14} cut {:>10.3} mm in {:>5} paths: {:>5} pierces, {:>4} edge starts, {:>4} cut on, air {:>9.1} mm, {:>3} skeleton + {} remnant cuts, {:.2} s machine time, {violations} precedence violations",
-                o.cut_length_mm, o.cut_paths, o.pierces, o.edge_starts, o.cut_on, o.idle_stroke_mm, o.skeleton_cuts.unwrap_or(0), o.remnant_cuts.unwrap_or(0), o.trajectory_time_s
+                "  {name:<14} cut {:>10.3} mm in {:>5} paths: {:>5} pierces, {:>4} edge starts, {:>4} cut on, air {:>9.1} mm, {:>3} skeleton + {} remnant cuts, {} machine time, {violations} precedence violations",
+                o.cut_length_mm, o.cut_paths, o.pierces, o.edge_starts, o.cut_on, o.idle_stroke_mm, o.skeleton_cuts.unwrap_or(0), o.remnant_cuts.unwrap_or(0), duration(o.trajectory_time_s)
             );
         }
         println!(
@@ -382,10 +383,10 @@ fn serve_bench(job: PathBuf, config: Option<PathBuf>, clients: usize, hz: f64, p
         println!("laserd serve, job {}", r.job);
         for run in &r.runs {
             println!(
-                "  {:<9} link utilization {:.4}  streamed {:.2} s  status at 10 Hz: {} answers, interval jitter p50 {:.2} ms p99 {:.2} ms max {:.2} ms  controller `?`: {} (jitter p99 {:.2} ms, {} found it starved)  load clients' answers {}",
+                "  {:<9} link utilization {:.4}  streamed {}  status at 10 Hz: {} answers, interval jitter p50 {:.2} ms p99 {:.2} ms max {:.2} ms  controller `?`: {} (jitter p99 {:.2} ms, {} found it starved)  load clients' answers {}",
                 run.name,
                 run.link_utilization,
-                run.stream_time_s,
+                duration(run.stream_time_s),
                 run.api_polls,
                 run.api_poll_jitter_p50_ms,
                 run.api_poll_jitter_p99_ms,
@@ -398,7 +399,7 @@ fn serve_bench(job: PathBuf, config: Option<PathBuf>, clients: usize, hz: f64, p
         }
         println!("  utilization with {} clients at {} Hz / quiet: {:.4}", r.clients, r.client_hz, r.utilization_ratio_polling);
         println!("  utilization with {} operator's screens open / quiet: {:.4}", r.pages, r.utilization_ratio_pages);
-        println!("  utilization while planning (done in {:.1} s) / quiet: {:.4}", r.planning_s, r.utilization_ratio_planning);
+        println!("  utilization while planning (done in {}) / quiet: {:.4}", duration(r.planning_s), r.utilization_ratio_planning);
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -412,11 +413,11 @@ fn motion_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, mode: Option<Mode>,
         println!("trajectory + split + program, {} mode, median of {} runs", r.mode, r.repeats);
         for c in &r.jobs {
             println!(
-                "  {:<40} {:>5} geometries  machine {:>8.3} s  computed in {:>7.4} s  ({:.3} %)",
+                "  {:<40} {:>5} geometries  machine {:>14}  computed in {:>9}  ({:.3} %)",
                 c.job,
                 c.geometries,
-                c.machine_time_s,
-                c.motion_time_s,
+                duration(c.machine_time_s),
+                duration(c.motion_time_s),
                 c.share * 100.0
             );
         }
@@ -433,7 +434,7 @@ fn import_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, repeats: usize, jso
     } else {
         println!("import alone, median of {} runs", r.repeats);
         for c in &r.jobs {
-            println!("  {:<40} {:>10} bytes  {:>7} geometries  {:>9} points  {:>8.4} s", c.job, c.bytes, c.geometries, c.points, c.import_time_s);
+            println!("  {:<40} {:>10} bytes  {:>7} geometries  {:>9} points  {:>9}", c.job, c.bytes, c.geometries, c.points, duration(c.import_time_s));
         }
         if let Some(mb) = r.peak_rss_mb {
             println!("  peak memory of the process {mb:.0} MB");
@@ -451,8 +452,8 @@ fn vs_grbl_bench(jobs: Vec<PathBuf>, config: Option<PathBuf>, mode: Option<Mode>
         println!("laserd (timed controller) against the same path as plain G1 F moves on Grbl's planner ($11 = {} mm), {} mode", r.junction_deviation_mm, r.mode);
         for c in &r.jobs {
             println!(
-                "  {:<40} laserd {:>9.3} s  grbl {:>9.3} s  ratio {:.3}  bound {:>9.3} s (laserd {:.2} x)",
-                c.job, c.laserd_job_time_s, c.grbl_job_time_s, c.ratio, c.lower_bound_s, c.laserd_vs_bound
+                "  {:<40} laserd {:>14}  grbl {:>14}  ratio {:.3}  bound {:>14} (laserd {:.2} x)",
+                c.job, duration(c.laserd_job_time_s), duration(c.grbl_job_time_s), c.ratio, duration(c.lower_bound_s), c.laserd_vs_bound
             );
             let grbl = if c.grbl_limits_broken.is_empty() { "none".to_string() } else { c.grbl_limits_broken.join("; ") };
             println!("    limits broken: laserd {}, grbl {grbl}", c.laserd_limit_breaches);
@@ -501,8 +502,8 @@ fn fill_bench(config: PathBuf, job: PathBuf, spacing: f64, radius: f64, objectiv
         return Ok(ExitCode::SUCCESS);
     }
     println!(
-        "{}: {} grid points {} mm apart, {} mm inside; at {} mm/s; lower bounds {:.0} mm, {} turns, {:.2} s (median / worst of seeds 1-{})",
-        r.job, r.points, r.spacing_mm, r.radius_mm, r.speed_mm_s, r.length_lower_bound_mm, r.turns_lower_bound, r.time_lower_bound_s, seeds.len()
+        "{}: {} grid points {} mm apart, {} mm inside; at {} mm/s; lower bounds {:.0} mm, {} turns, {} (median / worst of seeds 1-{})",
+        r.job, r.points, r.spacing_mm, r.radius_mm, r.speed_mm_s, r.length_lower_bound_mm, r.turns_lower_bound, duration(r.time_lower_bound_s), seeds.len()
     );
     let median_worst = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
@@ -517,8 +518,12 @@ fn fill_bench(config: PathBuf, job: PathBuf, spacing: f64, radius: f64, objectiv
         let (heat, heat_w) = figure(&|run| run.heat);
         let (conv, conv_w) = figure(&|run| run.converged_s);
         println!(
-            "  {:<16} length {length:.0} / {length_w:.0} mm  turns {turns:.0} / {turns_w:.0} (Eq. 10 {detour:.0} / {detour_w:.0} mm)  time {time:.2} / {time_w:.2} s  heat {heat:.1} / {heat_w:.1}  converged in {conv:.2} / {conv_w:.2} s",
-            o.objective
+            "  {:<16} length {length:.0} / {length_w:.0} mm  turns {turns:.0} / {turns_w:.0} (Eq. 10 {detour:.0} / {detour_w:.0} mm)  time {} / {}  heat {heat:.1} / {heat_w:.1}  converged in {} / {}",
+            o.objective,
+            duration(time),
+            duration(time_w),
+            duration(conv),
+            duration(conv_w)
         );
     }
     Ok(ExitCode::SUCCESS)
@@ -534,10 +539,10 @@ fn link_bench(config: Option<PathBuf>, blocks: usize, block_ms: f64, motion: Opt
     } else {
         let show = |name: &str, f: &laserd::bench::StreamFigures| {
             println!(
-                "  {name:<18} stream {:>8.2} s, link {:>5.1} %, planner starved {:.3} s",
-                f.stream_time_s,
+                "  {name:<18} stream {:>12}, link {:>5.1} %, planner starved {}",
+                duration(f.stream_time_s),
                 f.link_utilization * 100.0,
-                f.planner_starved_s
+                duration(f.planner_starved_s)
             )
         };
         println!(

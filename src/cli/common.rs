@@ -1,7 +1,10 @@
 //! What the commands share: finding the machine config, writing reports and
 //! files, range checks of flags, exit codes.
 
+use std::cell::Cell;
+use std::io::IsTerminal;
 use std::path::Path;
+use std::time::Duration;
 
 use laserd::config::{ConfigSearch, ConfigSource, FoundConfig, BAUD, TIME_LIMIT};
 use laserd::error::{Error, Result};
@@ -52,4 +55,51 @@ pub fn check_time_limit(seconds: Option<f64>) -> std::result::Result<(), String>
 /// `--baud`, when given, within the config's range.
 pub fn check_baud(baud: Option<u32>) -> std::result::Result<(), String> {
     baud.map_or(Ok(()), |b| BAUD.check("--baud", b))
+}
+
+/// The stages of a long `plan` or `dry-run` on standard error when it is a
+/// terminal: a spinner with the stage's name and how long it has run, a bar
+/// where the share done is known (the simulation); cleared at the end.
+pub struct StageProgress {
+    bar: indicatif::ProgressBar,
+    counting: Cell<bool>,
+}
+
+impl StageProgress {
+    /// None unless standard error is a terminal, or with `quiet` (`--json`).
+    pub fn on_terminal(quiet: bool) -> Option<StageProgress> {
+        (!quiet && std::io::stderr().is_terminal()).then(|| {
+            let bar = indicatif::ProgressBar::new_spinner();
+            bar.enable_steady_tick(Duration::from_millis(120));
+            StageProgress { bar, counting: Cell::new(false) }
+        })
+    }
+
+    fn style(template: &str) -> indicatif::ProgressStyle {
+        indicatif::ProgressStyle::with_template(template).unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner())
+    }
+}
+
+impl laserd::run::Progress for StageProgress {
+    fn stage(&self, name: &str) {
+        self.counting.set(false);
+        self.bar.set_style(Self::style("{spinner} {msg} {elapsed}"));
+        self.bar.set_message(name.to_string());
+        self.bar.reset_elapsed();
+    }
+
+    fn done(&self, share: f64) {
+        if !self.counting.replace(true) {
+            self.bar.set_style(Self::style("{msg} [{bar:30}] {percent:>3}% {elapsed}, about {eta} left"));
+            self.bar.set_length(1000);
+        }
+        self.bar.set_position((share.clamp(0.0, 1.0) * 1000.0) as u64);
+    }
+}
+
+impl Drop for StageProgress {
+    /// Gone before the report or an error is printed.
+    fn drop(&mut self) {
+        self.bar.finish_and_clear();
+    }
 }

@@ -11,7 +11,7 @@ use laserd::plan::PlannerKind;
 use laserd::run::{self, gcode};
 use laserd_sim::controller::{Faults, MotionModel};
 
-use super::common::{check_time_limit, exit, print_json, write_file};
+use super::common::{check_time_limit, exit, print_json, write_file, StageProgress};
 
 /// What `plan` and `dry-run` share: the job and how to plan it.
 #[derive(clap::Args)]
@@ -75,7 +75,7 @@ pub struct JobArgs {
 }
 
 impl JobArgs {
-    fn plan(&self) -> Result<(MachineConfig, run::Planned)> {
+    fn plan(&self, progress: &dyn run::Progress) -> Result<(MachineConfig, run::Planned)> {
         check_time_limit(self.time_limit).map_err(Error::Config)?;
         // The report says where the config came from (no line on stderr: an
         // error later stays the one line of the error contract).
@@ -102,7 +102,7 @@ impl JobArgs {
             machine.thermal.enabled = true;
         }
         import_flags(&mut machine, &self.job, self.units, self.place)?;
-        let mut planned = run::plan(&self.job, &machine, self.planner, self.mode)?;
+        let mut planned = run::plan_showing(&self.job, &machine, self.planner, self.mode, progress)?;
         planned.report.config = Some(source);
         Ok((machine, planned))
     }
@@ -177,6 +177,9 @@ pub struct DryRunArgs {
     /// are null.
     #[arg(long)]
     keep_order: bool,
+    /// Draw the plan as SVG, as plan --plot does.
+    #[arg(long)]
+    plot: Option<PathBuf>,
     /// Print the report as JSON (for scripts) instead of a summary for people.
     #[arg(long)]
     json: bool,
@@ -186,12 +189,18 @@ pub fn dry_run(args: DryRunArgs) -> Result<ExitCode> {
     if args.keep_order {
         return dry_run_as_it_is(args);
     }
-    let DryRunArgs { job, record, motion, json, .. } = args;
-    let (mut machine, planned) = job.plan()?;
+    let DryRunArgs { job, record, motion, plot, json, .. } = args;
+    let progress = StageProgress::on_terminal(json);
+    let shown: &dyn run::Progress = progress.as_ref().map_or(&run::Quiet, |p| p);
+    let (mut machine, planned) = job.plan(shown)?;
+    if let Some(out) = &plot {
+        write_plot(out, &planned, &machine)?;
+    }
     machine.simulator.motion = motion.unwrap_or(machine.simulator.motion);
     planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations")?;
     let recording = record.unwrap_or_else(|| run::default_recording(&job.job));
-    let dry = run::dry_run(&planned, &machine, &recording, Faults::default())?;
+    let dry = run::dry_run_showing(&planned, &machine, &recording, Faults::default(), shown)?;
+    drop(progress);
     dry_run_end(json, &dry.report, dry.report.summary(), dry.report.sim.as_ref(), &machine, &dry.outcome)
 }
 
@@ -217,6 +226,7 @@ fn dry_run_as_it_is(args: DryRunArgs) -> Result<ExitCode> {
         (job.allow_precedence_violations, "--allow-precedence-violations"),
         (job.units.is_some(), "--units"),
         (job.place.is_some(), "--place"),
+        (args.plot.is_some(), "--plot"),
     ];
     if let Some((_, flag)) = planning.iter().find(|(given, _)| *given) {
         return Err(Error::Config(format!("{flag}: {} is streamed as it is (--keep-order), not planned", path.display())));
@@ -279,7 +289,9 @@ pub struct PlanArgs {
 
 pub fn plan(args: PlanArgs) -> Result<ExitCode> {
     let PlanArgs { job, output, plot, json } = args;
-    let (machine, planned) = job.plan()?;
+    let progress = StageProgress::on_terminal(json);
+    let (machine, planned) = job.plan(progress.as_ref().map_or(&run::Quiet, |p| p))?;
+    drop(progress);
     // A refused order is reported (and drawn) but not written as a program.
     let refused = planned.check_precedence(job.allow_precedence_violations, "--allow-precedence-violations");
     let output = output.filter(|_| refused.is_ok());
@@ -287,12 +299,7 @@ pub fn plan(args: PlanArgs) -> Result<ExitCode> {
         write_file(out, planned.program.to_gcode())?;
     }
     if let Some(out) = &plot {
-        write_file(out, laserd::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, &machine, planned.drawn.as_ref()))?;
-        // With --thermal, the plate's heat at its hottest moment beside it.
-        if let Some((grid, snapshot)) = &planned.heat {
-            let hottest = planned.report.thermal.as_ref().and_then(|t| t.hottest.as_ref());
-            write_file(&heat_map_path(out), laserd::plot::heat_map(&planned.job, grid, snapshot, hottest))?;
-        }
+        write_plot(out, &planned, &machine)?;
     }
     if json {
         print_json(&planned.report)?;
@@ -304,6 +311,18 @@ pub fn plan(args: PlanArgs) -> Result<ExitCode> {
     }
     refused?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// `--plot OUT.svg`: the plan's picture; with --thermal, the plate's heat
+/// at its hottest moment beside it.
+fn write_plot(out: &Path, planned: &run::Planned, machine: &MachineConfig) -> Result<()> {
+    let caption = laserd::plot::Caption::of(&planned.report);
+    write_file(out, laserd::plot::plot_captioned(&planned.job, &planned.sequence, &planned.trajectory, machine, planned.drawn.as_ref(), &caption))?;
+    if let Some((grid, snapshot)) = &planned.heat {
+        let hottest = planned.report.thermal.as_ref().and_then(|t| t.hottest.as_ref());
+        write_file(&heat_map_path(out), laserd::plot::heat_map(&planned.job, grid, snapshot, hottest))?;
+    }
+    Ok(())
 }
 
 /// Where `--plot OUT.svg` puts the heat map: OUT.heat.svg.

@@ -8,6 +8,7 @@ use laserd::config::{ConfigSearch, MachineConfig};
 use laserd::error::Result;
 use laserd::figures::sim_figures;
 use laserd::record;
+use laserd::report::sim_summary;
 
 use super::common::{exit, print_json};
 
@@ -62,7 +63,10 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
         if json {
             print_json(&report)?;
         } else {
-            println!("{}", serde_json::to_string_pretty(&report).unwrap_or_default());
+            println!("{}: recorded", recording.display());
+            print!("{}", sim_summary(&figures));
+            println!("re-simulated:");
+            print!("{}", sim_summary(&again));
             println!("machine: {used}; {}", if same { "the same figures again" } else { "differences:" });
             for d in &differences {
                 println!("  {d}");
@@ -74,7 +78,7 @@ pub fn run(args: ReplayArgs) -> Result<ExitCode> {
         print_json(&figures)?;
     } else {
         println!("{}: {} knots, {} link events", recording.display(), replay.log.knots.len(), replay.log.link.len());
-        println!("{}", serde_json::to_string_pretty(&figures).unwrap_or_default());
+        print!("{}", sim_summary(&figures));
     }
     Ok(ExitCode::SUCCESS)
 }

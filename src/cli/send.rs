@@ -7,6 +7,8 @@ use std::process::ExitCode;
 
 use laserd::config::FoundConfig;
 use laserd::error::{Error, Result};
+use laserd::program::times::PlannedTimes;
+use laserd::report::duration;
 use laserd::stream::{self, LinkEvent, SenderOptions};
 
 use super::common::{check_baud, exit, machine_config, print_json};
@@ -57,13 +59,26 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
     options.hold_limit = options.hold_limit_for(machine.stop_time_s());
     options.check_mode = check;
     let progress = (!json && std::io::stderr().is_terminal()).then(|| {
-        let bar = indicatif::ProgressBar::new(size);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {percent:>3}% {bytes}/{total_bytes} line {msg} eta {eta}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        bar
+        // A program laserd wrote carries its planned time line by line: the
+        // bar and ETA go by it (a rate of lines or bytes misjudges a job
+        // whose lines are of very different lengths in time). Else by bytes.
+        let planned = std::fs::File::open(file).ok().and_then(|f| PlannedTimes::read(stream::FileLines::new(std::io::BufReader::new(f), &shown)));
+        let style = |template: &str| indicatif::ProgressStyle::with_template(template).unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+        let bar = match &planned {
+            Some(times) => {
+                let bar = indicatif::ProgressBar::new((times.total_s * 1000.0).ceil() as u64);
+                bar.set_style(style("{bar:40} {percent:>3}% line {msg}"));
+                bar
+            }
+            None => {
+                let bar = indicatif::ProgressBar::new(size);
+                bar.set_style(style("{bar:40} {percent:>3}% {bytes}/{total_bytes} line {msg} eta {eta}"));
+                bar
+            }
+        };
+        (bar, planned)
     });
+    let (started, last_line) = (Cell::new(None), Cell::new(0));
     let runtime = tokio::runtime::Runtime::new().map_err(|e| Error::Io(e.to_string()))?;
     let outcome = runtime.block_on(async {
         use tokio_serial::SerialPortBuilderExt;
@@ -72,9 +87,27 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
             .map_err(|e| Error::Stream(format!("{port}: cannot open: {e}")))?;
         let describe = |n: usize, text: &str| format!("{shown}:{n} `{text}`");
         let mut connection = stream::Connection::open(io, &options, |_, event| {
-            if let (Some(bar), LinkEvent::Sent { line, .. }) = (&progress, &event) {
-                bar.set_position(read.get());
-                bar.set_message(line.to_string());
+            let Some((bar, planned)) = &progress else { return };
+            if let LinkEvent::Sent { line, .. } = &event {
+                // Lines of the sender's own (line 0) are not the program's.
+                if *line > 0 {
+                    last_line.set(*line);
+                    started.set(started.get().or(Some(std::time::Instant::now())));
+                }
+            }
+            let line = last_line.get();
+            match (planned, started.get()) {
+                // Any event (status reports too) moves the clock on.
+                (Some(times), Some(first)) => {
+                    let left = times.left(line, first.elapsed().as_secs_f64());
+                    bar.set_position(((times.total_s - left) * 1000.0) as u64);
+                    bar.set_message(format!("{line}, {} left of {} planned", duration(left), duration(times.total_s)));
+                }
+                (Some(_), None) => {}
+                (None, _) => {
+                    bar.set_position(read.get());
+                    bar.set_message(line.to_string());
+                }
             }
         })
         .await?;
@@ -83,7 +116,7 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
         connection.use_program_frame([machine.stage.travel_x, machine.stage.travel_y]).await?;
         connection.stream(lines, &describe, None).await
     })?;
-    if let Some(bar) = progress {
+    if let Some((bar, _)) = progress {
         bar.finish_and_clear();
     }
     let report = serde_json::json!({
@@ -103,10 +136,10 @@ fn send(file: &Path, port: &str, baud: Option<u32>, config: Option<&Path>, check
         print_json(&report)?;
     } else {
         println!(
-            "{shown}: {} lines, {} bytes in {:.2} s{}{}",
+            "{shown}: {} lines, {} bytes in {}{}{}",
             outcome.lines_sent,
             outcome.bytes_sent,
-            outcome.stream_time_s,
+            duration(outcome.stream_time_s),
             if check { " (check mode)" } else { "" },
             if outcome.completed { ", completed" } else { "" }
         );

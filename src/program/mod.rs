@@ -45,6 +45,7 @@
 pub mod arcs;
 pub mod link;
 pub mod plain;
+pub mod times;
 
 use crate::config::{LaserMode, MachineConfig};
 use crate::error::{Error, Result};
