@@ -11,7 +11,6 @@ use std::time::{Duration, Instant};
 
 use chromiumoxide::browser::{Browser, BrowserConfig};
 use chromiumoxide::cdp::browser_protocol::dom::SetFileInputFilesParams;
-use chromiumoxide::cdp::browser_protocol::page::CaptureScreenshotFormat;
 use chromiumoxide::Page;
 use common::service::*;
 use common::SimProcess;
@@ -105,8 +104,45 @@ impl Screen {
         path
     }
 
-    fn element_shot(&self, selector: &str) -> Vec<u8> {
-        self.rt.block_on(async { self.page.find_element(selector).await.unwrap().screenshot(CaptureScreenshotFormat::Png).await.unwrap() })
+    /// The whole page's screenshot cut to `selector`'s box: RGB rows.
+    fn element_shot(&self, selector: &str) -> Picture {
+        let png = self.rt.block_on(async { self.page.screenshot(chromiumoxide::page::ScreenshotParams::builder().full_page(true).build()).await.unwrap() });
+        let js = format!("(() => {{ const r = document.querySelector('{selector}').getBoundingClientRect(); return [r.left + window.scrollX, r.top + window.scrollY, r.width, r.height].map(Math.round); }})()");
+        let [x, y, w, h]: [u32; 4] = self.eval(&js);
+        let page = Picture::decode(&png);
+        let rows = (y..(y + h).min(page.height)).map(|row| page.rgb[(row * page.width + x) as usize * 3..(row * page.width + (x + w).min(page.width)) as usize * 3].to_vec()).collect::<Vec<_>>().concat();
+        Picture { width: w.min(page.width - x), height: h.min(page.height - y), rgb: rows }
+    }
+}
+
+/// A screenshot's pixels, RGB.
+struct Picture {
+    width: u32,
+    height: u32,
+    rgb: Vec<u8>,
+}
+
+impl Picture {
+    fn decode(png_bytes: &[u8]) -> Picture {
+        let mut decoder = png::Decoder::new(std::io::Cursor::new(png_bytes));
+        decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+        let mut reader = decoder.read_info().unwrap();
+        let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut pixels).unwrap();
+        let channels = info.color_type.samples();
+        let rgb = pixels[..info.buffer_size()].chunks_exact(channels).flat_map(|p| [p[0], p[1], p[2]]).collect();
+        Picture { width: info.width, height: info.height, rgb }
+    }
+
+    /// The share of pixels within `tolerance` of `rgb`.
+    fn share_of(&self, rgb: [u8; 3], tolerance: i32) -> f64 {
+        let near = self.rgb.chunks_exact(3).filter(|p| (0..3).all(|i| (p[i] as i32 - rgb[i] as i32).abs() <= tolerance)).count();
+        near as f64 / (self.width as f64 * self.height as f64).max(1.0)
+    }
+
+    /// The share of pixels that are neither white nor light grey: drawing.
+    fn drawn_share(&self) -> f64 {
+        1.0 - self.share_of([255, 255, 255], 12) - self.share_of([229, 231, 235], 12)
     }
 }
 
@@ -119,23 +155,6 @@ impl Drop for Screen {
             });
         }
     }
-}
-
-/// The share of a PNG's pixels within `tolerance` of `rgb`.
-fn share_of(png_bytes: &[u8], rgb: [u8; 3], tolerance: i32) -> f64 {
-    let mut decoder = png::Decoder::new(std::io::Cursor::new(png_bytes));
-    decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
-    let mut reader = decoder.read_info().unwrap();
-    let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
-    let info = reader.next_frame(&mut pixels).unwrap();
-    let channels = info.color_type.samples();
-    let near = pixels[..info.buffer_size()].chunks_exact(channels).filter(|p| (0..3).all(|i| (p[i] as i32 - rgb[i] as i32).abs() <= tolerance)).count();
-    near as f64 / (info.width * info.height) as f64
-}
-
-/// The share of a PNG's pixels that are neither white nor light grey: drawing.
-fn drawn_share(png_bytes: &[u8]) -> f64 {
-    1.0 - share_of(png_bytes, [255, 255, 255], 12) - share_of(png_bytes, [229, 231, 235], 12)
 }
 
 #[test]
@@ -172,9 +191,9 @@ fn an_operator_logs_in_uploads_frames_runs_pauses_resumes_and_aborts_in_a_real_b
     assert!(row.contains("one-field.svg") && row.contains(" s"), "the queue shows the name and planned time: {row}");
     let figures: String = screen.eval("document.getElementById('selected-figures').innerText");
     assert!(figures.contains("Geometries") && figures.contains(&job["figures"]["geometries"].to_string()), "{figures}");
-    let queued_shot = std::fs::read(screen.shot("1-queued")).unwrap();
-    assert!(share_of(&queued_shot, [4, 120, 87], 8) > 0.0, "the Idle badge is in the screenshot");
-    assert!(drawn_share(&screen.element_shot("#picture")) > 0.002, "the picture has a drawing in it");
+    let queued_shot = Picture::decode(&std::fs::read(screen.shot("1-queued")).unwrap());
+    assert!(queued_shot.share_of([4, 120, 87], 8) > 0.0, "the Idle badge is in the screenshot");
+    assert!(screen.element_shot("#picture").drawn_share() > 0.002, "the picture has a drawing in it");
 
     // Frame it: the machine traces the job's bounds, laser off, and ends at their corner.
     let bounds: Vec<f64> = job["bounds"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
@@ -212,9 +231,9 @@ fn an_operator_logs_in_uploads_frames_runs_pauses_resumes_and_aborts_in_a_real_b
     let b = api.status();
     assert_eq!(a["machine"]["position"], b["machine"]["position"], "the position holds");
     assert_eq!(b["machine"]["laser"].as_f64(), Some(0.0), "laser off in the hold: {b}");
-    let held_shot = std::fs::read(screen.shot("3-held")).unwrap();
-    assert!(share_of(&held_shot, [180, 83, 9], 8) > 0.0, "the amber Hold badge is in the screenshot");
-    assert!(share_of(&screen.element_shot("#picture"), [192, 38, 211], 10) > 0.0001, "the tool is drawn over the plan");
+    let held_shot = Picture::decode(&std::fs::read(screen.shot("3-held")).unwrap());
+    assert!(held_shot.share_of([180, 83, 9], 8) > 0.0, "the amber Hold badge is in the screenshot");
+    assert!(screen.element_shot("#picture").share_of([192, 38, 211], 10) > 0.0001, "the tool is drawn over the plan");
     screen.click("#resume");
     api.wait_status(Duration::from_secs(5), "running again", |s| machine_state(s) == "Run");
     api.wait_status(Duration::from_secs(20), "job 2 half done", |s| s["job"]["time_percent"].as_f64().unwrap_or(0.0) > 50.0);
@@ -225,8 +244,8 @@ fn an_operator_logs_in_uploads_frames_runs_pauses_resumes_and_aborts_in_a_real_b
     let idle = api.wait_status(Duration::from_secs(5), "Idle after the abort", |s| machine_state(s) == "Idle" && s["job"].is_null());
     assert_eq!(idle["machine"]["laser"].as_f64(), Some(0.0));
     screen.wait("(document.getElementById('history-j000002') || {innerText: ''}).innerText.includes('aborted')", Duration::from_secs(5), "job 2 aborted in the history");
-    let ended = std::fs::read(screen.shot("4-aborted")).unwrap();
-    assert!(share_of(&ended, [4, 120, 87], 8) > 0.0, "Idle again on the screen");
+    let ended = Picture::decode(&std::fs::read(screen.shot("4-aborted")).unwrap());
+    assert!(ended.share_of([4, 120, 87], 8) > 0.0, "Idle again on the screen");
     drop(screen);
     assert!(service.terminate().success());
     sim.terminate();

@@ -163,7 +163,9 @@ fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineCon
             // What the operator's screen shows: the picture, each line's
             // planned end (the ETA), the figures, where the marks lie (framing).
             super::eta::LineTimes::of_program(&planned.program).write(&program.with_file_name(TIMES_FILE))?;
-            let picture = crate::plot::plot(&planned.job, &planned.sequence, &planned.trajectory, machine, planned.drawn.as_ref());
+            // Titled with the name it was submitted under, not the stored file's.
+            let caption = crate::plot::Caption { job: name.to_string(), ..crate::plot::Caption::of(&planned.report) };
+            let picture = crate::plot::plot_captioned(&planned.job, &planned.sequence, &planned.trajectory, machine, planned.drawn.as_ref(), &caption);
             super::queue::write_atomic(&program.with_file_name(PLOT_FILE), picture.as_bytes())?;
             let report = &planned.report;
             let figures = super::queue::JobFigures {
