@@ -153,3 +153,50 @@ fn on_tcp_every_page_and_call_needs_the_token_or_a_login_and_a_cross_site_post_i
     assert_eq!(http(port, "GET", "/status", &[("Cookie", &cookie)], b"").0, 401);
     drop(service);
 }
+
+#[test]
+fn a_work_origin_places_new_jobs_and_framing_traces_their_bounds_with_the_laser_off() {
+    let _turn = take_turn();
+    let dir = tempfile::tempdir().unwrap();
+    let (_rig, service, api) = Rig::start(dir.path(), "ttyFRAME");
+    // The tool's place, once jogged there, is the origin of the jobs submitted next.
+    api.ok(Method::POST, "/jog", Some(serde_json::json!({ "block": "G90 X50 Y60 F6000" })));
+    api.wait_status(Duration::from_secs(10), "at X50 Y60", |s| machine_state(s) == "Idle" && (position(s)[0] - 50.0).abs() < 1e-3 && (position(s)[1] - 60.0).abs() < 1e-3);
+    let set = api.ok(Method::POST, "/origin", None);
+    assert_eq!(set["origin"], serde_json::json!([50.0, 60.0]), "{set}");
+    assert_eq!(api.status()["origin"], serde_json::json!([50.0, 60.0]));
+    let id = api.submit(&sample("one-field.svg"));
+    let job = api.wait_job(&id, "queued", Duration::from_secs(60));
+    let bounds: Vec<f64> = job["bounds"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!((bounds[0] - 50.0).abs() < 1e-3 && (bounds[1] - 60.0).abs() < 1e-3, "placed at the origin: {bounds:?}");
+    // Outside the travel: refused by name; cleared: back to the config's placement.
+    let (code, answer) = api.call(Method::POST, "/origin", Some(serde_json::json!({ "x": 1e6, "y": 0.0 })));
+    assert!(code == 400 && answer["error"].as_str().unwrap().contains("outside the stage travel"), "{code} {answer}");
+    api.ok(Method::DELETE, "/origin", None);
+    assert!(api.status()["origin"].is_null());
+
+    // Framing: round the job's bounds, laser off, ending at their first corner.
+    api.ok(Method::POST, "/frame", Some(serde_json::json!({ "id": id })));
+    api.wait_status(Duration::from_secs(5), "framing", |s| machine_state(s) == "Jog");
+    let corners = std::cell::RefCell::new(Vec::<Vec<f64>>::new());
+    let lit = std::cell::Cell::new(false);
+    api.wait_status(Duration::from_secs(30), "the frame traced", |s| {
+        lit.set(lit.get() || s["machine"]["laser"].as_f64().unwrap_or(0.0) > 0.0);
+        corners.borrow_mut().push(position(s));
+        machine_state(s) == "Idle"
+    });
+    assert!(!lit.get(), "the laser stays off");
+    let seen = corners.into_inner();
+    let (xs, ys): (Vec<f64>, Vec<f64>) = seen.iter().map(|p| (p[0], p[1])).unzip();
+    let (x0, x1) = (xs.iter().copied().fold(f64::MAX, f64::min), xs.iter().copied().fold(f64::MIN, f64::max));
+    let (y0, y1) = (ys.iter().copied().fold(f64::MAX, f64::min), ys.iter().copied().fold(f64::MIN, f64::max));
+    assert!(x0 >= bounds[0] - 1e-3 && x1 <= bounds[2] + 1e-3 && y0 >= bounds[1] - 1e-3 && y1 <= bounds[3] + 1e-3, "inside the bounds: {x0} {y0} {x1} {y1}");
+    assert!(x1 - x0 > 0.5 * (bounds[2] - bounds[0]) && y1 - y0 > 0.5 * (bounds[3] - bounds[1]), "round them: {x0} {y0} {x1} {y1} of {bounds:?}");
+    let end = seen.last().unwrap();
+    assert!((end[0] - bounds[0]).abs() < 1e-3 && (end[1] - bounds[1]).abs() < 1e-3, "back at the first corner: {end:?}");
+    // Overrides need a running job; a bad step is refused by name.
+    assert_eq!(api.call(Method::POST, "/override", Some(serde_json::json!({ "feed": "+10" }))).0, 409);
+    let (code, answer) = api.call(Method::POST, "/override", Some(serde_json::json!({ "feed": "+50" })));
+    assert!(code == 400 && answer["error"].as_str().unwrap().contains("override feed"), "{code} {answer}");
+    assert!(service.terminate().success());
+}

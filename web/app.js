@@ -93,6 +93,10 @@ function showStatus(s) {
   badge.textContent = m.state;
   badge.className = 'badge ' + m.state.split(':')[0];
   $('state-words').textContent = words(m.state);
+  const alarm = $('machine-alarm');
+  alarm.hidden = !m.alarm;
+  alarm.textContent = m.alarm ? `${m.alarm}. Unlock clears it; Home finds the machine's position again.` : '';
+  $('origin').textContent = s.origin ? `X ${mm(s.origin[0])}  Y ${mm(s.origin[1])}` : 'as the config places them';
   const msg = $('machine-message');
   msg.hidden = !m.message;
   msg.textContent = m.message || '';
@@ -151,6 +155,8 @@ function enableButtons() {
   for (const b of document.querySelectorAll('[data-jog]')) b.disabled = !idle && m.state !== 'Jog';
   $('home').disabled = !m.connected || running;
   $('unlock').disabled = !m.connected || running;
+  $('set-origin').disabled = !m.tcp || running;
+  $('clear-origin').disabled = !(status && status.origin);
   $('pause').disabled = !running || status.job.state !== 'running';
   $('resume').disabled = !running || status.job.state !== 'paused';
   $('abort').disabled = !running;
@@ -323,6 +329,8 @@ function wire() {
   $('jog-stop').addEventListener('click', () => act('POST', '/abort'));
   $('home').addEventListener('click', () => act('POST', '/home'));
   $('unlock').addEventListener('click', () => act('POST', '/unlock'));
+  $('set-origin').addEventListener('click', () => act('POST', '/origin'));
+  $('clear-origin').addEventListener('click', () => act('DELETE', '/origin'));
   $('pause').addEventListener('click', () => act('POST', '/pause'));
   $('resume').addEventListener('click', () => act('POST', '/resume'));
   $('abort').addEventListener('click', () => act('POST', '/abort'));

@@ -46,11 +46,14 @@ pub struct PlanJobArgs {
     result: PathBuf,
     #[arg(long)]
     allow_precedence_violations: bool,
+    /// The operator's work origin: the job's lower-left corner there (X,Y mm).
+    #[arg(long)]
+    place: Option<String>,
 }
 
 pub fn plan_job(args: PlanJobArgs) -> Result<ExitCode> {
-    let PlanJobArgs { source, name, program, result, allow_precedence_violations } = args;
-    laserd::daemon::intake::plan_job_child(&source, &name, &program, &result, allow_precedence_violations)?;
+    let PlanJobArgs { source, name, program, result, allow_precedence_violations, place } = args;
+    laserd::daemon::intake::plan_job_child(&source, &name, &program, &result, allow_precedence_violations, place.as_deref())?;
     Ok(ExitCode::SUCCESS)
 }
 

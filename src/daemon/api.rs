@@ -63,6 +63,7 @@ pub fn router(daemon: Arc<Daemon>) -> Router {
         .route("/unlock", post(|s| machine_call(s, Command::Unlock)))
         .route("/jog", post(jog))
         .route("/frame", post(frame))
+        .route("/origin", post(set_origin).delete(clear_origin))
         .route("/override", post(override_call))
         .route("/jobs/{id}/plot", get(plot))
         .route("/events", get(events))
@@ -229,6 +230,37 @@ async fn start(State(d): State<Arc<Daemon>>, body: Bytes) -> ApiResult<Json<serd
 async fn frame(State(d): State<Arc<Daemon>>, body: Bytes) -> ApiResult<Json<serde_json::Value>> {
     let StartBody { id } = if body.is_empty() { StartBody::default() } else { serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"id\": \"...\"}} or nothing: {e}")))? };
     ask(&d, |reply| Command::Frame { id, reply }).await
+}
+
+/// The JSON body of `POST /origin` (may be empty: the tool's place now). Public for the fuzz targets.
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct OriginBody {
+    pub x: f64,
+    pub y: f64,
+}
+
+/// `POST /origin`: jobs submitted from now on are placed with their
+/// lower-left corner here (or at the tool's place now).
+async fn set_origin(State(d): State<Arc<Daemon>>, body: Bytes) -> ApiResult<Json<serde_json::Value>> {
+    let at = if body.is_empty() {
+        let _ = ask(&d, Command::Origin).await?;
+        d.status.borrow().origin.ok_or_else(|| Error::Io("the machine loop set no origin".into()))?
+    } else {
+        let OriginBody { x, y } = serde_json::from_slice(&body).map_err(|e| Error::Config(format!("request body: expected {{\"x\": …, \"y\": …}} or nothing: {e}")))?;
+        [x, y]
+    };
+    let [w, h] = [d.machine.stage.travel_x, d.machine.stage.travel_y];
+    if !(at.iter().all(|v| v.is_finite()) && (0.0..=w).contains(&at[0]) && (0.0..=h).contains(&at[1])) {
+        return Err(Error::Config(format!("work origin ({}, {}) mm: outside the stage travel (X 0 to {w}, Y 0 to {h} mm)", at[0], at[1])).into());
+    }
+    d.status.send_modify(|s| s.origin = Some(at));
+    Ok(Json(serde_json::json!({ "done": format!("jobs submitted from now on go with their lower-left corner at X {:.3} Y {:.3} mm", at[0], at[1]), "origin": at })))
+}
+
+async fn clear_origin(State(d): State<Arc<Daemon>>) -> Json<serde_json::Value> {
+    d.status.send_modify(|s| s.origin = None);
+    Json(serde_json::json!({ "done": "jobs submitted from now on are placed by [job] anchor" }))
 }
 
 /// The JSON body of `POST /override`: each field a step (`"+10"`, `"-10"`,

@@ -219,7 +219,9 @@ pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clien
     let token = format!("bench-{:032x}", rand::random::<u128>());
     let token_file = dir.join("token");
     std::fs::write(&token_file, &token).map_err(|e| Error::Io(e.to_string()))?;
-    let tcp_lines = format!("tcp = {addr:?}\ntoken_file = {:?}", token_file.display().to_string());
+    // Jobs are submitted by path: from the job's folder and the bench's own.
+    let folders = [job.parent().unwrap_or(Path::new("/")).display().to_string(), dir.display().to_string()];
+    let tcp_lines = format!("tcp = {addr:?}\ntoken_file = {:?}\njob_folders = {folders:?}", token_file.display().to_string());
     // The machine's config with the simulator's device, and a table large
     // enough for the 3000-element sheet that is planned in run 3.
     let params = crate::gen::sheet::SheetParams::with_target(3000);
@@ -232,7 +234,7 @@ pub fn serve_bench(machine: &MachineConfig, config_text: &str, job: &Path, clien
                 format!("travel_x = {}", params.width.max(machine.stage.travel_x))
             } else if l.starts_with("travel_y = ") {
                 format!("travel_y = {}", params.height.max(machine.stage.travel_y))
-            } else if l.starts_with("tcp = ") || l.starts_with("token_file = ") {
+            } else if l.starts_with("tcp = ") || l.starts_with("token_file = ") || l.starts_with("job_folders = ") {
                 // The screens' TCP side is the bench's own, below.
                 String::new()
             } else if l.trim() == "[service]" {

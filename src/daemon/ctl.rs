@@ -99,6 +99,20 @@ pub enum CtlCommand {
         #[arg(long, allow_hyphen_values = true)]
         power: Option<String>,
     },
+    /// Set the work origin: jobs submitted from now on are planned with their
+    /// lower-left corner at the tool's place now, or at X Y; --clear goes
+    /// back to the config's [job] anchor.
+    Origin {
+        /// X of the origin (mm, bed coordinates; default: where the tool is).
+        #[arg(allow_hyphen_values = true, requires = "y")]
+        x: Option<f64>,
+        /// Y of the origin (mm).
+        #[arg(allow_hyphen_values = true)]
+        y: Option<f64>,
+        /// Clear it: jobs are placed by [job] anchor again.
+        #[arg(long, conflicts_with = "x")]
+        clear: bool,
+    },
     /// Run the homing cycle.
     Home,
     /// Clear an alarm ($X).
@@ -181,6 +195,8 @@ async fn run_async(socket: &Path, command: CtlCommand, json_out: bool) -> Result
         CtlCommand::Override { feed, rapid, power } => {
             (call(socket, Method::POST, "/override", json(serde_json::json!({ "feed": feed, "rapid": rapid, "power": power }))).await?, Shown::Done)
         }
+        CtlCommand::Origin { clear: true, .. } => (call(socket, Method::DELETE, "/origin", None).await?, Shown::Done),
+        CtlCommand::Origin { x, y, .. } => (call(socket, Method::POST, "/origin", x.zip(y).map(|(x, y)| serde_json::json!({ "x": x, "y": y })).and_then(json)).await?, Shown::Done),
         CtlCommand::Home => (call(socket, Method::POST, "/home", None).await?, Shown::Done),
         CtlCommand::Unlock => (call(socket, Method::POST, "/unlock", None).await?, Shown::Done),
         CtlCommand::Recording { id, output } => {

@@ -125,10 +125,14 @@ fn bounds_of(points: impl Iterator<Item = crate::job::Point>) -> Option<[f64; 4]
 /// The child's side (`laserd plan-job`): plans or checks `source`, writes the
 /// program to `program` and the result as JSON to `result`. The config comes
 /// as text on standard input: the service's, as it was loaded.
-pub fn plan_job_child(source: &Path, name: &str, program: &Path, result: &Path, allow_precedence_violations: bool) -> Result<()> {
+/// `place`: the operator's work origin (`X,Y`), for `[job] anchor`.
+pub fn plan_job_child(source: &Path, name: &str, program: &Path, result: &Path, allow_precedence_violations: bool, place: Option<&str>) -> Result<()> {
     let mut config = String::new();
     std::io::stdin().take(1 << 20).read_to_string(&mut config).map_err(|e| Error::Config(format!("standard input: {e}")))?;
-    let machine = MachineConfig::parse(&config, "the service's config")?;
+    let mut machine = MachineConfig::parse(&config, "the service's config")?;
+    if let Some(place) = place {
+        machine.job.anchor = place.parse().map_err(|e| Error::Config(format!("--place: {e}")))?;
+    }
     let answer = match plan_or_check(source, name, program, &machine, PlannerKind::Auto, allow_precedence_violations) {
         Ok(answer) => answer,
         Err(e) => PlanResult { error: Some(e.to_string()), ..Default::default() },
@@ -205,6 +209,7 @@ pub fn plan_in_child(
     name: &str,
     program: &Path,
     allow_precedence_violations: bool,
+    place: Option<[f64; 2]>,
     limits: &PlanLimits,
     cancelled: &dyn Fn() -> bool,
 ) -> Result<PlanResult> {
@@ -222,6 +227,7 @@ pub fn plan_in_child(
         .arg("--result")
         .arg(&result)
         .args(allow_precedence_violations.then_some("--allow-precedence-violations"))
+        .args(place.map(|[x, y]| format!("--place={x},{y}")))
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::inherit());

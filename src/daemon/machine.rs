@@ -39,6 +39,9 @@ pub enum Command {
     Unlock(Reply),
     /// Trace the job's bounds (or the next queued job's) with the laser off.
     Frame { id: Option<String>, reply: Reply },
+    /// The tool's place now, in the bed coordinates jobs run in: the work
+    /// origin of the jobs submitted next.
+    Origin(Reply),
     /// Realtime override bytes for the running job.
     Override { bytes: Vec<u8>, reply: Reply },
     /// The service is stopping: a safe stop, then acknowledge.
@@ -48,7 +51,7 @@ pub enum Command {
 impl Command {
     fn refuse(self, why: &str) {
         let reply = match self {
-            Command::Start { reply, .. } | Command::ResumeJob { reply, .. } | Command::Pause(reply) | Command::Resume(reply) | Command::Abort(reply) | Command::Jog { reply, .. } | Command::Home(reply) | Command::Unlock(reply) | Command::Frame { reply, .. } | Command::Override { reply, .. } => reply,
+            Command::Start { reply, .. } | Command::ResumeJob { reply, .. } | Command::Pause(reply) | Command::Resume(reply) | Command::Abort(reply) | Command::Jog { reply, .. } | Command::Home(reply) | Command::Unlock(reply) | Command::Frame { reply, .. } | Command::Origin(reply) | Command::Override { reply, .. } => reply,
             Command::Shutdown(done) => {
                 let _ = done.send(());
                 return;
@@ -82,6 +85,7 @@ fn machine_status(report: &StatusReport, before: &MachineStatus) -> MachineStatu
         tcp,
         work_offset,
         overrides: report.overrides.or(before.overrides),
+        alarm: before.alarm.clone().filter(|_| report.state == MachineState::Alarm),
     }
 }
 
@@ -262,6 +266,11 @@ fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &Link
                 });
             }
         }
+        LinkEvent::Received { text } if text.starts_with("ALARM:") => {
+            let code = text["ALARM:".len()..].trim().parse::<u16>().unwrap_or(0);
+            let alarm = format!("ALARM:{code}: {}", laserd_sim::wire::alarm_message(code));
+            daemon.status.send_modify(|s| s.machine.alarm = Some(alarm));
+        }
         LinkEvent::Received { text } if text.starts_with('<') => {
             if let Ok(report) = StatusReport::parse(text) {
                 daemon.status.send_if_modified(|s| {
@@ -348,6 +357,13 @@ async fn connected(daemon: &Arc<Daemon>, connection: &mut Link, refusal: Option<
                     Command::Unlock(reply) => {
                         let _ = reply.send(connection.unlock().await.map(|_| "alarm cleared".to_string()));
                     }
+                    Command::Origin(reply) => {
+                        let here = tool_in_bed(daemon, connection).await;
+                        if let Ok(at) = &here {
+                            daemon.status.send_modify(|s| s.origin = Some(*at));
+                        }
+                        let _ = reply.send(here.map(|[x, y]| format!("jobs submitted from now on go with their lower-left corner at X {x:.3} Y {y:.3} mm")));
+                    }
                     Command::Frame { id, reply } => {
                         let framed = frame(daemon, connection, &refusal, id.as_deref()).await;
                         let _ = reply.send(framed);
@@ -403,6 +419,20 @@ async fn frame(daemon: &Daemon, connection: &mut Link, refusal: &Option<String>,
         connection.jog(&format!("G90G21X{}Y{}{rest}F{feed}", number(x), number(y))).await?;
     }
     Ok(format!("framing job {}: X {x0:.3} to {x1:.3}, Y {y0:.3} to {y1:.3} mm, laser off (abort stops it)", job.id))
+}
+
+/// Where the tool is, in the bed coordinates jobs run in (G54 made the
+/// bed's first): stage plus scanner. Only at rest.
+async fn tool_in_bed(daemon: &Daemon, connection: &mut Link) -> Result<[f64; 2]> {
+    let state = connection.status().await?.state;
+    if state != MachineState::Idle {
+        return Err(Error::Conflict(format!("the machine is {}: the origin is taken at rest (Idle)", state.as_field())));
+    }
+    connection.use_program_frame(stage_travel(daemon)).await.map_err(|e| Error::Conflict(format!("cannot set the work coordinates (G54) jobs run in: {e}")))?;
+    let status = connection.status().await?;
+    let at = connection.work_position(&status);
+    let axis = |i: usize| at.get(i).copied().unwrap_or(0.0);
+    Ok([axis(0) + axis(2), axis(1) + axis(3)])
 }
 
 /// Checks that a job may start (settings in line with the config, machine

@@ -74,6 +74,10 @@ pub struct MachineStatus {
     /// Feed, rapid and laser power overrides (%), as last reported (`Ov:`).
     #[serde(default)]
     pub overrides: Option<[u32; 3]>,
+    /// The alarm the controller raised, in words (`ALARM:2: soft limit: …`),
+    /// while it is in alarm.
+    #[serde(default)]
+    pub alarm: Option<String>,
 }
 
 /// The running job's progress.
@@ -109,6 +113,10 @@ pub struct Status {
     /// Why the state folder does not take writes (a full disk), while it does not.
     #[serde(default)]
     pub storage: Option<String>,
+    /// The operator's work origin (bed mm): jobs submitted from now on are
+    /// planned with their lower-left corner there; `None`: `[job] anchor`.
+    #[serde(default)]
+    pub origin: Option<[f64; 2]>,
 }
 
 /// What the live event stream carries.
@@ -243,7 +251,9 @@ fn plan_job(daemon: &Daemon, id: &str) {
     *daemon.planning_now.lock().unwrap_or_else(|e| e.into_inner()) = Some((id.to_string(), cancel.clone()));
     let service = &daemon.machine.service;
     let limits = intake::PlanLimits { timeout: std::time::Duration::from_secs_f64(service.plan_timeout), memory_bytes: (service.plan_memory_mb * (1u64 << 20) as f64) as u64 };
-    let planned = intake::plan_in_child(&daemon.config_text, &source, &name, &program_path, allow, &limits, &|| cancel.load(Ordering::Relaxed));
+    // Placed at the operator's work origin, where one is set.
+    let place = daemon.status.borrow().origin;
+    let planned = intake::plan_in_child(&daemon.config_text, &source, &name, &program_path, allow, place, &limits, &|| cancel.load(Ordering::Relaxed));
     *daemon.planning_now.lock().unwrap_or_else(|e| e.into_inner()) = None;
     let result = daemon.update_job(id, |j| match &planned {
         Ok(plan) => {
@@ -291,7 +301,7 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig, config_text:
     };
     let store = Store::open(&options.state_dir)?;
     let (events, _) = broadcast::channel(1024);
-    let (status, _) = watch::channel(Status { queued: store.order().len(), machine: machine::disconnected("not connected yet"), job: None, storage: store.storage_error().map(str::to_string) });
+    let (status, _) = watch::channel(Status { queued: store.order().len(), machine: machine::disconnected("not connected yet"), job: None, storage: store.storage_error().map(str::to_string), origin: None });
     let (commands, command_rx) = mpsc::unbounded_channel();
     let (planning, planning_rx) = crossbeam_channel::unbounded::<String>();
     let replan: Vec<String> = store.list().into_iter().filter(|j| j.state == JobState::Planning).map(|j| j.id).collect();
