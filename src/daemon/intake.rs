@@ -193,6 +193,15 @@ fn plan_or_check(source: &Path, name: &str, program: &Path, machine: &MachineCon
     }
 }
 
+/// What the submission asks of a job's planning.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PlanAsked {
+    /// Plan and run an order that cuts after a part has fallen out.
+    pub allow_precedence_violations: bool,
+    /// The operator's work origin: the job's lower-left corner there.
+    pub place: Option<[f64; 2]>,
+}
+
 /// Bounds on a job's planning.
 pub struct PlanLimits {
     pub timeout: Duration,
@@ -208,8 +217,7 @@ pub fn plan_in_child(
     source: &Path,
     name: &str,
     program: &Path,
-    allow_precedence_violations: bool,
-    place: Option<[f64; 2]>,
+    asked: PlanAsked,
     limits: &PlanLimits,
     cancelled: &dyn Fn() -> bool,
 ) -> Result<PlanResult> {
@@ -226,8 +234,8 @@ pub fn plan_in_child(
         .arg(program)
         .arg("--result")
         .arg(&result)
-        .args(allow_precedence_violations.then_some("--allow-precedence-violations"))
-        .args(place.map(|[x, y]| format!("--place={x},{y}")))
+        .args(asked.allow_precedence_violations.then_some("--allow-precedence-violations"))
+        .args(asked.place.map(|[x, y]| format!("--place={x},{y}")))
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::inherit());

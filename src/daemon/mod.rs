@@ -253,7 +253,8 @@ fn plan_job(daemon: &Daemon, id: &str) {
     let limits = intake::PlanLimits { timeout: std::time::Duration::from_secs_f64(service.plan_timeout), memory_bytes: (service.plan_memory_mb * (1u64 << 20) as f64) as u64 };
     // Placed at the operator's work origin, where one is set.
     let place = daemon.status.borrow().origin;
-    let planned = intake::plan_in_child(&daemon.config_text, &source, &name, &program_path, allow, place, &limits, &|| cancel.load(Ordering::Relaxed));
+    let asked = intake::PlanAsked { allow_precedence_violations: allow, place };
+    let planned = intake::plan_in_child(&daemon.config_text, &source, &name, &program_path, asked, &limits, &|| cancel.load(Ordering::Relaxed));
     *daemon.planning_now.lock().unwrap_or_else(|e| e.into_inner()) = None;
     let result = daemon.update_job(id, |j| match &planned {
         Ok(plan) => {
