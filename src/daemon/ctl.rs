@@ -263,21 +263,12 @@ fn sentence(text: &str) -> String {
     format!("{}{}{end}", first.to_uppercase(), chars.as_str())
 }
 
-/// A time as people read it: `1 h 19 min 29 s`, `4 min 3 s`, `29 s`.
+/// A time as people read it (`report::duration`), `-` where there is none.
 pub fn human_duration(seconds: f64) -> String {
     if !seconds.is_finite() || seconds < 0.0 {
         return "-".to_string();
     }
-    if seconds > 0.0 && seconds < 0.5 {
-        return "under 1 s".to_string();
-    }
-    let total = seconds.round() as u64;
-    let (h, m, s) = (total / 3600, total / 60 % 60, total % 60);
-    match (h, m) {
-        (0, 0) => format!("{s} s"),
-        (0, _) => format!("{m} min {s} s"),
-        _ => format!("{h} h {m} min {s} s"),
-    }
+    crate::report::duration(seconds)
 }
 
 /// Axis positions with their letters (the controller's order: X Y, then the
@@ -415,8 +406,8 @@ mod tests {
     fn durations_read_as_hours_minutes_and_seconds() {
         assert_eq!(human_duration(243.0), "4 min 3 s");
         assert_eq!(human_duration(4769.4), "1 h 19 min 29 s");
-        assert_eq!(human_duration(29.0), "29 s");
-        assert_eq!(human_duration(0.2), "under 1 s");
+        assert_eq!(human_duration(29.0), "29.0 s");
+        assert_eq!(human_duration(0.2), "0.200 s");
         assert_eq!(human_duration(0.0), "0 s");
         assert_eq!(human_duration(f64::NAN), "-");
     }
@@ -436,7 +427,7 @@ mod tests {
             let at = lines[0].find(header).unwrap();
             assert!(lines[1..].iter().all(|l| l.len() > at && l.as_bytes()[at - 1] == b' ' && l.as_bytes()[at] != b' '), "{header}:\n{table}");
         }
-        assert!(lines[1].contains("4 min 3 s") && lines[2].contains("29 s") && lines[2].ends_with("100 %"), "{table}");
+        assert!(lines[1].contains("4 min 3 s") && lines[2].contains("29.0 s") && lines[2].ends_with("100 %"), "{table}");
         assert!(lines[3].contains("planning") && lines[3].ends_with('-'), "{table}");
         assert_eq!(jobs_table(&serde_json::json!([])), "No jobs.");
     }
