@@ -427,7 +427,7 @@ mod tests {
             let at = lines[0].find(header).unwrap();
             assert!(lines[1..].iter().all(|l| l.len() > at && l.as_bytes()[at - 1] == b' ' && l.as_bytes()[at] != b' '), "{header}:\n{table}");
         }
-        assert!(lines[1].contains("4 min 3 s") && lines[2].contains("29.0 s") && lines[2].ends_with("100 %"), "{table}");
+        assert!(lines[1].contains("4 min 3 s") && lines[2].contains("29.2 s") && lines[2].ends_with("100 %"), "{table}");
         assert!(lines[3].contains("planning") && lines[3].ends_with('-'), "{table}");
         assert_eq!(jobs_table(&serde_json::json!([])), "No jobs.");
     }
