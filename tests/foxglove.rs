@@ -224,6 +224,7 @@ struct Bulk {
 /// ones that were dropped.
 #[test]
 fn the_live_server_drops_for_a_client_that_never_reads_instead_of_waiting() {
+    let _turn = take_turn();
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     let port = free_port();
     let live = runtime.block_on(laserd::record::live::Live::start(([127, 0, 0, 1], port).into())).unwrap();
