@@ -268,3 +268,22 @@ fn the_live_server_drops_for_a_client_that_never_reads_instead_of_waiting() {
     assert!(got.len() < count, "some were dropped: got {}", got.len());
     assert!(got.windows(2).all(|w| w[0] < w[1]), "in order");
 }
+
+/// `[service] foxglove` that cannot be had stops the service at its start,
+/// naming the setting: an address that is none, and a port in use.
+#[test]
+fn a_foxglove_address_that_cannot_be_had_stops_the_service_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let in_use = taken.local_addr().unwrap().to_string();
+    for (address, why) in [("127.0.0.1", "IP address and port"), (in_use.as_str(), "cannot listen")] {
+        let config = config_with_service(dir.path(), &dir.path().join("no-tty"), &format!("foxglove = {address:?}"));
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_laserd"))
+            .args(["serve", "--config", config.to_str().unwrap(), "--state-dir", dir.path().join("state").to_str().unwrap(), "--socket", dir.path().join("api.sock").to_str().unwrap()])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{address}: {stderr}");
+        assert!(stderr.contains("[service] foxglove") && stderr.contains(why), "{address}: {stderr}");
+    }
+}
