@@ -506,6 +506,10 @@ pub struct ServiceConfig {
     /// The feed of a jog given without one (`laserd ctl jog X10`), mm/min.
     #[serde(default = "default_jog_feed")]
     pub jog_feed: f64,
+    /// A Foxglove WebSocket server at this address (e.g. "127.0.0.1:8765")
+    /// publishing the recording's topics live; none (the default): off.
+    #[serde(default)]
+    pub foxglove: Option<String>,
 }
 
 /// A laser head's jog: brisk, yet slow enough to stop by eye (50 mm/s).
@@ -540,6 +544,7 @@ impl Default for ServiceConfig {
             plan_timeout: default_plan_timeout(),
             plan_memory_mb: default_plan_memory_mb(),
             jog_feed: default_jog_feed(),
+            foxglove: None,
         }
     }
 }
@@ -554,6 +559,16 @@ impl ServiceConfig {
             return Err(Error::Config(format!("[service] token_file = {file:?}: the token must be at least 16 characters")));
         }
         Ok(token)
+    }
+
+    /// `foxglove` as an address to listen on, if set.
+    pub fn foxglove_address(&self) -> std::result::Result<Option<std::net::SocketAddr>, String> {
+        let Some(text) = &self.foxglove else { return Ok(None) };
+        match text.parse::<std::net::SocketAddr>() {
+            Ok(addr) if addr.port() != 0 => Ok(Some(addr)),
+            Ok(_) => Err(format!("[service] foxglove = {text:?}: give a port (1 to 65535), such as \"127.0.0.1:8765\"")),
+            Err(_) => Err(format!("[service] foxglove = {text:?}: not an IP address and port such as \"127.0.0.1:8765\"")),
+        }
     }
 }
 
@@ -1622,6 +1637,7 @@ impl MachineConfig {
         }
         self.validate_head()?;
         self.validate_thermal()?;
+        self.service.foxglove_address()?;
         if let Some(folder) = self.service.job_folders.iter().find(|f| !Path::new(f).is_absolute()) {
             return Err(format!("service.job_folders: {folder:?} is not an absolute path"));
         }
@@ -2252,6 +2268,21 @@ mod tests {
             let shown = value.to_string();
             assert!(MachineConfig::parse(&with_value(path, value), "t.toml").is_ok(), "{path} = {shown}");
         }
+    }
+
+    /// `[service] foxglove` is an IP address and a port, or an error naming it.
+    #[test]
+    fn a_bad_foxglove_address_is_refused_naming_the_setting() {
+        let text = |addr: &str| with_value("service.foxglove", toml::Value::String(addr.into()));
+        for bad in ["localhost", "127.0.0.1", "127.0.0.1:0", "127.0.0.1:99999", "not an address", ""] {
+            let e = MachineConfig::parse(&text(bad), "t.toml").unwrap_err().to_string();
+            assert!(e.contains("[service] foxglove") && e.contains(&format!("{bad:?}")), "{bad}: {e}");
+        }
+        for good in ["127.0.0.1:8765", "[::1]:8765", "0.0.0.0:1"] {
+            let machine = MachineConfig::parse(&text(good), "t.toml").unwrap();
+            assert_eq!(machine.service.foxglove_address(), Ok(Some(good.parse().unwrap())), "{good}");
+        }
+        assert_eq!(MachineConfig::parse(&default_text(), "t.toml").unwrap().service.foxglove_address(), Ok(None));
     }
 
     #[test]

@@ -244,7 +244,8 @@ pub fn settings_refusal(machine: &crate::config::MachineConfig, settings: &[(u32
 /// and progress the API shows.
 fn on_link_event(daemon: &Daemon, running: &Mutex<Running>, t: f64, event: &LinkEvent) {
     let mut running = running.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(r) = &running.recorder {
+    // A job's recording (live too, if on), else live alone: the idle machine.
+    if let Some(r) = running.recorder.as_ref().or(daemon.live.as_ref()) {
         r.link_event(t, event);
     }
     if running.job.is_some() {
@@ -536,7 +537,8 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
             (axis.min, axis.max) = (axis.min + o, axis.max + o);
         }
     }
-    recording.recorder().write(crate::record::TOPIC_SETUP, 0.0, &crate::run::run_setup(&daemon.machine, &sim));
+    let recorder = recording.recorder().with_live(daemon.live.as_ref().and_then(|l| l.live()));
+    recorder.write(crate::record::TOPIC_SETUP, 0.0, &crate::run::run_setup(&daemon.machine, &sim));
     {
         let mut r = running.lock().unwrap_or_else(|e| e.into_inner());
         let times = super::eta::LineTimes::read(&daemon.store().times_path(&job.id), job.lines_total);
@@ -545,7 +547,7 @@ async fn run_job(daemon: &Arc<Daemon>, connection: &mut Link, commands: &mut mps
             executed: Some(connection.executed_line()),
             started: Some(std::time::Instant::now()),
             eta: Some(super::eta::Eta::new(times, job.lines_total, job.planned_time_s)),
-            recorder: Some(recording.recorder().with_reported_motion()),
+            recorder: Some(recorder.with_reported_motion()),
             ..Default::default()
         };
     }

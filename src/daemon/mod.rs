@@ -136,6 +136,9 @@ pub struct Daemon {
     pub events: broadcast::Sender<Event>,
     pub status: watch::Sender<Status>,
     pub commands: mpsc::UnboundedSender<machine::Command>,
+    /// `[service] foxglove`: the live server, as a recorder without a file
+    /// (the link and status while no job runs; a job's recorder carries it too).
+    pub live: Option<crate::record::Recorder>,
     planning: crossbeam_channel::Sender<String>,
     /// The config's text, as handed to each planning process.
     config_text: String,
@@ -306,7 +309,25 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig, config_text:
     let (commands, command_rx) = mpsc::unbounded_channel();
     let (planning, planning_rx) = crossbeam_channel::unbounded::<String>();
     let replan: Vec<String> = store.list().into_iter().filter(|j| j.state == JobState::Planning).map(|j| j.id).collect();
-    let daemon = Arc::new(Daemon { machine, store: Mutex::new(store), events, status, commands, planning, config_text, planning_now: Mutex::new(None) });
+    let live = match machine.service.foxglove_address().map_err(Error::Config)? {
+        Some(addr) => Some(start_live(addr).await?),
+        None => None,
+    };
+    let daemon = Arc::new(Daemon { machine, store: Mutex::new(store), events, status, commands, live, planning, config_text, planning_now: Mutex::new(None) });
+    if let Some(live) = daemon.live.clone() {
+        // The service's status (the API's) live as it changes: state, job
+        // progress and time left, also between jobs.
+        let mut status = daemon.status.subscribe();
+        tokio::spawn(async move {
+            loop {
+                let now = status.borrow_and_update().clone();
+                live.write(TOPIC_SERVICE_STATUS, 0.0, &now);
+                if status.changed().await.is_err() {
+                    break;
+                }
+            }
+        });
+    }
     let pruned = daemon.store().prune(daemon.machine.service.keep_jobs)?;
     if !pruned.is_empty() {
         tracing::info!("removed {} old finished job(s)", pruned.len());
@@ -412,6 +433,22 @@ async fn serve_async(options: ServeOptions, machine: MachineConfig, config_text:
     }
     let _ = std::fs::remove_file(&options.socket);
     Ok(())
+}
+
+/// The live server's topic for the API's `Status`.
+pub const TOPIC_SERVICE_STATUS: &str = "/service/status";
+
+/// Starts the Foxglove server with the topics the service writes advertised.
+async fn start_live(addr: std::net::SocketAddr) -> Result<crate::record::Recorder> {
+    use crate::record::{live::Live, AxesMessage, LinkMessage, StatusMessage};
+    let live = Live::start(addr).await?;
+    live.advertise::<crate::figures::RunSetup>(crate::record::TOPIC_SETUP);
+    live.advertise::<LinkMessage>(crate::record::TOPIC_LINK);
+    live.advertise::<StatusMessage>(crate::record::TOPIC_STATUS);
+    live.advertise::<AxesMessage>(crate::record::TOPIC_AXES);
+    live.advertise::<Status>(TOPIC_SERVICE_STATUS);
+    tracing::info!("Foxglove WebSocket server on {}:{}", addr.ip(), live.port());
+    Ok(crate::record::Recorder::live_only(live).with_reported_motion())
 }
 
 /// Below this much free space in the state folder the status warns.

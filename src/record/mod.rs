@@ -18,6 +18,11 @@
 //!   (a pierce). Of a controller on a link (the service): at each of its
 //!   status reports, as it reported it (`ReportedMotion`)
 //! - `/run/report`  the final report
+//!
+//! A recorder may also carry the live server (`live.rs`): every message then
+//! goes to it too; one without a file (`Recorder::live_only`) writes only there.
+
+pub mod live;
 
 use std::collections::{BTreeMap, HashSet};
 use std::fs::File;
@@ -193,7 +198,9 @@ struct Envelope {
 /// Handle to a recording; clones write to the same file.
 #[derive(Clone)]
 pub struct Recorder {
-    tx: Sender<Envelope>,
+    /// The file's writer thread; `None`: live only.
+    tx: Option<Sender<Envelope>>,
+    live: Option<Arc<live::Live>>,
     registered: Arc<Mutex<HashSet<&'static str>>>,
     /// Knots from the controller's status reports (a link, not the simulator).
     reported: Option<Arc<Mutex<ReportedMotion>>>,
@@ -283,7 +290,7 @@ impl Recording {
                 Ok(())
             })
             .map_err(|e| Error::Record(format!("cannot start the recorder thread: {e}")))?;
-        let recorder = Recorder { tx, registered: Arc::new(Mutex::new(HashSet::new())), reported: None };
+        let recorder = Recorder { tx: Some(tx), live: None, registered: Arc::new(Mutex::new(HashSet::new())), reported: None };
         Ok(Recording { path: path.to_path_buf(), recorder: Some(recorder), thread: Some(thread) })
     }
 
@@ -315,22 +322,45 @@ impl Drop for Recording {
 impl Recorder {
     /// Records `msg` on `topic` at run time `t` (seconds).
     pub fn write<T: Serialize + JsonSchema>(&self, topic: &'static str, t: f64, msg: &T) {
+        // Live: only where a client subscribed to the topic.
+        let live = self.live.as_ref().and_then(|l| l.channel(topic, live::schema_of::<T>)).filter(|c| c.has_sinks());
+        let Some(tx) = &self.tx else {
+            if let Some(channel) = live {
+                if let Ok(data) = serde_json::to_vec(msg) {
+                    live::Live::send(&channel, &data);
+                }
+            }
+            return;
+        };
         let schema = {
             let mut reg = self.registered.lock().unwrap_or_else(|p| p.into_inner());
-            if reg.insert(topic) {
-                let schema = schemars::schema_for!(T);
-                Some((T::schema_name().to_string(), serde_json::to_vec(&schema).unwrap_or_default()))
-            } else {
-                None
-            }
+            reg.insert(topic).then(live::schema_of::<T>)
         };
         let data = match serde_json::to_vec(msg) {
             Ok(d) => d,
             Err(_) => return,
         };
+        if let Some(channel) = live {
+            live::Live::send(&channel, &data);
+        }
         // A closed recorder (its thread failed) loses the message but never stops
         // the machine: the run's own error path reports the recording failure.
-        let _ = self.tx.send(Envelope { topic, schema, t, data });
+        let _ = tx.send(Envelope { topic, schema, t, data });
+    }
+
+    /// A recorder that also sends every message to `live` (none: as it was).
+    pub fn with_live(self, live: Option<Arc<live::Live>>) -> Recorder {
+        Recorder { live, ..self }
+    }
+
+    /// A recorder without a file: its messages go to `live` only.
+    pub fn live_only(live: Arc<live::Live>) -> Recorder {
+        Recorder { tx: None, live: Some(live), registered: Arc::default(), reported: None }
+    }
+
+    /// The live server this recorder sends to, if any.
+    pub fn live(&self) -> Option<Arc<live::Live>> {
+        self.live.clone()
     }
 
     /// A recorder that also takes the controller's status reports as the
