@@ -159,6 +159,11 @@ fn a_work_origin_places_new_jobs_and_framing_traces_their_bounds_with_the_laser_
     let _turn = take_turn();
     let dir = tempfile::tempdir().unwrap();
     let (_rig, service, api) = Rig::start(dir.path(), "ttyFRAME");
+    // The controller says who it is, and the screen shows it.
+    let controller = api.status()["machine"]["controller"].as_str().unwrap_or("").to_string();
+    let flavour = std::fs::read_to_string(&_rig.config).unwrap();
+    let expected = if flavour.contains("flavor = \"grblhal\"") { "1.1f." } else { "1.1h." };
+    assert!(controller.starts_with(expected), "the simulator's `$I`: {controller:?}");
     // The tool's place, once jogged there, is the origin of the jobs submitted next.
     api.ok(Method::POST, "/jog", Some(serde_json::json!({ "block": "G90 X50 Y60 F6000" })));
     api.wait_status(Duration::from_secs(10), "at X50 Y60", |s| machine_state(s) == "Idle" && (position(s)[0] - 50.0).abs() < 1e-3 && (position(s)[1] - 60.0).abs() < 1e-3);

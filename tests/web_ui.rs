@@ -182,6 +182,7 @@ fn an_operator_logs_in_uploads_frames_runs_pauses_resumes_and_aborts_in_a_real_b
     screen.click("#login-button");
     screen.wait("document.getElementById('state') !== null && document.getElementById('state').textContent === 'Idle'", Duration::from_secs(10), "the machine Idle on the screen");
 
+    screen.wait("document.getElementById('controller').textContent.startsWith('firmware 1.1')", Duration::from_secs(5), "the controller's identity");
     // Upload a job: it is planned, its picture and planned time shown.
     screen.upload(&sample("one-field.svg"));
     screen.wait("(document.getElementById('job-j000001') || {innerText: ''}).innerText.includes('queued')", Duration::from_secs(60), "job 1 queued");

@@ -104,6 +104,7 @@ function showStatus(s) {
   $('pos-stage').textContent = p.length >= 2 ? `X ${mm(p[0])}  Y ${mm(p[1])}` : '–';
   $('row-scanner').hidden = p.length < 4;
   if (p.length >= 4) $('pos-scanner').textContent = `U ${mm(p[2])}  V ${mm(p[3])}`;
+  $('controller').textContent = m.connected ? `firmware ${m.controller || 'unknown'}; ${m.message ? 'settings: see above' : 'settings agree with the config'}` : '–';
   $('pos-tcp').textContent = m.tcp ? `X ${mm(m.tcp[0])}  Y ${mm(m.tcp[1])}` : '–';
   $('laser').textContent = m.connected ? `${m.laser}` : '–';
   $('feed').textContent = m.connected ? `${Math.round(m.feed)} mm/min` : '–';

@@ -86,6 +86,7 @@ fn machine_status(report: &StatusReport, before: &MachineStatus) -> MachineStatu
         work_offset,
         overrides: report.overrides.or(before.overrides),
         alarm: before.alarm.clone().filter(|_| report.state == MachineState::Alarm),
+        controller: before.controller.clone(),
     }
 }
 
@@ -213,9 +214,11 @@ async fn open(daemon: &Arc<Daemon>, port: &str, running: Arc<Mutex<Running>>) ->
         tracing::error!("{why}");
     }
     let status = connection.status().await?;
+    let controller = connection.version().map(str::to_string);
     daemon.status.send_modify(|s| {
         s.machine = machine_status(&status, &s.machine);
         s.machine.message = refusal.clone();
+        s.machine.controller = controller;
     });
     Ok((connection, refusal))
 }

@@ -74,6 +74,9 @@ pub struct MachineStatus {
     /// Feed, rapid and laser power overrides (%), as last reported (`Ov:`).
     #[serde(default)]
     pub overrides: Option<[u32; 3]>,
+    /// The controller's firmware version and build, as `$I` says (`1.1h.20190830`).
+    #[serde(default)]
+    pub controller: Option<String>,
     /// The alarm the controller raised, in words (`ALARM:2: soft limit: …`),
     /// while it is in alarm.
     #[serde(default)]

@@ -23,6 +23,8 @@ pub struct Connection<T, F> {
     pub(super) fresh_status: Option<StatusReport>,
     /// The build option codes of `[OPT:]` (e.g. `VNM+`).
     build_codes: String,
+    /// The controller's `[VER:]` line: firmware version and build.
+    version: Option<String>,
     /// The work coordinate offset (`WCO:`, sent now and then; or set by
     /// `use_program_frame`): work position = machine position − this.
     wco: Option<Vec<f64>>,
@@ -61,6 +63,7 @@ where
             rx_buffer: options.rx_buffer,
             fresh_status: None,
             build_codes: String::new(),
+            version: None,
             wco: None,
         };
         connection.status().await?;
@@ -73,16 +76,21 @@ where
     /// (the reference: read them, never assume them). A controller that will
     /// not answer it now (busy: error 8) keeps what the status told.
     async fn learn_build_options(&mut self) -> Result<()> {
-        let mut options = None;
+        let (mut options, mut version) = (None, None);
         self.link
             .command_seeing(BUILD_INFO, Duration::from_secs(3), |r| {
                 if let Response::Feedback(f) = r {
                     if let Some(o) = f.strip_prefix("[OPT:").and_then(|o| o.strip_suffix(']')) {
                         options = Some(o.to_string());
                     }
+                    if let Some(v) = f.strip_prefix("[VER:").and_then(|v| v.strip_suffix(']')) {
+                        // Shown to the operator: printable text, a line's worth.
+                        version = Some(v.trim_end_matches(':').chars().filter(|c| !c.is_control()).take(80).collect::<String>());
+                    }
                 }
             })
             .await?;
+        self.version = version.or(self.version.take());
         let fields: Vec<&str> = options.as_deref().unwrap_or("").split(',').collect();
         self.build_codes = fields.first().map_or(String::new(), |c| c.trim().to_string());
         let number = |i: usize| fields.get(i).and_then(|f| f.trim().parse::<usize>().ok()).filter(|n| *n > 0);
@@ -127,6 +135,11 @@ where
         }
         self.fresh_status = Some(status.clone());
         Ok(status)
+    }
+
+    /// The controller's firmware version and build, as its `$I` says.
+    pub fn version(&self) -> Option<&str> {
+        self.version.as_deref()
     }
 
     /// The work coordinate offset last known (machine − work position).
