@@ -352,30 +352,39 @@ async fn jog(State(d): State<Arc<Daemon>>, Json(body): Json<JogBody>) -> ApiResu
     ask(&d, |reply| Command::Jog { block, reply }).await
 }
 
-/// Server-sent events: the status now, then every status and job change.
+/// The shortest time between two status events to one client.
+const STATUS_EVERY: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// Server-sent events: the status now, then every job change and the
+/// status as it changes, at most every `STATUS_EVERY`.
 async fn events(State(d): State<Arc<Daemon>>) -> impl IntoResponse {
     let first = Event::Status(d.status.borrow().clone());
     let events = d.events.subscribe();
     let mut status = d.status.subscribe();
     status.mark_unchanged();
-    let stream = futures_util::stream::unfold((Some(first), events, status), |(first, mut events, mut status)| async move {
+    // The status changes with every line sent: each client gets it at most
+    // every STATUS_EVERY (the latest then), so open screens cost the service
+    // little however fast the job streams.
+    let sent = tokio::time::Instant::now();
+    let stream = futures_util::stream::unfold((Some(first), events, status, sent), |(first, mut events, mut status, sent)| async move {
         if let Some(first) = first {
-            return Some((first, (None, events, status)));
+            return Some((first, (None, events, status, sent)));
         }
+        let next_status = sent + STATUS_EVERY;
         loop {
             tokio::select! {
                 e = events.recv() => match e {
-                    Ok(e) => return Some((e, (None, events, status))),
+                    Ok(e) => return Some((e, (None, events, status, sent))),
                     // A slow reader missed some: it gets the next ones.
                     Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
                     Err(_) => return None,
                 },
-                changed = status.changed() => {
+                changed = async { tokio::time::sleep_until(next_status).await; status.changed().await } => {
                     if changed.is_err() {
                         return None;
                     }
                     let now = Event::Status(status.borrow_and_update().clone());
-                    return Some((now, (None, events, status)));
+                    return Some((now, (None, events, status, tokio::time::Instant::now())));
                 }
             }
         }
