@@ -1,5 +1,5 @@
-//! The operator's screen in a real browser: Debian's chromium (installed by
-//! `.ci/run`), driven through the DevTools protocol, against `laserd serve`
+//! The operator's screen in a real browser: Debian's chromium (put in place
+//! by `.ci/run` before the tests), driven through the DevTools protocol, against `laserd serve`
 //! on TCP and `laserd sim --pty`, all as child processes in real time. The
 //! screenshots are kept in the target folder and read back for what they
 //! must show.
@@ -29,7 +29,7 @@ struct Screen {
 
 impl Screen {
     fn open(url: &str, profile: &Path, shots: PathBuf) -> Screen {
-        assert!(Path::new(CHROMIUM).exists(), "this test needs Debian's chromium at {CHROMIUM} (`.ci/run` installs it: apt-get install chromium)");
+        assert!(Path::new(CHROMIUM).exists(), "this test needs Debian's chromium at {CHROMIUM}; `.ci/run` puts it there before the tests run");
         let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
         let config = BrowserConfig::builder()
             .chrome_executable(CHROMIUM)

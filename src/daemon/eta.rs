@@ -1,7 +1,8 @@
 //! How long a running job has left: the planned time of the program lines
-//! not yet executed, scaled by how fast the machine has really gone against
-//! the plan so far. Line counts say little (a line may take 1 ms or a
-//! minute); the plan knows each line's time.
+//! not yet run, the machine placed among them by its reported position, and
+//! stretched only where it has kept a pace of its own against the plan.
+//! Line counts say little (a line may take 1 ms or a minute); the plan knows
+//! each line's time.
 
 use std::path::Path;
 
@@ -279,7 +280,7 @@ mod tests {
         let mut rng = rand::rng();
         for step in 1..=1000 {
             let truly = step * 10;
-            let shown = truly - rand::Rng::random_range(&mut rng, 0..=20);
+            let shown = truly.saturating_sub(rand::Rng::random_range(&mut rng, 0..=20));
             let wall = 1.5 + truly as f64 * 0.01;
             let e = eta.estimate(wall, shown, shown, None);
             let error = (wall + e.eta_s.unwrap() - 101.5).abs();

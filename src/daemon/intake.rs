@@ -107,10 +107,7 @@ fn gcode_run(source: &Path, program_path: &Path, lines: usize, machine: &Machine
     Some((figures.job_time_s, bounds))
 }
 
-/// The file of each line's planned end, next to the program (`Store::times_path`).
-const TIMES_FILE: &str = "times.bin";
-/// The plan's picture, next to the program (`Store::plot_path`).
-const PLOT_FILE: &str = "plot.svg";
+use super::queue::{PLOT_FILE, TIMES_FILE};
 
 /// The box round some points, if there are any.
 fn bounds_of(points: impl Iterator<Item = crate::job::Point>) -> Option<[f64; 4]> {

@@ -178,6 +178,11 @@ pub fn shown_line(line: Option<usize>) -> String {
 }
 
 /// Unix time now (s).
+/// A job's picture and line times, in its folder beside its program (the
+/// planning process knows only the program's path).
+pub const PLOT_FILE: &str = "plot.svg";
+pub const TIMES_FILE: &str = "times.bin";
+
 pub fn now() -> f64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
 }
@@ -267,12 +272,12 @@ impl Store {
 
     /// The plan's picture (`plan --plot`).
     pub fn plot_path(&self, id: &str) -> PathBuf {
-        self.job_dir(id).join("plot.svg")
+        self.job_dir(id).join(PLOT_FILE)
     }
 
-    /// Each program line's planned end time (`intake::LineTimes`): the ETA.
+    /// Each program line's planned end time and TCP (`eta::LineTimes`): the ETA.
     pub fn times_path(&self, id: &str) -> PathBuf {
-        self.job_dir(id).join("times.bin")
+        self.job_dir(id).join(TIMES_FILE)
     }
 
     pub fn progress_path(&self, id: &str) -> PathBuf {
