@@ -279,7 +279,7 @@ mod tests {
         let mut eta = even_lines();
         let mut rng = rand::rng();
         for step in 1..=1000 {
-            let truly = step * 10;
+            let truly: usize = step * 10;
             let shown = truly.saturating_sub(rand::Rng::random_range(&mut rng, 0..=20));
             let wall = 1.5 + truly as f64 * 0.01;
             let e = eta.estimate(wall, shown, shown, None);
