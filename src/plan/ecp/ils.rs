@@ -111,6 +111,11 @@ struct Descent<'a> {
     /// that break one are not taken), 0 for a search without rules.
     penalty: f64,
     scratch: std::cell::RefCell<Vec<usize>>,
+    /// The moves applied since the last kick began, with their cost
+    /// changes, while `recording`: a rejected kick is undone from them, in
+    /// the time its moves took, not the route's length.
+    journal: Vec<(Move, f64)>,
+    recording: bool,
 }
 
 impl<'a> Descent<'a> {
@@ -135,6 +140,8 @@ impl<'a> Descent<'a> {
             broken_at: vec![0; inst.contours.len()],
             penalty: f64::INFINITY,
             scratch: Default::default(),
+            journal: Vec::new(),
+            recording: false,
         };
         descent.recount();
         descent
@@ -202,6 +209,9 @@ impl<'a> Descent<'a> {
         let (s, l) = (mv.from as isize, mv.len as isize);
         let before = [self.tour.at(s - 1), self.tour.at(s), self.tour.at(s + l - 1), self.tour.at(s + l)];
         apply(&mut self.tour, mv);
+        if self.recording {
+            self.journal.push((*mv, d));
+        }
         let t = mv.to as isize;
         let after = [self.tour.at(t - 1), self.tour.at(t), self.tour.at(t + l - 1), self.tour.at(t + l)];
         for c in before.into_iter().chain(after).flatten() {
@@ -249,7 +259,6 @@ impl<'a> Descent<'a> {
         let n = self.tour.cuts.len();
         let p = self.tour.pos[x];
         let pi = p as isize;
-        let xc = Some(self.tour.cuts[p]);
         let near = &self.near.lists;
         // Or-opt: runs of 1 to 3 starting or ending at x, next to a neighbour of an end.
         for len in 1..=3usize.min(n - 1) {
@@ -305,64 +314,46 @@ impl<'a> Descent<'a> {
                 }
             }
         }
-        // Path-preserving 3-opt (two neighbouring stretches swapped, none
-        // reversed): x followed by a neighbour y further on ...
-        if p + 1 < n {
-            let s = self.tour.cuts[p + 1].element;
-            for &(y, g) in &near[x] {
-                if g > succ + SLACK {
-                    break;
-                }
-                let b = self.tour.pos[y];
-                if b <= p + 1 {
-                    continue;
-                }
-                let g1 = succ - link(self.inst, xc, Some(self.tour.cuts[b]));
-                if g1 <= 0.0 {
-                    continue;
-                }
-                let r2 = self.lk(b as isize - 1, b as isize);
-                for &(z, gz) in &near[s] {
-                    if gz > g1 + r2 + SLACK {
-                        break;
-                    }
-                    let c1 = self.tour.pos[z];
-                    if c1 < b {
-                        continue;
-                    }
-                    if let Some(found) = self.try_move(swap(p + 1, b, c1 + 1)) {
-                        return Some(found);
-                    }
-                }
+        // 3-opt: x brought next to a neighbour y by moving the stretch
+        // between them (any length) next to a neighbour of one of its ends,
+        // kept or reversed so that that end meets it.
+        for &(y, g) in &near[x] {
+            if g > succ.max(pred) + SLACK {
+                break;
             }
-        }
-        // ... or preceded by a neighbour y further back.
-        if p >= 2 {
-            for &(y, g) in &near[x] {
-                if g > pred + SLACK {
-                    break;
-                }
-                let b1 = self.tour.pos[y];
-                if b1 + 2 > p {
-                    continue;
-                }
-                let g1 = pred - link(self.inst, Some(self.tour.cuts[b1]), xc);
-                if g1 <= 0.0 {
-                    continue;
-                }
-                let b = b1 + 1;
-                let t = self.tour.cuts[b].element;
-                let r2 = self.lk(b1 as isize, b as isize);
-                for &(w, gw) in &near[t] {
-                    if gw > g1 + r2 + SLACK {
+            let q = self.tour.pos[y];
+            // The stretch after x up to y, or after y up to x.
+            let (from, to_end) = if q > p + 1 && g <= succ + SLACK { (p + 1, q) } else if q + 1 < p && g <= pred + SLACK { (q + 1, p) } else { continue };
+            let len = to_end - from;
+            if len > MAX_REVERSAL || len + 1 >= n {
+                continue;
+            }
+            let (f, l) = (from as isize, len as isize);
+            let gain = self.lk(f - 1, f) + self.lk(f + l - 1, f + l) - self.lk(f - 1, f + l);
+            if gain <= EPS {
+                continue;
+            }
+            let (first, last) = (self.tour.cuts[from].element, self.tour.cuts[to_end - 1].element);
+            for (end, is_first) in [(first, true), (last, false)] {
+                for &(z, gz) in &near[end] {
+                    if gz > gain + SLACK {
                         break;
                     }
-                    let a1 = self.tour.pos[w];
-                    if a1 + 1 >= b {
+                    let r = self.tour.pos[z];
+                    if r >= from && r < to_end {
                         continue;
                     }
-                    if let Some(found) = self.try_move(swap(a1 + 1, b, p)) {
-                        return Some(found);
+                    // z's place in the route without the stretch.
+                    let r = if r >= to_end { r - len } else { r };
+                    // The first end after z or the last before it, kept;
+                    // the first before z or the last after it, reversed.
+                    for (to, reverse) in [(r + 1, !is_first), (r, is_first)] {
+                        if to == from && !reverse {
+                            continue;
+                        }
+                        if let Some(found) = self.try_move(Move { from, len, to, reverse }) {
+                            return Some(found);
+                        }
                     }
                 }
             }
@@ -393,6 +384,26 @@ impl<'a> Descent<'a> {
         }
         self.queue.clear();
         self.queued.iter_mut().for_each(|q| *q = false);
+    }
+
+    /// Starts recording the moves applied, for [`Self::undo`].
+    fn record(&mut self) {
+        self.journal.clear();
+        self.recording = true;
+    }
+
+    /// Takes back every move applied since [`Self::record`], last first
+    /// (each run moved back where it came from), every element asleep.
+    fn undo(&mut self) {
+        self.recording = false;
+        let mut journal = std::mem::take(&mut self.journal);
+        while let Some((mv, d)) = journal.pop() {
+            self.apply(&Move { from: mv.to, len: mv.len, to: mv.from, reverse: mv.reverse }, -d);
+        }
+        self.journal = journal;
+        while let Some(e) = self.queue.pop_front() {
+            self.queued[e] = false;
+        }
     }
 
     /// A random double bridge, or now and then a random stretch reversed
@@ -692,7 +703,7 @@ const KICKS_PER_CLOCK: u64 = 16;
 /// the kicks made.
 fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, max_kicks: u64, mut go_on: impl FnMut(Option<f64>) -> bool) -> u64 {
     s.descend();
-    let mut best = s.tour.cuts.clone();
+    // The route in `s` is the best one between kicks: a worse one is undone.
     let mut best_cost = s.cost;
     let mut kicks = 0u64;
     let mut stall = 0u64;
@@ -701,6 +712,7 @@ fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, max_kicks: u64
         for _ in 0..KICKS_PER_CLOCK.min(max_kicks - kicks) {
             kicks += 1;
             stall += 1;
+            s.record();
             if !s.kick(rng) {
                 continue;
             }
@@ -711,13 +723,15 @@ fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, max_kicks: u64
             }
             if s.cost <= best_cost + EPS {
                 best_cost = s.cost;
-                best.copy_from_slice(&s.tour.cuts);
             } else {
-                s.reset_to(&best, best_cost);
+                s.undo();
+                // Sums of cost changes drift by rounding: the best's own.
+                s.cost = best_cost;
             }
         }
     }
-    s.reset_to(&best, best_cost);
+    s.recording = false;
+    s.cost = s.inst.cost(&s.tour.cuts);
     kicks
 }
 
