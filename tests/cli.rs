@@ -531,6 +531,22 @@ fn bench_ecp_plain_tsp_and_the_optimum_it_checks() {
     assert_clean_error(&out, "man.tsp:5: EDGE_WEIGHT_TYPE MAN_2D is not supported (EUC_2D, CEIL_2D, ATT and GEO are)");
 }
 
+/// `gen galvo --n`: up to 100000 geometries, on a base grown beyond 5000;
+/// outside the range, one line naming the flag and the range.
+#[test]
+fn gen_galvo_takes_up_to_100000_geometries() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("g.svg");
+    let made = laserd(&["gen", "galvo", "--family", "rnd", "--n", "100000", "-o", out.to_str().unwrap()], dir.path());
+    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    let svg = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(svg.matches("<rect ").count(), 100_000);
+    assert!(svg.contains("viewBox=\"0 0 1342 1342\""), "{}", &svg[..300]);
+    for n in ["0", "100001"] {
+        assert_clean_error(&laserd(&["gen", "galvo", "--family", "rnd", "--n", n], dir.path()), &format!("--n: must be between 1 and 100000 geometries, got {n}"));
+    }
+}
+
 /// `bench motion`: the compute time of trajectory, split and program against
 /// the machine time they produce, per job and in all.
 #[test]
