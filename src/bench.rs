@@ -110,10 +110,16 @@ pub fn link_bench(machine: &MachineConfig, blocks: usize, block_s: f64) -> Resul
 }
 
 /// `bench ecp`: the cutting planner on a TSPLIB instance made
-/// precedence-constrained (`gen::tsplib`), against its known optimum.
+/// precedence-constrained (`gen::tsplib`), or on the plain TSP of its cities
+/// (`--no-precedence`), against its known optimum.
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
 pub struct EcpBench {
     pub instance: String,
+    /// The .tsp's EDGE_WEIGHT_TYPE: EUC_2D, CEIL_2D, ATT or GEO.
+    pub edge_weight_type: String,
+    /// False with `--no-precedence`: every city its own contour, no
+    /// precedence at all (the plain TSP, a closed tour from the depot city).
+    pub precedence: bool,
     pub elements: usize,
     pub contours: usize,
     pub precedences: usize,
@@ -121,6 +127,10 @@ pub struct EcpBench {
     pub inner_outer: usize,
     pub common_cuts: usize,
     pub optimum: f64,
+    /// `tour`: the tour's own length, unchecked; `published`: `--optimum`
+    /// or the .tsp's `OPTIMAL :` / `BEST_KNOWN :` line, which the tour's
+    /// length (if a tour was given) was checked to equal.
+    pub optimum_source: OptimumSource,
     /// The construction (insertion, seed 001's IB, + dir-opt) and the best route found.
     pub construction: f64,
     pub best: f64,
@@ -141,36 +151,104 @@ pub struct EcpBench {
     pub feasible: bool,
 }
 
-pub fn ecp_bench(tsp: &std::path::Path, tour: &std::path::Path, seed: u64, time_limit_s: Option<f64>, search: SearchKind) -> Result<EcpBench> {
+/// Where `bench ecp`'s optimum comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum OptimumSource {
+    /// The tour's own length, not checked against a published figure.
+    Tour,
+    /// `--optimum` or the .tsp's OPTIMAL / BEST_KNOWN line (the tour's
+    /// length, when a tour is given, checked to equal it).
+    Published,
+}
+
+/// How `bench ecp` runs.
+#[derive(Debug, Clone)]
+pub struct EcpOptions {
+    pub seed: u64,
+    pub time_limit_s: Option<f64>,
+    pub search: SearchKind,
+    /// False: the plain TSP (`--no-precedence`).
+    pub precedence: bool,
+    /// A published optimal length (`--optimum`); wins over the .tsp's own.
+    pub optimum: Option<u64>,
+}
+
+impl Default for EcpOptions {
+    fn default() -> Self {
+        EcpOptions { seed: 1, time_limit_s: None, search: SearchKind::Ils, precedence: true, optimum: None }
+    }
+}
+
+pub fn ecp_bench(tsp: &std::path::Path, tour: Option<&std::path::Path>, o: &EcpOptions) -> Result<EcpBench> {
     use crate::gen::tsplib;
     use crate::plan::ecp::{checker, construct, ils, solve};
-    let time_limit = positive_seconds("bench ecp", time_limit_s)?;
+    let time_limit = positive_seconds("bench ecp", o.time_limit_s)?;
+    if let Some(v) = o.optimum {
+        crate::config::in_range("--optimum", v, 1, tsplib::MAX_OPTIMUM, "").map_err(Error::Config)?;
+    }
     let problem = tsplib::read_tsp(tsp)?;
-    let order = tsplib::read_tour(tour, problem.cities.len())?;
-    let bench = tsplib::bench_instance(&problem, &order, seed);
-    let inst = &bench.instance;
+    let order = tour.map(|t| tsplib::read_tour(t, problem.cities.len())).transpose()?;
+    let published = match (o.optimum, &problem.stated) {
+        (Some(length), _) => Some(tsplib::Published { length: length as f64, given: "given with --optimum".into() }),
+        (None, Some(s)) => Some(tsplib::Published { length: s.length, given: format!("of {}", s.place) }),
+        (None, None) => None,
+    };
+    let (instance, tour_length) = match (&order, o.precedence) {
+        (Some(order), true) => {
+            let b = tsplib::bench_instance(&problem, order, o.seed);
+            (b.instance, Some(b.optimum))
+        }
+        (None, true) => {
+            return Err(Error::Config("bench ecp: --tour is needed unless --no-precedence (the precedences are drawn where the optimal tour keeps them)".into()));
+        }
+        (order, false) => {
+            // The depot: the tour's first city, else the first city.
+            let inst = tsplib::plain_instance(&problem, order.as_ref().map_or(0, |t| t[0]));
+            let length = order.as_ref().map(|t| inst.cost(&tsplib::tour_route(t)));
+            (inst, length)
+        }
+    };
+    let (optimum, optimum_source) = match (tour_length, &published) {
+        (Some(length), Some(p)) => {
+            tsplib::check_tour_length(tour.expect("a tour length comes from a tour"), length, p)?;
+            (p.length, OptimumSource::Published)
+        }
+        (Some(length), None) => (length, OptimumSource::Tour),
+        (None, Some(p)) => (p.length, OptimumSource::Published),
+        (None, None) => {
+            return Err(Error::Config(format!(
+                "bench ecp: no optimum to measure the gap against: give --tour, --optimum, or a .tsp with an OPTIMAL line ({} has none)",
+                tsp.display()
+            )))
+        }
+    };
+    let inst = &instance;
     let construction = inst.cost(&construct::insertion(inst));
-    let options = ils::SearchOptions { seed, time_limit, threads: crate::parallel::threads()?, ..ils::SearchOptions::new() };
-    let found = solve(inst, search, &options);
+    let options = ils::SearchOptions { seed: o.seed, time_limit, threads: crate::parallel::threads()?, ..ils::SearchOptions::new() };
+    let found = solve(inst, o.search, &options);
     // The checker also counts every element cut exactly once.
     let feasible = checker::check(inst, &found.route).is_empty();
     let best = inst.cost(&found.route);
     Ok(EcpBench {
         instance: problem.name,
+        edge_weight_type: problem.weight.name().to_string(),
+        precedence: o.precedence,
         elements: inst.elements.len(),
         contours: inst.contours.len(),
         precedences: inst.precedences(),
         inner_outer: inst.inner_outer.len(),
         common_cuts: inst.common_cuts().len(),
-        optimum: bench.optimum,
+        optimum,
+        optimum_source,
         construction,
         best,
-        gap: best / bench.optimum - 1.0,
+        gap: best / optimum - 1.0,
         time_to_best_s: found.time_to_best.as_secs_f64(),
-        time_limit_s,
+        time_limit_s: o.time_limit_s,
         search_stopped_by: found.stopped_by,
         iterations: found.iterations,
-        search: search.name().to_string(),
+        search: o.search.name().to_string(),
         searches: options.searches,
         threads: options.threads,
         feasible,

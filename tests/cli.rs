@@ -479,6 +479,74 @@ fn bench_link_reports_character_counting_against_send_response() {
     assert_eq!(long["character_counting"]["planner_starved_s"].as_f64().unwrap(), 0.0, "{long}");
 }
 
+/// `bench ecp` (issue 25): `--no-precedence` is the plain TSP of the same
+/// cities; a tour whose length is not the published optimum (`--optimum`,
+/// or the .tsp's OPTIMAL line) is refused naming both figures, before any
+/// search; an EDGE_WEIGHT_TYPE it does not measure is refused by name.
+#[test]
+fn bench_ecp_plain_tsp_and_the_optimum_it_checks() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tsplib");
+    let (tsp, tour) = (data.join("att48.tsp"), data.join("att48.opt.tour"));
+    let (tsp, tour) = (tsp.to_str().unwrap(), tour.to_str().unwrap());
+    let ecp = |extra: &[&str]| laserd(&[&["bench", "ecp", "--tsp", tsp, "--tour", tour, "--time-limit", "0.5"], extra].concat(), dir.path());
+
+    let plain = json(&ecp(&["--no-precedence", "--optimum", "10628", "--json"]));
+    assert_eq!((plain["precedence"].as_bool(), plain["precedences"].as_u64(), plain["contours"].as_u64()), (Some(false), Some(0), Some(48)), "{plain}");
+    assert_eq!((plain["inner_outer"].as_u64(), plain["common_cuts"].as_u64()), (Some(0), Some(0)), "{plain}");
+    assert_eq!((plain["edge_weight_type"].as_str(), plain["optimum"].as_f64(), plain["optimum_source"].as_str()), (Some("ATT"), Some(10628.0), Some("published")), "{plain}");
+    assert!(plain["feasible"].as_bool().unwrap() && plain["best"].as_f64().unwrap() >= 10628.0 && plain["gap"].as_f64().unwrap() >= 0.0, "{plain}");
+    let constrained = json(&ecp(&["--json"]));
+    assert_eq!((constrained["precedence"].as_bool(), constrained["optimum_source"].as_str()), (Some(true), Some("tour")), "{constrained}");
+    assert!(constrained["precedences"].as_u64().unwrap() > 0 && constrained["contours"].as_u64().unwrap() < 48, "{constrained}");
+    let text = ecp(&["--optimum", "10628"]);
+    assert!(text.status.success());
+    let said = String::from_utf8_lossy(&text.stdout);
+    assert!(said.contains("optimum 10628 (published, checked: ") && said.contains("att48.opt.tour is that long"), "{said}");
+
+    // Exit 1, one line naming the tour, its length and the figure.
+    for (optimum, says) in [("10627", "att48.opt.tour is 10628 long, not the optimum 10627 given with --optimum: the gap would be false"), ("10629", "att48.opt.tour is 10628 long, shorter than the optimum 10629 given with --optimum")] {
+        let out = ecp(&["--optimum", optimum]);
+        assert_eq!(out.status.code(), Some(1));
+        assert_clean_error(&out, says);
+    }
+    let out = ecp(&["--optimum", "0"]);
+    assert_clean_error(&out, "--optimum: must be between 1 and 1000000000000, got 0");
+    // The .tsp's own OPTIMAL line is checked too; --optimum wins over it.
+    let text = std::fs::read_to_string(data.join("att48.tsp")).unwrap();
+    let stated = dir.path().join("stated.tsp");
+    std::fs::write(&stated, text.replacen("COMMENT", "OPTIMAL : 10600\nCOMMENT", 1)).unwrap();
+    let with = |extra: &[&str]| laserd(&[&["bench", "ecp", "--tsp", stated.to_str().unwrap(), "--tour", tour, "--time-limit", "0.5", "--json"], extra].concat(), dir.path());
+    assert_clean_error(&with(&[]), "att48.opt.tour is 10628 long, not the optimum 10600 of ");
+    assert_clean_error(&with(&[]), "stated.tsp:2 (OPTIMAL): the gap would be false");
+    assert_eq!(json(&with(&["--optimum", "10628"]))["optimum_source"], "published");
+    // Without a tour only the plain TSP, measured against the stated figure.
+    let untoured = json(&laserd(&["bench", "ecp", "--tsp", stated.to_str().unwrap(), "--no-precedence", "--time-limit", "0.5", "--json"], dir.path()));
+    assert_eq!((untoured["optimum"].as_f64(), untoured["optimum_source"].as_str()), (Some(10600.0), Some("published")), "{untoured}");
+    assert_clean_error(&laserd(&["bench", "ecp", "--tsp", tsp], dir.path()), "--tour is needed unless --no-precedence");
+
+    let man = dir.path().join("man.tsp");
+    std::fs::write(&man, "NAME : man\nTYPE : TSP\nCOMMENT : Manhattan\nDIMENSION : 3\nEDGE_WEIGHT_TYPE : MAN_2D\nNODE_COORD_SECTION\n1 0 0\n2 1 0\n3 0 1\nEOF\n").unwrap();
+    let out = laserd(&["bench", "ecp", "--tsp", man.to_str().unwrap(), "--no-precedence", "--optimum", "4"], dir.path());
+    assert_clean_error(&out, "man.tsp:5: EDGE_WEIGHT_TYPE MAN_2D is not supported (EUC_2D, CEIL_2D, ATT and GEO are)");
+}
+
+/// `gen galvo --n`: up to 100000 geometries, on a base grown beyond 5000;
+/// outside the range, one line naming the flag and the range.
+#[test]
+fn gen_galvo_takes_up_to_100000_geometries() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("g.svg");
+    let made = laserd(&["gen", "galvo", "--family", "rnd", "--n", "100000", "-o", out.to_str().unwrap()], dir.path());
+    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    let svg = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(svg.matches("<rect ").count(), 100_000);
+    assert!(svg.contains("viewBox=\"0 0 1342 1342\""), "{}", &svg[..300]);
+    for n in ["0", "100001"] {
+        assert_clean_error(&laserd(&["gen", "galvo", "--family", "rnd", "--n", n], dir.path()), &format!("--n: must be between 1 and 100000 geometries, got {n}"));
+    }
+}
+
 /// `bench motion`: the compute time of trajectory, split and program against
 /// the machine time they produce, per job and in all.
 #[test]

@@ -39,15 +39,26 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
-    /// The cutting planner's search on a TSPLIB instance made
-    /// precedence-constrained, against the instance's known optimum.
+    /// The cutting planner's search on a TSPLIB instance (EUC_2D, CEIL_2D,
+    /// ATT or GEO) made precedence-constrained, or on its plain TSP
+    /// (--no-precedence), against the instance's known optimum.
     Ecp {
         /// The TSPLIB instance (.tsp).
         #[arg(long)]
         tsp: PathBuf,
-        /// Its optimal tour (.opt.tour), the yardstick.
+        /// Its optimal tour (.opt.tour), the yardstick; its first city is the
+        /// depot. Needed unless --no-precedence (then --optimum or the .tsp's
+        /// OPTIMAL line is the yardstick, and city 1 the depot).
         #[arg(long)]
-        tour: PathBuf,
+        tour: Option<PathBuf>,
+        /// The plain TSP: the same cities, each its own contour, no
+        /// inner/outer pairs, no common cuts (to compare with TSP solvers).
+        #[arg(long)]
+        no_precedence: bool,
+        /// The published optimal length (1 to 1e12); the tour must be exactly
+        /// that long. Default: the .tsp's OPTIMAL or BEST_KNOWN line, if any.
+        #[arg(long)]
+        optimum: Option<u64>,
         /// Seed of the generator or search (the same seed, the same result).
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -252,7 +263,9 @@ pub enum BenchCommand {
 fn check_flags(command: &BenchCommand) -> Result<()> {
     match command {
         BenchCommand::Serve { clients, hz, pages, .. } => in_range("--clients", *clients, 1, 10_000, "clients").and(in_range("--hz", *hz, 0.1, 1000.0, "Hz")).and(in_range("--pages", *pages, 1, 1000, "pages")),
-        BenchCommand::Ecp { time_limit: t, .. } => check_time_limit(*t),
+        BenchCommand::Ecp { time_limit: t, optimum, .. } => {
+            check_time_limit(*t).and(optimum.map_or(Ok(()), |v| in_range("--optimum", v, 1, laserd::gen::tsplib::MAX_OPTIMUM, "")))
+        }
         BenchCommand::Sheet { elements, time_limit: t, .. } => in_range("--elements", *elements, 1, 100_000, "elements").and(check_time_limit(*t)),
         BenchCommand::Plate { elements, skeleton_piece, .. } => {
             in_range("--elements", *elements, 1, 100_000, "elements").and(in_range("--skeleton-piece", *skeleton_piece, 10.0, 100_000.0, "mm"))
@@ -276,7 +289,10 @@ fn check_flags(command: &BenchCommand) -> Result<()> {
 pub fn run(command: BenchCommand) -> Result<ExitCode> {
     check_flags(&command)?;
     match command {
-        BenchCommand::Ecp { tsp, tour, seed, time_limit, search, json } => ecp_bench(tsp, tour, seed, time_limit, search, json),
+        BenchCommand::Ecp { tsp, tour, no_precedence, optimum, seed, time_limit, search, json } => {
+            let options = laserd::bench::EcpOptions { seed, time_limit_s: time_limit, search, precedence: !no_precedence, optimum };
+            ecp_bench(tsp, tour, options, json)
+        }
         BenchCommand::Sheet { config, elements, seed, time_limit, svg, json } => sheet_bench(config, elements, seed, time_limit, svg, json),
         BenchCommand::Thermal { config, elements, width, height, seeds, json } => thermal_bench(config, elements, width, height, seeds, json),
         BenchCommand::Plate { config, elements, seed, skeleton_piece, svg, json } => plate_bench(config, elements, seed, skeleton_piece, svg, json),
@@ -290,15 +306,25 @@ pub fn run(command: BenchCommand) -> Result<ExitCode> {
     }
 }
 
-fn ecp_bench(tsp: PathBuf, tour: PathBuf, seed: u64, time_limit: Option<f64>, search: SearchKind, json: bool) -> Result<ExitCode> {
-    let report = laserd::bench::ecp_bench(&tsp, &tour, seed, time_limit, search)?;
+fn ecp_bench(tsp: PathBuf, tour: Option<PathBuf>, options: laserd::bench::EcpOptions, json: bool) -> Result<ExitCode> {
+    use laserd::bench::OptimumSource;
+    let report = laserd::bench::ecp_bench(&tsp, tour.as_deref(), &options)?;
     if json {
         print_json(&report)?;
     } else {
+        let rules = if report.precedence {
+            format!("{} elements, {} contours, {} precedences ({} inner/outer, {} common cuts)", report.elements, report.contours, report.precedences, report.inner_outer, report.common_cuts)
+        } else {
+            format!("plain TSP of {} cities, no precedences", report.elements)
+        };
+        let source = match (report.optimum_source, &tour) {
+            (OptimumSource::Published, Some(t)) => format!("published, checked: {} is that long", t.display()),
+            (OptimumSource::Published, None) => "published, no tour to check it with".to_string(),
+            (OptimumSource::Tour, _) => "the tour's own length, not checked: give --optimum".to_string(),
+        };
         println!(
-            "{}: {} elements, {} contours, {} precedences ({} inner/outer, {} common cuts); optimum {}, construction {}, best {} (gap {:.2} %) after {}, search stopped by {}, {} iterations ({}, {} searches on {} threads), feasible: {}",
-            report.instance, report.elements, report.contours, report.precedences, report.inner_outer, report.common_cuts,
-            report.optimum, report.construction, report.best, report.gap * 100.0, duration(report.time_to_best_s), report.search_stopped_by.as_str(), report.iterations, report.search, report.searches, report.threads, report.feasible
+            "{} ({}): {rules}; optimum {} ({source}), construction {}, best {} (gap {:.2} %) after {}, search stopped by {}, {} iterations ({}, {} searches on {} threads), feasible: {}",
+            report.instance, report.edge_weight_type, report.optimum, report.construction, report.best, report.gap * 100.0, duration(report.time_to_best_s), report.search_stopped_by.as_str(), report.iterations, report.search, report.searches, report.threads, report.feasible
         );
     }
     Ok(if report.feasible { ExitCode::SUCCESS } else { ExitCode::from(exit::STOPPED) })

@@ -11,14 +11,17 @@ use super::common::write_file;
 #[derive(clap::Subcommand)]
 pub enum GenCommand {
     /// A galvo planning job of one of seed 003's pattern families, as SVG
-    /// (300 x 300 mm base, every geometry within a 70 x 70 mm field).
+    /// (300 x 300 mm base up to 5000 geometries, every geometry within a
+    /// 70 x 70 mm field; beyond 5000 the base grows to keep their density:
+    /// 300 √(n / 5000) mm a side, 1342 mm for 100000, and a stage travel
+    /// that covers it is needed to plan the job).
     Galvo {
         /// rnd (scattered rectangles), o (rings of squares), isw (the
         /// letters I, S, W of squares) or mixed (rectangles, circles,
         /// ellipses, polylines, polygons, paths).
         #[arg(long, ignore_case = true)]
         family: laserd::gen::galvo::Family,
-        /// Number of geometries (1 to 5000).
+        /// Number of geometries (1 to 100000).
         #[arg(long)]
         n: usize,
         /// Seed of the random layout (the same seed, the same drawing).
@@ -32,6 +35,7 @@ pub enum GenCommand {
 
 pub fn run(command: GenCommand) -> Result<ExitCode> {
     let GenCommand::Galvo { family, n, seed, output } = command;
+    laserd::config::in_range("--n", n, 1, laserd::gen::galvo::MAX_N, "geometries").map_err(Error::Config)?;
     let svg = laserd::gen::galvo::generate(family, n, seed).map_err(|e| Error::Io(format!("gen galvo: {e}")))?;
     match &output {
         Some(out) => write_file(out, &svg)?,

@@ -4,6 +4,15 @@
 //! (mm, y down, outlines only). The twelve files fix a few sizes; this gives
 //! any n (1 to [`MAX_N`]) from a seed, to study how the planners scale.
 //!
+//! Up to [`BASE_N`] geometries lie on the 300 x 300 mm base. Beyond, every
+//! family would need smaller geometries than the benchmark's (ISW already
+//! uses its smallest squares at 5000, O cannot place much more than 10,000
+//! even with 1 mm squares, scattered pads would shrink below 0.3 mm near
+//! 100,000), so the base grows instead ([`base_mm`]): a square of side
+//! 300 √(n / 5000) mm, the density of 5000 on 300 x 300 mm (1342 mm for
+//! 100,000), and by a tenth more at a time should a family still not fit.
+//! A job on a grown base needs a machine config whose stage travel covers it.
+//!
 //! * [`Family::Rnd`]: rectangles of mixed sizes (mostly small pads, a few
 //!   large) scattered without overlap (stencil-like cutting jobs). The spread,
 //!   hence the number of fields, is drawn from the seed.
@@ -28,16 +37,27 @@ use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// Side of the base stroke (mm).
+/// Side of the base stroke (mm), up to [`BASE_N`] geometries.
 pub const BASE_MM: f64 = 300.0;
+/// Most geometries on a base of [`BASE_MM`]; beyond, the base grows ([`base_mm`]).
+pub const BASE_N: usize = 5000;
 /// Side of the scanner field (mm).
 pub const FIELD_MM: f64 = 70.0;
 /// Largest number of geometries [`generate`] makes.
-pub const MAX_N: usize = 5000;
+pub const MAX_N: usize = 100_000;
 /// Free border inside the base (mm).
 const MARGIN: f64 = 4.0;
-/// Side of the square everything is placed in (mm).
-const USABLE: f64 = BASE_MM - 2.0 * MARGIN;
+
+/// The side of the base `n` geometries are first laid out on (mm): 300 up to
+/// [`BASE_N`], then growing with √n so that the density stays that of
+/// [`BASE_N`] on 300 x 300 mm (whole mm).
+pub fn base_mm(n: usize) -> f64 {
+    if n <= BASE_N {
+        BASE_MM
+    } else {
+        (BASE_MM * (n as f64 / BASE_N as f64).sqrt()).ceil()
+    }
+}
 /// Largest side of a scattered geometry (mm), as in the benchmark files.
 const MAX_SIDE: f64 = 15.0;
 
@@ -87,22 +107,36 @@ pub fn generate(family: Family, n: usize, seed: u64) -> Result<String, String> {
     if n == 0 || n > MAX_N {
         return Err(format!("n must be between 1 and {MAX_N}, got {n}"));
     }
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let shapes = match family {
-        Family::Rnd => scatter(&mut rng, n, false)?,
-        Family::Mixed => scatter(&mut rng, n, true)?,
-        Family::O => o_letters(&mut rng, n)?,
-        Family::Isw => isw_words(&mut rng, n)?,
+    // On the base of `base_mm`, else on one a tenth larger, and so on (a
+    // few steps at most: the families hold about 2 to 4 times BASE_N on 300 mm).
+    let mut base = base_mm(n);
+    let shapes = loop {
+        let usable = base - 2.0 * MARGIN;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let shapes = match family {
+            Family::Rnd => scatter(&mut rng, n, false, usable),
+            Family::Mixed => scatter(&mut rng, n, true, usable),
+            Family::O => o_letters(&mut rng, n, usable),
+            Family::Isw => isw_words(&mut rng, n, usable),
+        };
+        match shapes {
+            Ok(shapes) => break shapes,
+            Err(_) if base < 2.0 * base_mm(n) => base = (1.1 * base).ceil(),
+            Err(e) => return Err(e),
+        }
     };
     if shapes.len() != n {
         return Err(format!("{family}: made {} geometries instead of {n}", shapes.len()));
     }
     let mut out = String::with_capacity(60 * n + 300);
     out.push_str("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n");
-    let _ = writeln!(out, "<!-- laserd gen galvo ({family}, N={n}, seed={seed}) -->");
-    out.push_str(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"300mm\" height=\"300mm\" viewBox=\"0 0 300 300\" \
-         fill=\"none\" stroke=\"black\" stroke-width=\"0.1\">\n",
+    let grown = if base > BASE_MM { format!(", base {} mm", num(base)) } else { String::new() };
+    let _ = writeln!(out, "<!-- laserd gen galvo ({family}, N={n}, seed={seed}{grown}) -->");
+    let _ = writeln!(
+        out,
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{b}mm\" height=\"{b}mm\" viewBox=\"0 0 {b} {b}\" \
+         fill=\"none\" stroke=\"black\" stroke-width=\"0.1\">",
+        b = num(base)
     );
     for s in &shapes {
         s.write_svg(&mut out);
@@ -212,16 +246,40 @@ fn num(v: f64) -> String {
     }
 }
 
+/// A hasher for grid cells (two integers), much cheaper than the default's
+/// SipHash, which the generators' many lookups do not need (FxHash's mix).
+#[derive(Default)]
+struct CellHasher(u64);
+
+impl std::hash::Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_i64(&mut self, v: i64) {
+        self.write_u64(v as u64);
+    }
+}
+
 /// The boxes placed so far, bucketed on a grid, to test a new box's clearance.
 struct Occupancy {
     cell: f64,
     boxes: Vec<Bounds>,
-    grid: HashMap<(i64, i64), Vec<usize>>,
+    grid: HashMap<(i64, i64), Vec<u32>, std::hash::BuildHasherDefault<CellHasher>>,
 }
 
 impl Occupancy {
+    /// Cells of side `cell`: about the largest box's side keeps both the
+    /// cells a box lies in and the boxes in a cell few.
     fn new(cell: f64) -> Occupancy {
-        Occupancy { cell, boxes: Vec::new(), grid: HashMap::new() }
+        Occupancy { cell, boxes: Vec::new(), grid: HashMap::default() }
     }
 
     fn cells(&self, b: &Bounds) -> impl Iterator<Item = (i64, i64)> {
@@ -234,14 +292,18 @@ impl Occupancy {
     /// Whether `b` keeps at least `gap` from every placed box.
     fn free(&self, b: &Bounds, gap: f64) -> bool {
         let grown = Bounds { x0: b.x0 - gap, y0: b.y0 - gap, x1: b.x1 + gap, y1: b.y1 + gap };
-        self.cells(&grown).all(|k| self.grid.get(&k).is_none_or(|v| v.iter().all(|&i| self.boxes[i].gap_to(b) >= gap)))
+        self.cells(&grown).all(|k| self.grid.get(&k).is_none_or(|v| v.iter().all(|&i| self.boxes[i as usize].gap_to(b) >= gap)))
     }
 
     fn insert(&mut self, b: Bounds) {
-        let i = self.boxes.len();
-        let keys: Vec<_> = self.cells(&b).collect();
-        for k in keys {
-            self.grid.entry(k).or_default().push(i);
+        let i = u32::try_from(self.boxes.len()).expect("fewer than 2^32 boxes");
+        let c = self.cell;
+        let (i0, i1) = ((b.x0 / c).floor() as i64, (b.x1 / c).floor() as i64);
+        let (j0, j1) = ((b.y0 / c).floor() as i64, (b.y1 / c).floor() as i64);
+        for x in i0..=i1 {
+            for y in j0..=j1 {
+                self.grid.entry((x, y)).or_default().push(i);
+            }
         }
         self.boxes.push(b);
     }
@@ -270,7 +332,7 @@ fn grids(max: usize, wide: bool) -> Vec<(usize, usize)> {
 /// base. The mean spacing is drawn log-uniform (6 to 16 mm for `rnd`, 12 to
 /// 32 mm for `mixed`; tighter when n does not fit), sizes follow it (at most
 /// [`MAX_SIDE`]), clearance 1 mm (less on very dense instances).
-fn scatter(rng: &mut ChaCha8Rng, n: usize, mixed: bool) -> Result<Vec<Shape>, String> {
+fn scatter(rng: &mut ChaCha8Rng, n: usize, mixed: bool, usable: f64) -> Result<Vec<Shape>, String> {
     let (lo, hi): (f64, f64) = if mixed { (12.0, 32.0) } else { (6.0, 16.0) };
     let spacing = lo * (hi / lo).powf(rng.random::<f64>());
     let area = n as f64 * spacing * spacing;
@@ -279,19 +341,19 @@ fn scatter(rng: &mut ChaCha8Rng, n: usize, mixed: bool) -> Result<Vec<Shape>, St
     if rng.random_bool(0.5) {
         std::mem::swap(&mut w, &mut h);
     }
-    if w > USABLE {
-        (w, h) = (USABLE, (area / USABLE).min(USABLE));
+    if w > usable {
+        (w, h) = (usable, (area / usable).min(usable));
     }
-    if h > USABLE {
-        (w, h) = ((area / USABLE).min(USABLE), USABLE);
+    if h > usable {
+        (w, h) = ((area / usable).min(usable), usable);
     }
     let spacing = (w * h / n as f64).sqrt();
     let u = spacing.min(11.0);
     let gap = (0.2 * spacing).min(1.0);
-    let x0 = MARGIN + pick(rng, 0.0, USABLE - w);
-    let y0 = MARGIN + pick(rng, 0.0, USABLE - h);
+    let x0 = MARGIN + pick(rng, 0.0, usable - w);
+    let y0 = MARGIN + pick(rng, 0.0, usable - h);
     let mut region = Bounds { x0, y0, x1: x0 + w, y1: y0 + h };
-    let full = Bounds { x0: MARGIN, y0: MARGIN, x1: MARGIN + USABLE, y1: MARGIN + USABLE };
+    let full = Bounds { x0: MARGIN, y0: MARGIN, x1: MARGIN + usable, y1: MARGIN + usable };
 
     let mut shapes: Vec<Shape> = (0..n).map(|_| if mixed { mixed_shape(rng, u) } else { rect_shape(rng, u) }).collect();
     let area_of = |s: &Shape| {
@@ -300,7 +362,8 @@ fn scatter(rng: &mut ChaCha8Rng, n: usize, mixed: bool) -> Result<Vec<Shape>, St
     };
     // Largest first: the small ones fill the gaps.
     shapes.sort_by(|a, b| area_of(b).total_cmp(&area_of(a)));
-    let mut occupied = Occupancy::new(MAX_SIDE + 1.0);
+    // Cells about the largest geometry's side (2 u at most, see `mixed_shape`).
+    let mut occupied = Occupancy::new((2.0 * u).min(MAX_SIDE) + 1.0);
     let mut placed = Vec::with_capacity(n);
     for mut shape in shapes {
         let mut tries = 0;
@@ -319,7 +382,7 @@ fn scatter(rng: &mut ChaCha8Rng, n: usize, mixed: bool) -> Result<Vec<Shape>, St
             tries += 1;
             if tries % 300 == 0 {
                 // Crowded: spread wider, and once on the whole base, shrink.
-                if region.w() < USABLE || region.h() < USABLE {
+                if region.w() < usable || region.h() < usable {
                     let (gx, gy) = (0.1 * region.w(), 0.1 * region.h());
                     region = Bounds {
                         x0: (region.x0 - gx).max(full.x0),
@@ -411,7 +474,7 @@ const O_SQUARES: [f64; 5] = [3.0, 2.5, 2.0, 1.5, 1.0];
 /// The largest square side and the fewest letters that hold n; among ring
 /// counts, the one whose band is closest to 20 % of the letter's half-width
 /// (the benchmark's look), each letter as small as possible.
-fn o_letters(rng: &mut ChaCha8Rng, n: usize) -> Result<Vec<Shape>, String> {
+fn o_letters(rng: &mut ChaCha8Rng, n: usize, usable: f64) -> Result<Vec<Shape>, String> {
     let a = rng.random_range(0.5..0.8);
     for s in O_SQUARES {
         let (p, d, g) = (1.55 * s, 2.0 * s, 4.0 * s);
@@ -421,8 +484,8 @@ fn o_letters(rng: &mut ChaCha8Rng, n: usize) -> Result<Vec<Shape>, String> {
                 break;
             }
             let q = n.div_ceil(letters);
-            let cell_w = (USABLE - (cols - 1) as f64 * g) / cols as f64;
-            let cell_h = (USABLE - (rows - 1) as f64 * g) / rows as f64;
+            let cell_w = (usable - (cols - 1) as f64 * g) / cols as f64;
+            let cell_h = (usable - (rows - 1) as f64 * g) / rows as f64;
             let r_hi = ((cell_h - s) / 2.0).min((cell_w - s) / (2.0 * a));
             let r_lo = 4.0 * s;
             if r_hi < r_lo {
@@ -445,7 +508,7 @@ fn o_letters(rng: &mut ChaCha8Rng, n: usize) -> Result<Vec<Shape>, String> {
                 }
             }
             if let Some((_, k, r)) = best {
-                return Ok(build_o(rng, n, a, s, (cols, rows), k, r));
+                return Ok(build_o(rng, n, a, s, (cols, rows), k, r, usable));
             }
         }
     }
@@ -477,13 +540,14 @@ fn bisect(mut lo: f64, mut hi: f64, ok: impl Fn(f64) -> bool) -> f64 {
     hi
 }
 
-fn build_o(rng: &mut ChaCha8Rng, n: usize, a: f64, s: f64, (cols, rows): (usize, usize), k: usize, r: f64) -> Vec<Shape> {
+#[allow(clippy::too_many_arguments)]
+fn build_o(rng: &mut ChaCha8Rng, n: usize, a: f64, s: f64, (cols, rows): (usize, usize), k: usize, r: f64, usable: f64) -> Vec<Shape> {
     let (p, d, g) = (1.55 * s, 2.0 * s, 4.0 * s);
     let (lw, lh) = (2.0 * a * r + s, 2.0 * r + s);
     let total_w = cols as f64 * lw + (cols - 1) as f64 * g;
     let total_h = rows as f64 * lh + (rows - 1) as f64 * g;
-    let ox = MARGIN + pick(rng, 0.0, USABLE - total_w);
-    let oy = MARGIN + pick(rng, 0.0, USABLE - total_h);
+    let ox = MARGIN + pick(rng, 0.0, usable - total_w);
+    let oy = MARGIN + pick(rng, 0.0, usable - total_h);
     let letters = cols * rows;
     let mut out = Vec::with_capacity(n);
     for l in 0..letters {
@@ -684,6 +748,8 @@ struct IswLayout {
     cols: usize,
     rows: usize,
     x_max: f64,
+    /// Side of the square the words are placed in.
+    usable: f64,
 }
 
 impl IswLayout {
@@ -710,7 +776,7 @@ impl IswLayout {
     /// The block fits the base, letters at most 3.5 times their width scale.
     fn fits(&self, st: &IswStyle, h: f64) -> bool {
         let (_, _, total) = self.block(st, h);
-        total.0 <= USABLE && total.1 <= USABLE && h <= 3.5 * self.x_max
+        total.0 <= self.usable && total.1 <= self.usable && h <= 3.5 * self.x_max
     }
     fn capacity(&self, st: &IswStyle, h: f64) -> usize {
         self.words() * self.block(st, h).0.len()
@@ -725,7 +791,7 @@ impl IswLayout {
 /// smallest letters that hold n. The few squares beyond n are dropped, evenly
 /// spread; below the smallest word (about 40 squares) the word is thinned
 /// that way.
-fn isw_words(rng: &mut ChaCha8Rng, n: usize) -> Result<Vec<Shape>, String> {
+fn isw_words(rng: &mut ChaCha8Rng, n: usize, usable: f64) -> Result<Vec<Shape>, String> {
     let st = IswStyle {
         i_width: rng.random_range(0.45..0.55),
         s_width: rng.random_range(0.5..0.6),
@@ -743,7 +809,7 @@ fn isw_words(rng: &mut ChaCha8Rng, n: usize) -> Result<Vec<Shape>, String> {
         for (cols, rows) in grids(64, false) {
             for &(s, gap) in squares {
                 for c in [2, 1, 3] {
-                    let mut layout = IswLayout { s, p: s + gap, c, cols, rows, x_max: USABLE };
+                    let mut layout = IswLayout { s, p: s + gap, c, cols, rows, x_max: usable, usable };
                     let h_lo = layout.h_lo();
                     let lo = *per_word_lo.entry((s.to_bits(), c)).or_insert_with(|| layout.block(&st, h_lo).0.len());
                     if layout.words() * lo >= n {
@@ -752,18 +818,27 @@ fn isw_words(rng: &mut ChaCha8Rng, n: usize) -> Result<Vec<Shape>, String> {
                         }
                         continue;
                     }
+                    // Words narrower than the base over the columns and lower
+                    // than it over the rows (or 3.5 times their width) hold at
+                    // most this many: when too few, skip the bisections below
+                    // (what makes large n take long).
+                    let x_ub = usable / cols as f64;
+                    let h_ub = (usable / rows as f64).min(3.5 * x_ub);
+                    if h_ub >= h_lo && layout.words() * isw_word(&st, h_ub, h_ub.min(x_ub), s, layout.p, c).0.len() < n {
+                        continue;
+                    }
                     // The widest letters that fit across, then the tallest.
                     let across = |l: &IswLayout, x: f64| {
                         let (_, size) = isw_word(&st, x, x, l.s, l.p, l.c);
-                        cols as f64 * size.0 + (cols - 1) as f64 * l.gaps(x, x).0 <= USABLE
+                        cols as f64 * size.0 + (cols - 1) as f64 * l.gaps(x, x).0 <= usable
                     };
                     let x_max = *x_max_of.entry((s.to_bits(), c, cols)).or_insert_with(|| {
                         if !across(&layout, h_lo) {
                             0.0
-                        } else if across(&layout, USABLE) {
-                            USABLE
+                        } else if across(&layout, usable) {
+                            usable
                         } else {
-                            bisect(h_lo, USABLE, |x| !across(&layout, x)) - 0.01
+                            bisect(h_lo, usable, |x| !across(&layout, x)) - 0.01
                         }
                     });
                     if x_max < h_lo {
@@ -773,7 +848,7 @@ fn isw_words(rng: &mut ChaCha8Rng, n: usize) -> Result<Vec<Shape>, String> {
                     if !layout.fits(&st, h_lo) {
                         continue;
                     }
-                    let h_hi = if layout.fits(&st, USABLE) { USABLE } else { bisect(h_lo, USABLE, |h| !layout.fits(&st, h)) - 0.01 };
+                    let h_hi = if layout.fits(&st, usable) { usable } else { bisect(h_lo, usable, |h| !layout.fits(&st, h)) - 0.01 };
                     if layout.capacity(&st, h_hi) < n {
                         continue;
                     }
@@ -792,8 +867,8 @@ fn isw_words(rng: &mut ChaCha8Rng, n: usize) -> Result<Vec<Shape>, String> {
         chosen.or(fallback.map(|f| (f.1, f.2))).ok_or_else(|| format!("n = {n}: too many squares for 'ISW' words in the base"))?;
     let (word, size, total) = layout.block(&st, h);
     let (gx, gy) = layout.gaps(h.min(layout.x_max), h);
-    let ox = MARGIN + pick(rng, 0.0, USABLE - total.0);
-    let oy = MARGIN + pick(rng, 0.0, USABLE - total.1);
+    let ox = MARGIN + pick(rng, 0.0, usable - total.0);
+    let oy = MARGIN + pick(rng, 0.0, usable - total.1);
     let mut centres = Vec::with_capacity(word.len() * layout.words());
     for j in 0..layout.rows {
         for i in 0..layout.cols {
@@ -825,6 +900,16 @@ mod tests {
     use crate::import::test_config;
     use crate::job::Point;
 
+    /// The side of the base an SVG says it has (its viewBox).
+    fn base_of(svg: &str) -> f64 {
+        let view = svg.split("viewBox=\"0 0 ").nth(1).and_then(|v| v.split('"').next()).expect("a viewBox");
+        let sides: Vec<f64> = view.split(' ').map(|v| v.parse().unwrap()).collect();
+        assert_eq!(sides.len(), 2);
+        assert_eq!(sides[0], sides[1], "a square base");
+        assert!(svg.contains(&format!("width=\"{}mm\" height=\"{}mm\"", sides[0], sides[0])));
+        sides[0]
+    }
+
     /// Generates, imports with the job importer and checks the instance;
     /// returns the SVG text and the geometries' bounds.
     fn checked(family: Family, n: usize, seed: u64) -> (String, Vec<(Point, Point)>) {
@@ -832,11 +917,13 @@ mod tests {
         let job = import_svg(&svg, "gen.svg", &test_config()).unwrap();
         let case = format!("{family} n={n} seed={seed}");
         assert_eq!(job.geometries.len(), n, "{case}");
+        let base = base_of(&svg);
+        assert!(base >= base_mm(n) && base <= 2.0 * base_mm(n), "{case}: base {base} mm");
         let bounds: Vec<(Point, Point)> = job.geometries.iter().map(|g| g.bounds()).collect();
         for (i, (lo, hi)) in bounds.iter().enumerate() {
             assert!(hi.x - lo.x <= FIELD_MM - 20.0 && hi.y - lo.y <= FIELD_MM - 20.0, "{case}: geometry {i} too large");
             assert!(hi.x - lo.x > 0.3 || hi.y - lo.y > 0.3, "{case}: geometry {i} degenerate");
-            assert!(lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= BASE_MM && hi.y <= BASE_MM, "{case}: geometry {i} outside the base");
+            assert!(lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= base && hi.y <= base, "{case}: geometry {i} outside the base");
         }
         assert_no_overlap(&bounds, &case);
         (svg, bounds)
@@ -871,8 +958,36 @@ mod tests {
     #[test]
     fn generate_extreme_sizes() {
         for family in Family::ALL {
-            for n in [1, 2, 7, 110, MAX_N] {
+            for n in [1, 2, 7, 110, BASE_N, BASE_N + 1, MAX_N] {
                 checked(family, n, 3);
+            }
+        }
+    }
+
+    /// Up to BASE_N on the 300 mm base; beyond, on a base growing with √n,
+    /// hence at most as dense as BASE_N on 300 mm (for the scattered
+    /// families, geometries as large as theirs).
+    #[test]
+    fn the_base_grows_beyond_base_n_keeping_the_density() {
+        assert_eq!((base_mm(1), base_mm(BASE_N), base_mm(BASE_N + 1), base_mm(4 * BASE_N), base_mm(MAX_N)), (300.0, 300.0, 301.0, 600.0, 1342.0));
+        for family in Family::ALL {
+            let small = generate(family, BASE_N, 5).unwrap();
+            assert_eq!(base_of(&small), 300.0, "{family}");
+            assert!(small.contains("viewBox=\"0 0 300 300\"") && !small.contains(", base "), "{family}");
+            let (svg, bounds) = checked(family, 4 * BASE_N, 5);
+            let base = base_of(&svg);
+            assert!(svg.contains(&format!(", base {base} mm) -->")), "{family}");
+            let (lo, hi) = bounds.iter().fold(((f64::MAX, f64::MAX), (0.0f64, 0.0f64)), |(lo, hi), b| ((lo.0.min(b.0.x), lo.1.min(b.0.y)), (hi.0.max(b.1.x), hi.1.max(b.1.y))));
+            // The layout spreads beyond the old base, not crowded into it.
+            assert!(hi.0 - lo.0 > 320.0 || hi.1 - lo.1 > 320.0, "{family}: {lo:?} to {hi:?} on {base} mm");
+            if matches!(family, Family::Rnd | Family::Mixed) {
+                let median_side = |b: &[(Point, Point)]| {
+                    let mut s: Vec<f64> = b.iter().map(|(lo, hi)| (hi.x - lo.x).max(hi.y - lo.y)).collect();
+                    s.sort_by(f64::total_cmp);
+                    s[s.len() / 2]
+                };
+                let (_, at_base) = checked(family, BASE_N, 5);
+                assert!(median_side(&bounds) > 0.8 * median_side(&at_base), "{family}: geometries shrank");
             }
         }
     }
@@ -892,7 +1007,7 @@ mod tests {
     fn generate_rejects_bad_n_and_unknown_families() {
         for n in [0, MAX_N + 1] {
             let e = generate(Family::Rnd, n, 1).unwrap_err();
-            assert!(e.contains("between 1 and 5000") && e.contains(&n.to_string()), "{e}");
+            assert!(e.contains("between 1 and 100000") && e.contains(&n.to_string()), "{e}");
         }
         assert_eq!("ISW".parse::<Family>(), Ok(Family::Isw));
         assert_eq!(" Mixed".parse::<Family>(), Ok(Family::Mixed));

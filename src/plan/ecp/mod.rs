@@ -57,6 +57,21 @@ pub enum Metric {
     /// TSPLIB's EUC_2D: the Euclidean distance rounded to the nearest integer
     /// (so that a benchmark's optimum is the published one).
     TsplibRounded,
+    /// TSPLIB's CEIL_2D: the Euclidean distance rounded up.
+    TsplibCeil,
+    /// TSPLIB's ATT (pseudo-Euclidean): r = √((dx² + dy²) / 10), rounded to
+    /// the nearest integer and up by one where that falls below r. The
+    /// points are TSPLIB's coordinates divided by 4 (exact in binary
+    /// floating point, so dx and dy come back exactly): the distance is
+    /// then never below the Euclidean distance of the stored points, as the
+    /// searches' neighbour lists, which prune by that gap, assume.
+    TsplibAtt,
+    /// TSPLIB's GEO: the points are (latitude, longitude) in radians, as
+    /// TSPLIB converts its DDD.MM coordinates; the great-circle distance on
+    /// a sphere of radius 6378.388 km, truncated after adding 1 (so at least
+    /// 1 between distinct points; 0 from a point to itself, which a tour
+    /// never measures but a route from a city as depot does).
+    TsplibGeo,
     /// The objective `length·d + time·t·v` of an air move of length `d`
     /// taking `t` at best, rest to rest (`objective::MotionModel`): its
     /// machine time counted as the mm the axes' top speed `v` covers in it,
@@ -185,6 +200,25 @@ impl Instance {
         match self.metric {
             Metric::Euclidean => d,
             Metric::TsplibRounded => (d + 0.5).floor(),
+            Metric::TsplibCeil => d.ceil(),
+            Metric::TsplibAtt => {
+                let (dx, dy) = (4.0 * (q.x - p.x), 4.0 * (q.y - p.y));
+                let r = ((dx * dx + dy * dy) / 10.0).sqrt();
+                let t = (r + 0.5).floor();
+                if t < r {
+                    t + 1.0
+                } else {
+                    t
+                }
+            }
+            Metric::TsplibGeo if p == q => 0.0,
+            Metric::TsplibGeo => {
+                const RRR: f64 = 6378.388;
+                let q1 = (p.y - q.y).cos();
+                let q2 = (p.x - q.x).cos();
+                let q3 = (p.x + q.x).cos();
+                (RRR * (0.5 * ((1.0 + q1) * q2 - (1.0 - q1) * q3)).clamp(-1.0, 1.0).acos() + 1.0).trunc()
+            }
             Metric::Machine { length, time, motion } => {
                 let rest = nalgebra::Vector2::zeros();
                 let moving = if time > 0.0 { time * motion.move_time(p, rest, q, rest) * motion.axis.velocity } else { 0.0 };
