@@ -89,6 +89,8 @@ const SLACK: f64 = 0.5;
 /// Longest stretch a 2-opt move reverses (longer reversals rarely keep the
 /// rules, and cost their length to apply).
 const MAX_REVERSAL: usize = 1000;
+/// The same while broken rules cost a finite penalty.
+const MAX_PENALISED: usize = 50;
 /// Cost changes below this are rounding.
 const EPS: f64 = 1e-7;
 
@@ -181,7 +183,7 @@ impl<'a> Descent<'a> {
     /// The rules a move may change: those of the moved run's contours.
     fn touched_rules(&self, mv: &Move, out: &mut Vec<usize>) {
         out.clear();
-        for i in mv.from..mv.from + mv.len {
+        for i in mv.judged() {
             for &k in &self.rules.contours_of[self.tour.cuts[i].element] {
                 out.extend_from_slice(&self.book.of_contour[k]);
             }
@@ -243,10 +245,13 @@ impl<'a> Descent<'a> {
         if self.penalty.is_infinite() {
             return (d < -EPS && feasible(self.inst, &self.rules, &self.tour, &mv)).then_some((mv, d));
         }
-        if d - self.penalty * self.violations as f64 >= -EPS {
+        // A move pays for itself by air, or by mending rules: one at least
+        // (a move that mends several at once for more is rare, and not
+        // worth judging every candidate's rules for).
+        if d - self.penalty.min(self.penalty * self.violations as f64) >= -EPS {
             return None;
         }
-        let touches_broken = || (mv.from..mv.from + mv.len).any(|i| self.rules.contours_of[self.tour.cuts[i].element].iter().any(|&k| self.broken_at[k] > 0));
+        let touches_broken = || mv.judged().any(|i| self.rules.contours_of[self.tour.cuts[i].element].iter().any(|&k| self.broken_at[k] > 0));
         if d >= -EPS && !touches_broken() {
             return None;
         }
@@ -260,6 +265,10 @@ impl<'a> Descent<'a> {
         let p = self.tour.pos[x];
         let pi = p as isize;
         let near = &self.near.lists;
+        // Under a finite penalty every candidate's rules are counted, in
+        // time with its length: long stretches are left to the search
+        // that keeps the rules.
+        let longest = if self.penalty.is_finite() && self.penalty > 0.0 { MAX_PENALISED } else { MAX_REVERSAL };
         // Or-opt: runs of 1 to 3 starting or ending at x, next to a neighbour of an end.
         for len in 1..=3usize.min(n - 1) {
             let starting = (p + len <= n).then_some(p);
@@ -304,11 +313,11 @@ impl<'a> Descent<'a> {
                 break;
             }
             let q = self.tour.pos[m];
-            if q > p + 1 && q - p <= MAX_REVERSAL && g <= succ + SLACK {
+            if q > p + 1 && q - p <= longest && g <= succ + SLACK {
                 if let Some(found) = self.try_move(Move { from: p + 1, len: q - p, to: p + 1, reverse: true }) {
                     return Some(found);
                 }
-            } else if q + 1 < p && p - q <= MAX_REVERSAL && g <= pred + SLACK {
+            } else if q + 1 < p && p - q <= longest && g <= pred + SLACK {
                 if let Some(found) = self.try_move(Move { from: q, len: p - q, to: q, reverse: true }) {
                     return Some(found);
                 }
@@ -325,7 +334,7 @@ impl<'a> Descent<'a> {
             // The stretch after x up to y, or after y up to x.
             let (from, to_end) = if q > p + 1 && g <= succ + SLACK { (p + 1, q) } else if q + 1 < p && g <= pred + SLACK { (q + 1, p) } else { continue };
             let len = to_end - from;
-            if len > MAX_REVERSAL || len + 1 >= n {
+            if len > longest || len + 1 >= n {
                 continue;
             }
             let (f, l) = (from as isize, len as isize);
@@ -384,6 +393,16 @@ impl<'a> Descent<'a> {
         }
         self.queue.clear();
         self.queued.iter_mut().for_each(|q| *q = false);
+    }
+
+    /// What the search minimises: the cost, plus the penalty of the rules
+    /// broken while they may be.
+    fn objective(&self) -> f64 {
+        if self.penalty.is_finite() && self.penalty > 0.0 {
+            self.cost + self.penalty * self.violations as f64
+        } else {
+            self.cost
+        }
     }
 
     /// Starts recording the moves applied, for [`Self::undo`].
@@ -648,14 +667,32 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
             s.wake_all();
         }
         if start == Start::Relaxed {
-            let relaxed = (budget.saturating_sub(iterations) as f64 * options.relaxed_share.clamp(0.0, 1.0)) as u64;
+            let share = options.relaxed_share.clamp(0.0, 1.0);
+            let relaxed = (budget.saturating_sub(iterations) as f64 * share) as u64;
+            // Under a time limit, the same share of the time left.
+            let relaxed_until = cap.remaining().map(|left| Instant::now() + left.mul_f64(share));
+            let in_share = || relaxed_until.is_none_or(|t| Instant::now() < t) && !cap.reached();
             s.penalty = 0.0;
-            iterations += iterate(&mut s, &mut rng, restart_after, relaxed, |_| !cap.reached());
+            iterations += iterate(&mut s, &mut rng, restart_after, relaxed, |_| in_share());
             // Of the route and its reverse, the one breaking fewer rules.
             let forward = s.violations;
             s.reverse_route();
             if forward < s.violations {
                 s.reverse_route();
+            }
+            // The rules brought back by a rising penalty, the search trading
+            // air for them where it must; what is still broken, mended.
+            let mut penalty = s.cost / inst.elements.len() as f64;
+            let steps = (inst.elements.len() as u64).clamp(200, 5_000);
+            for _ in 0..12 {
+                if s.violations == 0 || cap.reached() || penalty <= 0.0 {
+                    break;
+                }
+                s.penalty = penalty;
+                s.recount();
+                s.wake_all();
+                iterations += iterate(&mut s, &mut rng, 0, steps, |_| !cap.reached());
+                penalty *= 2.0;
             }
             let mended = s.repair();
             s.penalty = f64::INFINITY;
@@ -704,7 +741,7 @@ const KICKS_PER_CLOCK: u64 = 16;
 fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, max_kicks: u64, mut go_on: impl FnMut(Option<f64>) -> bool) -> u64 {
     s.descend();
     // The route in `s` is the best one between kicks: a worse one is undone.
-    let mut best_cost = s.cost;
+    let mut best_cost = s.objective();
     let mut kicks = 0u64;
     let mut stall = 0u64;
     let mut found = Some(best_cost);
@@ -717,16 +754,17 @@ fn iterate(s: &mut Descent, rng: &mut impl Rng, stall_limit: u64, max_kicks: u64
                 continue;
             }
             s.descend();
-            if s.cost < best_cost - EPS {
-                found = Some(s.cost);
+            let objective = s.objective();
+            if objective < best_cost - EPS {
+                found = Some(objective);
                 stall = 0;
             }
-            if s.cost <= best_cost + EPS {
-                best_cost = s.cost;
+            if objective <= best_cost + EPS {
+                best_cost = objective;
             } else {
                 s.undo();
                 // Sums of cost changes drift by rounding: the best's own.
-                s.cost = best_cost;
+                s.cost = best_cost - (s.objective() - s.cost);
             }
         }
     }
@@ -784,6 +822,38 @@ mod tests {
                 s.descend();
                 assert!((s.cost - inst.cost(&s.tour.cuts)).abs() < 1e-6, "seed {seed}");
                 assert_eq!(s.violations, check(&inst, &s.tour.cuts).len(), "seed {seed}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_undone_kick_leaves_the_route_its_cost_and_its_broken_rules_as_they_were() {
+        for seed in 0..10 {
+            let inst = crate::plan::ecp::random_instance(60, seed, 2..=6, 3.0);
+            let start = crate::plan::ecp::construct::construct(&inst);
+            let mut s = Descent::new(&inst, start, Neighbours::new(&inst, 8));
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            for penalty in [f64::INFINITY, 0.0, 2.0] {
+                s.penalty = penalty;
+                s.recount();
+                s.descend();
+                let mut changed = 0;
+                for _ in 0..100 {
+                    let (route, cost, violations) = (s.tour.cuts.clone(), s.cost, s.violations);
+                    s.record();
+                    if !s.kick(&mut rng) {
+                        continue;
+                    }
+                    s.descend();
+                    changed += usize::from(s.tour.cuts != route);
+                    s.undo();
+                    assert_eq!(s.tour.cuts, route, "seed {seed}");
+                    assert!((s.cost - cost).abs() < 1e-6);
+                    assert_eq!(s.violations, violations);
+                    assert_eq!(s.violations, check(&inst, &s.tour.cuts).len());
+                    assert!(s.tour.cuts.iter().enumerate().all(|(i, c)| s.tour.pos[c.element] == i));
+                }
+                assert!(changed > 20, "seed {seed}: kicks changed the route {changed} times before they were undone");
             }
         }
     }

@@ -199,7 +199,10 @@ impl Instance {
         let d = (q - p).norm();
         match self.metric {
             Metric::Euclidean => d,
-            Metric::TsplibRounded => (d + 0.5).floor(),
+            // Truncating a non-negative number is its floor, without the
+            // library call `floor` is on baseline x86-64 (the search's
+            // hottest line on TSPLIB instances).
+            Metric::TsplibRounded => (d + 0.5) as i64 as f64,
             Metric::TsplibCeil => d.ceil(),
             Metric::TsplibAtt => {
                 let (dx, dy) = (4.0 * (q.x - p.x), 4.0 * (q.y - p.y));

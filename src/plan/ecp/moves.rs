@@ -105,10 +105,30 @@ impl Move {
     }
 }
 
+impl Move {
+    /// The positions whose contours hold every rule the move can change.
+    /// Only the order between the run and what it jumps over changes (and
+    /// the run's own, reversed), so a rule changes only if it has an
+    /// element in each: a run kept as it is may be judged by the shorter
+    /// of the two (a long stretch moved a little way costs little).
+    pub(super) fn judged(&self) -> std::ops::Range<usize> {
+        let run = self.from..self.from + self.len;
+        if self.reverse {
+            return run;
+        }
+        let jumped = if self.to > self.from { self.from + self.len..self.to + self.len } else { self.to..self.from };
+        if jumped.len() < run.len() {
+            jumped
+        } else {
+            run
+        }
+    }
+}
+
 pub(super) fn feasible(inst: &Instance, rules: &Rules, tour: &Tour, mv: &Move) -> bool {
     let np = |e: usize| mv.new_pos(tour.pos[e]);
     let closes = |k: usize| inst.contours[k].iter().map(|&e| np(e)).max().unwrap_or(0);
-    for i in mv.from..mv.from + mv.len {
+    for i in mv.judged() {
         for &k in &rules.contours_of[tour.cuts[i].element] {
             let ck = closes(k);
             if rules.outers[k].iter().any(|&o| ck >= closes(o)) || rules.inners[k].iter().any(|&i| closes(i) >= ck) {
@@ -149,13 +169,18 @@ pub(super) fn delta(inst: &Instance, tour: &Tour, mv: &Move) -> f64 {
 }
 
 pub(super) fn apply(tour: &mut Tour, mv: &Move) {
-    let mut run: Vec<Cut> = tour.cuts.drain(mv.from..mv.from + mv.len).collect();
+    // Only the stretch between the run's old and new places moves: rotated
+    // in place, in time proportional to it, not to the route.
+    if mv.to > mv.from {
+        tour.cuts[mv.from..mv.to + mv.len].rotate_left(mv.len);
+    } else if mv.to < mv.from {
+        tour.cuts[mv.to..mv.from + mv.len].rotate_right(mv.len);
+    }
     if mv.reverse {
+        let run = &mut tour.cuts[mv.to..mv.to + mv.len];
         run.reverse();
         run.iter_mut().for_each(|c| *c = flip(*c));
     }
-    let at = mv.to;
-    tour.cuts.splice(at..at, run);
     let lo = mv.from.min(mv.to);
     let hi = (mv.from + mv.len).max(mv.to + mv.len).min(tour.cuts.len());
     for i in lo..hi {
@@ -267,7 +292,9 @@ mod tests {
             }
             let rules = Rules::new(&inst);
             for from in 0..9 {
-                for len in 1..=3 {
+                // Runs of every length: a long one kept is judged by the
+                // shorter stretch it jumps.
+                for len in 1..=8 {
                     if from + len > 9 {
                         continue;
                     }
