@@ -225,7 +225,10 @@ pub fn ecp_bench(tsp: &std::path::Path, tour: Option<&std::path::Path>, o: &EcpO
     };
     let inst = &instance;
     let construction = inst.cost(&construct::insertion(inst));
-    let options = ils::SearchOptions { seed: o.seed, time_limit, threads: crate::parallel::threads()?, ..ils::SearchOptions::new() };
+    // Under a time limit the time is the effort: no budget of kicks ends
+    // the search first (a plan's default budget is for planning without one).
+    let kicks = time_limit.map(|_| u64::MAX);
+    let options = ils::SearchOptions { seed: o.seed, time_limit, kicks, threads: crate::parallel::threads()?, ..ils::SearchOptions::new() };
     let found = solve(inst, o.search, &options);
     // The checker also counts every element cut exactly once.
     let feasible = checker::check(inst, &found.route).is_empty();

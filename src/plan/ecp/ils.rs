@@ -721,7 +721,7 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
         if iterations >= budget || stalled || restart_after == 0 || inst.elements.len() < 4 || cap.reached() {
             break;
         }
-        start = if start == Start::Relaxed { Start::Insertion } else { Start::Relaxed };
+        start = Start::Relaxed;
     }
     let mut best = best.expect("one round at least");
     best.cost = inst.cost(&best.route);
@@ -786,7 +786,7 @@ pub fn search(inst: &Instance, options: &SearchOptions) -> SearchResult {
 pub fn searches(inst: &Instance, options: &SearchOptions, cap: &TimeCap) -> Vec<SearchResult> {
     crate::parallel::tasks(options.searches.max(1), options.threads, |k| {
         let options = SearchOptions { seed: options.seed.wrapping_add(k as u64), ..options.clone() };
-        let start = if k % 2 == 0 { Start::Relaxed } else { Start::Insertion };
+        let start = Start::Relaxed;
         search_from(inst, start, &options, cap)
     })
 }
