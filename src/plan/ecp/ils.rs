@@ -1,25 +1,27 @@
 //! The default search: iterated local search (ILS) over the moves of
-//! [`super::moves`], from two kinds of start, one per core.
+//! [`super::moves`], independent searches one per core.
 //!
 //! * **Descent**: first improvement with don't-look bits (only elements whose
 //!   links changed look again), over Or-opt runs of 1 to 3, 2-opt reversals and
-//!   path-preserving 3-opt (two neighbouring stretches swapped, any length),
-//!   each generated from neighbour lists and cut short by the gain criterion:
-//!   the new link at an element must be shorter than the one it replaces.
+//!   3-opt (the stretch between an element and a neighbour, any length, moved
+//!   next to a neighbour of either of its ends, kept or reversed), each
+//!   generated from neighbour lists and cut short by the gain criterion: the
+//!   new link at an element must be shorter than the one it replaces. A
+//!   move's rules are judged from the shorter of the run and what it jumps.
 //! * **Kicks**: a random double bridge (two neighbouring stretches of random,
 //!   log-uniform length swapped) that keeps every rule, then descent; the
-//!   result is kept if no worse than the best, else the search goes back to
-//!   the best.
+//!   result is kept if no worse than the best, else its moves are undone.
 //! * **Starts.** Seed 001's insertion (IB) is feasible but sets the route's
-//!   general direction early, and the rules then pin it: a route that visits
-//!   the sheet the "wrong way round" cannot be turned by moves that keep every
-//!   rule. So the other start is *relaxed*: the same search without rules for
-//!   part of the kicks, the result's better end taken as the start (a route and
-//!   its reverse cost the same, they break different rules), and the rules it
-//!   still breaks mended by moving single cuts (the fewest broken rules, then
-//!   the cheapest), and by moving each contour's last cut past its inner
-//!   contours where no single move mends one. The independent searches
-//!   alternate between the two.
+//!   general direction early, and the rules then pin it: from it the search
+//!   stays several % off on a thousand cities. So every search starts
+//!   *relaxed*: the same search without rules for a share of the kicks (and
+//!   of the time left, under a time limit), the result's better end taken (a
+//!   route and its reverse cost the same, they break different rules), then
+//!   the search again under a penalty per broken rule that doubles until none
+//!   is broken, and what is still broken mended by moving single cuts (the
+//!   fewest broken rules, then the cheapest), and each contour's last cut
+//!   past its inner contours where no single move mends one. The insertion
+//!   is the fallback should that fail.
 //! * **Stop.** Each search makes a budget of kicks that grows with the
 //!   instance ([`default_kicks`]), so the route does not depend on the load
 //!   or the cores; a time limit the user sets may end it first.
