@@ -33,7 +33,7 @@ use crate::plan::stop::{SearchStop, TimeCap};
 
 use rand::{Rng, SeedableRng};
 
-use super::construct::{contour_depths, contour_order_construction, insertion_in_order};
+use super::construct::{contour_depths, contour_order_construction, insertion_within};
 use super::moves::{apply, delta, feasible, flip, link, Move, Neighbours, Rules, Tour};
 use super::{Cut, Instance};
 
@@ -433,24 +433,47 @@ impl<'a> Descent<'a> {
     }
 
     /// Mends broken rules one at a time: a cut of the rule's two contours
-    /// moved anywhere, the move mending most rules (in all), then the
-    /// cheapest; where no single move mends any, each contour's last cut moved
-    /// past its inner contours. Returns whether every rule holds.
-    fn repair(&mut self) -> bool {
+    /// moved, the move mending most rules (in all), then the cheapest; where
+    /// no single move mends any, each contour's last cut moved past its inner
+    /// contours. A cut is tried next to its neighbours (the neighbour lists')
+    /// and just before or after where the rule's contours close and its
+    /// common cut is, at the route's start and end: O(1) places, not the
+    /// whole route, so that thousands of broken rules mend in a moment.
+    /// Gives up once `cap` is reached. Returns whether every rule holds.
+    fn repair(&mut self, cap: &TimeCap) -> bool {
         let n = self.tour.cuts.len();
         self.penalty = 1.0;
         let mut pushes = 0;
+        let mut targets: Vec<usize> = Vec::new();
         while self.violations > 0 {
             let mut mended = false;
             for r in 0..self.broken.len() {
                 if !self.broken[r] {
                     continue;
                 }
+                if cap.reached() {
+                    return false;
+                }
                 let (a, b) = contours_of_rule(&self.book.rules[r]);
+                let pos = &self.tour.pos;
+                let closes = |k: usize| self.inst.contours[k].iter().map(|&e| pos[e]).max().unwrap_or(0);
+                let mut marks = vec![closes(a), closes(b)];
+                if let Rule::Common { element, .. } = self.book.rules[r] {
+                    marks.push(pos[element]);
+                }
                 let mut best: Option<(isize, f64, Move)> = None;
                 for &e in self.inst.contours[a].iter().chain(&self.inst.contours[b]) {
-                    let from = self.tour.pos[e];
-                    for to in 0..n {
+                    let from = pos[e];
+                    // Places counted in the route without the moved cut.
+                    let without = |q: usize| if q > from { q - 1 } else { q };
+                    targets.clear();
+                    targets.extend([0, n - 1]);
+                    for q in marks.iter().copied().chain(self.near.lists[e].iter().map(|&(m, _)| pos[m])) {
+                        targets.extend([without(q), without(q) + 1]);
+                    }
+                    targets.sort_unstable();
+                    targets.dedup();
+                    for &to in targets.iter().filter(|&&to| to < n) {
                         for reverse in [false, true] {
                             if to == from && !reverse {
                                 continue;
@@ -485,12 +508,14 @@ impl<'a> Descent<'a> {
 
     /// Each contour closed before an inner one gets its last cut moved to the
     /// best place after its inner contours close, innermost first (moving a
-    /// cut later never breaks a rule of the contours inside).
+    /// cut later never breaks a rule of the contours inside): right after
+    /// them, next to one of the cut's neighbours further on, or at the end.
     fn push_closings(&mut self) {
         let n = self.tour.cuts.len();
         let depth = contour_depths(self.inst);
         let mut order: Vec<usize> = (0..self.inst.contours.len()).collect();
         order.sort_by_key(|&k| std::cmp::Reverse(depth[k]));
+        let mut targets: Vec<usize> = Vec::new();
         for &k in &order {
             let closes = |k: usize| self.inst.contours[k].iter().map(|&e| self.tour.pos[e]).max().unwrap_or(0);
             let Some(need) = self.rules.inners[k].iter().map(|&i| closes(i)).max() else { continue };
@@ -500,8 +525,19 @@ impl<'a> Descent<'a> {
             }
             // Targets counted in the route without the moved cut: `need` is
             // the place right after the inner contour's last cut.
-            let best = (need..n)
-                .flat_map(|to| [false, true].map(|reverse| Move { from, len: 1, to, reverse }))
+            let without = |q: usize| if q > from { q - 1 } else { q };
+            targets.clear();
+            targets.extend([need, n - 1]);
+            for &(m, _) in &self.near.lists[self.tour.cuts[from].element] {
+                let q = without(self.tour.pos[m]);
+                targets.extend([q, q + 1]);
+            }
+            targets.sort_unstable();
+            targets.dedup();
+            let best = targets
+                .iter()
+                .filter(|&&to| to >= need && to < n)
+                .flat_map(|&to| [false, true].map(|reverse| Move { from, len: 1, to, reverse }))
                 .map(|mv| (delta(self.inst, &self.tour, &mv), mv))
                 .min_by(|a, b| a.0.total_cmp(&b.0));
             if let Some((d, mv)) = best {
@@ -616,9 +652,14 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
     let (mut insertion, first) = match &options.initial {
         Some(given) => (given.to_vec(), Start::Insertion),
         None => {
-            let insertion = insertion_in_order(inst, (options.seed > 1).then_some(options.seed));
+            // An insertion the time limit cuts short gives way to contour
+            // order (fast, feasible): the search must end in time.
+            let insertion = insertion_within(inst, (options.seed > 1).then_some(options.seed), cap);
             let contour_order = contour_order_construction(inst);
-            (if inst.cost(&contour_order) < inst.cost(&insertion) { contour_order } else { insertion }, first)
+            (match insertion {
+                Some(insertion) if inst.cost(&contour_order) >= inst.cost(&insertion) => insertion,
+                _ => contour_order,
+            }, first)
         }
     };
     let mut s = Descent::new(inst, insertion.clone(), Neighbours::new(inst, options.neighbours));
@@ -631,7 +672,8 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
     let budget = options.kicks.unwrap_or_else(|| default_kicks(inst.elements.len()));
     for round in 0.. {
         if round > 0 {
-            insertion = insertion_in_order(inst, Some(rng.random()));
+            let Some(fresh) = insertion_within(inst, Some(rng.random()), cap) else { break };
+            insertion = fresh;
             s.penalty = f64::INFINITY;
             s.reset_to(&insertion, inst.cost(&insertion));
             s.wake_all();
@@ -639,14 +681,17 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
         if start == Start::Relaxed {
             let relaxed = (budget.saturating_sub(iterations) as f64 * options.relaxed_share.clamp(0.0, 1.0)) as u64;
             s.penalty = 0.0;
-            iterations += iterate(&mut s, &mut rng, restart_after, relaxed, |_| !cap.reached());
+            // Under a time limit, a share of the time left at most, so that
+            // the mending and the search with rules have theirs.
+            let relaxed_cap = TimeCap::after(cap.remaining().map(|left| left.mul_f64(options.relaxed_share.clamp(0.0, 1.0))));
+            iterations += iterate(&mut s, &mut rng, restart_after, relaxed, |_| !relaxed_cap.reached() && !cap.reached());
             // Of the route and its reverse, the one breaking fewer rules.
             let forward = s.violations;
             s.reverse_route();
             if forward < s.violations {
                 s.reverse_route();
             }
-            let mended = s.repair();
+            let mended = s.repair(cap);
             s.penalty = f64::INFINITY;
             if !mended {
                 s.reset_to(&insertion, inst.cost(&insertion));
