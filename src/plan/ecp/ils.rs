@@ -653,15 +653,28 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
         Some(given) => (given.to_vec(), Start::Insertion),
         None => {
             // An insertion the time limit cuts short gives way to contour
-            // order (fast, feasible): the search must end in time.
+            // order (fast, feasible); one done as the time is up is taken
+            // as it is: the search must end in time.
             let insertion = insertion_within(inst, (options.seed > 1).then_some(options.seed), cap);
-            let contour_order = contour_order_construction(inst);
-            (match insertion {
-                Some(insertion) if inst.cost(&contour_order) >= inst.cost(&insertion) => insertion,
-                _ => contour_order,
-            }, first)
+            let start = match insertion {
+                Some(insertion) if cap.reached() => insertion,
+                insertion => {
+                    let contour_order = contour_order_construction(inst);
+                    match insertion {
+                        Some(insertion) if inst.cost(&contour_order) >= inst.cost(&insertion) => insertion,
+                        _ => contour_order,
+                    }
+                }
+            };
+            (start, first)
         }
     };
+    // Out of time already: the start as it is (the neighbour lists and a
+    // descent on a large instance take a while).
+    if cap.reached() {
+        let cost = inst.cost(&insertion);
+        return SearchResult { route: insertion, cost, iterations: 0, time_to_best: began.elapsed(), start: first, stopped_by: cap.stop() };
+    }
     let mut s = Descent::new(inst, insertion.clone(), Neighbours::new(inst, options.neighbours));
     let mut best: Option<SearchResult> = None;
     let mut time_to_best = Duration::ZERO;
@@ -678,7 +691,8 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
             s.reset_to(&insertion, inst.cost(&insertion));
             s.wake_all();
         }
-        if start == Start::Relaxed {
+        // (Out of time, neither the relaxed phase nor a descent begins.)
+        if start == Start::Relaxed && !cap.reached() {
             let relaxed = (budget.saturating_sub(iterations) as f64 * options.relaxed_share.clamp(0.0, 1.0)) as u64;
             s.penalty = 0.0;
             // Under a time limit, a share of the time left at most, so that
@@ -699,15 +713,17 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
             s.wake_all();
         }
         let mut best_cost = best.as_ref().map_or(f64::INFINITY, |b| b.cost);
-        iterations += iterate(&mut s, &mut rng, restart_after, budget.saturating_sub(iterations), |found| {
-            if let Some(cost) = found.filter(|&c| c < best_cost - EPS) {
-                best_cost = cost;
-                time_to_best = began.elapsed();
-                since_best = 0;
-            }
-            since_best += KICKS_PER_CLOCK;
-            (options.max_stall == 0 || since_best < options.max_stall) && !cap.reached()
-        });
+        if !cap.reached() {
+            iterations += iterate(&mut s, &mut rng, restart_after, budget.saturating_sub(iterations), |found| {
+                if let Some(cost) = found.filter(|&c| c < best_cost - EPS) {
+                    best_cost = cost;
+                    time_to_best = began.elapsed();
+                    since_best = 0;
+                }
+                since_best += KICKS_PER_CLOCK;
+                (options.max_stall == 0 || since_best < options.max_stall) && !cap.reached()
+            });
+        }
         if best.as_ref().is_none_or(|b| s.cost < b.cost - EPS) {
             if best.is_none() {
                 time_to_best = began.elapsed();
