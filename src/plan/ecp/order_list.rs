@@ -82,6 +82,18 @@ impl OrderList {
         self.in_list[new] = true;
     }
 
+    /// Takes node `x` (not the head nor the tail) out of the list; the
+    /// others keep their labels.
+    pub(crate) fn remove(&mut self, x: usize) {
+        assert!(self.in_list[x] && x != self.head() && x != self.tail(), "remove({x})");
+        let (p, q) = (self.prev(x), self.next(x));
+        self.next[p] = q as u32;
+        self.prev[q] = p as u32;
+        self.next[x] = NONE;
+        self.prev[x] = NONE;
+        self.in_list[x] = false;
+    }
+
     /// Labels the smallest sparse enough block around `x` again, evenly,
     /// leaving a gap of at least 2 after every node in it (and after `x`).
     fn relabel_around(&mut self, x: usize) {
@@ -195,6 +207,14 @@ mod tests {
             let after = if at == 0 { list.head() } else { expected[at - 1] };
             list.insert_after(after, new);
             expected.insert(at, new);
+        }
+        // Some taken out and put back elsewhere.
+        for _ in 0..500 {
+            let x = expected.remove(rng.random_range(0..expected.len()));
+            list.remove(x);
+            let at = rng.random_range(0..=expected.len());
+            list.insert_after(if at == 0 { list.head() } else { expected[at - 1] }, x);
+            expected.insert(at, x);
         }
         assert_ordered(&list);
         assert_eq!(list.to_vec(), expected);
