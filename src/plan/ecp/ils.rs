@@ -435,16 +435,19 @@ impl<'a> Descent<'a> {
     /// Mends broken rules one at a time: a cut of the rule's two contours
     /// moved, the move mending most rules (in all), then the cheapest; where
     /// no single move mends any, each contour's last cut moved past its inner
-    /// contours. A cut is tried next to its neighbours (the neighbour lists')
-    /// and just before or after where the rule's contours close and its
-    /// common cut is, at the route's start and end: O(1) places, not the
-    /// whole route, so that thousands of broken rules mend in a moment.
-    /// Gives up once `cap` is reached. Returns whether every rule holds.
+    /// contours. A cut is tried next to its neighbours (the neighbour lists'),
+    /// next to the rule's contours' cuts, at the route's start and end: O(1)
+    /// places, not the whole route, so that thousands of broken rules mend in
+    /// a moment; the few (at most [`WIDE_REPAIR`]) that none of these mends
+    /// are tried at every place. Gives up once `cap` is reached. Returns
+    /// whether every rule holds.
     fn repair(&mut self, cap: &TimeCap) -> bool {
         let n = self.tour.cuts.len();
         self.penalty = 1.0;
         let mut pushes = 0;
+        let mut wide = false;
         let mut targets: Vec<usize> = Vec::new();
+        let mut marks: Vec<usize> = Vec::new();
         while self.violations > 0 {
             let mut mended = false;
             for r in 0..self.broken.len() {
@@ -456,23 +459,25 @@ impl<'a> Descent<'a> {
                 }
                 let (a, b) = contours_of_rule(&self.book.rules[r]);
                 let pos = &self.tour.pos;
-                let closes = |k: usize| self.inst.contours[k].iter().map(|&e| pos[e]).max().unwrap_or(0);
-                let mut marks = vec![closes(a), closes(b)];
-                if let Rule::Common { element, .. } = self.book.rules[r] {
-                    marks.push(pos[element]);
-                }
+                let members = || self.inst.contours[a].iter().chain(&self.inst.contours[b]);
+                marks.clear();
+                marks.extend(members().map(|&e| pos[e]));
                 let mut best: Option<(isize, f64, Move)> = None;
-                for &e in self.inst.contours[a].iter().chain(&self.inst.contours[b]) {
+                for &e in members() {
                     let from = pos[e];
                     // Places counted in the route without the moved cut.
                     let without = |q: usize| if q > from { q - 1 } else { q };
                     targets.clear();
-                    targets.extend([0, n - 1]);
-                    for q in marks.iter().copied().chain(self.near.lists[e].iter().map(|&(m, _)| pos[m])) {
-                        targets.extend([without(q), without(q) + 1]);
+                    if wide {
+                        targets.extend(0..n);
+                    } else {
+                        targets.extend([0, n - 1]);
+                        for q in marks.iter().copied().chain(self.near.lists[e].iter().map(|&(m, _)| pos[m])) {
+                            targets.extend([without(q), without(q) + 1]);
+                        }
+                        targets.sort_unstable();
+                        targets.dedup();
                     }
-                    targets.sort_unstable();
-                    targets.dedup();
                     for &to in targets.iter().filter(|&&to| to < n) {
                         for reverse in [false, true] {
                             if to == from && !reverse {
@@ -497,7 +502,11 @@ impl<'a> Descent<'a> {
             }
             if !mended {
                 if pushes == 3 {
-                    break;
+                    if wide || self.violations > WIDE_REPAIR {
+                        break;
+                    }
+                    wide = true;
+                    continue;
                 }
                 pushes += 1;
                 self.push_closings();
@@ -546,6 +555,10 @@ impl<'a> Descent<'a> {
         }
     }
 }
+
+/// Broken rules few enough, once nothing else mends them, to try each of
+/// their cuts at every place of the route.
+const WIDE_REPAIR: usize = 8;
 
 /// Longest stretch a kick moves.
 const MAX_KICK: usize = 100;
