@@ -54,44 +54,57 @@ fn nearest_index(points: impl Iterator<Item = Point>, from: Point) -> usize {
 }
 
 /// Nearest-neighbour order of `members`, starting at `from`; each geometry
-/// repeated for its passes.
+/// repeated for its passes. The entries left (a closed geometry's vertices,
+/// an open one's ends) are in an R-tree, so each step costs O(log n), not a
+/// scan of every geometry left; of entries equally near, the geometry that
+/// comes first in the list of those left (swap-removed as they are taken),
+/// then its first vertex (a closed one) or its start (an open one).
 fn order_paths(job: &Job, members: &[usize], from: Point) -> Vec<PlannedPath> {
+    use rstar::primitives::GeomWithData;
+    use rstar::RTree;
+    let entries = |gi: usize| {
+        let p = &job.geometries[gi].points;
+        let vertices: Vec<usize> = if job.geometries[gi].closed { (0..p.len()).collect() } else { vec![0, p.len() - 1] };
+        vertices.into_iter().map(move |v| GeomWithData::new([p[v].x, p[v].y], (gi, v)))
+    };
+    let mut tree = RTree::bulk_load(members.iter().flat_map(|&gi| entries(gi)).collect());
     let mut left: Vec<usize> = members.to_vec();
+    let mut slot = vec![usize::MAX; job.geometries.len()];
+    for (k, &gi) in left.iter().enumerate() {
+        slot[gi] = k;
+    }
     let mut here = from;
     let mut out = Vec::with_capacity(members.len());
     while !left.is_empty() {
-        let mut best = (0usize, 0usize, false, f64::INFINITY);
-        for (k, &gi) in left.iter().enumerate() {
-            let (entry, reversed, d) = best_entry(&job.geometries[gi], here);
-            if d < best.3 {
-                best = (k, entry, reversed, d);
+        let mut best: Option<(usize, usize)> = None;
+        let mut nearest = None;
+        for (hit, d2) in tree.nearest_neighbor_iter_with_distance_2([here.x, here.y]) {
+            if nearest.is_some_and(|d: f64| d2 > d) {
+                break;
+            }
+            nearest = Some(d2);
+            let (gi, v) = hit.data;
+            if best.is_none_or(|b| (slot[gi], v) < b) {
+                best = Some((slot[gi], v));
             }
         }
-        let gi = left.swap_remove(best.0);
+        let (k, v) = best.expect("every geometry left has entries in the tree");
+        let gi = left.swap_remove(k);
+        if let Some(&moved) = left.get(k) {
+            slot[moved] = k;
+        }
+        for entry in entries(gi) {
+            tree.remove(&entry);
+        }
         let g = &job.geometries[gi];
-        let points = path_points(g, best.1, best.2);
+        let (entry, reversed) = if g.closed { (v, false) } else { (0, v != 0) };
+        let points = path_points(g, entry, reversed);
         here = points[points.len() - 1];
         for _ in 0..job.processes[g.process].passes {
             out.push(PlannedPath::new(gi, points.clone(), g.process, true));
         }
     }
     out
-}
-
-/// Entry vertex (closed) or direction (open) closest to `from`, with its distance².
-fn best_entry(g: &Geometry, from: Point) -> (usize, bool, f64) {
-    if g.closed {
-        let i = nearest_index(g.points.iter().copied(), from);
-        (i, false, (g.points[i] - from).norm_squared())
-    } else {
-        let d0 = (g.points[0] - from).norm_squared();
-        let d1 = (g.points[g.points.len() - 1] - from).norm_squared();
-        if d1 < d0 {
-            (0, true, d1)
-        } else {
-            (0, false, d0)
-        }
-    }
 }
 
 /// The vertices in marking order.
@@ -112,6 +125,68 @@ mod tests {
     use crate::config::MachineConfig;
     use crate::job::Process;
     use crate::plan::PlanContext;
+
+    /// The baseline as first written, every geometry left scanned at each
+    /// step: what the R-tree's order must be.
+    fn order_paths_scanning(job: &Job, members: &[usize], from: Point) -> Vec<PlannedPath> {
+        let mut left: Vec<usize> = members.to_vec();
+        let mut here = from;
+        let mut out = Vec::with_capacity(members.len());
+        while !left.is_empty() {
+            let mut best = (0usize, 0usize, false, f64::INFINITY);
+            for (k, &gi) in left.iter().enumerate() {
+                let (entry, reversed, d) = best_entry(&job.geometries[gi], here);
+                if d < best.3 {
+                    best = (k, entry, reversed, d);
+                }
+            }
+            let gi = left.swap_remove(best.0);
+            let g = &job.geometries[gi];
+            let points = path_points(g, best.1, best.2);
+            here = points[points.len() - 1];
+            for _ in 0..job.processes[g.process].passes {
+                out.push(PlannedPath::new(gi, points.clone(), g.process, true));
+            }
+        }
+        out
+    }
+
+    /// Entry vertex (closed) or direction (open) closest to `from`, with its distance².
+    fn best_entry(g: &Geometry, from: Point) -> (usize, bool, f64) {
+        if g.closed {
+            let i = nearest_index(g.points.iter().copied(), from);
+            (i, false, (g.points[i] - from).norm_squared())
+        } else {
+            let d0 = (g.points[0] - from).norm_squared();
+            let d1 = (g.points[g.points.len() - 1] - from).norm_squared();
+            if d1 < d0 {
+                (0, true, d1)
+            } else {
+                (0, false, d0)
+            }
+        }
+    }
+
+    #[test]
+    fn the_tree_takes_the_order_of_the_scan() {
+        // A generated sheet (nested parts sharing edges: many vertices at the
+        // same place, so ties matter) with open paths of its own.
+        let sheet = crate::gen::sheet::generate(&crate::gen::sheet::SheetParams::with_target(1500), 3);
+        let outline = |c: &Vec<usize>| c.iter().map(|&e| sheet.elements[e].a).collect::<Vec<Point>>();
+        let mut geometries: Vec<Geometry> = sheet.contours.iter().map(|c| Geometry { arcs: Vec::new(), profile: Vec::new(), points: outline(c), closed: true, process: 0, source: String::new() }).collect();
+        for k in 0..40 {
+            let (x, y) = ((k * 37 % 400) as f64, (k * 53 % 300) as f64);
+            geometries.push(Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(x, y), Point::new(x + 5.0, y + 1.0), Point::new(x, y)], closed: false, process: 0, source: String::new() });
+        }
+        let j = job(geometries);
+        let all: Vec<usize> = (0..j.geometries.len()).collect();
+        for from in [Point::new(0.0, 0.0), Point::new(123.4, 56.7)] {
+            let ours = order_paths(&j, &all, from);
+            let reference = order_paths_scanning(&j, &all, from);
+            assert_eq!(ours.len(), all.len());
+            assert!(ours.iter().zip(&reference).all(|(a, b)| a.geometry == b.geometry && a.points == b.points));
+        }
+    }
 
     fn square(x: f64, y: f64, s: f64) -> Geometry {
         Geometry { arcs: Vec::new(), profile: Vec::new(),

@@ -50,15 +50,15 @@ pub fn check(inst: &Instance, route: &[Cut]) -> Vec<Violation> {
     }
     let pos = |e: usize| position[e].unwrap_or(usize::MAX);
     // Where a contour closes: the position of its last element.
-    let closes = |k: usize| inst.contours[k].iter().map(|&e| pos(e)).max().unwrap_or(0);
+    let closes: Vec<usize> = inst.contours.iter().map(|c| c.iter().map(|&e| pos(e)).max().unwrap_or(0)).collect();
     for &(inner, outer) in &inst.inner_outer {
-        if inst.contours[inner].iter().any(|&e| pos(e) >= closes(outer)) {
+        if inst.contours[inner].iter().any(|&e| pos(e) >= closes[outer]) {
             violations.push(Violation::InnerAfterOuter { inner, outer });
         }
     }
     for cc in inst.common_cuts() {
         let (a, b) = cc.contours;
-        if closes(a) == pos(cc.element) && closes(b) == pos(cc.element) {
+        if closes[a] == pos(cc.element) && closes[b] == pos(cc.element) {
             violations.push(Violation::ClosesBoth { element: cc.element, contours: cc.contours });
         }
     }
@@ -84,12 +84,12 @@ pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut], held
     }
     // Positions with the uncut elements before the route: -1.
     let pos = |e: usize| position[e].map_or(-1, |p| p as i64);
-    let closes = |k: usize| topology.contours[k].iter().map(|&e| pos(e)).max().unwrap_or(-1);
+    let closes: Vec<i64> = topology.contours.iter().map(|c| c.iter().map(|&e| pos(e)).max().unwrap_or(-1)).collect();
     for (inner, outer) in topology.inner_outer() {
-        if fixed[outer] || fixed[inner] || closes(outer) < 0 || held.get(outer).copied().unwrap_or(false) {
+        if fixed[outer] || fixed[inner] || closes[outer] < 0 || held.get(outer).copied().unwrap_or(false) {
             continue;
         }
-        if topology.contours[inner].iter().any(|&e| position[e].is_some() && pos(e) >= closes(outer)) {
+        if topology.contours[inner].iter().any(|&e| position[e].is_some() && pos(e) >= closes[outer]) {
             violations.push(Violation::InnerAfterOuter { inner, outer });
         }
     }
@@ -98,7 +98,7 @@ pub fn check_plate(topology: &Topology, plate: &PlateLayout, route: &[Cut], held
         if fixed[a] || fixed[b] || uncut[cc.element] {
             continue;
         }
-        if closes(a) == pos(cc.element) && closes(b) == pos(cc.element) {
+        if closes[a] == pos(cc.element) && closes[b] == pos(cc.element) {
             violations.push(Violation::ClosesBoth { element: cc.element, contours: cc.contours });
         }
     }

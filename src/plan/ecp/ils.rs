@@ -35,7 +35,7 @@ use crate::plan::stop::{SearchStop, TimeCap};
 
 use rand::{Rng, SeedableRng};
 
-use super::construct::{contour_depths, contour_order_construction, insertion_in_order};
+use super::construct::{contour_depths, contour_order_construction, insertion_within};
 use super::moves::{apply, delta, feasible, flip, link, Move, Neighbours, Rules, Tour};
 use super::{Cut, Instance};
 
@@ -465,24 +465,52 @@ impl<'a> Descent<'a> {
     }
 
     /// Mends broken rules one at a time: a cut of the rule's two contours
-    /// moved anywhere, the move mending most rules (in all), then the
-    /// cheapest; where no single move mends any, each contour's last cut moved
-    /// past its inner contours. Returns whether every rule holds.
-    fn repair(&mut self) -> bool {
+    /// moved, the move mending most rules (in all), then the cheapest; where
+    /// no single move mends any, each contour's last cut moved past its inner
+    /// contours. A cut is tried next to its neighbours (the neighbour lists'),
+    /// next to the rule's contours' cuts, at the route's start and end: O(1)
+    /// places, not the whole route, so that thousands of broken rules mend in
+    /// a moment; the few (at most [`WIDE_REPAIR`]) that none of these mends
+    /// are tried at every place. Gives up once `cap` is reached. Returns
+    /// whether every rule holds.
+    fn repair(&mut self, cap: &TimeCap) -> bool {
         let n = self.tour.cuts.len();
         self.penalty = 1.0;
         let mut pushes = 0;
+        let mut wide = false;
+        let mut targets: Vec<usize> = Vec::new();
+        let mut marks: Vec<usize> = Vec::new();
         while self.violations > 0 {
             let mut mended = false;
             for r in 0..self.broken.len() {
                 if !self.broken[r] {
                     continue;
                 }
+                if cap.reached() {
+                    return false;
+                }
                 let (a, b) = contours_of_rule(&self.book.rules[r]);
+                let pos = &self.tour.pos;
+                let members = || self.inst.contours[a].iter().chain(&self.inst.contours[b]);
+                marks.clear();
+                marks.extend(members().map(|&e| pos[e]));
                 let mut best: Option<(isize, f64, Move)> = None;
-                for &e in self.inst.contours[a].iter().chain(&self.inst.contours[b]) {
-                    let from = self.tour.pos[e];
-                    for to in 0..n {
+                for &e in members() {
+                    let from = pos[e];
+                    // Places counted in the route without the moved cut.
+                    let without = |q: usize| if q > from { q - 1 } else { q };
+                    targets.clear();
+                    if wide {
+                        targets.extend(0..n);
+                    } else {
+                        targets.extend([0, n - 1]);
+                        for q in marks.iter().copied().chain(self.near.lists[e].iter().map(|&(m, _)| pos[m])) {
+                            targets.extend([without(q), without(q) + 1]);
+                        }
+                        targets.sort_unstable();
+                        targets.dedup();
+                    }
+                    for &to in targets.iter().filter(|&&to| to < n) {
                         for reverse in [false, true] {
                             if to == from && !reverse {
                                 continue;
@@ -506,7 +534,11 @@ impl<'a> Descent<'a> {
             }
             if !mended {
                 if pushes == 3 {
-                    break;
+                    if wide || self.violations > WIDE_REPAIR {
+                        break;
+                    }
+                    wide = true;
+                    continue;
                 }
                 pushes += 1;
                 self.push_closings();
@@ -517,12 +549,14 @@ impl<'a> Descent<'a> {
 
     /// Each contour closed before an inner one gets its last cut moved to the
     /// best place after its inner contours close, innermost first (moving a
-    /// cut later never breaks a rule of the contours inside).
+    /// cut later never breaks a rule of the contours inside): right after
+    /// them, next to one of the cut's neighbours further on, or at the end.
     fn push_closings(&mut self) {
         let n = self.tour.cuts.len();
         let depth = contour_depths(self.inst);
         let mut order: Vec<usize> = (0..self.inst.contours.len()).collect();
         order.sort_by_key(|&k| std::cmp::Reverse(depth[k]));
+        let mut targets: Vec<usize> = Vec::new();
         for &k in &order {
             let closes = |k: usize| self.inst.contours[k].iter().map(|&e| self.tour.pos[e]).max().unwrap_or(0);
             let Some(need) = self.rules.inners[k].iter().map(|&i| closes(i)).max() else { continue };
@@ -532,8 +566,19 @@ impl<'a> Descent<'a> {
             }
             // Targets counted in the route without the moved cut: `need` is
             // the place right after the inner contour's last cut.
-            let best = (need..n)
-                .flat_map(|to| [false, true].map(|reverse| Move { from, len: 1, to, reverse }))
+            let without = |q: usize| if q > from { q - 1 } else { q };
+            targets.clear();
+            targets.extend([need, n - 1]);
+            for &(m, _) in &self.near.lists[self.tour.cuts[from].element] {
+                let q = without(self.tour.pos[m]);
+                targets.extend([q, q + 1]);
+            }
+            targets.sort_unstable();
+            targets.dedup();
+            let best = targets
+                .iter()
+                .filter(|&&to| to >= need && to < n)
+                .flat_map(|&to| [false, true].map(|reverse| Move { from, len: 1, to, reverse }))
                 .map(|mv| (delta(self.inst, &self.tour, &mv), mv))
                 .min_by(|a, b| a.0.total_cmp(&b.0));
             if let Some((d, mv)) = best {
@@ -542,6 +587,10 @@ impl<'a> Descent<'a> {
         }
     }
 }
+
+/// Broken rules few enough, once nothing else mends them, to try each of
+/// their cuts at every place of the route.
+const WIDE_REPAIR: usize = 8;
 
 /// Longest stretch a kick moves.
 const MAX_KICK: usize = 100;
@@ -648,11 +697,29 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
     let (mut insertion, first) = match &options.initial {
         Some(given) => (given.to_vec(), Start::Insertion),
         None => {
-            let insertion = insertion_in_order(inst, (options.seed > 1).then_some(options.seed));
-            let contour_order = contour_order_construction(inst);
-            (if inst.cost(&contour_order) < inst.cost(&insertion) { contour_order } else { insertion }, first)
+            // An insertion the time limit cuts short gives way to contour
+            // order (fast, feasible); one done as the time is up is taken
+            // as it is: the search must end in time.
+            let insertion = insertion_within(inst, (options.seed > 1).then_some(options.seed), cap);
+            let start = match insertion {
+                Some(insertion) if cap.reached() => insertion,
+                insertion => {
+                    let contour_order = contour_order_construction(inst);
+                    match insertion {
+                        Some(insertion) if inst.cost(&contour_order) >= inst.cost(&insertion) => insertion,
+                        _ => contour_order,
+                    }
+                }
+            };
+            (start, first)
         }
     };
+    // Out of time already: the start as it is (the neighbour lists and a
+    // descent on a large instance take a while).
+    if cap.reached() {
+        let cost = inst.cost(&insertion);
+        return SearchResult { route: insertion, cost, iterations: 0, time_to_best: began.elapsed(), start: first, stopped_by: cap.stop() };
+    }
     let mut s = Descent::new(inst, insertion.clone(), Neighbours::new(inst, options.neighbours));
     let mut best: Option<SearchResult> = None;
     let mut time_to_best = Duration::ZERO;
@@ -663,19 +730,20 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
     let budget = options.kicks.unwrap_or_else(|| default_kicks(inst.elements.len()));
     for round in 0.. {
         if round > 0 {
-            insertion = insertion_in_order(inst, Some(rng.random()));
+            let Some(fresh) = insertion_within(inst, Some(rng.random()), cap) else { break };
+            insertion = fresh;
             s.penalty = f64::INFINITY;
             s.reset_to(&insertion, inst.cost(&insertion));
             s.wake_all();
         }
-        if start == Start::Relaxed {
-            let share = options.relaxed_share.clamp(0.0, 1.0);
-            let relaxed = (budget.saturating_sub(iterations) as f64 * share) as u64;
-            // Under a time limit, the same share of the time left.
-            let relaxed_until = cap.remaining().map(|left| Instant::now() + left.mul_f64(share));
-            let in_share = || relaxed_until.is_none_or(|t| Instant::now() < t) && !cap.reached();
+        // (Out of time, neither the relaxed phase nor a descent begins.)
+        if start == Start::Relaxed && !cap.reached() {
+            let relaxed = (budget.saturating_sub(iterations) as f64 * options.relaxed_share.clamp(0.0, 1.0)) as u64;
             s.penalty = 0.0;
-            iterations += iterate(&mut s, &mut rng, restart_after, relaxed, |_| in_share());
+            // Under a time limit, a share of the time left at most, so that
+            // the mending and the search with rules have theirs.
+            let relaxed_cap = TimeCap::after(cap.remaining().map(|left| left.mul_f64(options.relaxed_share.clamp(0.0, 1.0))));
+            iterations += iterate(&mut s, &mut rng, restart_after, relaxed, |_| !relaxed_cap.reached() && !cap.reached());
             // Of the route and its reverse, the one breaking fewer rules.
             let forward = s.violations;
             s.reverse_route();
@@ -696,7 +764,7 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
                 iterations += iterate(&mut s, &mut rng, 0, steps, |_| !cap.reached());
                 penalty *= 2.0;
             }
-            let mended = s.repair();
+            let mended = s.repair(cap);
             s.penalty = f64::INFINITY;
             if !mended {
                 s.reset_to(&insertion, inst.cost(&insertion));
@@ -704,15 +772,17 @@ pub fn search_from(inst: &Instance, first: Start, options: &SearchOptions, cap: 
             s.wake_all();
         }
         let mut best_cost = best.as_ref().map_or(f64::INFINITY, |b| b.cost);
-        iterations += iterate(&mut s, &mut rng, restart_after, budget.saturating_sub(iterations), |found| {
-            if let Some(cost) = found.filter(|&c| c < best_cost - EPS) {
-                best_cost = cost;
-                time_to_best = began.elapsed();
-                since_best = 0;
-            }
-            since_best += KICKS_PER_CLOCK;
-            (options.max_stall == 0 || since_best < options.max_stall) && !cap.reached()
-        });
+        if !cap.reached() {
+            iterations += iterate(&mut s, &mut rng, restart_after, budget.saturating_sub(iterations), |found| {
+                if let Some(cost) = found.filter(|&c| c < best_cost - EPS) {
+                    best_cost = cost;
+                    time_to_best = began.elapsed();
+                    since_best = 0;
+                }
+                since_best += KICKS_PER_CLOCK;
+                (options.max_stall == 0 || since_best < options.max_stall) && !cap.reached()
+            });
+        }
         if best.as_ref().is_none_or(|b| s.cost < b.cost - EPS) {
             if best.is_none() {
                 time_to_best = began.elapsed();
@@ -872,4 +942,49 @@ mod tests {
         }
     }
 
+    /// A sheet's route searched without rules: many broken.
+    fn relaxed(target: usize, seed: u64) -> (Instance, Vec<Cut>) {
+        let inst = crate::gen::sheet::generate(&crate::gen::sheet::SheetParams::with_target(target), seed);
+        let mut s = Descent::new(&inst, super::super::construct::construct(&inst), Neighbours::new(&inst, 10));
+        s.penalty = 0.0;
+        iterate(&mut s, &mut rand_chacha::ChaCha8Rng::seed_from_u64(seed), 0, 3000, |_| true);
+        let route = s.tour.cuts.clone();
+        (inst, route)
+    }
+
+    #[test]
+    fn repair_mends_relaxed_routes_trying_few_places() {
+        let mut mended = 0;
+        for seed in 0..8 {
+            let (inst, route) = relaxed(600, seed);
+            let broken = check(&inst, &route).len();
+            assert!(broken > 3, "seed {seed}: the relaxed search broke {broken} rules");
+            let mut s = Descent::new(&inst, route, Neighbours::new(&inst, 10));
+            let ok = s.repair(&TimeCap::none());
+            assert!((s.cost - inst.cost(&s.tour.cuts)).abs() < 1e-6, "seed {seed}");
+            assert_eq!(s.violations, check(&inst, &s.tour.cuts).len(), "seed {seed}");
+            assert_eq!(ok, s.violations == 0, "seed {seed}");
+            mended += usize::from(ok);
+        }
+        assert!(mended >= 7, "{mended} of 8 mended");
+    }
+
+    #[test]
+    fn past_the_time_cap_the_mending_and_the_search_give_up_with_a_feasible_route() {
+        let (inst, route) = relaxed(600, 1);
+        let mut s = Descent::new(&inst, route, Neighbours::new(&inst, 10));
+        assert!(s.violations > 0);
+        let cap = TimeCap::after(Some(Duration::ZERO));
+        assert!(!s.repair(&cap));
+        assert_eq!(cap.stop(), SearchStop::TimeLimit);
+        // Both starts, the cap reached before anything: no insertion (cut
+        // short), contour order instead, no kicks, and every rule kept.
+        let inst = crate::gen::sheet::generate(&crate::gen::sheet::SheetParams::with_target(3000), 2);
+        for start in [Start::Relaxed, Start::Insertion] {
+            let cap = TimeCap::after(Some(Duration::ZERO));
+            let found = search_from(&inst, start, &SearchOptions::new(), &cap);
+            assert_eq!(check(&inst, &found.route), vec![], "{start:?}");
+            assert_eq!((found.iterations, found.stopped_by), (0, SearchStop::TimeLimit), "{start:?}");
+        }
+    }
 }

@@ -29,6 +29,7 @@ pub mod exact;
 pub mod ils;
 pub mod moves;
 pub mod model;
+mod order_list;
 pub mod tabu;
 
 use crate::config::SearchKind;
