@@ -207,3 +207,90 @@ fn polygon_area(points: &[Point]) -> f64 {
     let n = points.len();
     0.5 * (0..n).map(|i| points[i].x * points[(i + 1) % n].y - points[(i + 1) % n].x * points[i].y).sum::<f64>().abs()
 }
+
+#[test]
+fn a_common_cut_that_would_close_both_its_contours_gets_one_of_their_elements_after_it() {
+    // Two contours whose every element is a common cut, each around a
+    // hole: their common cuts, of the holes' neighbours' depth, may all
+    // come before the holes; the last one in then closes both wherever
+    // it goes after the holes. In this sheet, some shuffled orders get
+    // there: one of the two contours' other elements goes after it.
+    let inst = sheet::generate(&SheetParams::with_target(10000), 1);
+    let mut moved = 0;
+    for seed in 2..5 {
+        let (route, how) = crate::plan::ecp::construct::insert_all(&inst, Some(seed), &TimeCap::none()).unwrap();
+        assert_eq!(check(&inst, &route), vec![], "seed {seed}");
+        assert!(!how.fell_back, "seed {seed}");
+        moved += how.moved;
+    }
+    assert!(moved > 0, "the case came up");
+}
+
+#[test]
+fn the_insertion_on_sheets_is_feasible_and_as_cheap_as_trying_every_position() {
+    use crate::plan::ecp::construct::{insertion, tests::insertion_everywhere};
+    let (mut ours, mut reference) = (0.0, 0.0);
+    for (target, seed) in [(300, 1), (300, 2), (1500, 1), (3000, 3)] {
+        let inst = sheet::generate(&SheetParams::with_target(target), seed);
+        let (a, b) = (insertion(&inst), insertion_everywhere(&inst));
+        assert_eq!(check(&inst, &a), vec![], "sheet {target}-{seed}");
+        assert_eq!(check(&inst, &insertion_in_order(&inst, Some(7))), vec![], "sheet {target}-{seed}, shuffled");
+        let (a, b) = (inst.cost(&a), inst.cost(&b));
+        assert!(a <= 1.15 * b, "sheet {target}-{seed}: {a} against {b} trying every position");
+        ours += a;
+        reference += b;
+    }
+    assert!(ours <= 1.03 * reference, "sheets: {ours} against {reference} trying every position");
+}
+
+#[test]
+fn constructions_are_deterministic() {
+    use crate::plan::ecp::construct::insertion;
+    let inst = sheet::generate(&SheetParams::with_target(800), 5);
+    for build in [insertion as fn(&Instance) -> Vec<Cut>, contour_order_construction, construct] {
+        let route = build(&inst);
+        assert_eq!(check(&inst, &route), vec![]);
+        assert_eq!(build(&inst), route);
+    }
+    assert_eq!(insertion_in_order(&inst, Some(3)), insertion_in_order(&inst, Some(3)));
+}
+
+#[test]
+fn repair_mends_relaxed_sheet_routes_trying_few_places() {
+    use crate::plan::ecp::ils::{relaxed_route, repaired};
+    let mut mended = 0;
+    for seed in 0..8 {
+        let inst = sheet::generate(&SheetParams::with_target(600), seed);
+        let route = relaxed_route(&inst, seed, 3000);
+        let broken = check(&inst, &route).len();
+        assert!(broken > 3, "seed {seed}: the relaxed search broke {broken} rules");
+        let (ok, route, cost, violations) = repaired(&inst, route, &TimeCap::none());
+        assert!((cost - inst.cost(&route)).abs() < 1e-6, "seed {seed}");
+        assert_eq!(violations, check(&inst, &route).len(), "seed {seed}");
+        assert_eq!(ok, violations == 0, "seed {seed}");
+        mended += usize::from(ok);
+    }
+    assert!(mended >= 7, "{mended} of 8 mended");
+}
+
+#[test]
+fn past_the_time_cap_the_mending_and_the_search_give_up_with_a_feasible_route() {
+    use crate::plan::ecp::ils::{relaxed_route, repaired};
+    use crate::plan::stop::SearchStop;
+    use std::time::Duration;
+    let inst = sheet::generate(&SheetParams::with_target(600), 1);
+    let route = relaxed_route(&inst, 1, 3000);
+    assert!(!check(&inst, &route).is_empty());
+    let cap = TimeCap::after(Some(Duration::ZERO));
+    assert!(!repaired(&inst, route, &cap).0);
+    assert_eq!(cap.stop(), SearchStop::TimeLimit);
+    // Both starts, the cap reached before anything: no insertion (cut
+    // short), contour order instead, no kicks, and every rule kept.
+    let inst = sheet::generate(&SheetParams::with_target(3000), 2);
+    for start in [Start::Relaxed, Start::Insertion] {
+        let cap = TimeCap::after(Some(Duration::ZERO));
+        let found = search_from(&inst, start, &SearchOptions::new(), &cap);
+        assert_eq!(check(&inst, &found.route), vec![], "{start:?}");
+        assert_eq!((found.iterations, found.stopped_by), (0, SearchStop::TimeLimit), "{start:?}");
+    }
+}

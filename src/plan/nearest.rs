@@ -169,11 +169,18 @@ mod tests {
 
     #[test]
     fn the_tree_takes_the_order_of_the_scan() {
-        // A generated sheet (nested parts sharing edges: many vertices at the
-        // same place, so ties matter) with open paths of its own.
-        let sheet = crate::gen::sheet::generate(&crate::gen::sheet::SheetParams::with_target(1500), 3);
-        let outline = |c: &Vec<usize>| c.iter().map(|&e| sheet.elements[e].a).collect::<Vec<Point>>();
-        let mut geometries: Vec<Geometry> = sheet.contours.iter().map(|c| Geometry { arcs: Vec::new(), profile: Vec::new(), points: outline(c), closed: true, process: 0, source: String::new() }).collect();
+        // A grid of squares sharing edges, some with a hole (many vertices
+        // at the same place, so ties matter), with open paths of its own.
+        let mut geometries: Vec<Geometry> = Vec::new();
+        for i in 0..20 {
+            for k in 0..15 {
+                let (x, y) = (10.0 * i as f64, 10.0 * k as f64);
+                geometries.push(square(x, y, 10.0));
+                if (i + k) % 3 == 0 {
+                    geometries.push(square(x + 3.0, y + 3.0, 4.0));
+                }
+            }
+        }
         for k in 0..40 {
             let (x, y) = ((k * 37 % 400) as f64, (k * 53 % 300) as f64);
             geometries.push(Geometry { arcs: Vec::new(), profile: Vec::new(), points: vec![Point::new(x, y), Point::new(x + 5.0, y + 1.0), Point::new(x, y)], closed: false, process: 0, source: String::new() });

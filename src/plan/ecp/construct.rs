@@ -193,14 +193,14 @@ pub fn insertion_within(inst: &Instance, seed: Option<u64>, cap: &TimeCap) -> Op
 
 /// How an insertion went where the rules left an element no place.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-struct Insertion {
+pub(crate) struct Insertion {
     /// Elements moved after a common cut that would have closed both its contours.
-    moved: usize,
+    pub(crate) moved: usize,
     /// Whether it gave up for the nearest-neighbour construction.
-    fell_back: bool,
+    pub(crate) fell_back: bool,
 }
 
-fn insert_all(inst: &Instance, seed: Option<u64>, cap: &TimeCap) -> Option<(Vec<Cut>, Insertion)> {
+pub(crate) fn insert_all(inst: &Instance, seed: Option<u64>, cap: &TimeCap) -> Option<(Vec<Cut>, Insertion)> {
     let n = inst.elements.len();
     let rules = Rules::new(inst);
     let depth = contour_depths(inst);
@@ -570,7 +570,7 @@ fn contour_order(inst: &Instance) -> Vec<usize> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::plan::ecp::{checker::check, exact};
 
@@ -581,7 +581,7 @@ mod tests {
     /// Seed 001's insertion as it was first written: every position of the
     /// route tried (O(n) each, O(n²) in all), the reference the insertion's
     /// cost is held to.
-    fn insertion_everywhere(inst: &Instance) -> Vec<Cut> {
+    pub(crate) fn insertion_everywhere(inst: &Instance) -> Vec<Cut> {
         let n = inst.elements.len();
         let rules = Rules::new(inst);
         let depth = contour_depths(inst);
@@ -636,17 +636,14 @@ mod tests {
     }
 
     /// Instances the insertion is measured on: random ones of a few sizes
-    /// (elements scattered at random, contours of 2 to 6, pierce cost 3)
-    /// and generated sheets of nested parts with common cuts.
+    /// (elements scattered at random, contours of 2 to 6, pierce cost 3);
+    /// generated sheets in `gen::tests` (the generators come later).
     fn insertion_cases() -> Vec<(String, Instance)> {
         let mut cases = Vec::new();
         for (n, seeds) in [(40, 0..20u64), (200, 0..10), (1000, 0..4)] {
             for seed in seeds {
                 cases.push((format!("random {n} #{seed}"), crate::plan::ecp::random_instance(n, seed, 2..=6, 3.0)));
             }
-        }
-        for (target, seed) in [(300, 1), (300, 2), (1500, 1), (3000, 3)] {
-            cases.push((format!("sheets #{target}-{seed}"), crate::gen::sheet::generate(&crate::gen::sheet::SheetParams::with_target(target), seed)));
         }
         cases
     }
@@ -679,35 +676,6 @@ mod tests {
             assert!(count >= 2, "{kind}: {count} instances compared");
             assert!(a <= 1.03 * b, "{kind}: {a} against {b} trying every position");
         }
-    }
-
-    #[test]
-    fn a_common_cut_that_would_close_both_its_contours_gets_one_of_their_elements_after_it() {
-        // Two contours whose every element is a common cut, each around a
-        // hole: their common cuts, of the holes' neighbours' depth, may all
-        // come before the holes; the last one in then closes both wherever
-        // it goes after the holes. In this sheet, some shuffled orders get
-        // there: one of the two contours' other elements goes after it.
-        let inst = crate::gen::sheet::generate(&crate::gen::sheet::SheetParams::with_target(10000), 1);
-        let mut moved = 0;
-        for seed in 2..5 {
-            let (route, how) = insert_all(&inst, Some(seed), &TimeCap::none()).unwrap();
-            assert_eq!(check(&inst, &route), vec![], "seed {seed}");
-            assert!(!how.fell_back, "seed {seed}");
-            moved += how.moved;
-        }
-        assert!(moved > 0, "the case came up");
-    }
-
-    #[test]
-    fn constructions_are_deterministic() {
-        let inst = crate::gen::sheet::generate(&crate::gen::sheet::SheetParams::with_target(800), 5);
-        for build in [insertion as fn(&Instance) -> Vec<Cut>, contour_order_construction, construct] {
-            let route = build(&inst);
-            assert_eq!(check(&inst, &route), vec![]);
-            assert_eq!(build(&inst), route);
-        }
-        assert_eq!(insertion_in_order(&inst, Some(3)), insertion_in_order(&inst, Some(3)));
     }
 
     #[test]
