@@ -15,7 +15,8 @@
 //! * [`exact`]: the optimum of small instances (dynamic programming over
 //!   subsets and directions), the reference for the search's tests;
 //! * [`construct`]: feasible starting routes (nearest feasible, seed 001's
-//!   insertion) and dir-opt;
+//!   insertion, contour order) in O(n log n), and dir-opt; `order_list`: the
+//!   labelled list the insertion builds its route on;
 //! * [`moves`]: the moves of the searches, their O(1) cost changes and
 //!   feasibility from the moved run's contours;
 //! * [`ils`]: the default search (iterated local search with relaxed starts);
