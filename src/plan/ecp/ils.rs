@@ -88,8 +88,8 @@ fn contours_of_rule(rule: &Rule) -> (usize, usize) {
 /// Slack on neighbour-list pruning: TSPLIB rounding may make a link up to
 /// half a unit longer than the gap between two elements.
 const SLACK: f64 = 0.5;
-/// Longest stretch a 2-opt move reverses (longer reversals rarely keep the
-/// rules, and cost their length to apply).
+/// Longest stretch a 2-opt move reverses or a 3-opt move carries (longer
+/// ones rarely keep the rules, and cost their length to apply).
 const MAX_REVERSAL: usize = 1000;
 /// The same while broken rules cost a finite penalty.
 const MAX_PENALISED: usize = 50;
@@ -247,10 +247,11 @@ impl<'a> Descent<'a> {
         if self.penalty.is_infinite() {
             return (d < -EPS && feasible(self.inst, &self.rules, &self.tour, &mv)).then_some((mv, d));
         }
-        // A move pays for itself by air, or by mending rules: one at least
-        // (a move that mends several at once for more is rare, and not
+        // A move pays for itself by air, or by mending one broken rule at
+        // most (a move that mends several at once for more is rare, and not
         // worth judging every candidate's rules for).
-        if d - self.penalty.min(self.penalty * self.violations as f64) >= -EPS {
+        let mendable = if self.violations > 0 { self.penalty } else { 0.0 };
+        if d - mendable >= -EPS {
             return None;
         }
         let touches_broken = || mv.judged().any(|i| self.rules.contours_of[self.tour.cuts[i].element].iter().any(|&k| self.broken_at[k] > 0));
