@@ -5,9 +5,11 @@
 //!   links changed look again), over Or-opt runs of 1 to 3, 2-opt reversals and
 //!   3-opt (the stretch between an element and a neighbour, any length, moved
 //!   next to a neighbour of either of its ends, kept or reversed), each
-//!   generated from neighbour lists and cut short by the gain criterion: the
-//!   new link at an element must be shorter than the one it replaces. A
-//!   move's rules are judged from the shorter of the run and what it jumps.
+//!   generated from neighbour lists (the nearest, and the nearest in each
+//!   quadrant around each end: rows of holes need the links between rows)
+//!   and cut short by the gain criterion: the new link at an element must be
+//!   shorter than the one it replaces. A move's rules are judged from the
+//!   shorter of the run and what it jumps.
 //! * **Kicks**: a random double bridge (two neighbouring stretches of random,
 //!   log-uniform length swapped) that keeps every rule, then descent; the
 //!   result is kept if no worse than the best, else its moves are undone.
