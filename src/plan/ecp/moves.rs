@@ -244,7 +244,10 @@ impl Neighbours {
             // one a good route makes rarely (between clusters of parts), and
             // offered at every end it made the thermal search's cooled routes
             // slower (tests/thermal.rs: 100.5 s against the plain 93.3 s).
-            let reach = if list.len() == k { QUADRANT_REACH * list[k - 1].1 } else { f64::INFINITY };
+            let reach = match list.last() {
+                Some(&(_, kth)) if list.len() == k => QUADRANT_REACH * kth,
+                _ => f64::INFINITY,
+            };
             for end in [el.a, el.b] {
                 // Two sets of quadrants: split at the axes, and half-open
                 // turning about the end point; holes on a grid lie on the
@@ -336,8 +339,9 @@ mod tests {
 
     #[test]
     fn quadrant_lists_add_the_nearest_of_each_quadrant() {
-        // Two rows of points: the nearest all lie in a point's own row, the
-        // quadrant neighbours reach the other row, not a third far away.
+        // Three rows of points, two near each other and one far: the
+        // nearest all lie in a point's own row, the quadrant neighbours reach
+        // the near other row, never the far one.
         let mut inst = crate::plan::ecp::random_instance(60, 5, 2..=4, 0.0);
         for (i, e) in inst.elements.iter_mut().enumerate() {
             let p = crate::job::Point::new((i % 20) as f64, [0.0, 10.0, 100.0][i / 20]);
@@ -357,6 +361,9 @@ mod tests {
                 assert!(other_row >= 1, "element {x} has no neighbour in the other row: {:?}", quad.lists[x]);
             }
         }
+        // No nearest asked for: no bound either, the quadrants' own alone.
+        let alone = Neighbours::with_quadrants(&inst, 0, 1);
+        assert!(alone.lists.iter().all(|l| !l.is_empty() && l.len() <= 8));
     }
 
     #[test]
